@@ -1,0 +1,69 @@
+# plantdreamer developer commands. `make help` lists them.
+# Every target sets up what it needs from nothing: a fresh .venv, the Rust build, all deps.
+
+SHELL := bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-dev
+BENCH_STAMP := $(VENV)/.installed-bench
+PYTEST_ARGS ?=
+
+.PHONY: help setup build test test-rust test-python demo bench lint format clean
+
+help: ## List the developer commands
+	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | \
+		awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-12s\033[0m %s\n", $$1, $$2}'
+
+$(PY):
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+
+# pip builds the native module once (release) and installs every runtime + dev dependency.
+$(STAMP): pyproject.toml | $(PY)
+	$(PY) -m pip install --progress-bar off -e '.[dev]'
+	touch $@
+
+setup: $(STAMP) ## Create .venv with plantdreamer (editable) and its dev dependencies
+
+build: $(STAMP) ## Rebuild the native module in place (release profile)
+	$(VENV)/bin/maturin develop --release --skip-install
+
+test-rust: ## Run the Rust tests (no Python needed)
+	cargo test --workspace
+
+test-python: build ## Run the Python tests
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+test: test-rust test-python ## Set up everything, then run all Rust and Python tests
+
+demo: build ## Run the main job on its built-in defaults
+	$(VENV)/bin/plantdreamer info
+
+$(BENCH_STAMP): $(STAMP)
+	@# Open3D (comparison peer) needs these shared libraries; install them when we can.
+	@if ! ldconfig -p | grep -q libgomp.so.1 || ! ldconfig -p | grep -q libusb-1.0.so.0; then \
+		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1; \
+		else echo "note: install libusb-1.0-0 and libgomp1 for the Open3D comparison"; fi; fi
+	$(PY) -m pip install --progress-bar off -e '.[dev,bench]'
+	touch $@
+
+bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
+	$(PY) benches/run_all.py
+
+lint: $(STAMP) ## cargo fmt --check, clippy -D warnings, ruff
+	cargo fmt --all --check
+	cargo clippy --workspace --all-targets -- -D warnings
+	$(VENV)/bin/ruff check python tests benches scripts
+	$(VENV)/bin/ruff format --check python tests benches scripts
+
+format: $(STAMP) ## Format Rust and Python sources
+	cargo fmt --all
+	$(VENV)/bin/ruff format python tests benches scripts
+	$(VENV)/bin/ruff check --fix python tests benches scripts
+
+clean: ## Remove build outputs (keeps .venv)
+	cargo clean
+	rm -f python/plantdreamer/_core*.so

@@ -1,0 +1,33 @@
+//! Python bindings of `splat_core`, imported as `plantdreamer._core`.
+//!
+//! Each submodule converts arrays and errors for one area of the core and registers its
+//! functions; no math lives here.
+
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+mod errors;
+mod native;
+
+pub use errors::to_pyerr;
+pub use native::run_native;
+
+/// Build facts: versions, the rayon pool size, and whether this is an optimised build.
+#[pyfunction]
+fn info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("version", env!("CARGO_PKG_VERSION"))?;
+    d.set_item("core_version", splat_core::VERSION)?;
+    d.set_item("threads", splat_core::threads::default_threads())?;
+    d.set_item("debug_build", cfg!(debug_assertions))?;
+    Ok(d)
+}
+
+#[pymodule]
+#[pyo3(name = "_core")]
+fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    errors::register(m)?;
+    m.add_function(wrap_pyfunction!(info, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! The one error type of the core. Bindings map each variant to a Python exception.
+
+use std::path::PathBuf;
+
+pub type CoreResult<T> = Result<T, CoreError>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum CoreError {
+    /// The caller passed something unusable: wrong length, NaN where a number is needed,
+    /// a non-positive voxel size, too few points for the requested neighbours, ...
+    #[error("{0}")]
+    Input(String),
+
+    /// A PLY file is malformed, truncated, or lies in its header.
+    #[error("{path}: {message}")]
+    Ply { path: PathBuf, message: String },
+
+    /// An operating-system error while reading or writing `path`.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// A broken internal invariant. Never expected; reported instead of panicking.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl CoreError {
+    pub fn input(message: impl Into<String>) -> Self {
+        Self::Input(message.into())
+    }
+
+    pub fn ply(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Self::Ply {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.into(),
+            source,
+        }
+    }
+}
+
+/// Checks that a flat slice holds `n` rows of `width` values; names the argument on failure.
+pub fn check_len<T>(name: &str, data: &[T], n: usize, width: usize) -> CoreResult<()> {
+    let expected = n.checked_mul(width).ok_or_else(|| {
+        CoreError::input(format!(
+            "{name}: {n} rows of {width} overflow the address space"
+        ))
+    })?;
+    if data.len() != expected {
+        return Err(CoreError::input(format!(
+            "{name}: expected {n} x {width} = {expected} values, got {}",
+            data.len()
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn check_len_names_the_argument() {
+        let err = check_len("means", &[0.0f32; 5], 2, 3).unwrap_err();
+        assert_eq!(err.to_string(), "means: expected 2 x 3 = 6 values, got 5");
+        assert!(check_len("means", &[0.0f32; 6], 2, 3).is_ok());
+    }
+
+    #[test]
+    fn check_len_rejects_overflow() {
+        let err = check_len::<f32>("x", &[], usize::MAX, 3).unwrap_err();
+        assert!(err.to_string().contains("overflow"));
+    }
+
+    #[test]
+    fn io_error_keeps_path_and_kind() {
+        let err = CoreError::io(
+            "/nope.ply",
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        );
+        assert_eq!(err.to_string(), "/nope.ply: no such file");
+        match err {
+            CoreError::Io { source, .. } => assert_eq!(source.kind(), std::io::ErrorKind::NotFound),
+            _ => unreachable!(),
+        }
+    }
+}

@@ -1,0 +1,13 @@
+//! plantdreamer's compute core: pure Rust, no Python.
+//!
+//! Every public function takes plain slices (structure of arrays) and returns
+//! `Result<_, CoreError>`; the `pyplant` crate is the only place that knows about Python.
+#![forbid(unsafe_code)]
+
+pub mod error;
+pub mod threads;
+
+pub use error::{CoreError, CoreResult};
+
+/// Version of the core crate, reported by `plantdreamer info`.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");

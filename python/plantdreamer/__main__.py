@@ -1,0 +1,3 @@
+from plantdreamer.cli import main
+
+main()

@@ -1,0 +1,13 @@
+# Type stub of the native module built from crates/pyplant.
+# tests/test_stub.py runs mypy.stubtest against the compiled module: keep them in step.
+from typing import Any
+
+__all__ = ["InputError", "PlantDreamerError", "PlyError", "__version__", "info"]
+
+__version__: str
+
+class PlantDreamerError(Exception): ...
+class InputError(PlantDreamerError): ...
+class PlyError(PlantDreamerError): ...
+
+def info() -> dict[str, Any]: ...

@@ -1,0 +1,56 @@
+"""The ``plantdreamer`` command.
+
+Subcommands live in their own modules and are imported only when used, so ``--help`` stays
+fast (torch is not imported). Each module must keep its top-level imports light.
+To add a command: write ``cli/<name>.py`` exposing a click command and list it below.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from plantdreamer import __version__
+from plantdreamer.errors import PlantDreamerError
+
+# name -> "module:attribute". Only commands that work are listed here.
+COMMANDS: dict[str, str] = {
+    "info": "plantdreamer.cli.info:info",
+}
+
+
+class _LazyGroup(click.Group):
+    """Loads subcommands on demand and turns expected failures into one clear line."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        target = COMMANDS.get(cmd_name)
+        if target is None:
+            return None
+        module_name, attr = target.split(":")
+        return getattr(importlib.import_module(module_name), attr)
+
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except (PlantDreamerError, OSError) as exc:
+            # Expected failures (bad input, missing files or models): one line, exit 1.
+            click.secho(f"error: {exc}", err=True, fg="red")
+            ctx.exit(1)
+        except KeyboardInterrupt:
+            click.secho("interrupted", err=True, fg="yellow")
+            ctx.exit(130)
+
+
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "-V", "--version", prog_name="plantdreamer")
+def main() -> None:
+    """Turn plants into realistic 3D Gaussian Splatting models."""
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

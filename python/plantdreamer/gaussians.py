@@ -1,0 +1,124 @@
+"""``Gaussians``: a 3DGS model in its stored (unactivated) parameterisation.
+
+The fields match the INRIA 3DGS PLY layout one to one, so a file round-trips bit-exactly:
+log scales, opacity logits, unnormalised (w, x, y, z) quaternions and SH coefficients.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from plantdreamer.errors import InputError
+
+SH_C0 = 0.28209479177387814
+
+
+def sh_coeff_count(degree: int) -> int:
+    """Number of SH basis functions up to ``degree``: (degree + 1)^2."""
+    return (degree + 1) ** 2
+
+
+def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
+    """The degree-0 coefficient whose colour (0.5 + C0 * dc) is ``rgb``."""
+    return ((np.asarray(rgb, dtype=np.float32) - 0.5) / SH_C0).astype(np.float32)
+
+
+def sh_dc_to_rgb(dc: np.ndarray) -> np.ndarray:
+    return (0.5 + SH_C0 * np.asarray(dc, dtype=np.float32)).astype(np.float32)
+
+
+@dataclass
+class Gaussians:
+    """N Gaussians. Arrays are float32.
+
+    means: [N, 3] world positions.
+    quats: [N, 4] rotations as (w, x, y, z), not necessarily normalised.
+    log_scales: [N, 3] natural logs of the per-axis standard deviations.
+    opacity_logits: [N] logits of the opacities.
+    sh: [N, K, 3] SH coefficients, K = (d + 1)^2; ``sh[:, 0]`` is the PLY's f_dc.
+    """
+
+    means: np.ndarray
+    quats: np.ndarray
+    log_scales: np.ndarray
+    opacity_logits: np.ndarray
+    sh: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_degree(self) -> int:
+        return math.isqrt(self.sh.shape[1]) - 1
+
+    def validate(self) -> None:
+        """Raises InputError naming the first field whose shape is inconsistent."""
+        n = self.means.shape[0] if self.means.ndim == 2 else -1
+        expected = {
+            "means": (n, 3),
+            "quats": (n, 4),
+            "log_scales": (n, 3),
+            "opacity_logits": (n,),
+        }
+        for name, shape in expected.items():
+            value = getattr(self, name)
+            if not isinstance(value, np.ndarray) or value.shape != shape or n < 0:
+                got = list(value.shape) if isinstance(value, np.ndarray) else type(value).__name__
+                raise InputError(f"{name} must have shape {list(shape)}, got {got}")
+        k = self.sh.shape[1] if self.sh.ndim == 3 else -1
+        if (
+            self.sh.ndim != 3
+            or self.sh.shape[0] != n
+            or self.sh.shape[2] != 3
+            or k
+            not in (
+                1,
+                4,
+                9,
+                16,
+            )
+        ):
+            raise InputError(
+                f"sh must have shape [{n}, (d+1)^2, 3] with d in 0..3, got {list(self.sh.shape)}"
+            )
+
+    def scales(self) -> np.ndarray:
+        return np.exp(self.log_scales)
+
+    def opacities(self) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-self.opacity_logits))
+
+    def base_colors(self) -> np.ndarray:
+        """RGB of the degree-0 term (the colour seen from every direction)."""
+        return sh_dc_to_rgb(self.sh[:, 0])
+
+    def with_sh_degree(self, degree: int) -> Gaussians:
+        """A copy whose SH has exactly ``degree``: pads with zeros or truncates."""
+        if not 0 <= degree <= 3:
+            raise InputError(f"SH degree must be in 0..3, got {degree}")
+        k = sh_coeff_count(degree)
+        sh = np.zeros((len(self), k, 3), dtype=np.float32)
+        keep = min(k, self.sh.shape[1])
+        sh[:, :keep] = self.sh[:, :keep]
+        return Gaussians(
+            self.means.copy(),
+            self.quats.copy(),
+            self.log_scales.copy(),
+            self.opacity_logits.copy(),
+            sh,
+        )
+
+    def subset(self, index: np.ndarray) -> Gaussians:
+        return Gaussians(
+            self.means[index],
+            self.quats[index],
+            self.log_scales[index],
+            self.opacity_logits[index],
+            self.sh[index],
+        )

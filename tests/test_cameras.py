@@ -1,0 +1,70 @@
+"""Camera conventions: OpenCV world-to-camera, z-up orbits, OpenGL c2w round trips."""
+
+import numpy as np
+import pytest
+
+from plantdreamer.cameras import Camera, intrinsics_from_fovy, look_at, orbit, orbit_ring, stack
+from plantdreamer.errors import InputError
+
+
+def test_orbit_target_projects_to_image_centre():
+    cam = orbit(4.0, 15.0, 30.0, 70.0, 64, 48)
+    uv, z = cam.project(np.zeros((1, 3)))
+    np.testing.assert_allclose(uv[0], [32.0, 24.0], atol=1e-9)
+    np.testing.assert_allclose(z[0], 4.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(cam.position), 4.0)
+
+
+def test_azimuth_zero_looks_from_plus_x_and_up_is_up_in_the_image():
+    cam = orbit(5.0, 0.0, 0.0, 60.0, 100, 100)
+    np.testing.assert_allclose(cam.position, [5.0, 0.0, 0.0], atol=1e-9)
+    # A point above the target appears above the centre (smaller row index, y down).
+    uv, _ = cam.project(np.array([[0.0, 0.0, 1.0]]))
+    assert uv[0, 1] < 50.0
+    # Looking along -x with z up, the camera's right is +y (right-handed world).
+    uv, _ = cam.project(np.array([[0.0, 1.0, 0.0]]))
+    assert uv[0, 0] > 50.0
+
+
+def test_fovy_round_trip():
+    k = intrinsics_from_fovy(70.0, 200, 100)
+    cam = Camera(np.eye(4), k, 200, 100)
+    assert cam.fovy_deg == pytest.approx(70.0)
+
+
+def test_opengl_c2w_round_trip_and_projection():
+    cam = orbit(3.0, 40.0, -120.0, 50.0, 80, 60)
+    gl = cam.to_opengl_c2w()
+    # OpenGL cameras look along their -z axis: towards the target.
+    forward = -gl[:3, 2]
+    np.testing.assert_allclose(forward, -cam.position / np.linalg.norm(cam.position), atol=1e-9)
+    back = Camera.from_opengl_c2w(gl, cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], 80, 60)
+    np.testing.assert_allclose(back.viewmat, cam.viewmat, atol=1e-9)
+    p = np.array([[0.3, -0.2, 0.5]])
+    np.testing.assert_allclose(back.project(p)[0], cam.project(p)[0], atol=1e-9)
+
+
+def test_straight_down_view_is_well_defined():
+    vm = look_at([0.0, 0.0, 5.0])
+    assert np.isfinite(vm).all()
+    np.testing.assert_allclose(vm[:3, :3] @ vm[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def test_ring_and_stack():
+    cams = orbit_ring(8, 4.0, 15.0, 70.0, 32, 32)
+    viewmats, ks = stack(cams)
+    assert viewmats.shape == (8, 4, 4) and ks.shape == (8, 3, 3)
+    assert viewmats.dtype == np.float32
+    azimuths = [c.azimuth_deg for c in cams]
+    assert azimuths[0] == -180.0 and azimuths[-1] == pytest.approx(135.0)
+
+
+def test_bad_cameras_are_rejected():
+    with pytest.raises(InputError):
+        look_at([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    with pytest.raises(InputError):
+        intrinsics_from_fovy(0.0, 10, 10)
+    with pytest.raises(InputError):
+        stack([orbit(4, 0, 0, 60, 10, 10), orbit(4, 0, 0, 60, 20, 10)])
+    with pytest.raises(InputError):
+        Camera(np.full((4, 4), np.nan), np.eye(3), 10, 10)
