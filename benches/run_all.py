@@ -6,6 +6,7 @@ file beside it. This script only orders the sections under a common header.
 Run it through ``make bench`` so the native core is a release build.
 
     python benches/run_all.py [NAME ...]   # e.g. `pointcloud` runs benches/bench_pointcloud.py
+    python benches/run_all.py --collect    # only rebuild BENCHMARKS.md from results/*.md
 """
 
 from __future__ import annotations
@@ -39,7 +40,9 @@ def machine_line() -> str:
 def main(names: list[str]) -> int:
     RESULTS.mkdir(exist_ok=True)
     scripts = sorted(BENCHES.glob("bench_*.py"))
-    if names:
+    if names == ["--collect"]:
+        scripts = []
+    elif names:
         scripts = [s for s in scripts if s.stem.removeprefix("bench_") in names]
     failed = []
     for script in scripts:
