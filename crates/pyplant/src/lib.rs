@@ -6,6 +6,8 @@
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+mod arrays;
+mod culling;
 mod errors;
 mod native;
 
@@ -29,5 +31,6 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     errors::register(m)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
+    culling::register(m)?;
     Ok(())
 }

@@ -4,6 +4,7 @@
 //! `Result<_, CoreError>`; the `pyplant` crate is the only place that knows about Python.
 #![forbid(unsafe_code)]
 
+pub mod culling;
 pub mod error;
 pub mod threads;
 

@@ -17,7 +17,9 @@ from plantdreamer.errors import PlantDreamerError
 
 # name -> "module:attribute". Only commands that work are listed here.
 COMMANDS: dict[str, str] = {
+    "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
+    "render": "plantdreamer.cli.render:render",
 }
 
 

@@ -1,0 +1,59 @@
+"""``plantdreamer render``: images of any 3DGS PLY on the evaluation orbit."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.argument("ply", type=click.Path(dir_okay=False))
+@click.option(
+    "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
+)
+@click.option("--views", default=120, show_default=True)
+@click.option("--resolution", default=512, show_default=True)
+@click.option("--distance", default=4.0, show_default=True)
+@click.option(
+    "--elevation", default=15.0, show_default=True, help="Degrees above the ground plane."
+)
+@click.option("--fovy", default=70.0, show_default=True)
+@click.option("--background", default=0.75, show_default=True, help="Grey level behind the plant.")
+@click.option("--turntable/--no-turntable", default=True, show_default=True)
+def render(
+    ply: str,
+    out_dir: str,
+    views: int,
+    resolution: int,
+    distance: float,
+    elevation: float,
+    fovy: float,
+    background: float,
+    turntable: bool,
+) -> None:
+    """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
+
+    The model is framed as generate frames it: centred on its bounding box, longest side 4.
+    """
+    import torch
+
+    from plantdreamer.io import read_splat_ply
+    from plantdreamer.pipeline import outputs
+    from plantdreamer.pipeline.model import GaussianModel
+
+    model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
+    with torch.no_grad():
+        frames = outputs.render_orbit(
+            lambda cam: model.render([cam], background)[0][0].numpy(),
+            views,
+            distance,
+            elevation,
+            fovy,
+            resolution,
+        )
+    out = Path(out_dir)
+    outputs.write_renders(out, frames)
+    if turntable:
+        outputs.write_turntable(out / "turntable.gif", frames, 40)
+    click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")

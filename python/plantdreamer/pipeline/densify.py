@@ -1,0 +1,107 @@
+"""3DGS adaptive density control: clone small and split large Gaussians with large 2D-mean
+gradients, prune transparent ones. Deterministic for a given seed and step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from plantdreamer.pipeline.model import GaussianModel
+
+
+@dataclass
+class DensifyStats:
+    """Running mean of the view-space (NDC) 2D-mean gradient norm per Gaussian."""
+
+    grad_sum: torch.Tensor
+    count: torch.Tensor
+
+    @classmethod
+    def zeros(cls, n: int) -> DensifyStats:
+        return cls(torch.zeros(n, dtype=torch.float64), torch.zeros(n, dtype=torch.int64))
+
+    def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int):
+        """Adds one step's gradients. ``means2d_grad`` [C, N, 2] in pixels, ``radii`` [C, N...]."""
+        c = means2d_grad.shape[0]
+        # Pixel -> NDC units, as in 3DGS and gsplat (the 2e-4 threshold is in NDC units).
+        g = means2d_grad.detach().to(torch.float64).clone()
+        g[..., 0] *= width / 2.0 * c
+        g[..., 1] *= height / 2.0 * c
+        visible = radii.reshape(c, radii.shape[1], -1).amax(dim=-1) > 0
+        norms = torch.linalg.vector_norm(g, dim=-1) * visible
+        self.grad_sum += norms.sum(dim=0)
+        self.count += visible.sum(dim=0)
+
+    def mean(self) -> torch.Tensor:
+        return self.grad_sum / self.count.clamp(min=1)
+
+
+def densify_and_prune(
+    model: GaussianModel,
+    stats: DensifyStats,
+    grad_threshold: float,
+    split_scale: float,
+    prune_opacity: float,
+    max_gaussians: int,
+    generator: torch.Generator,
+) -> dict[str, int]:
+    """One densify-and-prune round; returns how many were cloned, split and pruned."""
+    p = model.params
+    n = len(model)
+    grads = stats.mean()
+    with torch.no_grad():
+        max_scale = torch.exp(p["log_scales"]).amax(dim=1)
+        selected = grads >= grad_threshold
+        budget = max(0, max_gaussians - n)
+        if int(selected.sum()) > budget:
+            # Keep the strongest gradients; stable order makes ties deterministic.
+            order = torch.argsort(grads.masked_fill(~selected, -1.0), descending=True, stable=True)
+            selected = torch.zeros_like(selected)
+            selected[order[:budget]] = True
+        clone = selected & (max_scale <= split_scale)
+        split = selected & (max_scale > split_scale)
+
+        new = {k: v.detach()[clone] for k, v in p.items()}
+        split_new = _split(p, split, generator)
+        for k in new:
+            new[k] = torch.cat([new[k], split_new[k]])
+        model.append(new)
+        # Remove the split originals (they are replaced by two smaller samples).
+        split_full = torch.cat([split, torch.zeros(len(model) - n, dtype=torch.bool)])
+        model.remove(split_full)
+
+        opacity = torch.sigmoid(model.params["opacity_logits"])
+        pruned = opacity < prune_opacity
+        model.remove(pruned)
+    return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(pruned.sum())}
+
+
+def _split(p: dict[str, torch.Tensor], mask: torch.Tensor, generator: torch.Generator):
+    """Two samples from each selected Gaussian, scales divided by 1.6 (3DGS rule)."""
+    if not bool(mask.any()):
+        return {k: v.detach()[mask] for k, v in p.items()}
+    means = p["means"].detach()[mask]
+    scales = torch.exp(p["log_scales"].detach()[mask])
+    quats = torch.nn.functional.normalize(p["quats"].detach()[mask], dim=-1)
+    rot = _quat_to_rotmat(quats)
+    samples = []
+    for _ in range(2):
+        noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * scales
+        samples.append(means + torch.einsum("nij,nj->ni", rot, noise))
+    out = {k: torch.cat([v.detach()[mask]] * 2) for k, v in p.items()}
+    out["means"] = torch.cat(samples)
+    out["log_scales"] = out["log_scales"] - torch.log(torch.tensor(1.6))
+    return out
+
+
+def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(-1, 3, 3)  # fmt: skip

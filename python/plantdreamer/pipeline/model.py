@@ -1,0 +1,137 @@
+"""The trainable 3DGS model: parameters, their Adam optimiser, and rendering.
+
+Densification and culling change the number of Gaussians; ``remove`` and ``append`` keep the
+optimiser state (exp_avg, exp_avg_sq) aligned with the parameters, as the 3DGS reference does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from plantdreamer.cameras import Camera, stack
+from plantdreamer.gaussians import Gaussians
+from plantdreamer.pipeline.config import LearningRates
+
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+
+
+class GaussianModel:
+    def __init__(self, gaussians: Gaussians, lr: LearningRates | None = None) -> None:
+        sh = torch.from_numpy(np.ascontiguousarray(gaussians.sh, dtype=np.float32))
+        tensors = {
+            "means": torch.from_numpy(gaussians.means.astype(np.float32)),
+            "quats": torch.from_numpy(gaussians.quats.astype(np.float32)),
+            "log_scales": torch.from_numpy(gaussians.log_scales.astype(np.float32)),
+            "opacity_logits": torch.from_numpy(gaussians.opacity_logits.astype(np.float32)),
+            "sh_dc": sh[:, :1].clone(),
+            "sh_rest": sh[:, 1:].clone(),
+        }
+        self.params = {k: torch.nn.Parameter(v.contiguous()) for k, v in tensors.items()}
+        self.sh_degree = gaussians.sh_degree
+        self.optimizer: torch.optim.Adam | None = None
+        if lr is not None:
+            rates = {
+                "means": lr.means,
+                "quats": lr.quats,
+                "log_scales": lr.scales,
+                "opacity_logits": lr.opacity,
+                "sh_dc": lr.sh_dc,
+                "sh_rest": lr.sh_rest,
+            }
+            self.optimizer = torch.optim.Adam(
+                [{"params": [self.params[k]], "lr": rates[k], "name": k} for k in PARAM_NAMES],
+                eps=lr.eps,
+            )
+
+    def __len__(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    def to_gaussians(self) -> Gaussians:
+        p = {k: v.detach().cpu().numpy() for k, v in self.params.items()}
+        return Gaussians(
+            p["means"].copy(),
+            p["quats"].copy(),
+            p["log_scales"].copy(),
+            p["opacity_logits"].copy(),
+            np.concatenate([p["sh_dc"], p["sh_rest"]], axis=1),
+        )
+
+    def render(
+        self,
+        cameras: Sequence[Camera],
+        background: float,
+        render_mode: str = "RGB",
+    ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+        """Renders [C, H, W, ch] images (and alphas, meta) through the native rasterizer."""
+        from plantdreamer.rasterization import rasterization
+
+        p = self.params
+        viewmats, ks = stack(cameras)
+        colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
+        bg = None
+        if "RGB" in render_mode:
+            bg = torch.full((len(cameras), 3), float(background))
+        return rasterization(
+            p["means"],
+            p["quats"],
+            torch.exp(p["log_scales"]),
+            torch.sigmoid(p["opacity_logits"]),
+            colors,
+            torch.from_numpy(viewmats),
+            torch.from_numpy(ks),
+            cameras[0].width,
+            cameras[0].height,
+            sh_degree=self.sh_degree,
+            backgrounds=bg,
+            render_mode=render_mode,
+        )
+
+    # -- changing the set of Gaussians -------------------------------------------------
+
+    def remove(self, mask: torch.Tensor) -> None:
+        """Drops the Gaussians where ``mask`` is True (and their optimiser state)."""
+        keep = ~mask
+        self._replace(lambda name, t: t[keep], lambda name, s: s[keep])
+
+    def append(self, new: dict[str, torch.Tensor]) -> None:
+        """Adds Gaussians (one tensor per parameter name); their optimiser state starts at 0."""
+        self._replace(
+            lambda name, t: torch.cat([t, new[name].to(t.dtype)]),
+            lambda name, s: torch.cat([s, torch.zeros_like(new[name], dtype=s.dtype)]),
+        )
+
+    def _replace(self, edit_param, edit_state) -> None:
+        for name in PARAM_NAMES:
+            old = self.params[name]
+            fresh = torch.nn.Parameter(edit_param(name, old.detach()).contiguous())
+            if self.optimizer is not None:
+                state = self.optimizer.state.pop(old, None)
+                group = next(g for g in self.optimizer.param_groups if g["name"] == name)
+                group["params"][0] = fresh
+                if state:
+                    state["exp_avg"] = edit_state(name, state["exp_avg"])
+                    state["exp_avg_sq"] = edit_state(name, state["exp_avg_sq"])
+                    self.optimizer.state[fresh] = state
+            self.params[name] = fresh
+
+    # -- checkpoints ---------------------------------------------------------------------
+
+    def state_dict(self) -> dict:
+        return {
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "sh_degree": self.sh_degree,
+            "optimizer": None if self.optimizer is None else self.optimizer.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        for name in PARAM_NAMES:
+            self.params[name] = torch.nn.Parameter(state["params"][name].clone())
+        self.sh_degree = int(state["sh_degree"])
+        if self.optimizer is not None:
+            for group in self.optimizer.param_groups:
+                group["params"][0] = self.params[group["name"]]
+            self.optimizer.state.clear()
+            self.optimizer.load_state_dict(state["optimizer"])

@@ -1,0 +1,108 @@
+"""What a run leaves in its output folder: the 3DGS PLY, renders, turntable, logs."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from plantdreamer.cameras import orbit_ring
+from plantdreamer.gaussians import Gaussians
+from plantdreamer.pipeline.checkpoint import atomic_write
+
+
+def to_input_frame(g: Gaussians, transform: Any) -> Gaussians:
+    """Undo the normalisation: positions and scales back in the input's units and place."""
+    log_factor = np.float32(math.log(float(transform.scale)))
+    return Gaussians(
+        np.asarray(transform.invert(g.means), dtype=np.float32),
+        g.quats.copy(),
+        (g.log_scales - log_factor).astype(np.float32),
+        g.opacity_logits.copy(),
+        g.sh.copy(),
+    )
+
+
+def to_scene_frame(g: Gaussians, size: float = 4.0) -> Gaussians:
+    """Centres a model on its bounding box and scales its longest side to ``size``."""
+    from plantdreamer.pointcloud import normalize
+
+    means, transform = normalize(g.means, size=size)
+    return Gaussians(
+        np.asarray(means, dtype=np.float32),
+        g.quats.copy(),
+        (g.log_scales + np.float32(math.log(float(transform.scale)))).astype(np.float32),
+        g.opacity_logits.copy(),
+        g.sh.copy(),
+    )
+
+
+def export_ply(path: Path, g: Gaussians, sh_degree: int | None) -> None:
+    """Writes the INRIA-layout PLY atomically (no partial file on failure)."""
+    from plantdreamer.io import write_splat_ply
+
+    atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree))
+
+
+def render_orbit(
+    render, n: int, distance: float, elevation_deg: float, fovy_deg: float, resolution: int
+) -> list[np.ndarray]:
+    """uint8 [H, W, 3] images of the evaluation orbit; ``render(camera) -> [H, W, 3] float``."""
+    frames = []
+    for cam in orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution):
+        image = np.asarray(render(cam), dtype=np.float32)
+        frames.append((np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
+    return frames
+
+
+def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
+    import imageio.v3 as iio
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for i, frame in enumerate(frames):
+        iio.imwrite(out_dir / f"view_{i:03d}.png", frame)
+
+
+def write_turntable(path: Path, frames: list[np.ndarray], count: int) -> None:
+    """An animated GIF of ``count`` frames evenly picked from the orbit renders."""
+    import imageio.v3 as iio
+
+    if not frames or count <= 0:
+        return
+    picks = np.linspace(0, len(frames), num=min(count, len(frames)), endpoint=False).astype(int)
+    atomic_write(
+        path,
+        lambda tmp: iio.imwrite(
+            tmp, np.stack([frames[i] for i in picks]), extension=".gif", duration=80, loop=0
+        ),
+    )
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    text = json.dumps(data, indent=2, sort_keys=False, default=_jsonable)
+    atomic_write(path, lambda tmp: tmp.write_text(text + "\n"))
+
+
+def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    if not rows:
+        return
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write(path, lambda tmp: tmp.write_text(buf.getvalue()))
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")

@@ -1,0 +1,147 @@
+"""Pipeline pieces that need no renderer: config, culling, checkpoints, Adam bookkeeping,
+densification."""
+
+import numpy as np
+import pytest
+import torch
+from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.gaussians import Gaussians
+from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from plantdreamer.pipeline.config import GenerateConfig, LearningRates
+from plantdreamer.pipeline.culling import large_gaussian_mask
+from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.init import initial_colors
+from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.sampler import CameraSampler
+
+
+def gaussians(n=50, seed=0, log_scale=-3.0):
+    rng = np.random.default_rng(seed)
+    f = np.float32
+    q = np.zeros((n, 4), f)
+    q[:, 0] = 1
+    return Gaussians(
+        rng.normal(size=(n, 3)).astype(f),
+        q,
+        np.full((n, 3), log_scale, f) + rng.normal(scale=0.05, size=(n, 3)).astype(f),
+        np.zeros(n, f),
+        rng.normal(size=(n, 1, 3)).astype(f),
+    )
+
+
+def test_config_round_trips_through_json_dict():
+    cfg = GenerateConfig(species="mint", seed=4, lr=LearningRates(means=1e-4))
+    back = GenerateConfig.from_dict(cfg.to_dict())
+    assert back == cfg
+    with pytest.raises(InputError, match="unknown config keys"):
+        GenerateConfig.from_dict({**cfg.to_dict(), "stepz": 3})
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"species": "bean", "pointcloud": "x.ply"}, {"species": "bean", "color_init": "red"}],
+)
+def test_config_rejects_bad_inputs(kwargs):
+    with pytest.raises(InputError):
+        GenerateConfig(**kwargs).validate()
+
+
+def test_culling_removes_exactly_the_planted_giants():
+    g = gaussians(400)
+    planted = [7, 123, 399]
+    g.log_scales[planted] = 0.5
+    mask, stats = large_gaussian_mask(torch.from_numpy(g.log_scales), 3.0)
+    assert torch.nonzero(mask).flatten().tolist() == planted
+    # The threshold is the paper's: mean + 3 std of V = ||exp(s)||.
+    v = np.linalg.norm(np.exp(g.log_scales.astype(np.float64)), axis=1)
+    assert stats["threshold"] == pytest.approx(v.mean() + 3 * v.std(ddof=1))
+
+
+def test_checkpoint_is_atomic_and_corruption_is_reported(tmp_path):
+    save_checkpoint(tmp_path, {"step": 3, "x": torch.arange(4)})
+    assert load_checkpoint(tmp_path)["step"] == 3
+    assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]  # no temp file left
+    (tmp_path / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="cannot read"):
+        load_checkpoint(tmp_path)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope")
+
+
+def test_remove_and_append_keep_adam_state_aligned():
+    model = GaussianModel(gaussians(10), LearningRates())
+    for p in model.params.values():
+        p.grad = torch.ones_like(p)
+    model.optimizer.step()
+    before = model.optimizer.state[model.params["means"]]["exp_avg"].clone()
+    mask = torch.zeros(10, dtype=torch.bool)
+    mask[[2, 5]] = True
+    model.remove(mask)
+    assert len(model) == 8
+    after = model.optimizer.state[model.params["means"]]["exp_avg"]
+    torch.testing.assert_close(after, before[~mask])
+    new = {k: v.detach()[:3].clone() for k, v in model.params.items()}
+    model.append(new)
+    assert len(model) == 11
+    state = model.optimizer.state[model.params["means"]]
+    assert not state["exp_avg"][8:].any() and state["exp_avg"].shape == (11, 3)
+    # The optimiser really optimises the new tensors.
+    for p in model.params.values():
+        p.grad = torch.ones_like(p)
+    old = model.params["means"].detach().clone()
+    model.optimizer.step()
+    assert not torch.equal(old, model.params["means"].detach())
+
+
+def test_densify_clones_small_splits_large_prunes_transparent():
+    g = gaussians(6, log_scale=-5.0)
+    g.log_scales[1] = np.log(0.2)  # large: split
+    g.opacity_logits[5] = -10.0  # transparent: pruned
+    model = GaussianModel(g, LearningRates())
+    stats = DensifyStats.zeros(6)
+    grad = torch.zeros(1, 6, 2)
+    grad[0, [0, 1], 0] = 1.0  # big 2D-mean gradient for Gaussians 0 and 1
+    stats.update(grad, torch.ones(1, 6, dtype=torch.int32), 64, 64)
+    counts = densify_and_prune(
+        model, stats, 2e-4, 0.04, 0.05, 1000, torch.Generator().manual_seed(0)
+    )
+    assert counts == {"cloned": 1, "split": 1, "pruned": 1}
+    # 6 + 1 clone + 2 split samples - 1 split original - 1 pruned
+    assert len(model) == 7
+    scales = torch.exp(model.params["log_scales"]).amax(dim=1)
+    assert torch.isclose(scales, torch.tensor(0.2 / 1.6)).sum() == 2
+
+
+def test_densify_respects_the_cap():
+    model = GaussianModel(gaussians(6, log_scale=-5.0), LearningRates())
+    stats = DensifyStats.zeros(6)
+    stats.update(torch.ones(1, 6, 2), torch.ones(1, 6, dtype=torch.int32), 64, 64)
+    densify_and_prune(model, stats, 2e-4, 0.04, 0.0, 8, torch.Generator().manual_seed(0))
+    assert len(model) == 8
+
+
+def test_colour_inits():
+    rng = np.random.default_rng(0)
+    rgb = np.full((4, 3), 0.3, np.float32)
+    assert (initial_colors(rgb, 4, "original", rng) == 0.3).all()
+    assert (initial_colors(rgb, 4, "black", rng) == 0).all()
+    assert (initial_colors(rgb, 4, "white", rng) == 1).all()
+    noise = initial_colors(rgb, 4, "noise", rng)
+    assert noise.shape == (4, 3) and 0 <= noise.min() and noise.max() <= 1 and noise.std() > 0
+    with pytest.raises(InputError):
+        initial_colors(rgb, 4, "purple", rng)
+
+
+def test_camera_sampler_is_seeded_and_resumable():
+    from plantdreamer.pipeline.config import CameraRanges
+
+    a = CameraSampler(CameraRanges(), 32, seed=1)
+    first = [a.sample() for _ in range(3)]
+    state = a.state()
+    nxt = a.sample()
+    b = CameraSampler(CameraRanges(), 32, seed=1)
+    assert np.array_equal(b.sample().viewmat, first[0].viewmat)
+    b.set_state(state)
+    assert np.array_equal(b.sample().viewmat, nxt.viewmat)
+    for cam in first:
+        assert 3.0 <= cam.distance <= 6.0 and -10.0 <= cam.elevation_deg <= 80.0
