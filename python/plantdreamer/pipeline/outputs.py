@@ -89,10 +89,12 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    if not rows:
-        return
+    """One row per trained step; columns are the union of the rows' keys, in first-seen order."""
+    fields = {"step": None, "loss": None, "gaussians": None}
+    for row in rows:
+        fields.update(dict.fromkeys(row))
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    writer = csv.DictWriter(buf, fieldnames=list(fields))
     writer.writeheader()
     writer.writerows(rows)
     atomic_write(path, lambda tmp: tmp.write_text(buf.getvalue()))
