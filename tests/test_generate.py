@@ -7,20 +7,13 @@ import signal
 import numpy as np
 import pytest
 from click.testing import CliRunner
+
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import ModelNotFoundError
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
 
-INRIA_SH0 = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"] + [
-    "scale_0",
-    "scale_1",
-    "scale_2",
-    "rot_0",
-    "rot_1",
-    "rot_2",
-    "rot_3",
-]
+INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
 
 
 def small(**kw):

@@ -4,6 +4,7 @@ densification."""
 import numpy as np
 import pytest
 import torch
+
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
