@@ -36,6 +36,7 @@ def run(cfg, guidance=None):
 def main() -> int:
     from plantdreamer.guidance import StableDiffusionDepthGuidance
     from plantdreamer.guidance.tiny import tiny_models
+
     from plantdreamer.pipeline import GenerateConfig
 
     rows = []
