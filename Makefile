@@ -39,8 +39,11 @@ test-python: build ## Run the Python tests
 
 test: test-rust test-python ## Set up everything, then run all Rust and Python tests
 
-demo: build ## Run the main job on its built-in defaults
+DEMO_OUT ?= out/demo
+
+demo: build ## Run the main job on its built-in defaults (bean, no diffusion weights needed)
 	$(VENV)/bin/plantdreamer info
+	$(VENV)/bin/plantdreamer generate --species bean --guidance none --out $(DEMO_OUT)
 
 $(BENCH_STAMP): $(STAMP)
 	@# Open3D (comparison peer) needs these shared libraries; install them when we can.
