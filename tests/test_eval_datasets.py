@@ -124,7 +124,7 @@ def test_transforms_round_trip_of_orbit_cameras(tmp_path):
     )
     loaded = load_dataset(tmp_path)
     pts = np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3))
-    for cam, frame in zip(cams, loaded):
+    for cam, frame in zip(cams, loaded, strict=True):
         np.testing.assert_allclose(frame.camera.viewmat, cam.viewmat, atol=1e-12)
         np.testing.assert_allclose(frame.camera.project(pts)[0], cam.project(pts)[0], atol=1e-9)
 
@@ -186,9 +186,9 @@ def test_missing_files_and_bad_metadata_are_clear(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "transforms_test.json").write_text("{}")
-    with pytest.raises(InputError, match="transforms_test.json"):
+    with pytest.raises(InputError, match=r"transforms_test\.json"):
         load_dataset(empty)
-    with pytest.raises(FileNotFoundError, match="transforms_test.json"):
+    with pytest.raises(FileNotFoundError, match=r"transforms_test\.json"):
         load_transforms_json(empty)
     root = _write_json(
         tmp_path / "d",
@@ -244,7 +244,7 @@ def test_distortion_and_fisheye_in_transforms(tmp_path):
     with pytest.warns(UserWarning, match="distortion"):
         load_transforms_json(tmp_path)
     _write_json(tmp_path, {**meta, "camera_model": "OPENCV_FISHEYE"})
-    with pytest.raises(InputError, match="fisheye|pinhole"):
+    with pytest.raises(InputError, match=r"fisheye|pinhole"):
         load_transforms_json(tmp_path)
 
 
@@ -301,12 +301,17 @@ def test_colmap_and_opengl_describe_the_same_camera(tmp_path):
     # COLMAP: world-to-camera OpenCV as a quaternion + t.
     r = cam.viewmat[:3, :3]
     qw = math.sqrt(max(0.0, 1 + np.trace(r))) / 2
-    qx, qy, qz = (r[2, 1] - r[1, 2]) / (4 * qw), (r[0, 2] - r[2, 0]) / (4 * qw), (r[1, 0] - r[0, 1]) / (4 * qw)
+    qx, qy, qz = (
+        (r[2, 1] - r[1, 2]) / (4 * qw),
+        (r[0, 2] - r[2, 0]) / (4 * qw),
+        (r[1, 0] - r[0, 1]) / (4 * qw),
+    )
     np.testing.assert_allclose(quat_to_rotation(qw, qx, qy, qz), r, atol=1e-12)
-    t = cam.viewmat[:3, 3]
+    qw, qx, qy, qz = (float(q) for q in (qw, qx, qy, qz))
+    t = [float(x) for x in cam.viewmat[:3, 3]]
     _save_rgb(tmp_path / "colmap" / "images" / "v.png")
-    k = cam.K
-    cams = f"1 PINHOLE {W} {H} {k[0, 0]!r} {k[1, 1]!r} {k[0, 2]!r} {k[1, 2]!r}\n"
+    k = cam.K.tolist()
+    cams = f"1 PINHOLE {W} {H} {k[0][0]!r} {k[1][1]!r} {k[0][2]!r} {k[1][2]!r}\n"
     imgs = f"1 {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 v.png\n\n"
     from_colmap = load_colmap_text(_colmap(tmp_path / "colmap", cams, imgs))[0].camera
     # nerfstudio: OpenGL camera-to-world.
@@ -314,10 +319,10 @@ def test_colmap_and_opengl_describe_the_same_camera(tmp_path):
     _write_json(
         tmp_path / "ns",
         {
-            "fl_x": k[0, 0],
-            "fl_y": k[1, 1],
-            "cx": k[0, 2],
-            "cy": k[1, 2],
+            "fl_x": k[0][0],
+            "fl_y": k[1][1],
+            "cx": k[0][2],
+            "cy": k[1][2],
             "frames": [{"file_path": "v.png", "transform_matrix": cam.to_opengl_c2w().tolist()}],
         },
     )
@@ -329,7 +334,10 @@ def test_colmap_and_opengl_describe_the_same_camera(tmp_path):
 def test_colmap_radial_models_warn_and_fisheye_is_rejected(tmp_path):
     _save_rgb(tmp_path / "images" / "v.png")
     imgs = "1 1 0 0 0 0 0 4 1 v.png\n\n"
-    for line in (f"1 SIMPLE_RADIAL {W} {H} 50 20 15 0.01", f"1 OPENCV {W} {H} 50 50 20 15 0.1 0 0 0"):
+    for line in (
+        f"1 SIMPLE_RADIAL {W} {H} 50 20 15 0.01",
+        f"1 OPENCV {W} {H} 50 50 20 15 0.1 0 0 0",
+    ):
         _colmap(tmp_path, line + "\n", imgs)
         with pytest.warns(UserWarning, match="distortion"):
             (f,) = load_colmap_text(tmp_path)
@@ -350,7 +358,7 @@ def test_colmap_errors(tmp_path):
     with pytest.raises(InputError, match="camera 9"):
         load_colmap_text(tmp_path)
     _colmap(tmp_path, CAMERAS_TXT, "1 1 0 0 0 0 0 4 1 missing.png\n\n")
-    with pytest.raises(FileNotFoundError, match="missing.png"):
+    with pytest.raises(FileNotFoundError, match=r"missing\.png"):
         load_colmap_text(tmp_path)
     _colmap(tmp_path, f"1 PINHOLE {W} {H} 50 20\n", "")
     with pytest.raises(InputError, match="4 parameters"):
@@ -362,3 +370,31 @@ def test_colmap_errors(tmp_path):
     _colmap(tmp_path, CAMERAS_TXT, "# nothing\n")
     with pytest.raises(InputError, match="no images"):
         load_colmap_text(tmp_path)
+
+
+def test_image_modes(tmp_path):
+    from plantdreamer.eval.images import read_mask, read_rgba
+
+    gray = np.arange(H * W, dtype=np.uint8).reshape(H, W)
+    Image.fromarray(gray, "L").save(tmp_path / "l.png")
+    rgb, alpha = read_rgba(tmp_path / "l.png")
+    np.testing.assert_array_equal(rgb[..., 1], gray / np.float32(255.0))
+    assert alpha is None
+    Image.fromarray(np.dstack([gray, 255 - gray]), "LA").save(tmp_path / "la.png")
+    rgb, alpha = read_rgba(tmp_path / "la.png")
+    np.testing.assert_allclose(alpha, (255 - gray) / 255.0, atol=1e-7)
+    deep = (np.arange(H * W, dtype=np.uint16).reshape(H, W) * 50).astype(np.uint16)
+    Image.fromarray(deep).save(tmp_path / "i16.png")
+    rgb, alpha = read_rgba(tmp_path / "i16.png")
+    np.testing.assert_allclose(rgb[..., 0], deep / 65535.0, atol=1e-7)
+    pal = Image.fromarray(gray % 4, "L").convert("P")
+    pal.save(tmp_path / "p.png")
+    assert read_rgba(tmp_path / "p.png")[0].shape == (H, W, 3)
+    np.testing.assert_array_equal(read_mask(tmp_path / "l.png"), gray != 0)
+    rgb_mask = np.zeros((H, W, 3), np.uint8)
+    rgb_mask[2, 3] = [0, 0, 9]  # a colour mask: grayscale non-zero
+    Image.fromarray(rgb_mask).save(tmp_path / "m.png")
+    assert read_mask(tmp_path / "m.png").sum() == 1
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    with pytest.raises(InputError, match="cannot read image"):
+        read_rgba(tmp_path / "junk.png")

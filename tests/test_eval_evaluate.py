@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 from PIL import Image
+
 from eval_synthetic import (
     have_rasterizer,
     perturbed,
@@ -16,7 +17,6 @@ from eval_synthetic import (
     synthetic_plant,
     write_transforms_dataset,
 )
-
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.eval import PSNR_MAX_DB, evaluate, load_dataset
@@ -120,7 +120,9 @@ def test_evaluate_bookkeeping_with_a_fake_renderer(tmp_path):
         return rgb, (f.mask if f.mask is not None else np.ones(rgb.shape[:2])).astype(np.float32)
 
     seen = []
-    result = evaluate(plant, frames, BG, render=fake, keep_views=2, on_frame=lambda i, m: seen.append(i))
+    result = evaluate(
+        plant, frames, BG, render=fake, keep_views=2, on_frame=lambda i, m: seen.append(i)
+    )
     assert seen == [0, 1, 2, 3, 4]
     names = [m.name for m in result.frames]
     assert names == [f"view_{i:03d}" for i in range(5)]
@@ -147,7 +149,9 @@ def test_evaluate_rejects_bad_input_and_bad_renders(tmp_path):
         evaluate(plant, frames, (1.0, 0.0), render=render_dense)
 
     def nan_render(_g, cam, _bg):
-        return np.full((cam.height, cam.width, 3), np.nan, np.float32), np.zeros((cam.height, cam.width), np.float32)
+        return np.full((cam.height, cam.width, 3), np.nan, np.float32), np.zeros(
+            (cam.height, cam.width), np.float32
+        )
 
     with pytest.raises(PlantDreamerError, match="NaN"):
         evaluate(plant, frames, BG, render=nan_render)

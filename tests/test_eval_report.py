@@ -5,6 +5,8 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from PIL import Image
+
 from eval_synthetic import (
     have_rasterizer,
     render_dense,
@@ -12,8 +14,6 @@ from eval_synthetic import (
     write_inria_ply,
     write_transforms_dataset,
 )
-from PIL import Image
-
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.cli import main
 from plantdreamer.cli.eval import parse_background
@@ -53,7 +53,9 @@ def test_json_report_is_strict_and_complete(tmp_path, result):
 
 
 def test_markdown_report(tmp_path, result):
-    path = write_markdown(result, tmp_path / "r.md", title="T", strip="r_strip.png", details={"model": "m.ply"})
+    path = write_markdown(
+        result, tmp_path / "r.md", title="T", strip="r_strip.png", details={"model": "m.ply"}
+    )
     text = path.read_text()
     assert text.startswith("# T\n")
     assert f"| masked PSNR (dB) | {result.mean['masked_psnr']:.2f} | 2 |" in text
@@ -128,11 +130,17 @@ def _have_ply_io() -> bool:
 )
 def test_eval_command_end_to_end(tmp_path):
     from plantdreamer.eval.evaluate import render_view
+
     plant = synthetic_plant()
-    write_transforms_dataset(tmp_path / "ds", plant, orbit_ring(3, 3.2, 20.0, 50.0, 48, 48), render_view, BG)
+    write_transforms_dataset(
+        tmp_path / "ds", plant, orbit_ring(3, 3.2, 20.0, 50.0, 48, 48), render_view, BG
+    )
     write_inria_ply(tmp_path / "m.ply", plant)
     out = tmp_path / "rep" / "report.md"
-    res = CliRunner().invoke(main, ["eval", str(tmp_path / "m.ply"), "--dataset", str(tmp_path / "ds"), "--out", str(out)])
+    res = CliRunner().invoke(
+        main,
+        ["eval", str(tmp_path / "m.ply"), "--dataset", str(tmp_path / "ds"), "--out", str(out)],
+    )
     assert res.exit_code == 0, res.output
     data = json.loads(out.with_suffix(".json").read_text())
     assert data["mean"]["masked_psnr"] > 40.0 and data["mean"]["mask_iou"] > 0.99

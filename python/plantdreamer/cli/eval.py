@@ -42,9 +42,7 @@ def parse_background(value: str) -> tuple[float, float, float]:
     show_default=True,
     help="Render background R,G,B in [0, 1]; RGBA images are composited over it too.",
 )
-@click.option(
-    "--strip-views", default=4, show_default=True, help="Views shown in the image strip."
-)
+@click.option("--strip-views", default=4, show_default=True, help="Views shown in the image strip.")
 def eval_command(ply: Path, dataset: Path, out: Path, background: str, strip_views: int) -> None:
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
     from plantdreamer.eval import FrameMetrics, evaluate, load_dataset

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class EvalResult:
         }
 
 
-def _rasterization() -> Callable[..., tuple[object, object, object]]:
+def _rasterization() -> Callable[..., Any]:
     try:
         from plantdreamer.rasterization import rasterization
     except ImportError as exc:
@@ -120,8 +121,8 @@ def render_view(
             backgrounds=tensor(np.asarray([background])),
             render_mode="RGB",
         )
-    rgb = colors[0].detach().cpu().numpy()  # type: ignore[attr-defined]
-    alpha = alphas[0, ..., 0].detach().cpu().numpy()  # type: ignore[call-overload]
+    rgb = colors[0].detach().cpu().numpy()
+    alpha = alphas[0, ..., 0].detach().cpu().numpy()
     return rgb, alpha
 
 

@@ -34,8 +34,9 @@ def read_rgba(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
-            im.load()
+        with Image.open(path) as opened:
+            opened.load()
+            im: Image.Image = opened
             mode = im.mode
             if mode == "P":
                 im = im.convert("RGBA" if "transparency" in im.info else "RGB")

@@ -107,11 +107,13 @@ def write_image_strip(views: Sequence[View], path: str | Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     h, w = views[0].ground_truth.shape[:2]
     panel = 3.2
-    fig = Figure(figsize=(3 * panel + 0.6, len(views) * panel * h / w + 0.5), dpi=100)
+    fig = Figure(
+        figsize=(3 * panel + 0.8, len(views) * (panel * h / w + 0.3)), dpi=100, layout="compressed"
+    )
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(views), 3, squeeze=False)
     image = None
-    for row, view in zip(axes, views):
+    for row, view in zip(axes, views, strict=True):
         m = view.metrics
         score = f"masked PSNR {_fmt(m.masked_psnr)} dB" if m.masked_psnr is not None else ""
         row[0].imshow(np.clip(view.ground_truth, 0.0, 1.0))
@@ -126,6 +128,7 @@ def write_image_strip(views: Sequence[View], path: str | Path) -> Path:
         row[2].set_title(f"RMS error  {score}", fontsize=8)
         for ax in row:
             ax.set_axis_off()
+    assert image is not None
     fig.colorbar(image, ax=axes[:, 2].tolist(), fraction=0.05, shrink=0.8, label="RMS error")
     fig.savefig(out)
     return out
