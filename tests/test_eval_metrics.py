@@ -103,15 +103,15 @@ def test_empty_mask_and_bad_shapes_raise():
 def test_ssim_identical_is_one_and_full_mask_matches_torchmetrics():
     gt = _image(8)
     full = np.ones(gt.shape[:2], bool)
-    assert masked_ssim(gt, gt, full) == pytest.approx(1.0, abs=1e-12)
+    assert masked_ssim(gt, gt, full) == pytest.approx(1.0, abs=1e-6)
     pred = np.clip(gt + np.random.default_rng(9).normal(0, 0.1, gt.shape), 0, 1)
     ours = masked_ssim(pred, gt, full)
     # torchmetrics' own mean crops the reflect-padded border; compare with its full map mean.
-    to_t = lambda a: torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)))[None].double()  # noqa: E731
+    to_t = lambda a: torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)))[None].float()  # noqa: E731
     _, ssim_map = structural_similarity_index_measure(
         to_t(pred), to_t(gt), data_range=1.0, return_full_image=True
     )
-    assert ours == pytest.approx(float(ssim_map.mean()), abs=1e-9)
+    assert ours == pytest.approx(float(ssim_map.mean()), abs=1e-6)
     assert 0.0 < ours < 1.0
 
 
@@ -123,7 +123,7 @@ def test_ssim_ignores_corruption_outside_the_mask():
     before = masked_ssim(pred, gt, mask)
     corrupted = pred.copy()
     corrupted[~mask] = 0.0
-    assert masked_ssim(corrupted, gt, mask) == pytest.approx(before, abs=1e-12)
+    assert masked_ssim(corrupted, gt, mask) == before
     worse = pred.copy()
     worse[mask] = 1.0 - worse[mask]
     assert masked_ssim(worse, gt, mask) < before - 0.2
