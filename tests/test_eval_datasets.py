@@ -351,6 +351,21 @@ def test_colmap_radial_models_warn_and_fisheye_is_rejected(tmp_path):
         load_colmap_text(tmp_path)
 
 
+def test_colmap_points_lines_may_be_missing(tmp_path):
+    _save_rgb(tmp_path / "images" / "a.png")
+    _save_rgb(tmp_path / "images" / "0002.png", seed=1)  # listed without extension
+    _save_rgb(tmp_path / "images" / "c.png", seed=2)
+    images = (
+        "1 1 0 0 0 0 0 4 1 a.png\n"  # no points line at all
+        "2 1 0 0 0 0 0 5 1 0002\n"
+        "1.0 2.0 7 3.0 4.0 -1\n"  # two points
+        "3 1 0 0 0 0 0 6 2 c.png\n"
+    )
+    frames = load_colmap_text(_colmap(tmp_path, CAMERAS_TXT, images))
+    assert [f.name for f in frames] == ["0002", "a", "c"]
+    assert [f.camera.viewmat[2, 3] for f in frames] == [5.0, 4.0, 6.0]
+
+
 def test_colmap_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="COLMAP"):
         load_colmap_text(tmp_path)

@@ -250,6 +250,17 @@ def quat_to_rotation(qw: float, qx: float, qy: float, qz: float) -> np.ndarray:
     )
 
 
+def _is_points_line(line: str) -> bool:
+    parts = line.split()
+    if len(parts) % 3:
+        return False
+    try:
+        [float(x) for x in parts]
+    except ValueError:
+        return False
+    return True
+
+
 def _colmap_model_dir(root: Path) -> Path | None:
     for d in (root, root / "sparse" / "0", root / "sparse"):
         if (d / "cameras.txt").is_file() and (d / "images.txt").is_file():
@@ -290,7 +301,9 @@ def load_colmap_text(path: str | Path) -> list[Frame]:
         except ValueError as exc:
             raise InputError(f"{where}: {exc}") from exc
         file_name = " ".join(parts[9:])
-        i += 2  # the next line lists the image's 2D points (possibly empty)
+        # The next line lists the image's 2D points as (X, Y, POINT3D_ID) triples, possibly
+        # empty. Hand-written files sometimes leave it out: then the next line is an image.
+        i += 2 if i + 1 < len(lines) and _is_points_line(lines[i + 1]) else 1
         if cam_id not in cameras:
             raise InputError(f"{where}: camera {cam_id} is not in cameras.txt")
         k, width, height = cameras[cam_id]
@@ -313,7 +326,8 @@ def load_colmap_text(path: str | Path) -> list[Frame]:
 
 
 def load_dataset(path: str | Path) -> list[Frame]:
-    """Frames of a dataset directory: ``transforms.json`` (or a ``.json`` file) or COLMAP text."""
+    """Frames of a dataset: a directory with ``transforms.json`` or a COLMAP text model, or the
+    ``.json`` file itself (e.g. ``transforms_test.json``)."""
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"dataset not found: {p}")
