@@ -11,11 +11,12 @@ from PIL import Image
 
 from plantdreamer.cameras import orbit
 from plantdreamer.errors import InputError
+from plantdreamer.eval.colmap import quat_to_rotation
 from plantdreamer.eval.datasets import (
     load_colmap_text,
     load_dataset,
     load_transforms_json,
-    quat_to_rotation,
+    scan_dataset,
 )
 
 W, H = 40, 30
@@ -413,3 +414,31 @@ def test_image_modes(tmp_path):
     (tmp_path / "junk.png").write_bytes(b"not an image")
     with pytest.raises(InputError, match="cannot read image"):
         read_rgba(tmp_path / "junk.png")
+
+
+def test_scan_reads_no_pixels_until_load(tmp_path):
+    alpha = np.zeros((H, W), np.uint8)
+    alpha[4:9, 4:9] = 200
+    _save_rgb(tmp_path / "a.png", alpha=alpha)
+    _save_rgb(tmp_path / "b.png", seed=1)
+    (tmp_path / "masks").mkdir()
+    Image.fromarray(np.full((H, W - 1), 255, np.uint8)).save(tmp_path / "masks" / "b.png")
+    pose = _gl_pose()
+    _write_json(
+        tmp_path,
+        {
+            "fl_x": 50.0,
+            "frames": [{"file_path": f"{n}.png", "transform_matrix": pose} for n in "ab"],
+        },
+    )
+    a_src, b_src = scan_dataset(tmp_path)
+    assert a_src.mask_path is None and b_src.mask_path == tmp_path / "masks" / "b.png"
+    a = a_src.load()
+    np.testing.assert_array_equal(a.mask, alpha != 0)
+    assert a.image.shape == (H, W, 3) and a.alpha is not None
+    with pytest.raises(InputError, match="mask"):
+        b_src.load()  # the mask file is one pixel narrower than its image
+    # The image changed size between scan and load: caught, not silently mis-scored.
+    Image.fromarray(np.zeros((H + 2, W, 3), np.uint8)).save(tmp_path / "a.png")
+    with pytest.raises(InputError, match="camera is 40x30"):
+        a_src.load()

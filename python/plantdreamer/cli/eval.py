@@ -45,13 +45,13 @@ def parse_background(value: str) -> tuple[float, float, float]:
 @click.option("--strip-views", default=4, show_default=True, help="Views shown in the image strip.")
 def eval_command(ply: Path, dataset: Path, out: Path, background: str, strip_views: int) -> None:
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
-    from plantdreamer.eval import FrameMetrics, evaluate, load_dataset
+    from plantdreamer.eval import FrameMetrics, evaluate, scan_dataset
     from plantdreamer.eval.report import write_image_strip, write_json, write_markdown
 
     bg = parse_background(background)
     if not ply.is_file():
         raise FileNotFoundError(f"model not found: {ply}")
-    frames = load_dataset(dataset)
+    frames = scan_dataset(dataset)  # images are read one at a time during evaluation
     try:
         from plantdreamer.io import read_splat_ply
     except ImportError as exc:

@@ -6,8 +6,16 @@ Heavy imports (torch, matplotlib) happen inside the functions that need them.
 
 from __future__ import annotations
 
-from plantdreamer.eval.datasets import Frame, load_colmap_text, load_dataset, load_transforms_json
+from plantdreamer.eval.datasets import (
+    load_colmap_text,
+    load_dataset,
+    load_transforms_json,
+    scan_colmap_text,
+    scan_dataset,
+    scan_transforms_json,
+)
 from plantdreamer.eval.evaluate import DEFAULT_BACKGROUND, EvalResult, FrameMetrics, evaluate
+from plantdreamer.eval.frames import Frame, FrameSource
 from plantdreamer.eval.metrics import PSNR_MAX_DB, mask_iou, masked_psnr, masked_ssim, psnr
 
 __all__ = [
@@ -16,6 +24,7 @@ __all__ = [
     "EvalResult",
     "Frame",
     "FrameMetrics",
+    "FrameSource",
     "evaluate",
     "load_colmap_text",
     "load_dataset",
@@ -24,4 +33,7 @@ __all__ = [
     "masked_psnr",
     "masked_ssim",
     "psnr",
+    "scan_colmap_text",
+    "scan_dataset",
+    "scan_transforms_json",
 ]

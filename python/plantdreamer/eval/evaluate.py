@@ -11,7 +11,7 @@ import numpy as np
 from plantdreamer.cameras import Camera, stack
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.eval import metrics
-from plantdreamer.eval.datasets import Frame
+from plantdreamer.eval.frames import Frame, FrameSource
 from plantdreamer.gaussians import Gaussians
 
 __all__ = [
@@ -155,7 +155,7 @@ def _kept_indices(n: int, keep: int) -> set[int]:
 
 def evaluate(
     gaussians: Gaussians,
-    frames: Sequence[Frame],
+    frames: Sequence[Frame | FrameSource],
     background: Sequence[float] = DEFAULT_BACKGROUND,
     *,
     keep_views: int = 4,
@@ -168,7 +168,8 @@ def evaluate(
     frame's image (RGBA images composited over the same background): full PSNR, and where the
     frame has a mask, masked PSNR, masked SSIM and the IoU of rendered alpha > 0.5 vs the
     mask. ``keep_views`` evenly spaced views are kept for the image strip. ``render``
-    replaces the project rasterizer (tests, other renderers).
+    replaces the project rasterizer (tests, other renderers). ``FrameSource``s are read one
+    at a time, so memory stays flat on large captures.
     """
     bg = tuple(float(c) for c in background)
     if len(bg) != 3 or not all(np.isfinite(bg)):
@@ -178,7 +179,8 @@ def evaluate(
     render_fn = render or render_view
     keep = _kept_indices(len(frames), keep_views)
     result = EvalResult([], (bg[0], bg[1], bg[2]))
-    for i, frame in enumerate(frames):
+    for i, item in enumerate(frames):
+        frame = item.load() if isinstance(item, FrameSource) else item
         rgb, alpha = render_fn(gaussians, frame.camera, result.background)
         shape = (frame.camera.height, frame.camera.width)
         if rgb.shape != (*shape, 3) or alpha.shape != shape:

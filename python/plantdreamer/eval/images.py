@@ -70,3 +70,16 @@ def read_mask(path: Path) -> np.ndarray:
             raise
         raise InputError(f"cannot read mask {path}: {exc}") from exc
     return np.asarray(gray) != 0
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the file header, without decoding the pixels."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return int(im.size[0]), int(im.size[1])
+    except OSError as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise InputError(f"cannot read image {path}: {exc}") from exc
