@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
     "render": "plantdreamer.cli.render:render",
+    "eval": "plantdreamer.cli.eval:eval_command",
 }
 
 
