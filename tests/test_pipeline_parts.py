@@ -40,7 +40,7 @@ def test_config_round_trips_through_json_dict():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{}, {"species": "bean", "pointcloud": "x.ply"}, {"species": "bean", "color_init": "red"}],
+    [{}, {"species": "bean", "color_init": "red"}, {"species": "bean", "sh_degree": 4}],
 )
 def test_config_rejects_bad_inputs(kwargs):
     with pytest.raises(InputError):

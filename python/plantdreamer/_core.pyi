@@ -5,7 +5,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["InputError", "PlantDreamerError", "PlyError", "__version__", "info", "large_gaussian_mask"]
+__all__ = [
+    "InputError",
+    "PlantDreamerError",
+    "PlyError",
+    "__version__",
+    "info",
+    "large_gaussian_mask",
+]
 
 __version__: str
 

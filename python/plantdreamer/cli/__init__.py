@@ -17,6 +17,7 @@ from plantdreamer.errors import PlantDreamerError
 
 # name -> "module:attribute". Only commands that work are listed here.
 COMMANDS: dict[str, str] = {
+    "ablate": "plantdreamer.cli.ablate:ablate",
     "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
     "render": "plantdreamer.cli.render:render",

@@ -8,7 +8,11 @@ import click
 
 
 @click.command()
-@click.option("--species", help="L-System species to generate (see `plantdreamer lsystem --list`).")
+@click.option(
+    "--species",
+    help="L-System species to generate (see `plantdreamer lsystem --list`); with "
+    "--pointcloud, the plant named in the prompts.",
+)
 @click.option(
     "--pointcloud", type=click.Path(dir_okay=False), help="A real plant point cloud (PLY)."
 )

@@ -43,7 +43,8 @@ class CameraRanges:
 
 @dataclass
 class GenerateConfig:
-    # Input: exactly one of species (L-System) or pointcloud (a PLY file).
+    # Input: a point cloud (PLY), or else the species' L-System. With a point cloud, species
+    # only names the plant in the prompts.
     species: str | None = None
     pointcloud: str | None = None
     seed: int = 0
@@ -97,8 +98,8 @@ class GenerateConfig:
     checkpoint_every: int = 500
 
     def validate(self) -> None:
-        if (self.species is None) == (self.pointcloud is None):
-            raise InputError("give exactly one input: a species or a point cloud")
+        if self.species is None and self.pointcloud is None:
+            raise InputError("give an input: a species (L-System) or a point cloud")
         if self.color_init not in COLOR_INITS:
             raise InputError(f"color init must be one of {', '.join(COLOR_INITS)}")
         if self.guidance not in GUIDANCES:
@@ -115,7 +116,7 @@ class GenerateConfig:
     def initial_opacity(self) -> float:
         if self.opacity_init is not None:
             return self.opacity_init
-        return 0.7 if self.species is not None else 0.1
+        return 0.1 if self.pointcloud is not None else 0.7
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

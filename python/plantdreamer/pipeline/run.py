@@ -365,7 +365,7 @@ def check_inputs(cfg: GenerateConfig) -> None:
     cfg.validate()
     if cfg.pointcloud is not None and not Path(cfg.pointcloud).is_file():
         raise FileNotFoundError(f"point cloud not found: {cfg.pointcloud}")
-    if cfg.species is not None:
+    if cfg.pointcloud is None:
         from plantdreamer.lsystem import list_species
 
         if cfg.species not in list_species():

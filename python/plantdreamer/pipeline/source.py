@@ -21,11 +21,11 @@ class Source:
 def load_source(cfg: GenerateConfig) -> Source:
     from plantdreamer.pointcloud import normalize
 
-    if cfg.species is not None:
-        points, colors, counts = _lsystem_points(cfg)
-    else:
+    if cfg.pointcloud is not None:
         points, colors, counts = _captured_points(Path(cfg.pointcloud))
         points, colors, counts = _prepare(points, colors, cfg, counts)
+    else:
+        points, colors, counts = _lsystem_points(cfg)
     normalised, transform = normalize(points, size=cfg.scene_size)
     return Source(normalised.astype(np.float32), colors, transform, counts)
 
