@@ -145,8 +145,9 @@ def test_ablate_scores_each_colour_init(tmp_path):
     """Without optimisation, the original colours must beat black against images of the
     original cloud: the ablation measures what the colour init contributes."""
     import torch
-    from plantdreamer.cameras import orbit_ring
     from plantdreamer.io import write_ply
+
+    from plantdreamer.cameras import orbit_ring
     from plantdreamer.pipeline.init import init_gaussians
     from plantdreamer.pipeline.model import GaussianModel
 
