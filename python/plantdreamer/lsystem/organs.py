@@ -26,6 +26,7 @@ class LeafShape:
     roundness: exponent of the outline; < 1 gives round shoulders, > 1 a narrow wedge.
     tip_taper: > 0 pulls the last part of the blade into an acuminate (drawn-out) tip.
     teeth, tooth_depth: serrated margin (teeth per side, depth as a fraction of the width).
+    lobes, lobe_depth: rounded lobes along the margin (count per side, relative depth).
     fold: height of the margin above the midrib per unit of half-width (V fold).
     cup: extra height of the margins, quadratic across the blade.
     curl: radians the midrib turns over the whole blade (+ tip up, - tip down).
@@ -41,6 +42,8 @@ class LeafShape:
     tip_taper: float = 0.0
     teeth: int = 0
     tooth_depth: float = 0.0
+    lobes: float = 0.0
+    lobe_depth: float = 0.0
     fold: float = 0.15
     cup: float = 0.0
     curl: float = 0.0
@@ -62,6 +65,8 @@ class LeafShape:
         if self.teeth:
             saw = (u * self.teeth) % 1.0  # rises along each tooth, drops at its point
             w = w * (1.0 - self.tooth_depth * (1.0 - saw) * np.sin(np.pi * u))
+        if self.lobes:
+            w = w * (1.0 - self.lobe_depth * np.sin(np.pi * self.lobes * u) ** 2)
         return 0.5 * self.aspect * w
 
 
@@ -119,9 +124,9 @@ def build_leaves(
     if shape.ruffle:
         phase = rng.uniform(0, 2 * np.pi, (m, 1, 1))
         waves = shape.ruffle_waves * rng.uniform(0.85, 1.15, (m, 1, 1))
-        edge = np.abs(v)[None, None, :] ** 3
-        wave = np.sin(2 * np.pi * waves * u[None, :, None] + phase + 3.0 * v[None, None, :])
-        wave2 = np.sin(2 * np.pi * 2.3 * waves * u[None, :, None] + 2 * phase)
+        edge = np.abs(v)[None, None, :] ** 2.5
+        wave = np.sin(2 * np.pi * waves * u[None, :, None] + phase + 2.0 * v[None, None, :])
+        wave2 = np.sin(2 * np.pi * 2.1 * waves * u[None, :, None] + 2 * phase)
         lift = lift + shape.ruffle * length[:, :, None] * edge * (wave + 0.4 * wave2)
     points = (
         centre[:, :, None, :]

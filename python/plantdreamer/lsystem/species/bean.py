@@ -6,7 +6,8 @@ alternate around the stem. Each leaf is a petiole ending in a rachis with two op
 leaflets and a terminal one: broad ovate leaflets with an acuminate tip. Lower nodes may
 carry a lateral branch at about 70 degrees (``&(70)``) that bends upwards and bears a few
 smaller leaves. Leaves and internodes are sized by their age (steps since they appeared),
-so the top of the plant is small and young.
+so the top of the plant is small and young. A per-plant vigour ``v`` (rand(0.8, 1.15), set in
+the axiom) scales every length, so plants of one species differ in size as well as shape.
 """
 
 from __future__ import annotations
@@ -45,27 +46,28 @@ def _stem_radius(age: float) -> float:
 # a stem segment, a roll of rand(100, 160) degrees, and a trifoliate leaf (petiole, two
 # opposite lateral leaflets, a short rachis and the terminal leaflet).
 _NODE = (
-    "+(rand(-7,7)) !({k}*stem_radius({a})) F({k}*internode({a})) /(rand(100,160))"
-    " [ &(rand(38,52)) !(0.0008+0.0006*{k}) t(2) F({k}*petiole({a})) $"
-    " [ +(rand(62,78)) E(rand(-10,8)) L(0.8*{k}*leaflet({a}), tone({a})) ]"
-    " [ -(rand(62,78)) E(rand(-10,8)) L(0.8*{k}*leaflet({a}), tone({a})) ]"
-    " F(0.13*{k}*leaflet({a})) E(rand(-5,15)) L({k}*leaflet({a}), tone({a})) ]"
+    "+(rand(-7,7)) !({k}*stem_radius({a})) F(v*{k}*internode({a})*rand(0.85,1.15))"
+    " /(rand(100,160))"
+    " [ &(rand(38,52)) !(0.0008+0.0006*{k}) t(2) F(v*{k}*petiole({a})) $"
+    " [ +(rand(62,78)) E(rand(-10,8)) L(0.8*v*{k}*leaflet({a}), tone({a})) ]"
+    " [ -(rand(62,78)) E(rand(-10,8)) L(0.8*v*{k}*leaflet({a}), tone({a})) ]"
+    " F(0.13*v*{k}*leaflet({a})) E(rand(-5,15)) L(v*{k}*leaflet({a}), tone({a})) ]"
 )
 _MAIN = _NODE.format(k="1", a="(N-i)")
 _LATERAL = _NODE.format(k="0.75", a="(N-i)")
-_BRANCH = "[ &(70) t(-4) B(i+1, 0) ]"
+_BRANCH = "[ &(70) t(-4) B(i+1, 0, v) ]"
 
 SPECIES = Species(
     name="bean",
     summary="upright stem, alternate trifoliate leaves with broad ovate leaflets",
-    axiom="!(0.0033) t(-2) F(0.045) A(0)",
+    axiom="!(0.0033) t(-2) F(rand(0.035,0.055)) A(0, rand(0.8,1.15))",
     rules=(
         # Main-stem apex: a node with a trifoliate leaf; lower nodes may branch (p = 0.45).
-        Rule("A(i)", f"{_MAIN} {_BRANCH} A(i+1)", "1 <= i <= 3", 0.45),
-        Rule("A(i)", f"{_MAIN} A(i+1)", "1 <= i <= 3", 0.55),
-        Rule("A(i)", f"{_MAIN} A(i+1)", "i < 1 or (3 < i < N)"),
+        Rule("A(i, v)", f"{_MAIN} {_BRANCH} A(i+1, v)", "1 <= i <= 3", 0.45),
+        Rule("A(i, v)", f"{_MAIN} A(i+1, v)", "1 <= i <= 3", 0.55),
+        Rule("A(i, v)", f"{_MAIN} A(i+1, v)", "i < 1 or (3 < i < N)"),
         # Lateral branch apex: up to three smaller nodes.
-        Rule("B(i, n)", f"{_LATERAL} B(i+1, n+1)", "i < N and n < 3"),
+        Rule("B(i, n, v)", f"{_LATERAL} B(i+1, n+1, v)", "i < N and n < 3"),
     ),
     iterations=NODES,
     constants={
@@ -96,6 +98,6 @@ SPECIES = Species(
     stem_sides=8,
     stem_color=(0.36, 0.54, 0.20),
     stem_base_color=(0.42, 0.40, 0.20),
-    height_range=(0.2, 0.6),
-    leaf_range=(24, 60),
+    height_range=(0.30, 0.55),
+    leaf_range=(24, 54),
 )

@@ -5,7 +5,8 @@ about 130 degrees and tilted by rand(17, 22) degrees), one stem starts per step 
 spot near the pot centre, leans outwards and bends back up. Stems are square (4-sided tubes).
 Every node carries an opposite pair of short-stalked, serrated ovate leaves, and successive
 pairs are rolled by 90 degrees (decussate). Leaves and internodes grow with age, so leaves
-shrink towards the young shoot tips.
+shrink towards the young shoot tips. A per-plant vigour ``v`` (and a per-stem factor)
+scales leaves and internodes.
 """
 
 from __future__ import annotations
@@ -35,34 +36,34 @@ def _tone(age: float) -> float:
 # A leaf of the pair at a node of age {a}; {pitch} is & or ^ (the two opposite sides).
 _LEAF = (
     "[ {pitch}(rand(40,52) + 14*(1-tone({a}))) !(0.0007) F(0.004) $"
-    " L(leaf({a})*rand(0.9,1.1), tone({a})) ]"
+    " L(v*leaf({a})*rand(0.9,1.1), tone({a})) ]"
 )
 _NODE = (
-    "!(0.0011 + 0.0009*(1-tone(N-i))) F(internode(N-i)) "
+    "!(0.0011 + 0.0009*(1-tone(N-i))) F(v*internode(N-i)*rand(0.85,1.15)) "
     + _LEAF.format(pitch="&", a="(N-i)")
     + " "
     + _LEAF.format(pitch="^", a="(N-i)")
-    + " /(rand(84,96)) M(i+1)"
+    + " /(rand(84,96)) M(i+1, v)"
 )
 # A new stem: step out from the centre, lean outwards by rand(17, 22) degrees.
-_STEM = "[ &(90) f(rand(0.006,0.035)) ^(90) &(rand(17,22)) /(rand(0,90)) t(-6) M(k+1) ]"
+_STEM = "[ &(90) f(rand(0.006,0.035)) ^(90) &(rand(17,22)) /(rand(0,90)) t(-6) M(k+1, v*rand(0.8,1.1)) ]"
 
 SPECIES = Species(
     name="mint",
     summary="3-7 upright square stems, opposite decussate serrated ovate leaves",
-    axiom="X(0)",
+    axiom="X(0, rand(0.8,1.15))",
     rules=(
-        Rule("X(k)", f"{_STEM} /(rand(115,145)) X(k+1)", "k < 3"),
-        Rule("X(k)", f"{_STEM} /(rand(115,145)) X(k+1)", "3 <= k < 7", 0.75),
-        Rule("X(k)", "", "3 <= k < 7", 0.25),
-        Rule("M(i)", _NODE, "i < N"),
+        Rule("X(k, v)", f"{_STEM} /(rand(115,145)) X(k+1, v)", "k < 3"),
+        Rule("X(k, v)", f"{_STEM} /(rand(115,145)) X(k+1, v)", "3 <= k < 7", 0.75),
+        Rule("X(k, v)", "", "3 <= k < 7", 0.25),
+        Rule("M(i, v)", _NODE, "i < N"),
     ),
     iterations=STEPS,
     constants={"N": STEPS, "internode": _internode, "leaf": _leaf, "tone": _tone},
     turtle=TurtleConfig(radius=0.002, max_step=0.01, origin=(0, 0, -0.01)),
     leaves={
         "L": LeafShape(
-            aspect=0.6,
+            aspect=0.68,
             widest=0.36,
             roundness=0.85,
             tip_taper=0.3,
@@ -81,6 +82,6 @@ SPECIES = Species(
     stem_sides=4,
     stem_color=(0.32, 0.44, 0.18),
     stem_base_color=(0.38, 0.30, 0.22),
-    height_range=(0.1, 0.45),
-    leaf_range=(30, 200),
+    height_range=(0.17, 0.40),
+    leaf_range=(50, 140),
 )
