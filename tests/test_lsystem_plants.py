@@ -1,6 +1,7 @@
 """Species plants: valid meshes, documented traits over many seeds, determinism, errors."""
 
 import io
+import itertools
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ def test_builtin_species_are_listed():
 
 
 def test_unknown_species_names_the_known_ones():
-    with pytest.raises(InputError, match="unknown species 'oak'.*bean, kale, mint"):
+    with pytest.raises(InputError, match=r"unknown species 'oak'.*bean, kale, mint"):
         generate_plant("oak", 0)
 
 
@@ -191,7 +192,7 @@ def test_mint_has_3_to_7_square_stems_with_opposite_decussate_leaves(plants):
                 assert d[0] @ d[1] < -0.8  # opposite
                 directions.append(d[0])
             # Decussate: each pair is roughly perpendicular to the previous one.
-            for a, b in zip(directions, directions[1:]):
+            for a, b in itertools.pairwise(directions):
                 assert abs(a @ b) < 0.5
             sizes = [max(leaf.params[0] for leaf in leaves) for _, leaves in nodes]
             assert sizes[-1] < 0.6 * max(sizes)  # shrinking towards the top

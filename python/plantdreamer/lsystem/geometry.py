@@ -63,9 +63,10 @@ def tube(points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True
     binormals = np.cross(tangents, normals)
     phi = 2.0 * np.pi * (np.arange(sides) + 0.5) / sides
     r = np.maximum(radii, MIN_RADIUS)[:, None, None]
-    ring = np.cos(phi)[None, :, None] * normals[:, None] + np.sin(phi)[None, :, None] * binormals[
-        :, None
-    ]
+    ring = (
+        np.cos(phi)[None, :, None] * normals[:, None]
+        + np.sin(phi)[None, :, None] * binormals[:, None]
+    )
     vertices = (points[:, None, :] + r * ring).reshape(-1, 3)
     faces = _ring_faces(n, sides)  # (a, b, c): d(phi) x d(along) -> outward
     if cap_end:

@@ -120,7 +120,9 @@ def build_leaves(
 
     width = shape.half_width(u)[None, :] * length * rng.uniform(0.9, 1.1, (m, 1))  # [m, rows]
     across = v[None, None, :] * width[:, :, None]  # [m, rows, cols]
-    lift = shape.fold * np.abs(across) + shape.cup * across**2 / np.maximum(length[:, :, None], 1e-9)
+    lift = shape.fold * np.abs(across) + shape.cup * across**2 / np.maximum(
+        length[:, :, None], 1e-9
+    )
     if shape.ruffle:
         phase = rng.uniform(0, 2 * np.pi, (m, 1, 1))
         waves = shape.ruffle_waves * rng.uniform(0.85, 1.15, (m, 1, 1))

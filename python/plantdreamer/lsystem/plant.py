@@ -81,7 +81,9 @@ def _build_mesh(
             lefts=np.array([o.left for o in organs]),
             ups=np.array([o.up for o in organs]),
             lengths=np.array([o.params[0] for o in organs]),
-            tones=np.array([np.clip(o.params[1], 0, 1) if len(o.params) > 1 else 0.0 for o in organs]),
+            tones=np.array(
+                [np.clip(o.params[1], 0, 1) if len(o.params) > 1 else 0.0 for o in organs]
+            ),
         )
         vertices, faces, colors = build_leaves(shape, batch, rng, floor)
         for k in range(len(organs)):

@@ -162,9 +162,7 @@ def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
             state.elasticity = arg(m, 0.0)
         elif s in config.organs:
             h, left, up = state.frame
-            organs.append(
-                Organ(s, m.params, state.pos, h, left, up, state.attach, state.radius)
-            )
+            organs.append(Organ(s, m.params, state.pos, h, left, up, state.attach, state.radius))
     if stack:
         raise InputError("unbalanced '[' in the L-System string")
     chains = [

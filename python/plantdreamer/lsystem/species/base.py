@@ -40,7 +40,5 @@ class Species:
     @cached_property
     def lsystem(self) -> LSystem:
         # Rules are compiled in place; copy them so a Species can be built twice.
-        rules = [
-            Rule(r.predecessor, r.successor, r.condition, r.probability) for r in self.rules
-        ]
+        rules = [Rule(r.predecessor, r.successor, r.condition, r.probability) for r in self.rules]
         return LSystem(self.axiom, rules, self.constants)

@@ -28,9 +28,7 @@ SPECIES = Species(
     name="kale",
     summary="rosette of long-petioled, curly-edged leaves diminishing in size",
     axiom="!(0.006) K(0, rand(0.8,1.2))",
-    rules=(
-        Rule("K(i, v)", f"F(0.0035) /(137.5 + rand(-8,8)) {_LEAF} K(i+1, v)", "i < N"),
-    ),
+    rules=(Rule("K(i, v)", f"F(0.0035) /(137.5 + rand(-8,8)) {_LEAF} K(i+1, v)", "i < N"),),
     iterations=STEPS,
     constants={"N": STEPS, "r": RATIO},
     turtle=TurtleConfig(radius=0.008, max_step=0.01, origin=(0, 0, -0.01)),

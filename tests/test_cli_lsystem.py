@@ -1,0 +1,95 @@
+"""``plantdreamer lsystem``: listing, mesh and point-cloud files, determinism, errors."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+
+
+def run(*args):
+    return CliRunner().invoke(main, ["lsystem", *args])
+
+
+def test_list_names_every_species():
+    result = run("--list")
+    assert result.exit_code == 0
+    assert [line.split()[0] for line in result.output.splitlines()] == ["bean", "kale", "mint"]
+
+
+def test_mesh_is_written_and_reads_back(tmp_path):
+    path = tmp_path / "plant.glb"
+    result = run("mint", "--seed", "3", "--mesh", str(path))
+    assert result.exit_code == 0, result.output
+    assert "mint seed 3" in result.output
+    loaded = trimesh.load(path, force="mesh")
+    from plantdreamer.lsystem import generate_plant
+
+    mesh = generate_plant("mint", 3)
+    assert len(loaded.faces) == len(mesh.faces)
+    np.testing.assert_allclose(
+        np.sort(loaded.vertices[:, 2]), np.sort(mesh.vertices[:, 2]), atol=1e-6
+    )
+
+
+def test_mesh_files_are_byte_identical_across_processes(tmp_path):
+    paths = [tmp_path / "a.glb", tmp_path / "b.glb", tmp_path / "c.glb"]
+    for path, seed in zip(paths, ["5", "5", "6"], strict=True):
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "plantdreamer",
+                "lsystem",
+                "kale",
+                "--seed",
+                seed,
+                "--mesh",
+                path,
+            ],
+            check=True,
+            capture_output=True,
+        )
+    a, b, c = (p.read_bytes() for p in paths)
+    assert a == b
+    assert a != c
+
+
+def test_point_cloud_ply_is_deterministic_and_labelled(tmp_path):
+    pytest.importorskip("plantdreamer.io")
+    plyfile = pytest.importorskip("plyfile")
+    paths = [tmp_path / "a.ply", tmp_path / "b.ply"]
+    for path in paths:
+        result = run("bean", "--seed", "2", "-o", str(path), "--points", "5000")
+        assert result.exit_code == 0, result.output
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    vertex = plyfile.PlyData.read(str(paths[0]))["vertex"]
+    assert len(vertex) == 5000
+    names = vertex.data.dtype.names
+    for name in ("x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "label", "instance"):
+        assert name in names
+    assert set(np.unique(vertex["label"])) <= {1, 2, 3, 4}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["oak", "--mesh", "{d}/x.glb"], "unknown species 'oak'"),
+        (["bean"], "nothing to write"),
+        ([], "name a SPECIES"),
+        (["bean", "--mesh", "{d}/x.xyz"], "unknown mesh format"),
+        (["bean", "--seed", "-1", "--mesh", "{d}/x.glb"], "-1"),
+        (["bean", "--points", "0", "-o", "{d}/x.ply"], "0"),
+        (["bean", "--mesh", "{d}/missing/x.glb"], "error: "),
+    ],
+)
+def test_bad_requests_fail_with_one_clear_line(tmp_path, args, message):
+    result = run(*(a.format(d=tmp_path) for a in args))
+    assert result.exit_code != 0
+    assert message in result.output
+    assert "Traceback" not in result.output
+    assert not list(tmp_path.iterdir())  # nothing half-written
