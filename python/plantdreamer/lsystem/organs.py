@@ -217,7 +217,7 @@ def build_pot(shape: PotShape, rng: np.random.Generator):
     return vertices, faces, np.clip(colors, 0, 1)
 
 
-def build_soil(shape: PotShape, rng: np.random.Generator, rings: int = 8):
+def build_soil(shape: PotShape, rng: np.random.Generator, rings: int = 16):
     """A flat soil disc at z = 0 filling the pot (normals up), mottled brown."""
     radius = shape.soil_radius()
     r = np.linspace(radius, 0.0, rings + 1)
