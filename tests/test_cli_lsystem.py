@@ -93,3 +93,11 @@ def test_bad_requests_fail_with_one_clear_line(tmp_path, args, message):
     assert message in result.output
     assert "Traceback" not in result.output
     assert not list(tmp_path.iterdir())  # nothing half-written
+
+
+def test_point_cloud_without_the_ply_module_is_one_clear_line(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "plantdreamer.io", None)  # as if it were not installed
+    result = run("bean", "-o", str(tmp_path / "x.ply"))
+    assert result.exit_code == 1
+    assert "error: -o needs plantdreamer.io" in result.output
+    assert not list(tmp_path.iterdir())

@@ -96,3 +96,113 @@ def test_pot_and_soil_sit_at_the_soil_surface():
     assert (np.einsum("ij,ij->i", normals[outer], radial) > 0).all()  # outer wall faces out
     for colors in (pc, sc):
         assert colors.min() >= 0 and colors.max() <= 1
+
+
+def test_tube_survives_reversals_kinks_and_coincident_points():
+    points = np.array(
+        [[0, 0, 0], [0, 0, 1], [0, 0, 1 + 1e-9], [0, 0, 0.5], [0.5, 0, 0.5], [0.5, 0, 0.5]],
+        dtype=float,
+    )
+    vertices, faces = tube(points, np.full(len(points), 0.05), 6)
+    assert np.isfinite(vertices).all()
+    loop, _ = tube(np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0.0]]), np.full(3, 0.05), 6)
+    assert np.isfinite(loop).all()
+    _, area, _ = face_normals(vertices, faces)
+    assert area.min() > 1e-8
+    # The tip is where the polyline ends.
+    np.testing.assert_allclose(vertices[-1][[0, 2]], [0.5 + 0.015, 0.5], atol=1e-9)
+
+
+def test_random_turtle_strings_give_finite_valid_stems():
+    from plantdreamer.lsystem.engine import LSystem
+    from plantdreamer.lsystem.turtle import TurtleConfig, interpret
+
+    rng = np.random.default_rng(0)
+    symbols = ["F(0.05)", "F(1e-7)", "+(90)", "-(180)", "&(179.9)", "^(45)", "/(33)", "|", "$"]
+    for _ in range(200):
+        body = " ".join(rng.choice(symbols, size=12))
+        string = f"F(0.1) {body} [ {' '.join(rng.choice(symbols, size=6))} F(0.02) ] F(0.01)"
+        skeleton = interpret(LSystem(string, []).derive(0, rng), TurtleConfig(elasticity=3.0))
+        for chain in skeleton.chains:
+            if np.ptp(chain.points, axis=0).max() <= 1e-6:
+                continue  # generate_plant skips these too
+            vertices, faces = tube(chain.points, chain.radii, 5)
+            assert np.isfinite(vertices).all()
+            _, area, _ = face_normals(vertices, faces)
+            assert area.min() > 0
+
+
+def one_leaf(shape, length=0.1, heading=(1.0, 0.0, 0.0), floor=-1.0, seed=0):
+    from plantdreamer.lsystem.organs import LeafBatch, build_leaves
+
+    h = np.array([heading], dtype=float)
+    h /= np.linalg.norm(h)
+    left = np.cross([0.0, 0.0, 1.0], h[0])
+    left /= np.linalg.norm(left)
+    batch = LeafBatch(
+        positions=np.zeros((1, 3)),
+        headings=h,
+        lefts=left[None],
+        ups=np.cross(h[0], left)[None],
+        lengths=np.array([length]),
+        tones=np.zeros(1),
+    )
+    vertices, faces, colors = build_leaves(shape, batch, np.random.default_rng(seed), floor)
+    return vertices[0], faces, colors[0]
+
+
+def test_flat_leaf_has_the_outline_length_and_width():
+    from plantdreamer.lsystem.organs import LeafShape
+
+    shape = LeafShape(aspect=0.5, droop=0.0, curl=0.0, fold=0.0, cup=0.0)
+    v, f, c = one_leaf(shape)
+    np.testing.assert_allclose(v[:, 2], 0.0, atol=1e-12)
+    assert v[:, 0].min() == pytest.approx(0.0) and v[:, 0].max() == pytest.approx(0.1)
+    assert 0.9 * 0.05 <= np.ptp(v[:, 1]) <= 1.1 * 0.05  # width = aspect * length, +-10% jitter
+    normals, area, _ = face_normals(v, f)
+    assert (normals[:, 2] > 0.999).all() and area.min() > 1e-9
+    assert c.min() >= 0 and c.max() <= 1
+
+
+def test_droop_curl_fold_and_floor_shape_the_blade():
+    from plantdreamer.lsystem.organs import LeafShape
+
+    flat = dict(droop=0.0, curl=0.0, fold=0.0, cup=0.0)
+    tip = lambda v: v[-1]  # noqa: E731 - the last vertex is the blade tip
+    assert tip(one_leaf(LeafShape(**{**flat, "droop": 1.0}))[0])[2] < -0.02
+    assert tip(one_leaf(LeafShape(**{**flat, "curl": 0.8}))[0])[2] > 0.02
+    assert tip(one_leaf(LeafShape(**{**flat, "curl": -0.8}))[0])[2] < -0.02
+    folded, _, _ = one_leaf(LeafShape(**{**flat, "fold": 0.3}))
+    margin = np.abs(folded[:, 1]) > 0.01
+    assert (folded[margin, 2] > 0).all()  # the halves rise from the midrib
+    floored, _, _ = one_leaf(LeafShape(**{**flat, "droop": 3.0}), floor=-0.01)
+    assert tip(floored)[2] >= -0.01 - 1e-12
+    # Droop scales with how horizontal the midrib is: an upright leaf barely bends.
+    upright, _, _ = one_leaf(LeafShape(**{**flat, "droop": 1.0}), heading=(1e-3, 0, 1))
+    assert np.linalg.norm(tip(upright)[:2]) < 0.01
+
+
+def test_serration_lobes_and_ruffle_change_the_margin():
+    from plantdreamer.lsystem.organs import LeafShape
+
+    u = np.linspace(0, 1, 401)
+    plain = LeafShape().half_width(u)
+    toothed = LeafShape(teeth=8, tooth_depth=0.2).half_width(u)
+    assert (toothed <= plain + 1e-12).all()
+    # One notch per tooth: the relative width has 8 local minima inside the blade.
+    ratio = toothed[1:-1] / plain[1:-1]
+    minima = np.sum((ratio[1:-1] < ratio[:-2]) & (ratio[1:-1] < ratio[2:]))
+    assert 6 <= minima <= 9
+    flat = dict(droop=0.0, curl=0.0, fold=0.0, cup=0.0)
+    ruffled, _, _ = one_leaf(LeafShape(**flat, ruffle=0.05, ruffle_waves=6, rows=60, cols=9))
+    assert np.ptp(ruffled[:, 2]) > 0.005
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"widest": 1.2}, {"aspect": 0}, {"cols": 8}, {"rows": 2}, {"tooth_depth": 1.0}]
+)
+def test_bad_leaf_shapes_are_rejected(kwargs):
+    from plantdreamer.lsystem.organs import LeafShape
+
+    with pytest.raises(InputError, match="LeafShape"):
+        LeafShape(**kwargs)

@@ -53,7 +53,18 @@ def lsystem(
             f"--mesh {mesh_path}: unknown mesh format; use one of .{', .'.join(MESH_FORMATS)}"
         )
 
+    from plantdreamer.errors import PlantDreamerError
     from plantdreamer.lsystem import OrganClass, generate_plant, sample_points
+
+    if output is not None:
+        try:
+            from plantdreamer.io import write_ply
+        except ModuleNotFoundError as exc:
+            if exc.name != "plantdreamer.io":
+                raise
+            raise PlantDreamerError(
+                "-o needs plantdreamer.io (PLY writing), which this installation lacks; use --mesh"
+            ) from None
 
     mesh = generate_plant(species, seed)
     organs = (mesh.labels == OrganClass.LEAF) | (mesh.labels == OrganClass.STEM)
@@ -66,7 +77,5 @@ def lsystem(
         mesh.to_trimesh().export(mesh_path)
         click.echo(f"wrote {mesh_path}")
     if output is not None:
-        from plantdreamer.io import write_ply
-
         write_ply(output, sample_points(mesh, n=points, seed=seed), binary=True)
         click.echo(f"wrote {output} ({points} points)")

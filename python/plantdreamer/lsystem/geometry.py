@@ -43,22 +43,26 @@ def tube(points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True
     Returns (vertices [n*sides (+1), 3], faces [.., 3]).
     """
     points = np.asarray(points, dtype=np.float64)
+    radii = np.asarray(radii, dtype=np.float64)
+    points, radii = _drop_coincident(points, radii)
     n = len(points)
     if n < 2 or sides < 3:
-        raise InputError("a tube needs at least 2 points and 3 sides")
+        raise InputError("a tube needs at least 2 distinct points and 3 sides")
     seg = np.diff(points, axis=0)
+    unit = seg / np.linalg.norm(seg, axis=1, keepdims=True)
     tangents = np.empty_like(points)
-    tangents[0], tangents[-1] = seg[0], seg[-1]
-    tangents[1:-1] = seg[:-1] / np.linalg.norm(seg[:-1], axis=1, keepdims=True) + seg[
-        1:
-    ] / np.linalg.norm(seg[1:], axis=1, keepdims=True)
+    tangents[0], tangents[-1] = unit[0], unit[-1]
+    tangents[1:-1] = unit[:-1] + unit[1:]
+    # A full reversal cancels the bisector: use the incoming direction there.
+    flat = np.linalg.norm(tangents, axis=1) < 1e-9
+    tangents[flat] = np.vstack([unit[:1], unit])[flat]
     tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
     normals = np.empty_like(points)
-    seed_axis = np.array([1.0, 0.0, 0.0]) if abs(tangents[0, 0]) < 0.9 else np.array([0, 1.0, 0])
-    normal = seed_axis - tangents[0] * (seed_axis @ tangents[0])
+    normal = _perpendicular(tangents[0])
     for i in range(n):
         normal = normal - tangents[i] * (normal @ tangents[i])
-        normal = normal / np.linalg.norm(normal)
+        length = np.linalg.norm(normal)
+        normal = normal / length if length > 1e-9 else _perpendicular(tangents[i])
         normals[i] = normal
     binormals = np.cross(tangents, normals)
     phi = 2.0 * np.pi * (np.arange(sides) + 0.5) / sides
@@ -77,6 +81,24 @@ def tube(points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True
         cap = np.stack([np.full(sides, tip), last + j, last + (j + 1) % sides], axis=1)
         faces = np.vstack([faces, cap])
     return vertices, faces
+
+
+def _drop_coincident(points: np.ndarray, radii: np.ndarray, eps: float = 1e-6):
+    """Drops points within ``eps`` of the previous kept one (they would make slivers); the
+    tip replaces the last kept point if it was dropped, so the tube still ends there."""
+    keep = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(points[i] - points[keep[-1]]) > eps:
+            keep.append(i)
+    if len(points) and keep[-1] != len(points) - 1 and len(keep) > 1:
+        keep[-1] = len(points) - 1
+    return points[keep], radii[keep]
+
+
+def _perpendicular(t: np.ndarray) -> np.ndarray:
+    axis = np.array([1.0, 0.0, 0.0]) if abs(t[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    p = axis - t * (axis @ t)
+    return p / np.linalg.norm(p)
 
 
 def revolve(profile: np.ndarray, segments: int):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plantdreamer.errors import InputError
 from plantdreamer.lsystem.geometry import revolve, rotate_batch, tipped_grid_faces
 
 GRAVITY = np.array([0.0, 0.0, -1.0])
@@ -55,6 +56,21 @@ class LeafShape:
     midrib_color: tuple[float, float, float] = (0.45, 0.62, 0.30)
     rows: int = 18
     cols: int = 9
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not self.aspect > 0:
+            problems.append("aspect must be > 0")
+        if not 0 < self.widest < 1:
+            problems.append("widest must be in (0, 1)")
+        if not (0 <= self.tooth_depth < 1 and 0 <= self.lobe_depth < 1):
+            problems.append("tooth_depth and lobe_depth must be in [0, 1)")
+        if not 0 <= self.tip_taper < 1:
+            problems.append("tip_taper must be in [0, 1)")
+        if self.rows < 3 or self.cols < 3 or self.cols % 2 == 0:
+            problems.append("rows must be >= 3 and cols odd and >= 3")
+        if problems:
+            raise InputError("LeafShape: " + "; ".join(problems))
 
     def half_width(self, u: np.ndarray) -> np.ndarray:
         """Outline half-width over u (relative to the blade length), 0 at both tips."""

@@ -15,6 +15,10 @@ from plantdreamer.lsystem.species import get_species
 from plantdreamer.lsystem.species.base import Species
 from plantdreamer.lsystem.turtle import Organ, Skeleton, interpret
 
+# Leaf modules shorter than this (metres) are not built: sub-millimetre blades are invisible
+# and their triangles would be slivers.
+MIN_LEAF_LENGTH = 1e-3
+
 
 @dataclass
 class GrownPlant:
@@ -62,6 +66,8 @@ def _build_mesh(
     stem_color = np.asarray(spec.stem_color)
     base_color = np.asarray(spec.stem_base_color or spec.stem_color)
     for chain in skeleton.chains:
+        if np.ptp(chain.points, axis=0).max() <= 1e-6:
+            continue  # a stem of sub-micrometre moves only: nothing to see
         vertices, faces = tube(chain.points, chain.radii, spec.stem_sides)
         # Colour from the base colour near the soil to the stem colour higher up.
         t = np.clip(vertices[:, 2:3] / 0.06, 0.0, 1.0)
@@ -72,7 +78,11 @@ def _build_mesh(
     floor = spec.pot.rim_top + 0.003
     leaves: list[Organ] = []
     for symbol, shape in spec.leaves.items():
-        organs = [o for o in skeleton.organs if o.symbol == symbol and o.params and o.params[0] > 0]
+        organs = [
+            o
+            for o in skeleton.organs
+            if o.symbol == symbol and o.params and o.params[0] >= MIN_LEAF_LENGTH
+        ]
         if not organs:
             continue
         batch = LeafBatch(
