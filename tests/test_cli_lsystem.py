@@ -101,3 +101,19 @@ def test_point_cloud_without_the_ply_module_is_one_clear_line(tmp_path, monkeypa
     assert result.exit_code == 1
     assert "error: -o needs plantdreamer.io" in result.output
     assert not list(tmp_path.iterdir())
+
+
+def test_mesh_files_carry_organ_labels_and_leaf_instances(tmp_path):
+    plyfile = pytest.importorskip("plyfile")
+    from plantdreamer.lsystem import generate_plant
+
+    mesh = generate_plant("bean", 1)
+    ply, glb = tmp_path / "bean.ply", tmp_path / "bean.glb"
+    assert run("bean", "--seed", "1", "--mesh", str(ply)).exit_code == 0
+    assert run("bean", "--seed", "1", "--mesh", str(glb)).exit_code == 0
+    vertex = plyfile.PlyData.read(str(ply))["vertex"]
+    np.testing.assert_array_equal(vertex["label"], mesh.labels)
+    np.testing.assert_array_equal(vertex["instance"], mesh.instances)
+    loaded = trimesh.load(glb, force="mesh", process=False)
+    np.testing.assert_array_equal(loaded.vertex_attributes["_label"].ravel(), mesh.labels)
+    np.testing.assert_array_equal(loaded.vertex_attributes["_instance"].ravel(), mesh.instances)

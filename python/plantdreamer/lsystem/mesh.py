@@ -79,10 +79,13 @@ class PlantMesh:
     def to_trimesh(self) -> trimesh.Trimesh:
         """A ``trimesh.Trimesh`` with vertex colours (RGBA uint8); nothing is merged or reordered.
 
-        The organ labels and leaf instances ride along as ``vertex_attributes`` ``label``
-        (uint8) and ``instance`` (int16, the widest signed integer glTF accepts); trimesh
-        writes them as PLY vertex properties and as glTF attributes ``_label``, ``_instance``.
+        The organ labels and leaf instances ride along as ``vertex_attributes`` ``label`` and
+        ``instance``, stored as float32 holding exact integers: glTF vertex attributes must be
+        4-byte aligned and has no int32 type, and trimesh's glTF writer mishandles narrower
+        integers. trimesh writes them as PLY vertex properties and as glTF attributes
+        ``_label`` and ``_instance``.
         """
+
         import trimesh
 
         rgba = np.empty((len(self.colors), 4), dtype=np.uint8)
@@ -91,10 +94,8 @@ class PlantMesh:
         mesh = trimesh.Trimesh(
             vertices=self.vertices, faces=self.faces, vertex_colors=rgba, process=False
         )
-        if self.n_leaves > np.iinfo(np.int16).max:
-            raise InputError(f"{self.n_leaves} leaves do not fit the int16 instance attribute")
-        mesh.vertex_attributes["label"] = self.labels.astype(np.uint8)
-        mesh.vertex_attributes["instance"] = self.instances.astype(np.int16)
+        mesh.vertex_attributes["label"] = self.labels.astype(np.float32)
+        mesh.vertex_attributes["instance"] = self.instances.astype(np.float32)
         return mesh
 
 
