@@ -35,7 +35,9 @@ def _ring_faces(rows: int, cols: int, offset: int = 0) -> np.ndarray:
     return tris.reshape(-1, 3) + offset
 
 
-def tube(points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True):
+def tube(
+    points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """A tube of ``sides`` around a polyline [n, 3] with per-point radii [n].
 
     Frames are parallel-transported along the curve so the tube does not twist; the end is
@@ -83,7 +85,9 @@ def tube(points: np.ndarray, radii: np.ndarray, sides: int, cap_end: bool = True
     return vertices, faces
 
 
-def _drop_coincident(points: np.ndarray, radii: np.ndarray, eps: float = 1e-6):
+def _drop_coincident(
+    points: np.ndarray, radii: np.ndarray, eps: float = 1e-6
+) -> tuple[np.ndarray, np.ndarray]:
     """Drops points within ``eps`` of the previous kept one (they would make slivers); the
     tip replaces the last kept point if it was dropped, so the tube still ends there."""
     keep = [0]
@@ -101,7 +105,7 @@ def _perpendicular(t: np.ndarray) -> np.ndarray:
     return p / np.linalg.norm(p)
 
 
-def revolve(profile: np.ndarray, segments: int):
+def revolve(profile: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:
     """Surface of revolution about the z axis of a (r, z) profile [k, 2].
 
     Profile points with r == 0 (only allowed first or last) become a single apex vertex.
@@ -127,7 +131,7 @@ def revolve(profile: np.ndarray, segments: int):
     faces = [_ring_faces(rows, segments)]
     j = np.arange(segments)
     jn = (j + 1) % segments
-    extra = []
+    extra: list[list[float]] = []
     if axis_start:
         apex = rows * segments + len(extra)
         extra.append([0.0, 0.0, profile[0, 1]])

@@ -162,7 +162,9 @@ def build_leaves(
     return vertices, faces, colors
 
 
-def _leaf_colors(shape: LeafShape, tones, u, v, rng) -> np.ndarray:
+def _leaf_colors(
+    shape: LeafShape, tones: np.ndarray, u: np.ndarray, v: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
     m, rows, cols = len(tones), len(u), len(v)
     base = np.asarray(shape.color)[None, :] * rng.uniform(
         1 - shape.color_jitter, 1 + shape.color_jitter, (m, 1)
@@ -221,7 +223,9 @@ class PotShape:
         )
 
 
-def build_pot(shape: PotShape, rng: np.random.Generator):
+def build_pot(
+    shape: PotShape, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pot vertices, faces and colours (slightly mottled terracotta, darker inside)."""
     vertices, faces = revolve(shape.profile(), shape.segments)
     colors = np.tile(np.asarray(shape.color), (len(vertices), 1))
@@ -233,7 +237,9 @@ def build_pot(shape: PotShape, rng: np.random.Generator):
     return vertices, faces, np.clip(colors, 0, 1)
 
 
-def build_soil(shape: PotShape, rng: np.random.Generator, rings: int = 16):
+def build_soil(
+    shape: PotShape, rng: np.random.Generator, rings: int = 16
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A flat soil disc at z = 0 filling the pot (normals up), mottled brown."""
     radius = shape.soil_radius()
     r = np.linspace(radius, 0.0, rings + 1)

@@ -60,8 +60,10 @@ def _build_mesh(
     spec: Species, skeleton: Skeleton, rng: np.random.Generator
 ) -> tuple[PlantMesh, list[Organ]]:
     parts = MeshAccumulator()
-    parts.add(*build_soil(spec.pot, rng), OrganClass.SOIL)
-    parts.add(*build_pot(spec.pot, rng), OrganClass.POT)
+    soil_vertices, soil_faces, soil_colors = build_soil(spec.pot, rng)
+    parts.add(soil_vertices, soil_faces, soil_colors, OrganClass.SOIL)
+    pot_vertices, pot_faces, pot_colors = build_pot(spec.pot, rng)
+    parts.add(pot_vertices, pot_faces, pot_colors, OrganClass.POT)
 
     stem_color = np.asarray(spec.stem_color)
     base_color = np.asarray(spec.stem_base_color or spec.stem_color)
