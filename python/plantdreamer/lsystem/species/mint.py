@@ -46,7 +46,7 @@ _NODE = (
     + " /(rand(84,96)) M(i+1, v)"
 )
 # A new stem: step out from the centre, lean outwards by rand(17, 22) degrees.
-_STEM = "[ &(90) f(rand(0.006,0.035)) ^(90) &(rand(17,22)) /(rand(0,90)) t(-6) M(k+1, v*rand(0.8,1.1)) ]"
+_STEM = "[ &(90) f(rand(0.006,0.035)) ^(90) &(rand(17,22)) /(rand(0,90)) t(-9) M(k+1, v*rand(0.8,1.1)) ]"
 
 SPECIES = Species(
     name="mint",
