@@ -46,10 +46,13 @@ def render(mesh, path: Path, elevation: float = 22.0, azimuth: float = 35.0, siz
     facing = np.sign(np.einsum("ij,ij->i", n, view))
     n = n * facing[:, None]  # shade the side we see
     lambert = np.clip(n @ light, 0.0, 1.0)
+    # Thin leaves pass light: a leaf's underside is lit by the light on its top (two-sided),
+    # and undersides are paler than tops.
+    leaf_back = (facing < 0) & (mesh.labels[mesh.faces[:, 0]] == 1)
+    lambert[leaf_back] = 0.7 * np.abs(n[leaf_back] @ light)
     face_color = mesh.colors[mesh.faces].mean(axis=1)
-    back = facing < 0
+    face_color[leaf_back] = 0.75 * face_color[leaf_back] + 0.25 * np.array([0.55, 0.65, 0.45])
     shade = 0.45 + 0.75 * lambert
-    shade[back & (mesh.labels[mesh.faces[:, 0]] == 1)] *= 0.85  # leaf undersides are paler-dull
     rgb = np.clip(face_color * shade[:, None], 0, 1)
 
     depth = cam[mesh.faces, 2].mean(axis=1)
