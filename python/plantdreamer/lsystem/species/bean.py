@@ -4,7 +4,7 @@ An upright main stem grows one node per step (the authors' bean used at least 7 
 use 8). Successive nodes are rolled by rand(100, 160) degrees, so the trifoliate leaves
 alternate around the stem. Each leaf is a petiole ending in a rachis with two opposite lateral
 leaflets and a terminal one: broad ovate leaflets with an acuminate tip. Lower nodes may
-carry a lateral branch at about 70 degrees (``&(70)``) that bends upwards and bears a few
+carry a lateral branch at about 70 degrees (``&(70)``) that bends upwards and bears 1-3
 smaller leaves. Leaves and internodes are sized by their age (steps since they appeared),
 so the top of the plant is small and young. A per-plant vigour ``v`` (rand(0.8, 1.15), set in
 the axiom) scales every length, so plants of one species differ in size as well as shape.
@@ -55,7 +55,7 @@ _NODE = (
 )
 _MAIN = _NODE.format(k="1", a="(N-i)")
 _LATERAL = _NODE.format(k="0.75", a="(N-i)")
-_BRANCH = "[ &(70) t(-4) B(i+1, 0, v) ]"
+_BRANCH = "[ &(70) t(-4) B(i+1, 0, v, randint(1, 3)) ]"
 
 SPECIES = Species(
     name="bean",
@@ -66,8 +66,8 @@ SPECIES = Species(
         Rule("A(i, v)", f"{_MAIN} {_BRANCH} A(i+1, v)", "1 <= i <= 3", 0.45),
         Rule("A(i, v)", f"{_MAIN} A(i+1, v)", "1 <= i <= 3", 0.55),
         Rule("A(i, v)", f"{_MAIN} A(i+1, v)", "i < 1 or (3 < i < N)"),
-        # Lateral branch apex: up to three smaller nodes.
-        Rule("B(i, n, v)", f"{_LATERAL} B(i+1, n+1, v)", "i < N and n < 3"),
+        # Lateral branch apex: m = 1-3 smaller nodes.
+        Rule("B(i, n, v, m)", f"{_LATERAL} B(i+1, n+1, v, m)", "i < N and n < m"),
     ),
     iterations=NODES,
     constants={

@@ -4,8 +4,9 @@ A short, thick stem makes one leaf per step (10 steps, as the authors' kale), ea
 by about the golden angle (137.5 degrees), so leaves spiral around the stem near the soil.
 Each leaf is a long, pale petiole and an oblong-obovate blade with a strongly ruffled
 (curly) margin. Leaf size falls by a factor 0.85 per step (the authors' width ratio), so the
-old outer leaves are large and spread out and the young inner ones are small and upright. A per-plant vigour ``v`` (rand(0.8, 1.2)) scales the
-leaves.
+old outer leaves are large and spread out and the young inner ones are small and upright.
+The two oldest leaves may have withered away (p = 0.2 each), leaving 8-10 leaves. A
+per-plant vigour ``v`` (rand(0.8, 1.2)) scales the leaves.
 """
 
 from __future__ import annotations
@@ -28,7 +29,12 @@ SPECIES = Species(
     name="kale",
     summary="rosette of long-petioled, curly-edged leaves diminishing in size",
     axiom="!(0.006) K(0, rand(0.8,1.2))",
-    rules=(Rule("K(i, v)", f"F(0.0035) /(137.5 + rand(-8,8)) {_LEAF} K(i+1, v)", "i < N"),),
+    rules=(
+        Rule("K(i, v)", f"F(0.0035) /(137.5 + rand(-8,8)) {_LEAF} K(i+1, v)", "2 <= i < N"),
+        # The two oldest leaves may have withered and been removed (p = 0.2 each).
+        Rule("K(i, v)", f"F(0.0035) /(137.5 + rand(-8,8)) {_LEAF} K(i+1, v)", "i < 2", 0.8),
+        Rule("K(i, v)", "F(0.0035) /(137.5 + rand(-8,8)) K(i+1, v)", "i < 2", 0.2),
+    ),
     iterations=STEPS,
     constants={"N": STEPS, "r": RATIO},
     turtle=TurtleConfig(radius=0.008, max_step=0.01, origin=(0, 0, -0.01)),
@@ -54,5 +60,5 @@ SPECIES = Species(
     stem_sides=12,
     stem_color=(0.52, 0.62, 0.40),
     height_range=(0.09, 0.22),
-    leaf_range=(10, 10),
+    leaf_range=(8, 10),
 )
