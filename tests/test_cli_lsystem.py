@@ -117,3 +117,22 @@ def test_mesh_files_carry_organ_labels_and_leaf_instances(tmp_path):
     loaded = trimesh.load(glb, force="mesh", process=False)
     np.testing.assert_array_equal(loaded.vertex_attributes["_label"].ravel(), mesh.labels)
     np.testing.assert_array_equal(loaded.vertex_attributes["_instance"].ravel(), mesh.instances)
+
+
+def test_point_cloud_option_hands_the_sampled_cloud_to_write_ply(tmp_path, monkeypatch):
+    # Checks the wiring without the PLY module: a stand-in records what it is given.
+    import types
+
+    from plantdreamer.cloud import PointCloud
+
+    calls = []
+    fake = types.ModuleType("plantdreamer.io")
+    fake.write_ply = lambda path, cloud, binary: calls.append((path, cloud, binary))
+    monkeypatch.setitem(sys.modules, "plantdreamer.io", fake)
+    result = run("kale", "--seed", "4", "-o", str(tmp_path / "k.ply"), "--points", "1234")
+    assert result.exit_code == 0, result.output
+    (path, cloud, binary), *rest = calls
+    assert not rest and binary is True and str(path) == str(tmp_path / "k.ply")
+    assert isinstance(cloud, PointCloud) and len(cloud) == 1234
+    assert set(cloud.attributes) == {"label", "instance"}
+    assert cloud.colors is not None and cloud.normals is not None
