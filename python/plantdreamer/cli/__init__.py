@@ -19,6 +19,7 @@ from plantdreamer.errors import PlantDreamerError
 COMMANDS: dict[str, str] = {
     "info": "plantdreamer.cli.info:info",
     "eval": "plantdreamer.cli.eval:eval_command",
+    "lsystem": "plantdreamer.cli.lsystem:lsystem",
 }
 
 
