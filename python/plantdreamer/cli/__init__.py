@@ -22,6 +22,7 @@ COMMANDS: dict[str, str] = {
     "info": "plantdreamer.cli.info:info",
     "render": "plantdreamer.cli.render:render",
     "eval": "plantdreamer.cli.eval:eval_command",
+    "lsystem": "plantdreamer.cli.lsystem:lsystem",
 }
 
 

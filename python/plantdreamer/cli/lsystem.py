@@ -1,0 +1,81 @@
+"""``plantdreamer lsystem``: grow a procedural plant and write its points and/or mesh."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
+
+
+@click.command()
+@click.argument("species", required=False)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Random seed; the same species and seed give the same files.")  # fmt: skip
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Point cloud PLY (binary; colours, normals, label and instance per point).",
+)
+@click.option(
+    "--mesh",
+    "mesh_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Mesh file with vertex colours; format from the suffix: " + ", ".join(MESH_FORMATS),
+)
+@click.option("--points", type=click.IntRange(min=1), default=100_000, show_default=True,
+              help="Number of points sampled uniformly over the surface for -o.")  # fmt: skip
+@click.option("--list", "list_only", is_flag=True, help="List the species and exit.")
+def lsystem(
+    species: str | None,
+    seed: int,
+    output: Path | None,
+    mesh_path: Path | None,
+    points: int,
+    list_only: bool,
+) -> None:
+    """Grow a potted SPECIES plant from a stochastic L-System (metres, z up, soil at z = 0)."""
+    from plantdreamer.lsystem import list_species
+    from plantdreamer.lsystem.species import get_species
+
+    if list_only:
+        for name in list_species():
+            click.echo(f"{name:<8} {get_species(name).summary}")
+        return
+    if species is None:
+        raise click.UsageError("name a SPECIES (see --list)")
+    if output is None and mesh_path is None:
+        raise click.UsageError("nothing to write: give -o plant.ply and/or --mesh plant.glb")
+    if mesh_path is not None and mesh_path.suffix.lower().lstrip(".") not in MESH_FORMATS:
+        raise click.UsageError(
+            f"--mesh {mesh_path}: unknown mesh format; use one of .{', .'.join(MESH_FORMATS)}"
+        )
+
+    from plantdreamer.errors import PlantDreamerError
+    from plantdreamer.lsystem import OrganClass, generate_plant, sample_points
+
+    if output is not None:
+        try:
+            from plantdreamer.io import write_ply
+        except ModuleNotFoundError as exc:
+            if exc.name != "plantdreamer.io":
+                raise
+            raise PlantDreamerError(
+                "-o needs plantdreamer.io (PLY writing), which this installation lacks; use --mesh"
+            ) from None
+
+    mesh = generate_plant(species, seed)
+    organs = (mesh.labels == OrganClass.LEAF) | (mesh.labels == OrganClass.STEM)
+    height = float(mesh.vertices[organs, 2].max())
+    click.echo(
+        f"{species} seed {seed}: {mesh.n_leaves} leaves, height {height:.3f} m, "
+        f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces"
+    )
+    if mesh_path is not None:
+        mesh.to_trimesh().export(mesh_path)
+        click.echo(f"wrote {mesh_path}")
+    if output is not None:
+        write_ply(output, sample_points(mesh, n=points, seed=seed), binary=True)
+        click.echo(f"wrote {output} ({points} points)")

@@ -1,0 +1,34 @@
+"""The species registry. Adding a species: write ``species/<name>.py`` defining ``SPECIES``
+(a ``Species``), then add it to ``_BUILTIN`` below (or call ``register`` at run time)."""
+
+from __future__ import annotations
+
+from plantdreamer.errors import InputError
+from plantdreamer.lsystem.species import bean, kale, mint
+from plantdreamer.lsystem.species.base import Species
+
+__all__ = ["Species", "get_species", "list_species", "register"]
+
+_BUILTIN = (bean.SPECIES, kale.SPECIES, mint.SPECIES)
+_REGISTRY: dict[str, Species] = {s.name: s for s in _BUILTIN}
+
+
+def register(species: Species) -> None:
+    """Makes ``species`` available to ``generate_plant`` and the CLI under its name."""
+    if not species.name or not species.name.isidentifier():
+        raise InputError(f"species name must be an identifier, got {species.name!r}")
+    _REGISTRY[species.name] = species
+
+
+def list_species() -> list[str]:
+    """Names of the registered species, sorted."""
+    return sorted(_REGISTRY)
+
+
+def get_species(name: str) -> Species:
+    try:
+        return _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise InputError(
+            f"unknown species {name!r}; known species: {', '.join(list_species())}"
+        ) from None
