@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::{point, Coord};
 
 /// Points per leaf.
-const LEAF: usize = 10;
+const LEAF: usize = 24;
 /// Subtrees larger than this are built on two threads.
 const PARALLEL_BUILD: usize = 1 << 15;
 
@@ -32,8 +32,8 @@ pub struct KdTree {
 }
 
 /// The k best (squared distance, index) pairs seen so far, ascending by (distance, index).
+/// Unfilled slots hold (+inf, u32::MAX), so the worst distance is always `d2[k - 1]`.
 pub struct Neighbours {
-    k: usize,
     d2: Vec<f64>,
     id: Vec<u32>,
 }
@@ -41,45 +41,39 @@ pub struct Neighbours {
 impl Neighbours {
     pub fn new(k: usize) -> Self {
         Self {
-            k,
-            d2: Vec::with_capacity(k + 1),
-            id: Vec::with_capacity(k + 1),
+            d2: vec![f64::INFINITY; k],
+            id: vec![u32::MAX; k],
         }
     }
 
     pub fn clear(&mut self) {
-        self.d2.clear();
-        self.id.clear();
+        self.d2.fill(f64::INFINITY);
+        self.id.fill(u32::MAX);
     }
 
     #[inline]
     fn worst(&self) -> f64 {
-        if self.d2.len() < self.k {
-            f64::INFINITY
-        } else {
-            self.d2[self.k - 1]
-        }
+        self.d2[self.d2.len() - 1]
     }
 
     #[inline]
     fn offer(&mut self, d2: f64, id: u32) {
-        let len = self.d2.len();
-        if len == self.k {
-            let (wd, wi) = (self.d2[len - 1], self.id[len - 1]);
-            if d2 > wd || (d2 == wd && id >= wi) {
-                return;
-            }
-            self.d2.pop();
-            self.id.pop();
+        let last = self.d2.len() - 1;
+        if d2 > self.d2[last] || (d2 == self.d2[last] && id >= self.id[last]) {
+            return;
         }
-        let mut at = self.d2.len();
+        let mut at = last;
         while at > 0 && (self.d2[at - 1] > d2 || (self.d2[at - 1] == d2 && self.id[at - 1] > id)) {
+            self.d2[at] = self.d2[at - 1];
+            self.id[at] = self.id[at - 1];
             at -= 1;
         }
-        self.d2.insert(at, d2);
-        self.id.insert(at, id);
+        self.d2[at] = d2;
+        self.id[at] = id;
     }
 
+    /// Squared distances, nearest first (all k slots are filled once a search has run
+    /// over a cloud of more than k points).
     pub fn squared_distances(&self) -> &[f64] {
         &self.d2
     }
