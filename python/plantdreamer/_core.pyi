@@ -12,6 +12,13 @@ __all__ = [
     "__version__",
     "info",
     "large_gaussian_mask",
+    "downsample_to_count",
+    "knn",
+    "knn_mean_distance",
+    "read_ply_vertex",
+    "remove_statistical_outliers",
+    "voxel_downsample",
+    "write_ply_vertex",
 ]
 
 __version__: str
@@ -26,3 +33,38 @@ def info() -> dict[str, Any]: ...
 def large_gaussian_mask(
     log_scales: npt.NDArray[np.float32], c: float = 3.0
 ) -> tuple[npt.NDArray[np.bool_], dict[str, float]]: ...
+# --- point clouds and PLY (crates/pyplant/src/{ply,pointcloud}.rs) ---
+def read_ply_vertex(
+    path: str,
+) -> tuple[int, list[tuple[str, npt.NDArray[Any]]], str, list[str]]: ...
+def write_ply_vertex(
+    path: str,
+    columns: list[tuple[str, npt.NDArray[Any]]],
+    binary: bool = True,
+    comments: list[str] = ...,
+) -> None: ...
+def remove_statistical_outliers(
+    points: npt.NDArray[np.floating[Any]],
+    nb_neighbors: int,
+    std_ratio: float,
+    threads: int | None = None,
+) -> npt.NDArray[np.int64]: ...
+def voxel_downsample(
+    points: npt.NDArray[np.floating[Any]],
+    voxel_size: float,
+    colors: npt.NDArray[np.float32] | None = None,
+    threads: int | None = None,
+) -> tuple[npt.NDArray[np.floating[Any]], npt.NDArray[np.float32] | None]: ...
+def downsample_to_count(
+    points: npt.NDArray[np.floating[Any]],
+    target: int,
+    colors: npt.NDArray[np.float32] | None = None,
+    tolerance: float = 0.05,
+    threads: int | None = None,
+) -> tuple[npt.NDArray[np.floating[Any]], npt.NDArray[np.float32] | None, float]: ...
+def knn(
+    points: npt.NDArray[np.floating[Any]], k: int, threads: int | None = None
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]: ...
+def knn_mean_distance(
+    points: npt.NDArray[np.floating[Any]], k: int, threads: int | None = None
+) -> npt.NDArray[np.float32]: ...

@@ -6,6 +6,8 @@
 
 pub mod culling;
 pub mod error;
+pub mod ply;
+pub mod pointcloud;
 pub mod threads;
 
 pub use error::{CoreError, CoreResult};

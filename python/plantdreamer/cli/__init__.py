@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "render": "plantdreamer.cli.render:render",
     "eval": "plantdreamer.cli.eval:eval_command",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
+    "prepare": "plantdreamer.cli.prepare:prepare",
 }
 
 

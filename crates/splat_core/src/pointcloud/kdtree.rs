@@ -1,0 +1,313 @@
+//! A kd-tree for exact k-nearest-neighbour search over one point set.
+//!
+//! Median splits on the widest axis with an implicit (heap-numbered) node layout: the shape
+//! depends only on the point count, so subtrees build in parallel and the nodes need no
+//! pointers. Points are stored in tree order, so queries issued in that order walk memory
+//! that is already cached. The search is nanoflann's (the library inside Open3D): nearer
+//! child first, then the farther one only if its cell is closer than the current k-th
+//! neighbour, tracking the cell distance per axis. Distances are squared f64 summed
+//! x, y, z, exactly as nanoflann's L2 metric does.
+//!
+//! Identical points are harmless (a known panic of another crate's mutable tree): splits
+//! are by rank, not value, so a million copies of one point still give a balanced tree,
+//! and cells at distance equal to the current k-th are pruned.
+
+use rayon::prelude::*;
+
+use super::{point, Coord};
+
+/// Points per leaf.
+const LEAF: usize = 24;
+/// Subtrees larger than this are built on two threads.
+const PARALLEL_BUILD: usize = 1 << 15;
+
+pub struct KdTree {
+    /// Coordinates in tree order.
+    pts: Vec<[f64; 3]>,
+    /// Original index of each tree-order point.
+    ids: Vec<u32>,
+    /// Split axis and value of inner node `i` (heap numbering: children 2i+1, 2i+2).
+    axis: Vec<u8>,
+    split: Vec<f64>,
+}
+
+/// The k best (squared distance, index) pairs seen so far, ascending by (distance, index).
+/// Unfilled slots hold (+inf, u32::MAX), so the worst distance is always `d2[k - 1]`.
+pub struct Neighbours {
+    d2: Vec<f64>,
+    id: Vec<u32>,
+}
+
+impl Neighbours {
+    pub fn new(k: usize) -> Self {
+        Self {
+            d2: vec![f64::INFINITY; k],
+            id: vec![u32::MAX; k],
+        }
+    }
+
+    pub fn clear(&mut self) {
+        self.d2.fill(f64::INFINITY);
+        self.id.fill(u32::MAX);
+    }
+
+    #[inline]
+    fn worst(&self) -> f64 {
+        self.d2[self.d2.len() - 1]
+    }
+
+    #[inline]
+    fn offer(&mut self, d2: f64, id: u32) {
+        let last = self.d2.len() - 1;
+        if d2 > self.d2[last] || (d2 == self.d2[last] && id >= self.id[last]) {
+            return;
+        }
+        let mut at = last;
+        while at > 0 && (self.d2[at - 1] > d2 || (self.d2[at - 1] == d2 && self.id[at - 1] > id)) {
+            self.d2[at] = self.d2[at - 1];
+            self.id[at] = self.id[at - 1];
+            at -= 1;
+        }
+        self.d2[at] = d2;
+        self.id[at] = id;
+    }
+
+    /// Squared distances, nearest first (all k slots are filled once a search has run
+    /// over a cloud of more than k points).
+    pub fn squared_distances(&self) -> &[f64] {
+        &self.d2
+    }
+
+    pub fn indices(&self) -> &[u32] {
+        &self.id
+    }
+}
+
+type NodeInfo = (usize, u8, f64);
+
+fn build_rec(pts: &[[f64; 3]], perm: &mut [u32], node: usize, out: &mut Vec<NodeInfo>) {
+    let len = perm.len();
+    if len <= LEAF {
+        return;
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &i in perm.iter() {
+        let p = pts[i as usize];
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let mut axis = 0;
+    for a in 1..3 {
+        if hi[a] - lo[a] > hi[axis] - lo[axis] {
+            axis = a;
+        }
+    }
+    let mid = len / 2;
+    perm.select_nth_unstable_by(mid, |&a, &b| {
+        pts[a as usize][axis]
+            .total_cmp(&pts[b as usize][axis])
+            .then(a.cmp(&b))
+    });
+    let split = pts[perm[mid] as usize][axis];
+    out.push((node, axis as u8, split));
+    let (left, right) = perm.split_at_mut(mid);
+    if len > PARALLEL_BUILD {
+        let mut right_out = Vec::new();
+        rayon::join(
+            || build_rec(pts, left, 2 * node + 1, out),
+            || build_rec(pts, right, 2 * node + 2, &mut right_out),
+        );
+        out.extend(right_out);
+    } else {
+        build_rec(pts, left, 2 * node + 1, out);
+        build_rec(pts, right, 2 * node + 2, out);
+    }
+}
+
+impl KdTree {
+    /// Builds the tree over a validated flat xyz slice (see `check_points`).
+    pub fn build<T: Coord>(points: &[T]) -> Self {
+        let n = points.len() / 3;
+        let pts: Vec<[f64; 3]> = (0..n).into_par_iter().map(|i| point(points, i)).collect();
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        let mut nodes = Vec::new();
+        build_rec(&pts, &mut perm, 0, &mut nodes);
+        let size = nodes.iter().map(|n| n.0 + 1).max().unwrap_or(0);
+        let mut axis = vec![0u8; size];
+        let mut split = vec![0f64; size];
+        for (node, a, s) in nodes {
+            axis[node] = a;
+            split[node] = s;
+        }
+        let tree_pts = perm.par_iter().map(|&i| pts[i as usize]).collect();
+        Self {
+            pts: tree_pts,
+            ids: perm,
+            axis,
+            split,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+
+    /// Original index of the point stored at tree position `pos`.
+    pub fn id(&self, pos: usize) -> u32 {
+        self.ids[pos]
+    }
+
+    /// Position in tree order of each original index.
+    pub fn positions(&self) -> Vec<u32> {
+        let mut inv = vec![0u32; self.len()];
+        for (pos, &id) in self.ids.iter().enumerate() {
+            inv[id as usize] = pos as u32;
+        }
+        inv
+    }
+
+    /// The k nearest points to the point at tree position `pos`, excluding that point.
+    pub fn knn_of_position(&self, pos: usize, out: &mut Neighbours) {
+        out.clear();
+        let q = self.pts[pos];
+        let skip = self.ids[pos];
+        let mut off = [0.0f64; 3];
+        self.search(0, 0, self.len(), &q, skip, &mut off, 0.0, out);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn search(
+        &self,
+        node: usize,
+        start: usize,
+        len: usize,
+        q: &[f64; 3],
+        skip: u32,
+        off: &mut [f64; 3],
+        rd: f64,
+        out: &mut Neighbours,
+    ) {
+        if len <= LEAF {
+            for i in start..start + len {
+                let id = self.ids[i];
+                if id == skip {
+                    continue;
+                }
+                let p = self.pts[i];
+                let dx = q[0] - p[0];
+                let dy = q[1] - p[1];
+                let dz = q[2] - p[2];
+                let d2 = dx * dx + dy * dy + dz * dz;
+                out.offer(d2, id);
+            }
+            return;
+        }
+        let axis = self.axis[node] as usize;
+        let diff = q[axis] - self.split[node];
+        let mid = len / 2;
+        let left = (2 * node + 1, start, mid);
+        let right = (2 * node + 2, start + mid, len - mid);
+        let (near, far) = if diff < 0.0 {
+            (left, right)
+        } else {
+            (right, left)
+        };
+        self.search(near.0, near.1, near.2, q, skip, off, rd, out);
+        let old = off[axis];
+        let far_rd = rd - old * old + diff * diff;
+        if far_rd < out.worst() {
+            off[axis] = diff;
+            self.search(far.0, far.1, far.2, q, skip, off, far_rd, out);
+            off[axis] = old;
+        }
+    }
+
+    /// Runs `f(pos, neighbours)` for every point (k nearest others), in parallel over fixed
+    /// chunks of tree order; returns the per-position results in tree order.
+    pub fn map_knn<R: Send>(&self, k: usize, f: impl Fn(usize, &Neighbours) -> R + Sync) -> Vec<R> {
+        (0..self.len())
+            .into_par_iter()
+            .with_min_len(1024)
+            .map_init(
+                || Neighbours::new(k),
+                |nb, pos| {
+                    self.knn_of_position(pos, nb);
+                    f(pos, nb)
+                },
+            )
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute(points: &[[f64; 3]], q: usize, k: usize) -> Vec<(f64, u32)> {
+        let mut all: Vec<(f64, u32)> = points
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| *i != q)
+            .map(|(i, p)| {
+                let d = [
+                    points[q][0] - p[0],
+                    points[q][1] - p[1],
+                    points[q][2] - p[2],
+                ];
+                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2], i as u32)
+            })
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        all.truncate(k);
+        all
+    }
+
+    #[test]
+    fn matches_brute_force_on_random_points() {
+        let mut s = 12345u64;
+        let mut rnd = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let pts: Vec<[f64; 3]> = (0..2000)
+            .map(|_| [rnd(), rnd() * 0.3, rnd() * 2.0])
+            .collect();
+        let flat: Vec<f64> = pts.iter().flatten().copied().collect();
+        let tree = KdTree::build(&flat);
+        let inv = tree.positions();
+        let mut nb = Neighbours::new(7);
+        for q in (0..2000).step_by(13) {
+            tree.knn_of_position(inv[q] as usize, &mut nb);
+            let want = brute(&pts, q, 7);
+            let got: Vec<(f64, u32)> = nb
+                .squared_distances()
+                .iter()
+                .copied()
+                .zip(nb.indices().iter().copied())
+                .collect();
+            assert_eq!(got, want, "query {q}");
+        }
+    }
+
+    #[test]
+    fn many_identical_points_neither_panic_nor_hang() {
+        let mut flat = vec![0.5f32; 3 * 50_000];
+        flat.extend_from_slice(&[1.0, 2.0, 3.0]);
+        let tree = KdTree::build(&flat);
+        let d = tree.map_knn(20, |_, nb| nb.squared_distances()[19]);
+        let far = tree.positions()[50_000] as usize;
+        assert!(d
+            .iter()
+            .enumerate()
+            .all(|(pos, &x)| if pos == far { x > 0.0 } else { x == 0.0 }));
+    }
+}
