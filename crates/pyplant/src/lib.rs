@@ -8,6 +8,7 @@ use pyo3::types::PyDict;
 
 mod errors;
 mod native;
+mod raster;
 
 pub use errors::to_pyerr;
 pub use native::run_native;
@@ -29,5 +30,6 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     errors::register(m)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
+    raster::register(m)?;
     Ok(())
 }

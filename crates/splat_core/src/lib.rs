@@ -5,6 +5,7 @@
 #![forbid(unsafe_code)]
 
 pub mod error;
+pub mod raster;
 pub mod threads;
 
 pub use error::{CoreError, CoreResult};
