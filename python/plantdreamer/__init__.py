@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from plantdreamer import _core
 from plantdreamer.errors import (
     CheckpointError,
@@ -20,4 +22,15 @@ __all__ = [
     "PlantDreamerError",
     "PlyError",
     "__version__",
+    "rasterization",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # torch-backed names load on first use so `import plantdreamer` (and the CLI) stay light.
+    if name == "rasterization":
+        from plantdreamer.rasterizer import rasterization
+
+        globals()[name] = rasterization
+        return rasterization
+    raise AttributeError(f"module 'plantdreamer' has no attribute {name!r}")

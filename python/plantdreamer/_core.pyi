@@ -1,6 +1,6 @@
 # Type stub of the native module built from crates/pyplant.
 # tests/test_stub.py runs mypy.stubtest against the compiled module: keep them in step.
-from typing import Any
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
@@ -19,6 +19,10 @@ __all__ = [
     "remove_statistical_outliers",
     "voxel_downsample",
     "write_ply_vertex",
+    "RasterState",
+    "eval_sh",
+    "rasterize_backward",
+    "rasterize_forward",
 ]
 
 __version__: str
@@ -67,4 +71,48 @@ def knn(
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]: ...
 def knn_mean_distance(
     points: npt.NDArray[np.floating[Any]], k: int, threads: int | None = None
+# --- rasterizer (crates/pyplant/src/raster.rs) ---
+@final
+class RasterState:
+    """Opaque forward state for rasterize_backward."""
+
+    @property
+    def nbytes(self) -> int: ...
+
+def rasterize_forward(
+    means: npt.NDArray[np.float32],
+    quats: npt.NDArray[np.float32],
+    scales: npt.NDArray[np.float32],
+    opacities: npt.NDArray[np.float32],
+    colors: npt.NDArray[np.float32],
+    viewmats: npt.NDArray[np.float32],
+    ks: npt.NDArray[np.float32],
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+    antialiased: bool = False,
+    render_color: bool = True,
+    render_depth: bool = False,
+    tile_size: int = 16,
+    footprint_sigma: float | None = None,
+    tile_ellipse: bool = True,
+    t_min: float = 1e-4,
+) -> dict[str, Any]: ...
+def rasterize_backward(
+    state: RasterState,
+    v_render: npt.NDArray[np.float32],
+    v_alpha: npt.NDArray[np.float32],
+    *,
+    means: bool = True,
+    quats: bool = True,
+    scales: bool = True,
+    opacities: bool = True,
+    colors: bool = True,
+) -> dict[str, Any]: ...
+def eval_sh(
+    degree: int, coeffs: npt.NDArray[np.float32], dirs: npt.NDArray[np.float32]
 ) -> npt.NDArray[np.float32]: ...

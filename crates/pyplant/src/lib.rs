@@ -12,6 +12,7 @@ mod errors;
 mod native;
 mod ply;
 mod pointcloud;
+mod raster;
 
 pub use errors::to_pyerr;
 pub use native::run_native;
@@ -36,5 +37,6 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     pointcloud::register(m)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
     culling::register(m)?;
+    raster::register(m)?;
     Ok(())
 }

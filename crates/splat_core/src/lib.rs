@@ -8,6 +8,7 @@ pub mod culling;
 pub mod error;
 pub mod ply;
 pub mod pointcloud;
+pub mod raster;
 pub mod threads;
 
 pub use error::{CoreError, CoreResult};

@@ -1,0 +1,309 @@
+//! Bindings of the rasterizer: forward (returns images + an opaque state) and backward.
+
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use splat_core::raster::{
+    self, Camera, ColorMode, Footprint, ForwardState, GradRequest, RasterOptions, Scene,
+};
+use splat_core::threads::with_threads;
+
+use crate::errors::InputError;
+use crate::run_native;
+
+/// The forward pass's saved state; pass it to `rasterize_backward`. Opaque.
+#[pyclass(module = "plantdreamer._core", name = "RasterState", frozen)]
+pub struct RasterState {
+    inner: ForwardState,
+}
+
+#[pymethods]
+impl RasterState {
+    /// Approximate bytes held (inputs, splats, tile lists, per-pixel state).
+    #[getter]
+    fn nbytes(&self) -> usize {
+        let s = &self.inner;
+        let scene = (s.scene.means.len()
+            + s.scene.quats.len()
+            + s.scene.scales.len()
+            + s.scene.opacities.len()
+            + s.scene.colors.len())
+            * 4;
+        let cams: usize = s
+            .per_camera
+            .iter()
+            .map(|c| {
+                c.splats.len() * std::mem::size_of::<raster::project::Splat>()
+                    + c.features.len() * 4
+                    + (c.bins.tile_offsets.len()
+                        + c.bins.isect_gid.len()
+                        + c.bins.depth_order.len()
+                        + c.bins.gauss_offsets.len()
+                        + c.bins.perm.len())
+                        * 4
+                    + (c.blended.features.len() + c.blended.t_final.len() + c.blended.last.len())
+                        * 4
+            })
+            .sum();
+        scene + cams
+    }
+}
+
+/// A C-contiguous float32 array with the given number of dimensions, as a flat copy.
+fn f32_array(name: &str, obj: &Bound<'_, PyAny>, ndim: usize) -> PyResult<(Vec<usize>, Vec<f32>)> {
+    let arr = obj
+        .cast::<PyArrayDyn<f32>>()
+        .map_err(|_| InputError::new_err(format!("{name} must be a float32 numpy array")))?;
+    if arr.ndim() != ndim {
+        return Err(InputError::new_err(format!(
+            "{name} must have {ndim} dimensions, got shape {:?}",
+            arr.shape()
+        )));
+    }
+    // as_slice also accepts Fortran order, which would scramble the rows.
+    if !arr.is_c_contiguous() {
+        return Err(InputError::new_err(format!("{name} must be C-contiguous")));
+    }
+    let ro = arr.readonly();
+    let data = ro
+        .as_slice()
+        .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))?;
+    Ok((arr.shape().to_vec(), data.to_vec()))
+}
+
+fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult<()> {
+    let ok = shape.len() == want.len()
+        && shape
+            .iter()
+            .zip(want)
+            .all(|(s, w)| w.is_none_or(|w| *s == w));
+    if ok {
+        Ok(())
+    } else {
+        let want: Vec<String> = want
+            .iter()
+            .map(|w| w.map_or("*".to_string(), |v| v.to_string()))
+            .collect();
+        Err(InputError::new_err(format!(
+            "{name} must have shape [{}], got {shape:?}",
+            want.join(", ")
+        )))
+    }
+}
+
+/// Forward rasterization of N Gaussians into C cameras (gsplat 1.5 classic semantics).
+///
+/// `colors` is [N, D] (used as is) or, with `sh_degree`, [N, K, 3] SH coefficients; it is
+/// ignored when `render_color` is false. Returns a dict: render [C, H, W, ch] (no
+/// background), alpha [C, H, W], radii [C, N, 2] int32, means2d [C, N, 2], depths [C, N],
+/// n_visible [C], n_intersections [C], profile (seconds per stage), state.
+#[pyfunction]
+#[pyo3(signature = (
+    means, quats, scales, opacities, colors, viewmats, ks, width, height, *,
+    sh_degree=None, near_plane=0.01, far_plane=1e10, eps2d=0.3, antialiased=false,
+    render_color=true, render_depth=false, tile_size=16, footprint_sigma=None,
+    tile_ellipse=true, t_min=1e-4, threads=None
+))]
+fn rasterize_forward<'py>(
+    py: Python<'py>,
+    means: &Bound<'py, PyAny>,
+    quats: &Bound<'py, PyAny>,
+    scales: &Bound<'py, PyAny>,
+    opacities: &Bound<'py, PyAny>,
+    colors: &Bound<'py, PyAny>,
+    viewmats: &Bound<'py, PyAny>,
+    ks: &Bound<'py, PyAny>,
+    width: u32,
+    height: u32,
+    sh_degree: Option<usize>,
+    near_plane: f32,
+    far_plane: f32,
+    eps2d: f32,
+    antialiased: bool,
+    render_color: bool,
+    render_depth: bool,
+    tile_size: u32,
+    footprint_sigma: Option<f32>,
+    tile_ellipse: bool,
+    t_min: f32,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (ms, m) = f32_array("means", means, 2)?;
+    let n = ms[0];
+    expect_shape("means", &ms, &[None, Some(3)])?;
+    let (qs, q) = f32_array("quats", quats, 2)?;
+    expect_shape("quats", &qs, &[Some(n), Some(4)])?;
+    let (ss, s) = f32_array("scales", scales, 2)?;
+    expect_shape("scales", &ss, &[Some(n), Some(3)])?;
+    let (os, o) = f32_array("opacities", opacities, 1)?;
+    expect_shape("opacities", &os, &[Some(n)])?;
+    let (mode, col) = if !render_color {
+        (ColorMode::None, Vec::new())
+    } else if let Some(degree) = sh_degree {
+        let (cs, c) = f32_array("colors", colors, 3)?;
+        expect_shape("colors (SH)", &cs, &[Some(n), None, Some(3)])?;
+        (
+            ColorMode::Sh {
+                degree,
+                bases: cs[1],
+            },
+            c,
+        )
+    } else {
+        let (cs, c) = f32_array("colors", colors, 2)?;
+        expect_shape("colors", &cs, &[Some(n), None])?;
+        (ColorMode::Direct { channels: cs[1] }, c)
+    };
+    let (vs, v) = f32_array("viewmats", viewmats, 3)?;
+    expect_shape("viewmats", &vs, &[None, Some(4), Some(4)])?;
+    let c = vs[0];
+    let (kshape, k) = f32_array("Ks", ks, 3)?;
+    expect_shape("Ks", &kshape, &[Some(c), Some(3), Some(3)])?;
+
+    let opts = RasterOptions {
+        near_plane,
+        far_plane,
+        eps2d,
+        antialiased,
+        tile_size,
+        footprint: footprint_sigma.map_or(Footprint::OpacityAware, Footprint::Sigma),
+        tile_ellipse,
+        t_min,
+        with_depth: render_depth,
+    };
+    let (out, state) = run_native(py, || {
+        let scene = Scene::new(&m, &q, &s, &o, &col, mode)?;
+        let cameras = (0..c)
+            .map(|i| {
+                Camera::from_matrices(&v[16 * i..16 * i + 16], &k[9 * i..9 * i + 9], width, height)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        with_threads(threads, || {
+            raster::forward(scene, cameras, width, height, opts)
+        })
+    })?;
+    let ch = state.channels();
+    let (h, w) = (height as usize, width as usize);
+    let d = PyDict::new(py);
+    d.set_item(
+        "render",
+        out.render.into_pyarray(py).reshape([c, h, w, ch])?,
+    )?;
+    d.set_item("alpha", out.alpha.into_pyarray(py).reshape([c, h, w])?)?;
+    d.set_item("radii", out.radii.into_pyarray(py).reshape([c, n, 2])?)?;
+    d.set_item("means2d", out.means2d.into_pyarray(py).reshape([c, n, 2])?)?;
+    d.set_item("depths", out.depths.into_pyarray(py).reshape([c, n])?)?;
+    d.set_item("n_visible", out.n_visible.into_pyarray(py))?;
+    d.set_item("n_intersections", out.n_intersections.into_pyarray(py))?;
+    let p = PyDict::new(py);
+    p.set_item("project", out.profile.project)?;
+    p.set_item("sort", out.profile.sort)?;
+    p.set_item("bin", out.profile.bin)?;
+    p.set_item("blend", out.profile.blend)?;
+    d.set_item("profile", p)?;
+    d.set_item("state", RasterState { inner: state })?;
+    Ok(d)
+}
+
+/// Gradients of the forward call's inputs from dL/d(render) [C, H, W, ch] and
+/// dL/d(alpha) [C, H, W]. Groups switched off come back as None; means2d ([C, N, 2],
+/// pixels) is always returned.
+#[pyfunction]
+#[pyo3(signature = (
+    state, v_render, v_alpha, *, means=true, quats=true, scales=true, opacities=true,
+    colors=true, threads=None
+))]
+fn rasterize_backward<'py>(
+    py: Python<'py>,
+    state: &Bound<'py, RasterState>,
+    v_render: &Bound<'py, PyAny>,
+    v_alpha: &Bound<'py, PyAny>,
+    means: bool,
+    quats: bool,
+    scales: bool,
+    opacities: bool,
+    colors: bool,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let st = &state.get().inner;
+    let (c, n) = (st.cameras.len(), st.scene.n);
+    let (h, w) = (st.height as usize, st.width as usize);
+    let (vrs, vr) = f32_array("v_render", v_render, 4)?;
+    expect_shape(
+        "v_render",
+        &vrs,
+        &[Some(c), Some(h), Some(w), Some(st.channels())],
+    )?;
+    let (vas, va) = f32_array("v_alpha", v_alpha, 3)?;
+    expect_shape("v_alpha", &vas, &[Some(c), Some(h), Some(w)])?;
+    let want = GradRequest {
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+    };
+    let grads = run_native(py, || {
+        with_threads(threads, || raster::backward(st, &vr, &va, want))
+    })?;
+    let d = PyDict::new(py);
+    let put = |name: &str, v: Option<Vec<f32>>, shape: Vec<usize>| -> PyResult<()> {
+        match v {
+            Some(v) => d.set_item(name, v.into_pyarray(py).reshape(shape)?),
+            None => d.set_item(name, py.None()),
+        }
+    };
+    put("means", grads.means, vec![n, 3])?;
+    put("quats", grads.quats, vec![n, 4])?;
+    put("scales", grads.scales, vec![n, 3])?;
+    put("opacities", grads.opacities, vec![n])?;
+    let color_shape = match st.scene.color_mode {
+        ColorMode::Sh { bases, .. } => vec![n, bases, 3],
+        ColorMode::Direct { channels } => vec![n, channels],
+        ColorMode::None => vec![n, 0],
+    };
+    put("colors", grads.colors, color_shape)?;
+    put("means2d", Some(grads.means2d), vec![c, n, 2])?;
+    Ok(d)
+}
+
+/// SH colour before the +0.5 offset: coeffs [N, K, 3], dirs [N, 3] (any length) -> [N, 3].
+#[pyfunction]
+fn eval_sh<'py>(
+    py: Python<'py>,
+    degree: usize,
+    coeffs: &Bound<'py, PyAny>,
+    dirs: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let (cs, c) = f32_array("coeffs", coeffs, 3)?;
+    let n = cs[0];
+    expect_shape("coeffs", &cs, &[Some(n), None, Some(3)])?;
+    let (ds, d) = f32_array("dirs", dirs, 2)?;
+    expect_shape("dirs", &ds, &[Some(n), Some(3)])?;
+    if degree > 3 || cs[1] < raster::sh::num_bases(degree) {
+        return Err(InputError::new_err(format!(
+            "degree {degree} needs 0..=3 and (degree+1)^2 <= K = {}",
+            cs[1]
+        )));
+    }
+    let k = cs[1];
+    let out: Vec<f32> = (0..n)
+        .flat_map(|i| {
+            let dir = glam_vec(&d[3 * i..3 * i + 3]);
+            raster::sh::eval(degree, &c[i * k * 3..(i + 1) * k * 3], dir)
+        })
+        .collect();
+    out.into_pyarray(py).reshape(vec![n, 3])
+}
+
+fn glam_vec(v: &[f32]) -> splat_core::raster::sh::Vec3 {
+    splat_core::raster::sh::Vec3::new(v[0], v[1], v[2])
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<RasterState>()?;
+    m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(eval_sh, m)?)?;
+    Ok(())
+}

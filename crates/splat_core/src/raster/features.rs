@@ -1,0 +1,40 @@
+//! Per-splat feature vectors blended into the image: colour (direct or from SH, seen from
+//! the camera centre) and optionally the camera-space depth as the last channel.
+
+use rayon::prelude::*;
+
+use super::camera::Camera;
+use super::project::Splat;
+use super::scene::{ColorMode, Scene};
+use super::sh;
+
+/// Features [N, ch]; zero rows for culled splats (never read).
+pub fn compute(scene: &Scene, cam: &Camera, splats: &[Splat], with_depth: bool) -> Vec<f32> {
+    let cc = scene.color_channels();
+    let ch = cc + with_depth as usize;
+    let centre = cam.centre();
+    let mut out = vec![0.0f32; scene.n * ch];
+    out.par_chunks_mut(ch)
+        .zip(splats.par_iter())
+        .enumerate()
+        .for_each(|(i, (f, s))| {
+            if !s.visible() {
+                return;
+            }
+            match scene.color_mode {
+                ColorMode::None => {}
+                ColorMode::Direct { .. } => f[..cc].copy_from_slice(scene.color_row(i)),
+                ColorMode::Sh { degree, .. } => {
+                    let dir = scene.gaussian(i).mean - centre;
+                    let v = sh::eval(degree, scene.color_row(i), dir);
+                    for c in 0..3 {
+                        f[c] = (v[c] + 0.5).max(0.0);
+                    }
+                }
+            }
+            if with_depth {
+                f[cc] = s.depth;
+            }
+        });
+    out
+}

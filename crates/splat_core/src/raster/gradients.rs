@@ -1,0 +1,177 @@
+//! Backward pass of `forward`: image gradients -> gradients of every Gaussian parameter and
+//! of the projected 2D means.
+//!
+//! Deterministic for any thread count: tiles write disjoint slices of the per-intersection
+//! gradients; each Gaussian then sums its own intersections in tile order and owns its
+//! output row; cameras are accumulated one after another. No floating-point atomics.
+//!
+//! Where a gradient is undefined (culled Gaussians: behind the near plane, NaN/Inf
+//! parameters, zero quaternion, opacity < 1/255, off-screen; colour channels clamped at 0;
+//! alpha clamped at 0.99 for opacity and geometry) it is zero.
+
+use rayon::prelude::*;
+
+use super::backward::{blend_backward, ISECT_FIXED};
+use super::project::{project_backward, SplatGrad};
+use super::scene::ColorMode;
+use super::{sh, ForwardState};
+use crate::error::check_len;
+use crate::CoreResult;
+
+/// Which parameter groups need gradients (the others are skipped and returned as None).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct GradRequest {
+    pub means: bool,
+    pub quats: bool,
+    pub scales: bool,
+    pub opacities: bool,
+    pub colors: bool,
+}
+
+/// Gradients, laid out like the inputs. `means2d` is [C, N, 2] in pixels.
+#[derive(Debug, Clone, Default)]
+pub struct Gradients {
+    pub means: Option<Vec<f32>>,
+    pub quats: Option<Vec<f32>>,
+    pub scales: Option<Vec<f32>>,
+    pub opacities: Option<Vec<f32>>,
+    pub colors: Option<Vec<f32>>,
+    pub means2d: Vec<f32>,
+}
+
+// Row layout of the per-Gaussian accumulator.
+const MEAN: usize = 0;
+const QUAT: usize = 3;
+const SCALE: usize = 7;
+const OPAC: usize = 10;
+const COLOR: usize = 11;
+
+/// Gradients of all parameters given dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W].
+pub fn backward(
+    state: &ForwardState,
+    v_render: &[f32],
+    v_alpha: &[f32],
+    want: GradRequest,
+) -> CoreResult<Gradients> {
+    let scene = &state.scene;
+    let n = scene.n;
+    let c = state.cameras.len();
+    let ch = state.channels();
+    let cc = scene.color_channels();
+    let pixels = state.width as usize * state.height as usize;
+    check_len("v_render", v_render, c * pixels, ch)?;
+    check_len("v_alpha", v_alpha, c, pixels)?;
+
+    let cw = scene.color_width();
+    let gw = COLOR + cw;
+    let geometry = want.means || want.quats || want.scales || want.opacities;
+    let mut acc = vec![0.0f32; n * gw];
+    let mut means2d = vec![0.0f32; c * n * 2];
+    let stride = ISECT_FIXED + ch;
+
+    for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
+        let isect = blend_backward(
+            &cs.splats,
+            &cs.features,
+            ch,
+            &cs.bins,
+            &cs.blended,
+            state.width,
+            state.height,
+            &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
+            &v_alpha[ci * pixels..(ci + 1) * pixels],
+        );
+        let mut rank = vec![u32::MAX; n];
+        for (r, &g) in cs.bins.depth_order.iter().enumerate() {
+            rank[g as usize] = r as u32;
+        }
+        let centre = cam.centre();
+        let bins = &cs.bins;
+        acc.par_chunks_mut(gw)
+            .zip(means2d[ci * n * 2..(ci + 1) * n * 2].par_chunks_mut(2))
+            .enumerate()
+            .for_each_init(
+                || vec![0.0f32; stride],
+                |sum, (i, (row, m2d))| {
+                    let r = rank[i];
+                    if r == u32::MAX {
+                        return;
+                    }
+                    // Sum this splat's intersections in tile order.
+                    sum.fill(0.0);
+                    for p in bins.gauss_offsets[r as usize]..bins.gauss_offsets[r as usize + 1] {
+                        let k = bins.perm[p as usize] as usize;
+                        for (s, v) in sum.iter_mut().zip(&isect[k * stride..(k + 1) * stride]) {
+                            *s += v;
+                        }
+                    }
+                    m2d.copy_from_slice(&sum[..2]);
+                    let v_feat = &sum[ISECT_FIXED..];
+                    let g = scene.gaussian(i);
+                    if geometry {
+                        let sg = SplatGrad {
+                            xy: [sum[0], sum[1]],
+                            conic: [sum[2], sum[3], sum[4]],
+                            opacity: sum[5],
+                            depth: if state.opts.with_depth {
+                                v_feat[cc]
+                            } else {
+                                0.0
+                            },
+                        };
+                        let g3 = project_backward(&g, cam, &state.opts, &sg);
+                        for d in 0..3 {
+                            row[MEAN + d] += g3.mean[d];
+                            row[SCALE + d] += g3.scale[d];
+                        }
+                        for d in 0..4 {
+                            row[QUAT + d] += g3.quat[d];
+                        }
+                        row[OPAC] += g3.opacity;
+                    }
+                    match scene.color_mode {
+                        ColorMode::None => {}
+                        ColorMode::Direct { .. } => {
+                            if want.colors {
+                                for (o, v) in row[COLOR..].iter_mut().zip(&v_feat[..cc]) {
+                                    *o += v;
+                                }
+                            }
+                        }
+                        ColorMode::Sh { degree, .. } => {
+                            let coeffs = scene.color_row(i);
+                            let dir = g.mean - centre;
+                            let raw = sh::eval(degree, coeffs, dir);
+                            // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
+                            let v_rgb =
+                                [0, 1, 2]
+                                    .map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
+                            let v_coeffs = if want.colors {
+                                Some(&mut row[COLOR..])
+                            } else {
+                                None
+                            };
+                            let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, v_coeffs);
+                            for d in 0..3 {
+                                row[MEAN + d] += v_dir[d];
+                            }
+                        }
+                    }
+                },
+            );
+    }
+
+    let column = |lo: usize, w: usize| -> Vec<f32> {
+        acc.chunks(gw.max(1))
+            .flat_map(|r| r[lo..lo + w].iter().copied())
+            .collect()
+    };
+    Ok(Gradients {
+        means: want.means.then(|| column(MEAN, 3)),
+        quats: want.quats.then(|| column(QUAT, 4)),
+        scales: want.scales.then(|| column(SCALE, 3)),
+        opacities: want.opacities.then(|| column(OPAC, 1)),
+        colors: (want.colors && cw > 0).then(|| column(COLOR, cw)),
+        means2d,
+    })
+}

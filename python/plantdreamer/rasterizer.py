@@ -1,0 +1,299 @@
+"""``rasterization``: gsplat-compatible, differentiable 3DGS rendering on the CPU.
+
+The function mirrors ``gsplat.rasterization`` (v1.5, "classic" semantics; see
+REFERENCE.md section 2) so code can move between them. The work runs in the Rust core
+(``plantdreamer._core.rasterize_forward`` / ``rasterize_backward``); this module validates
+inputs, wraps the native pair in a ``torch.autograd.Function`` and applies backgrounds and
+expected depth with plain torch ops (so their gradients come from autograd).
+
+Conventions and choices (documented behaviour):
+
+* Inputs must be float32. CUDA (or other device) tensors are copied to the CPU and the
+  outputs are moved back to the device of ``means``; gradients flow back through the copy.
+* Non-contiguous inputs are made contiguous (a copy).
+* A Gaussian with NaN/Inf in any parameter, a quaternion of norm < 1e-12, opacity < 1/255,
+  centre outside [near_plane, far_plane] or footprint entirely off-screen is culled:
+  radii 0, no contribution, zero gradient.
+* ``N == 0`` renders the background only; ``C == 0`` returns empty [0, H, W, ch] tensors.
+* Gradients are zero where undefined: culled Gaussians, colour channels clamped at 0
+  (SH), and opacity/geometry where alpha was clamped at 0.99. ``viewmats``, ``Ks`` are not
+  differentiated (their gradients are None).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from plantdreamer import _core
+from plantdreamer.errors import InputError
+
+RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
+RASTERIZE_MODES = ("classic", "antialiased")
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """Everything the native call needs besides the differentiable tensors."""
+
+    viewmats: np.ndarray
+    ks: np.ndarray
+    width: int
+    height: int
+    near_plane: float
+    far_plane: float
+    eps2d: float
+    sh_degree: int | None
+    antialiased: bool
+    render_color: bool
+    render_depth: bool
+    tile_size: int
+    threads: int | None
+
+
+def _numpy(t: torch.Tensor) -> np.ndarray:
+    return t.detach().contiguous().numpy()
+
+
+class _RasterizeFunction(torch.autograd.Function):
+    """Native forward/backward. Inputs: means, quats, scales, opacities, colors, means2d.
+
+    ``means2d`` is a placeholder whose gradient is the gradient w.r.t. the projected 2D
+    means (pixels), the quantity gsplat's densification reads from ``meta["means2d"]``.
+    """
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means: torch.Tensor,
+        quats: torch.Tensor,
+        scales: torch.Tensor,
+        opacities: torch.Tensor,
+        colors: torch.Tensor,
+        means2d: torch.Tensor,
+        settings: _Settings,
+        meta: dict[str, Any],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        s = settings
+        out = _core.rasterize_forward(
+            _numpy(means),
+            _numpy(quats),
+            _numpy(scales),
+            _numpy(opacities),
+            _numpy(colors),
+            s.viewmats,
+            s.ks,
+            s.width,
+            s.height,
+            sh_degree=s.sh_degree,
+            near_plane=s.near_plane,
+            far_plane=s.far_plane,
+            eps2d=s.eps2d,
+            antialiased=s.antialiased,
+            render_color=s.render_color,
+            render_depth=s.render_depth,
+            tile_size=s.tile_size,
+            threads=s.threads,
+        )
+        ctx.state = out["state"]
+        ctx.threads = s.threads
+        meta["_native"] = out
+        render = torch.from_numpy(out["render"])
+        alpha = torch.from_numpy(out["alpha"]).unsqueeze(-1)
+        return render, alpha
+
+    @staticmethod
+    def backward(ctx: Any, v_render: torch.Tensor, v_alpha: torch.Tensor) -> tuple[Any, ...]:
+        need = ctx.needs_input_grad
+        g = _core.rasterize_backward(
+            ctx.state,
+            _numpy(v_render.to(torch.float32)),
+            _numpy(v_alpha.to(torch.float32).squeeze(-1)),
+            means=need[0],
+            quats=need[1],
+            scales=need[2],
+            opacities=need[3],
+            colors=need[4],
+            threads=ctx.threads,
+        )
+
+        def grad(name: str, i: int) -> torch.Tensor | None:
+            return torch.from_numpy(g[name]) if need[i] and g[name] is not None else None
+
+        return (
+            grad("means", 0),
+            grad("quats", 1),
+            grad("scales", 2),
+            grad("opacities", 3),
+            grad("colors", 4),
+            grad("means2d", 5),
+            None,
+            None,
+        )
+
+
+def _tensor(name: str, value: Any) -> torch.Tensor:
+    if isinstance(value, np.ndarray):
+        value = torch.from_numpy(value)
+    if not isinstance(value, torch.Tensor):
+        raise InputError(f"{name} must be a torch tensor, got {type(value).__name__}")
+    if value.dtype != torch.float32:
+        raise InputError(f"{name} must be float32, got {value.dtype}")
+    return value
+
+
+def _check_shape(name: str, t: torch.Tensor, shape: tuple[int | None, ...]) -> None:
+    ok = t.dim() == len(shape) and all(
+        w is None or s == w for s, w in zip(t.shape, shape, strict=False)
+    )
+    if not ok:
+        want = ", ".join("*" if w is None else str(w) for w in shape)
+        raise InputError(f"{name} must have shape [{want}], got {list(t.shape)}")
+
+
+def rasterization(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+    sh_degree: int | None = None,
+    backgrounds: torch.Tensor | None = None,
+    render_mode: str = "RGB",
+    rasterize_mode: str = "classic",
+    tile_size: int = 16,
+    *,
+    threads: int | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+    """Renders N Gaussians into C cameras (gsplat 1.5 ``rasterization``, CPU).
+
+    Args:
+        means: [N, 3] centres (world). quats: [N, 4] (w, x, y, z), any norm.
+        scales: [N, 3] standard deviations (activated). opacities: [N] in [0, 1].
+        colors: [N, D] colours, or [N, K, 3] SH coefficients when ``sh_degree`` is given
+            (0..3, K >= (sh_degree + 1)^2; colour = max(SH(dir) + 0.5, 0)).
+        viewmats: [C, 4, 4] world-to-camera (OpenCV axes). Ks: [C, 3, 3] intrinsics.
+        width, height: image size in pixels.
+        backgrounds: [C, D] colour behind the Gaussians (colour channels only).
+        render_mode: "RGB", "D" (sum of T alpha z), "ED" (D / alpha), "RGB+D", "RGB+ED";
+            the depth channel comes last.
+        rasterize_mode: "classic", or "antialiased" (opacity times the 2D-blur
+            compensation sqrt(det Sigma / det(Sigma + eps2d I))).
+        tile_size: tile edge in pixels (2..64).
+        threads: worker threads for this call (None: the global pool). Not in gsplat.
+
+    Returns:
+        render_colors [C, H, W, ch] float32, render_alphas [C, H, W, 1], and ``meta``:
+        "radii" [C, N, 2] int32 (footprint half-sizes in pixels, x and y, as gsplat 1.5;
+        0 = culled), "means2d" [C, N, 2] projected centres in pixels (a leaf that requires
+        grad when any input does: after ``backward`` its ``.grad`` is dL/d(means2d)),
+        "depths" [C, N] camera-space z, "n_visible" [C] int64 (Gaussians kept after
+        culling), "n_intersections" [C] int64 (tile-Gaussian pairs), "width", "height",
+        "tile_size", "n_cameras", "render_mode", "profile" (native seconds per stage).
+    """
+    if render_mode not in RENDER_MODES:
+        raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+    if rasterize_mode not in RASTERIZE_MODES:
+        raise InputError(f"rasterize_mode must be one of {RASTERIZE_MODES}, got {rasterize_mode!r}")
+    if int(width) <= 0 or int(height) <= 0:
+        raise InputError(f"image size must be positive, got {width}x{height}")
+    tensors = {
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": opacities,
+        "colors": colors,
+        "viewmats": viewmats,
+        "Ks": Ks,
+    }
+    t = {k: _tensor(k, v) for k, v in tensors.items()}
+    device = t["means"].device
+    n = t["means"].shape[0] if t["means"].dim() == 2 else -1
+    _check_shape("means", t["means"], (None, 3))
+    _check_shape("quats", t["quats"], (n, 4))
+    _check_shape("scales", t["scales"], (n, 3))
+    _check_shape("opacities", t["opacities"], (n,))
+    if sh_degree is None:
+        _check_shape("colors", t["colors"], (n, None))
+        n_color = t["colors"].shape[1]
+    else:
+        if not 0 <= int(sh_degree) <= 3:
+            raise InputError(f"sh_degree must be 0..3, got {sh_degree}")
+        _check_shape("colors (SH coefficients)", t["colors"], (n, None, 3))
+        if t["colors"].shape[1] < (int(sh_degree) + 1) ** 2:
+            raise InputError(
+                f"sh_degree {sh_degree} needs {(int(sh_degree) + 1) ** 2} coefficients per "
+                f"Gaussian, colors has {t['colors'].shape[1]}"
+            )
+        n_color = 3
+    c = t["viewmats"].shape[0] if t["viewmats"].dim() == 3 else -1
+    _check_shape("viewmats", t["viewmats"], (None, 4, 4))
+    _check_shape("Ks", t["Ks"], (c, 3, 3))
+    if not (torch.isfinite(t["viewmats"]).all() and torch.isfinite(t["Ks"]).all()):
+        raise InputError("viewmats and Ks must be finite")
+    render_color = render_mode in ("RGB", "RGB+D", "RGB+ED")
+    render_depth = render_mode != "RGB"
+    bg = None
+    if backgrounds is not None and render_color:
+        bg = _tensor("backgrounds", backgrounds).to("cpu")
+        _check_shape("backgrounds", bg, (c, n_color))
+
+    settings = _Settings(
+        viewmats=_numpy(t["viewmats"].cpu()),
+        ks=_numpy(t["Ks"].cpu()),
+        width=int(width),
+        height=int(height),
+        near_plane=float(near_plane),
+        far_plane=float(far_plane),
+        eps2d=float(eps2d),
+        sh_degree=None if sh_degree is None else int(sh_degree),
+        antialiased=rasterize_mode == "antialiased",
+        render_color=render_color,
+        render_depth=render_depth,
+        tile_size=int(tile_size),
+        threads=threads,
+    )
+    params = [t[k].to("cpu").contiguous() for k in ("means", "quats", "scales", "opacities")]
+    color_in = t["colors"].to("cpu").contiguous()
+    if not render_color:
+        color_in = color_in.detach()  # colours do not affect depth renders
+    wants_grad = torch.is_grad_enabled() and any(p.requires_grad for p in [*params, color_in])
+    means2d = torch.zeros((c, n, 2), dtype=torch.float32, requires_grad=wants_grad)
+    native_meta: dict[str, Any] = {}
+    render, alpha = _RasterizeFunction.apply(*params, color_in, means2d, settings, native_meta)
+    out = native_meta.pop("_native")
+    with torch.no_grad():
+        means2d.copy_(torch.from_numpy(out["means2d"]))
+
+    if bg is not None:
+        cc = n_color
+        color_part = render[..., :cc] + bg[:, None, None, :] * (1.0 - alpha)
+        render = torch.cat([color_part, render[..., cc:]], dim=-1) if render_depth else color_part
+    if render_mode.endswith("ED"):
+        depth = render[..., -1:] / alpha.clamp_min(1e-10)
+        render = torch.cat([render[..., :-1], depth], dim=-1)
+
+    meta: dict[str, Any] = {
+        "radii": torch.from_numpy(out["radii"]).to(device),
+        "means2d": means2d,
+        "depths": torch.from_numpy(out["depths"]).to(device),
+        "n_visible": torch.from_numpy(out["n_visible"].astype(np.int64)).to(device),
+        "n_intersections": torch.from_numpy(out["n_intersections"].astype(np.int64)).to(device),
+        "width": int(width),
+        "height": int(height),
+        "tile_size": int(tile_size),
+        "n_cameras": c,
+        "render_mode": render_mode,
+        "profile": dict(out["profile"]),
+    }
+    return render.to(device), alpha.to(device), meta
