@@ -84,6 +84,20 @@ def normalise_lora_keys(
     return out, alphas
 
 
+_DOWN_SUFFIXES = (".lora.down.weight", ".lora_A.weight", "_lora.down.weight", ".lora_down.weight")
+
+
+def lora_module_names(keys: list[str]) -> set[str]:
+    """The distinct layers a LoRA state dict adapts (one 'down'/'A' matrix per layer)."""
+    names = set()
+    for key in keys:
+        for suffix in _DOWN_SUFFIXES:
+            if key.endswith(suffix):
+                names.add(key[: -len(suffix)])
+                break
+    return names
+
+
 def count_lora_layers(model: torch.nn.Module) -> int:
     from peft.tuners.tuners_utils import BaseTunerLayer
 
@@ -122,10 +136,11 @@ def load_lora(
             "was it trained for Stable Diffusion 2.1?"
         ) from exc
     added = count_lora_layers(unet) - before
-    if added == 0:
+    expected = len(lora_module_names(unet_keys))
+    if added != expected:
         raise InputError(
-            "LoRA matched no UNet layer of this base model: its keys "
-            f"(e.g. {unet_keys[0]!r}) name modules the UNet does not have"
+            f"LoRA names {expected} UNet layers but {added} of this base model matched "
+            f"(e.g. {unet_keys[0]!r}); was it trained for Stable Diffusion 2.1?"
         )
     if scale != 1.0:
         unet.set_adapters([adapter_name], weights=[scale])

@@ -4,19 +4,17 @@ Models come from a Hugging Face hub id (served from the local cache, downloaded 
 the hub can be reached) or from a local folder laid out like the hub repository. Anything
 missing -- offline with an empty cache, a wrong id, a partial folder -- raises
 ``ModelNotFoundError`` naming what was looked for and how to provide it. No call here can
-hang on the network: when ``HF_HUB_OFFLINE`` is set, or a short probe finds the hub
+hang on the network: when ``HF_HUB_OFFLINE`` is set, or a short HTTP probe finds the hub
 unreachable, everything is loaded with ``local_files_only=True``.
 """
 
 from __future__ import annotations
 
 import os
-import socket
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlparse
 
 import torch
 
@@ -82,21 +80,23 @@ def hub_offline() -> bool:
     return value.strip().lower() in {"1", "true", "yes", "on"}
 
 
-def hub_reachable(timeout: float = 2.0) -> bool:
-    """Whether a TCP connection to the hub endpoint opens within ``timeout`` seconds.
+def hub_reachable(timeout: float = 3.0) -> bool:
+    """Whether the hub's API answers (HTTP 200 with JSON) within ``timeout`` seconds.
 
-    Runs in a daemon thread so a slow DNS lookup cannot block the caller past the timeout.
+    An HTTP request rather than a TCP connect: sandboxes and proxies often accept any TCP
+    connection. Runs in a daemon thread, so a slow DNS lookup cannot block past the timeout.
     """
-    endpoint = urlparse(os.environ.get("HF_ENDPOINT", "https://huggingface.co"))
-    host = endpoint.hostname or "huggingface.co"
-    port = endpoint.port or (80 if endpoint.scheme == "http" else 443)
+    import json
+    import urllib.request
+
+    endpoint = os.environ.get("HF_ENDPOINT", "https://huggingface.co").rstrip("/")
     result: list[bool] = []
 
     def probe() -> None:
         try:
-            with socket.create_connection((host, port), timeout=timeout):
-                result.append(True)
-        except OSError:
+            with urllib.request.urlopen(f"{endpoint}/api/models?limit=1", timeout=timeout) as r:
+                result.append(r.status == 200 and isinstance(json.loads(r.read(65536)), list))
+        except (OSError, ValueError):
             result.append(False)
 
     thread = threading.Thread(target=probe, daemon=True)
