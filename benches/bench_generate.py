@@ -34,7 +34,7 @@ def run(cfg, guidance=None):
 
 
 def main() -> int:
-    from plantdreamer.guidance import StableDiffusionDepthGuidance
+    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.guidance.tiny import tiny_models
 
     from plantdreamer.pipeline import GenerateConfig

@@ -21,7 +21,7 @@ from plantdreamer.gaussians import SH_C0, Gaussians, rgb_to_sh_dc
 
 def have_rasterizer() -> bool:
     try:
-        from plantdreamer.rasterization import rasterization  # noqa: F401
+        from plantdreamer.rasterizer import rasterization  # noqa: F401
     except ImportError:
         return False
     return True

@@ -17,7 +17,9 @@ INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2
 
 
 def small(**kw):
-    base = dict(n_points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0)
+    base = dict(
+        n_points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0, guidance="none"
+    )
     base.update(kw)
     return GenerateConfig(**base)
 
@@ -25,7 +27,7 @@ def small(**kw):
 def photometric_guidance(seed=0):
     """Fits renders to a fixed grey-green target: a cheap, deterministic training signal."""
     import torch
-    from plantdreamer.guidance import PhotometricGuidance
+    from plantdreamer.guidance.base import PhotometricGuidance
 
     target = torch.full((1, 48, 48, 3), 0.4)
     target[..., 1] = 0.6
@@ -47,7 +49,9 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     assert (tmp_path / "turntable.gif").stat().st_size > 0
     run = json.loads((tmp_path / "run.json").read_text())
     assert run["config"]["species"] == "bean" and run["seed"] == 0
-    assert [e["event"] for e in run["events"]] == ["cull"] * 1  # step 600 only (> 500)
+    # Densify/prune rounds in (300, 900) every 100 steps; culling every 100 steps after 500.
+    events = [(e["step"], e["event"]) for e in run["events"]]
+    assert events == [(400, "densify"), (500, "densify"), (600, "densify"), (600, "cull")]
     assert (tmp_path / "log.csv").read_text().startswith("step,loss,gaussians")
 
 
@@ -133,7 +137,7 @@ def test_cli_unwritable_output(tmp_path):
 def test_missing_weights_name_what_to_download(tmp_path):
     with pytest.raises(ModelNotFoundError) as err:
         generate(
-            small(species="bean", guidance="sds", base_model=str(tmp_path / "no-model")),
+            small(guidance="sds", species="bean", base_model=str(tmp_path / "no-model")),
             tmp_path / "o",
             show_progress=False,
         )

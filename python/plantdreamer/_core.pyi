@@ -37,6 +37,7 @@ def info() -> dict[str, Any]: ...
 def large_gaussian_mask(
     log_scales: npt.NDArray[np.float32], c: float = 3.0
 ) -> tuple[npt.NDArray[np.bool_], dict[str, float]]: ...
+
 # --- point clouds and PLY (crates/pyplant/src/{ply,pointcloud}.rs) ---
 def read_ply_vertex(
     path: str,
@@ -71,6 +72,8 @@ def knn(
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]: ...
 def knn_mean_distance(
     points: npt.NDArray[np.floating[Any]], k: int, threads: int | None = None
+) -> npt.NDArray[np.float32]: ...
+
 # --- rasterizer (crates/pyplant/src/raster.rs) ---
 @final
 class RasterState:

@@ -86,7 +86,7 @@ class EvalResult:
 
 def _rasterization() -> Callable[..., Any]:
     try:
-        from plantdreamer.rasterization import rasterization
+        from plantdreamer.rasterizer import rasterization
     except ImportError as exc:
         raise PlantDreamerError(
             "the Gaussian rasterizer (plantdreamer.rasterization) is not available in this build"

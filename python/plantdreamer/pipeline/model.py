@@ -66,7 +66,7 @@ class GaussianModel:
         render_mode: str = "RGB",
     ) -> tuple[torch.Tensor, torch.Tensor, dict]:
         """Renders [C, H, W, ch] images (and alphas, meta) through the native rasterizer."""
-        from plantdreamer.rasterization import rasterization
+        from plantdreamer.rasterizer import rasterization
 
         p = self.params
         viewmats, ks = stack(cameras)

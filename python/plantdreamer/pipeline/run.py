@@ -67,7 +67,8 @@ def default_resolution() -> int:
 def build_guidance(cfg: GenerateConfig):
     """The guidance a config asks for; missing weights raise ModelNotFoundError here,
     before anything is written."""
-    from plantdreamer.guidance import NoGuidance, StableDiffusionDepthGuidance
+    from plantdreamer.guidance.base import NoGuidance
+    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 
     if cfg.guidance == "none":
         return NoGuidance()
@@ -126,7 +127,7 @@ def _check_writable(out_dir: Path) -> None:
 
 class _Run:
     def __init__(self, cfg, out_dir, guidance, state, show_progress, on_step) -> None:
-        from plantdreamer.guidance import NoGuidance
+        from plantdreamer.guidance.base import NoGuidance
 
         self.cfg, self.out_dir, self.guidance = cfg, out_dir, guidance
         self.show_progress, self.on_step = show_progress, on_step
@@ -172,8 +173,8 @@ class _Run:
         self.start_step = state["step"]
         self.log_rows, self.events = state["log_rows"], state["events"]
         torch.set_rng_state(state["torch_rng"])
-        if state.get("guidance") is not None and hasattr(self.guidance, "load_state_dict"):
-            self.guidance.load_state_dict(state["guidance"])
+        if state.get("guidance") is not None:
+            self.guidance.generator.set_state(state["guidance"])
 
     # -- the loop --------------------------------------------------------------------
 
@@ -215,7 +216,7 @@ class _Run:
         depth = None
         if conditioner is not None:
             with timer("depth"):
-                depth = conditioner(camera)
+                depth = conditioner([camera])
         with timer("guidance"):
             out = self.guidance(image, depth, [camera], step)
         with timer("backward"):
@@ -266,14 +267,15 @@ class _Run:
             )
 
     def _depth_conditioner(self):
-        from plantdreamer.guidance import DepthConditioner
+        from plantdreamer.guidance.depth import DepthConditioner
 
         def render_depth(camera):
             with torch.no_grad():
                 depth, alpha, _ = self.initial.render([camera], self.cfg.background, "ED")
             return depth, alpha
 
-        return DepthConditioner(render_depth)
+        size = getattr(self.guidance, "resolution", 512)
+        return DepthConditioner(render_depth, out_size=size)
 
     # -- persistence -------------------------------------------------------------------
 
@@ -358,6 +360,11 @@ class _Run:
                 "scale": float(self.transform.scale),
             },
         }
+
+
+def _generator_state(guidance: Any) -> torch.Tensor | None:
+    generator = getattr(guidance, "generator", None)
+    return None if generator is None else generator.get_state()
 
 
 def check_inputs(cfg: GenerateConfig) -> None:
