@@ -27,6 +27,7 @@ def small(**kw):
 def photometric_guidance(seed=0):
     """Fits renders to a fixed grey-green target: a cheap, deterministic training signal."""
     import torch
+
     from plantdreamer.guidance.base import PhotometricGuidance
 
     target = torch.full((1, 48, 48, 3), 0.4)
@@ -149,9 +150,9 @@ def test_ablate_scores_each_colour_init(tmp_path):
     """Without optimisation, the original colours must beat black against images of the
     original cloud: the ablation measures what the colour init contributes."""
     import torch
-    from plantdreamer.io import write_ply
 
     from plantdreamer.cameras import orbit_ring
+    from plantdreamer.io import write_ply
     from plantdreamer.pipeline.init import init_gaussians
     from plantdreamer.pipeline.model import GaussianModel
 
