@@ -14,15 +14,15 @@ import numpy as np
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pipeline.checkpoint import atomic_write
+from plantdreamer.pointcloud import NormalizeTransform
 
 
-def to_input_frame(g: Gaussians, transform: Any) -> Gaussians:
+def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
     """Undo the normalisation: positions and scales back in the input's units and place."""
-    log_factor = np.float32(math.log(float(transform.scale)))
     return Gaussians(
         np.asarray(transform.invert(g.means), dtype=np.float32),
         g.quats.copy(),
-        (g.log_scales - log_factor).astype(np.float32),
+        np.asarray(transform.invert_log_scales(g.log_scales), dtype=np.float32),
         g.opacity_logits.copy(),
         g.sh.copy(),
     )

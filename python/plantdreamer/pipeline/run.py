@@ -163,7 +163,10 @@ class _Run:
 
     def _restore(self, state: dict[str, Any]) -> None:
         self.timer = PhaseTimer(state["timings"])
-        self.transform, self.source_counts = state["transform"], state["source_counts"]
+        from plantdreamer.pointcloud import NormalizeTransform
+
+        self.transform = NormalizeTransform.from_dict(state["transform"])
+        self.source_counts = state["source_counts"]
         self.initial_gaussians = Gaussians(**state["initial"])
         self.model = GaussianModel(self.initial_gaussians, self.cfg.lr)
         self.model.load_state_dict(state["model"])
@@ -292,7 +295,7 @@ class _Run:
                         k: getattr(g, k)
                         for k in ("means", "quats", "log_scales", "opacity_logits", "sh")
                     },
-                    "transform": self.transform,
+                    "transform": self.transform.to_dict(),
                     "source_counts": self.source_counts,
                     "sampler": self.sampler.state(),
                     "densify": {"grad_sum": self.densify.grad_sum, "count": self.densify.count},
@@ -355,10 +358,7 @@ class _Run:
             "timings_s": dict(self.timer.totals),
             "per_step_s": per_step,
             "events": self.events,
-            "transform": {
-                "center": np.asarray(self.transform.center).tolist(),
-                "scale": float(self.transform.scale),
-            },
+            "transform": self.transform.to_dict(),
         }
 
 
