@@ -260,8 +260,9 @@ class _Run:
                 mask, stats = large_gaussian_mask(
                     self.model.params["log_scales"], cfg.cull_threshold
                 )
-                self.model.remove(mask)
-                if step < cfg.densify_until:
+                if stats["culled"]:
+                    self.model.remove(mask)
+                if stats["culled"] and step < cfg.densify_until:
                     self.densify = DensifyStats(
                         self.densify.grad_sum[~mask], self.densify.count[~mask]
                     )
