@@ -18,6 +18,7 @@ from plantdreamer.errors import PlantDreamerError
 # name -> "module:attribute". Only commands that work are listed here.
 COMMANDS: dict[str, str] = {
     "info": "plantdreamer.cli.info:info",
+    "lora": "plantdreamer.cli.lora:lora",
 }
 
 
