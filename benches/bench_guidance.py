@@ -126,7 +126,11 @@ def time_parts(guidance: StableDiffusionDepthGuidance, reps: int) -> dict[str, f
         parts.vae.encode(rgb * 2 - 1).latent_dist.mean.sum().backward()
 
     out = {}
-    for name, fn in (("controlnet", controlnet), ("unet", unet), ("vae_enc_fwd_bwd", vae_encode_backward)):
+    for name, fn in (
+        ("controlnet", controlnet),
+        ("unet", unet),
+        ("vae_enc_fwd_bwd", vae_encode_backward),
+    ):
         samples = []
         for _ in range(reps):
             start = time.perf_counter()
@@ -215,9 +219,10 @@ def markdown(r: dict) -> str:
             "What this means: at this CPU cost the paper's 3600 steps take about "
             f"{3600 * min(real['step_s']) / 3600:.1f} hours on this machine, against the "
             "paper's ~30 minutes on an RTX 4090. Generation with the real models needs a CUDA "
-            "GPU in practice (fp16 there, by default); the CPU path exists for correctness, "
-            "tests and short runs. The tiny models' time is the floor set by the guidance code "
-            "and the diffusers call overhead.",
+            "GPU in practice (UNet and ControlNet in fp16 there by default, the VAE in float32); "
+            "the CPU path exists for correctness, tests and short runs. The tiny models' time "
+            "is the floor set by the guidance code and the diffusers call overhead; its spread "
+            "(min vs median) is the load of the shared machine.",
         ]
     else:
         lines += ["", "(The SD 2.1-sized measurement was skipped with `--skip-real`.)"]

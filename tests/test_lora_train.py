@@ -243,3 +243,19 @@ def test_cli_bad_folder_is_one_line_error(tmp_path):
     assert result.exit_code == 1
     assert result.output.strip().startswith("error:") and "does not exist" in result.output
     assert "Traceback" not in result.output
+
+
+def test_validate_renders_sample_images(images, tmp_path):
+    result = train_lora(
+        config(images, tmp_path, steps=1, validate=2, validation_steps=2), components=tiny_models()
+    )
+    assert [p.name for p in result.validation_images] == ["sample-00.png", "sample-01.png"]
+    with Image.open(result.validation_images[0]) as im:
+        assert im.size == (RES, RES) and im.mode == "RGB"
+
+
+def test_mixed_precision_without_a_gpu_is_refused(images, tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    with pytest.raises(InputError, match="CUDA"):
+        train_lora(config(images, tmp_path, mixed_precision=True), components=tiny_models())
