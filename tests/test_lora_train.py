@@ -183,6 +183,8 @@ def test_resume_continues_the_same_run(images, tmp_path):
 
 def test_resume_with_other_settings_is_refused(images, tmp_path):
     train_lora(config(images, tmp_path, steps=2, checkpoint_every=1), components=tiny_models())
+    with pytest.raises(CheckpointError, match="--resume"):
+        train_lora(config(images, tmp_path, steps=2), components=tiny_models())
     with pytest.raises(CheckpointError, match="rank"):
         train_lora(config(images, tmp_path, steps=4, rank=8, resume=True), components=tiny_models())
 

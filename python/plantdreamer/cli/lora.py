@@ -46,13 +46,14 @@ def lora() -> None:
 @click.option(
     "--validate", default=0, show_default=True, help="Sample images to render after training."
 )
-@click.option("--out", default="lora/bean", show_default=True, help="Output folder.")
-def train(images_dir: str, out: str, **options: object) -> None:
+@click.option("--out", default=None, help="Output folder (default: lora/<species>).")
+def train(images_dir: str, out: str | None, **options: object) -> None:
     """Train a LoRA on the photos in IMAGES_DIR (captions from <name>.txt or the template)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from plantdreamer.lora.train import LoraTrainConfig, train_lora
 
+    out = out or f"lora/{options['species']}"
     config = LoraTrainConfig(images_dir=images_dir, out=out, **options)  # type: ignore[arg-type]
     with Progress(
         TextColumn("[bold]lora[/bold] step {task.completed}/{task.total}"),

@@ -27,7 +27,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from plantdreamer.errors import InputError
+from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.models import (
     DEFAULT_BASE_MODEL,
     DiffusionComponents,
@@ -277,6 +277,11 @@ def train_lora(
     generator = torch.Generator().manual_seed(config.seed)
 
     start, losses, eval_before = 0, [], math.nan
+    if not config.resume and list_checkpoints(out):
+        raise CheckpointError(
+            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
+            "or choose another --out folder"
+        )
     if config.resume and list_checkpoints(out):
         from peft.utils import set_peft_model_state_dict
 
