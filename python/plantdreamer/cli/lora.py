@@ -20,7 +20,7 @@ def lora() -> None:
     help="Hub id or local folder of the Stable Diffusion model.",
 )
 @click.option("--rank", default=4, show_default=True, help="LoRA rank.")
-@click.option("--alpha", type=float, default=None, help="LoRA alpha (default: the rank).")
+@click.option("--alpha", type=int, default=None, help="LoRA alpha (default: the rank).")
 @click.option("--steps", default=1500, show_default=True, help="Optimiser steps.")
 @click.option("--resolution", default=512, show_default=True, help="Training crop size (px).")
 @click.option("--lr", "learning_rate", default=1e-4, show_default=True, help="AdamW learning rate.")

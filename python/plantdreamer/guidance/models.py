@@ -204,21 +204,24 @@ def load_base_model(
             )
     elif folder.exists():
         raise model_not_found(base_model, what, option, offline, "it is a file, not a folder")
-    common = {"local_files_only": offline}
     try:
-        tokenizer = CLIPTokenizer.from_pretrained(base_model, subfolder="tokenizer", **common)
+        tokenizer = CLIPTokenizer.from_pretrained(
+            base_model, subfolder="tokenizer", local_files_only=offline
+        )
         text_encoder = CLIPTextModel.from_pretrained(
-            base_model, subfolder="text_encoder", dtype=dtype, **common
+            base_model, subfolder="text_encoder", dtype=dtype, local_files_only=offline
         )
         vae = AutoencoderKL.from_pretrained(
-            base_model, subfolder="vae", dtype=vae_dtype or dtype, **common
+            base_model, subfolder="vae", dtype=vae_dtype or dtype, local_files_only=offline
         )
         unet = UNet2DConditionModel.from_pretrained(
-            base_model, subfolder="unet", dtype=dtype, **common
+            base_model, subfolder="unet", dtype=dtype, local_files_only=offline
         )
         # DDIM's configuration carries the training noise schedule (alphas_cumprod), which is
         # all SDS needs; the repository's own scheduler class does not matter.
-        scheduler = DDIMScheduler.from_pretrained(base_model, subfolder="scheduler", **common)
+        scheduler = DDIMScheduler.from_pretrained(
+            base_model, subfolder="scheduler", local_files_only=offline
+        )
     except _load_errors() as exc:
         raise model_not_found(base_model, what, option, offline, _first_line(exc)) from exc
     return unet, vae, text_encoder, tokenizer, scheduler

@@ -59,7 +59,7 @@ class LoraTrainConfig:
     base_model: str = DEFAULT_BASE_MODEL
     out: str = "lora/bean"
     rank: int = 4
-    alpha: float | None = None  # LoRA alpha; None = rank (scale 1)
+    alpha: int | None = None  # LoRA alpha; None = rank (scale 1)
     steps: int = 1500
     resolution: int = 512
     learning_rate: float = 1e-4
@@ -91,8 +91,18 @@ class LoraTrainConfig:
 
     def fingerprint(self, examples: list[Example]) -> dict[str, Any]:
         """What a resumed run must share with its checkpoint (``steps`` may grow)."""
-        keys = ("species", "base_model", "rank", "alpha", "resolution", "learning_rate")
-        keys += ("batch_size", "grad_accum", "seed", "caption_template")
+        keys = [
+            "species",
+            "base_model",
+            "rank",
+            "alpha",
+            "resolution",
+            "learning_rate",
+            "batch_size",
+            "grad_accum",
+            "seed",
+            "caption_template",
+        ]
         fp: dict[str, Any] = {k: getattr(self, k) for k in keys}
         fp["images"] = [e.path.name for e in examples]
         return fp
