@@ -254,3 +254,16 @@ def test_no_guidance_and_photometric_guidance():
     torch.testing.assert_close(images.grad, 2 * (images - target).detach() / images.numel())
     with pytest.raises(InputError):
         PhotometricGuidance(torch.rand(3, 5, 5, 3))(images, None, cameras(), 0)
+
+
+def test_half_precision_networks_keep_a_float32_vae():
+    # bfloat16 on the CPU stands in for CUDA's fp16 path (no GPU in CI).
+    guidance = make_guidance(dtype=torch.bfloat16)
+    assert guidance.parts.unet.dtype == torch.bfloat16
+    assert guidance.parts.controlnet.dtype == torch.bfloat16
+    assert guidance.parts.vae.dtype == torch.float32
+    images, depth = inputs()
+    out = guidance(images, depth, cameras(), 0)
+    out.loss.backward()
+    assert out.loss.dtype == torch.float32
+    assert torch.isfinite(images.grad).all() and images.grad.abs().sum() > 0

@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "eval": "plantdreamer.cli.eval:eval_command",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
     "prepare": "plantdreamer.cli.prepare:prepare",
+    "lora": "plantdreamer.cli.lora:lora",
 }
 
 

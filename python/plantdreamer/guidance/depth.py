@@ -75,12 +75,12 @@ def kernel_size(camera_distance: float, image_size: int, config: DepthCleaning) 
     if not np.isfinite(camera_distance) or camera_distance <= 0.0:
         raise InputError(f"camera distance must be positive and finite, got {camera_distance}")
     k_ref = config.far_kernel
-    for max_distance, k in config.kernel_by_distance:
+    for max_distance, size in config.kernel_by_distance:
         if camera_distance < max_distance:
-            k_ref = k
+            k_ref = size
             break
-    k = k_ref * image_size / config.kernel_reference_size
-    return max(1, 2 * round((k - 1) / 2) + 1)
+    scaled = k_ref * image_size / config.kernel_reference_size
+    return max(1, 2 * round((scaled - 1) / 2) + 1)
 
 
 def erode(image: torch.Tensor, k: int) -> torch.Tensor:

@@ -45,12 +45,16 @@ class DiffusionComponents:
     tokenizer: Any
     scheduler: Any
 
-    def prepare(self, device: torch.device, dtype: torch.dtype) -> DiffusionComponents:
-        """Move the networks to ``device``/``dtype``, eval mode, frozen (in place)."""
+    def prepare(
+        self, device: torch.device, dtype: torch.dtype, vae_dtype: torch.dtype | None = None
+    ) -> DiffusionComponents:
+        """Move the networks to ``device``/``dtype`` (the VAE to ``vae_dtype`` if given),
+        eval mode, frozen (in place)."""
         for model in (self.unet, self.controlnet, self.vae, self.text_encoder):
+            target = vae_dtype if (model is self.vae and vae_dtype is not None) else dtype
             model.to(device=device)
-            if next(model.parameters()).dtype != dtype:  # loaded models already match
-                model.to(dtype=dtype)
+            if next(model.parameters()).dtype != target:  # loaded models already match
+                model.to(dtype=target)
             model.eval()
             model.requires_grad_(False)
         return self
@@ -184,7 +188,7 @@ def _load_errors() -> tuple[type[BaseException], ...]:
 
 
 def load_base_model(
-    base_model: str, dtype: torch.dtype, offline: bool
+    base_model: str, dtype: torch.dtype, offline: bool, vae_dtype: torch.dtype | None = None
 ) -> tuple[Any, Any, Any, Any, Any]:
     """(unet, vae, text_encoder, tokenizer, scheduler) of a Stable Diffusion repository."""
     from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
@@ -200,19 +204,24 @@ def load_base_model(
             )
     elif folder.exists():
         raise model_not_found(base_model, what, option, offline, "it is a file, not a folder")
-    common = {"local_files_only": offline}
     try:
-        tokenizer = CLIPTokenizer.from_pretrained(base_model, subfolder="tokenizer", **common)
-        text_encoder = CLIPTextModel.from_pretrained(
-            base_model, subfolder="text_encoder", dtype=dtype, **common
+        tokenizer = CLIPTokenizer.from_pretrained(
+            base_model, subfolder="tokenizer", local_files_only=offline
         )
-        vae = AutoencoderKL.from_pretrained(base_model, subfolder="vae", dtype=dtype, **common)
+        text_encoder = CLIPTextModel.from_pretrained(
+            base_model, subfolder="text_encoder", dtype=dtype, local_files_only=offline
+        )
+        vae = AutoencoderKL.from_pretrained(
+            base_model, subfolder="vae", dtype=vae_dtype or dtype, local_files_only=offline
+        )
         unet = UNet2DConditionModel.from_pretrained(
-            base_model, subfolder="unet", dtype=dtype, **common
+            base_model, subfolder="unet", dtype=dtype, local_files_only=offline
         )
         # DDIM's configuration carries the training noise schedule (alphas_cumprod), which is
         # all SDS needs; the repository's own scheduler class does not matter.
-        scheduler = DDIMScheduler.from_pretrained(base_model, subfolder="scheduler", **common)
+        scheduler = DDIMScheduler.from_pretrained(
+            base_model, subfolder="scheduler", local_files_only=offline
+        )
     except _load_errors() as exc:
         raise model_not_found(base_model, what, option, offline, _first_line(exc)) from exc
     return unet, vae, text_encoder, tokenizer, scheduler
@@ -240,11 +249,14 @@ def load_components(
     controlnet: str = DEFAULT_CONTROLNET,
     dtype: torch.dtype = torch.float32,
     offline: bool | None = None,
+    vae_dtype: torch.dtype | None = None,
 ) -> DiffusionComponents:
     """Load every model SDS needs (on the CPU, in ``dtype``); see the module docstring."""
     if offline is None:
         offline = local_files_only([str(base_model), str(controlnet)])
-    unet, vae, text_encoder, tokenizer, scheduler = load_base_model(str(base_model), dtype, offline)
+    unet, vae, text_encoder, tokenizer, scheduler = load_base_model(
+        str(base_model), dtype, offline, vae_dtype
+    )
     control = load_controlnet(str(controlnet), dtype, offline)
     return DiffusionComponents(
         unet=unet,

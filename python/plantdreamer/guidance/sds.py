@@ -47,7 +47,16 @@ DEFAULT_GRAD_CLIP = (0, 1.5, 2.0, 1000)
 
 
 class StableDiffusionDepthGuidance:
-    """SDS guidance; see the module docstring. Heavy: loads several GB of weights."""
+    """SDS guidance; see the module docstring. Heavy: loads several GB of weights.
+
+    ``components`` injects already-built models (tests use ``tiny_models()``); they are
+    moved, frozen and, with ``lora``, modified in place. ``resolution`` is the SDS image size
+    (512 for SD 2.1; a multiple of the VAE's downsampling factor). ``grad_clip`` is
+    threestudio's ``(start_step, start_value, end_value, end_step)`` ramp, or None for no clamp.
+    UNet, ControlNet and text encoder run in ``dtype`` (fp16 on CUDA by default); the VAE in
+    ``vae_dtype`` (float32 by default, because its backward pass produces the render
+    gradients; None = ``dtype``).
+    """
 
     needs_depth = True
 
@@ -69,18 +78,24 @@ class StableDiffusionDepthGuidance:
         resolution: int = 512,
         grad_clip: tuple[int, float, float, int] | None = DEFAULT_GRAD_CLIP,
         lora_scale: float = 1.0,
+        vae_dtype: torch.dtype | str | None = torch.float32,
     ):
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype, self.device)
+        # The VAE encoder is the one network we backpropagate through; in fp16 its backward
+        # pass can overflow into the render gradients, where no nan_to_num guards them.
+        self.vae_dtype = self.dtype if vae_dtype is None else resolve_dtype(vae_dtype, self.device)
         if components is None:
-            parts = load_components(str(base_model), str(controlnet), dtype=self.dtype)
+            parts = load_components(
+                str(base_model), str(controlnet), dtype=self.dtype, vae_dtype=self.vae_dtype
+            )
         elif isinstance(components, Mapping):
             parts = DiffusionComponents(**components)
         else:
             parts = components
         if lora is not None:
             load_lora(parts.unet, lora, parts.text_encoder, scale=lora_scale)
-        self.parts = parts.prepare(self.device, self.dtype)
+        self.parts = parts.prepare(self.device, self.dtype, self.vae_dtype)
 
         vae_factor = 2 ** (len(parts.vae.config.block_out_channels) - 1)
         if resolution <= 0 or resolution % vae_factor:
@@ -130,7 +145,7 @@ class StableDiffusionDepthGuidance:
     def encode(self, rgb: torch.Tensor) -> torch.Tensor:
         """[B, 3, R, R] in [0, 1] -> float32 latents (differentiable)."""
         vae = self.parts.vae
-        posterior = vae.encode((rgb * 2.0 - 1.0).to(self.dtype)).latent_dist
+        posterior = vae.encode((rgb * 2.0 - 1.0).to(self.vae_dtype)).latent_dist
         latents = posterior.sample(generator=self.generator) * vae.config.scaling_factor
         return latents.float()
 
