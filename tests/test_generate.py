@@ -72,11 +72,18 @@ def test_point_cloud_comes_back_in_its_original_frame(tmp_path):
     assert 0.005 < np.exp(g.log_scales).mean() < 0.2
 
 
-def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path):
-    cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
-    full = generate(
-        small(**cfg), tmp_path / "full", guidance=photometric_guidance(), show_progress=False
+def tiny_sds_guidance():
+    from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+
+    return StableDiffusionDepthGuidance(
+        species="mint", components=tiny_models(), resolution=64, seed=3
     )
+
+
+@pytest.mark.parametrize("make_guidance", [photometric_guidance, tiny_sds_guidance])
+def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, make_guidance):
+    cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
+    full = generate(small(**cfg), tmp_path / "full", guidance=make_guidance(), show_progress=False)
 
     def interrupt_at_7(step):
         if step == 7:
@@ -86,18 +93,18 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path):
         generate(
             small(**cfg),
             tmp_path / "cut",
-            guidance=photometric_guidance(),
+            guidance=make_guidance(),
             show_progress=False,
             on_step=interrupt_at_7,
         )
     assert stop.value.step == 8
     assert not (tmp_path / "cut" / "plant.ply").exists()
     resumed = generate(
-        None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
+        None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
     )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
     again = generate(
-        small(**cfg), tmp_path / "again", guidance=photometric_guidance(), show_progress=False
+        small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
     )
     assert again.ply_path.read_bytes() == full.ply_path.read_bytes()
     # And the optimisation really changed the model.
@@ -199,3 +206,25 @@ def test_ablate_scores_each_colour_init(tmp_path):
     }
     assert scores["original"] > scores["black"] + 3.0
     assert (tmp_path / "abl" / "ablation.png").stat().st_size > 0
+
+
+def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
+    """The real loading path (from_pretrained on hub-like folders) and a few SDS steps."""
+    from plantdreamer.guidance import save_tiny_models
+
+    base, controlnet = save_tiny_models(tmp_path / "models")
+    out = tmp_path / "o"
+    args = [
+        "generate", "--species", "kale", "--seed", "2", "--guidance", "sds",
+        "--base-model", str(base), "--controlnet", str(controlnet), "--steps", "3",
+        "--points", "1500", "--resolution", "48", "--sds-resolution", "64",
+        "--eval-views", "2", "--out", str(out), "--quiet",
+    ]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    rows = (out / "log.csv").read_text().strip().splitlines()
+    assert len(rows) == 4  # header + 3 steps
+    losses = [float(r.split(",")[1]) for r in rows[1:]]
+    assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
+    run = json.loads((out / "run.json").read_text())
+    assert {"render", "depth", "guidance", "backward", "optimizer"} <= set(run["per_step_s"])

@@ -33,6 +33,9 @@ import click
 @click.option("--lora", help="Species LoRA: a folder or .safetensors file (diffusers format).")
 @click.option("--guidance-scale", default=100.0, show_default=True)
 @click.option(
+    "--sds-resolution", default=512, show_default=True, help="Image size given to the VAE."
+)
+@click.option(
     "--schedule", type=click.Choice(["paper", "released"]), default="paper", show_default=True
 )
 @click.option(

@@ -87,6 +87,7 @@ class GenerateConfig:
     guidance_scale: float = 100.0
     conditioning_scale: float = 1.0
     schedule: str = "paper"
+    sds_resolution: int = 512  # renders are resized to this before VAE encoding
 
     # Outputs.
     eval_views: int = 120

@@ -82,6 +82,7 @@ def build_guidance(cfg: GenerateConfig):
         schedule=cfg.schedule,
         total_steps=cfg.steps,
         seed=cfg.seed,
+        resolution=cfg.sds_resolution,
     )
 
 
@@ -301,9 +302,8 @@ class _Run:
                     "sampler": self.sampler.state(),
                     "densify": {"grad_sum": self.densify.grad_sum, "count": self.densify.count},
                     "torch_rng": torch.get_rng_state(),
-                    "guidance": self.guidance.state_dict()
-                    if hasattr(self.guidance, "state_dict")
-                    else None,
+                    # The guidance's noise generator, so a resumed run draws the same noise.
+                    "guidance": _generator_state(self.guidance),
                     "log_rows": self.log_rows,
                     "events": self.events,
                     "timings": dict(self.timer.totals),
