@@ -233,7 +233,7 @@ def markdown(r: dict) -> str:
             f"VAE encoder forward + backward at 512 px {p['vae_enc_fwd_bwd']:.1f} s.",
             "",
             "What this means: at this CPU cost the paper's 3600 steps take about "
-            f"{3600 * min(real['step_s']) / 3600.0:.1f} hours (3600 steps x s/step / 3600 s/h) here, against the "
+            f"{3600 * min(real['step_s']) / 3600.0:.1f} hours here, against the "
             "paper's ~30 minutes on an RTX 4090. Generation with the real models needs a CUDA "
             "GPU in practice (UNet and ControlNet in fp16 there by default, the VAE in float32); "
             "the CPU path exists for correctness, tests and short runs. The tiny models' time "
