@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "info": "plantdreamer.cli.info:info",
     "eval": "plantdreamer.cli.eval:eval_command",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
+    "lora": "plantdreamer.cli.lora:lora",
 }
 
 

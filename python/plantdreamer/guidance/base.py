@@ -1,0 +1,102 @@
+"""The guidance protocol the optimiser calls, and the two simple implementations.
+
+A guidance turns rendered images into a scalar loss whose gradient flows back into the
+renders (and through the rasterizer into the Gaussians). The optimiser calls
+
+    out = guidance(images, depth_cond, cameras, step)
+    out.loss.backward()
+
+with ``images`` [B, H, W, 3] float32 in [0, 1] (requiring grad), ``depth_cond`` the cleaned
+[B, 1, h, w] depth conditioning in [0, 1] (or None when ``needs_depth`` is False), the
+``Camera`` of each image, and the optimisation step (schedules depend on it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import torch
+
+from plantdreamer.cameras import Camera
+from plantdreamer.errors import InputError
+
+
+@dataclass
+class GuidanceOutput:
+    """``loss``: scalar, differentiable w.r.t. the images; ``stats``: numbers worth logging."""
+
+    loss: torch.Tensor
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Guidance(Protocol):
+    needs_depth: bool
+
+    def __call__(
+        self,
+        images: torch.Tensor,
+        depth_cond: torch.Tensor | None,
+        cameras: Sequence[Camera],
+        step: int,
+    ) -> GuidanceOutput: ...
+
+
+def check_images(images: torch.Tensor, cameras: Sequence[Camera]) -> None:
+    """InputError unless ``images`` is a float [B, H, W, 3] batch with one camera per image."""
+    if images.dim() != 4 or images.shape[-1] != 3:
+        raise InputError(f"images must be [B, H, W, 3], got {list(images.shape)}")
+    if not images.is_floating_point():
+        raise InputError(f"images must be floating point, got {images.dtype}")
+    if len(cameras) != images.shape[0]:
+        raise InputError(f"got {len(cameras)} cameras for {images.shape[0]} images")
+
+
+class NoGuidance:
+    """A zero loss that still connects to the graph (ablations: geometry-only runs)."""
+
+    needs_depth = False
+
+    def __call__(
+        self,
+        images: torch.Tensor,
+        depth_cond: torch.Tensor | None,
+        cameras: Sequence[Camera],
+        step: int,
+    ) -> GuidanceOutput:
+        check_images(images, cameras)
+        return GuidanceOutput(loss=0.0 * images.sum(), stats={"loss": 0.0})
+
+
+class PhotometricGuidance:
+    """Mean squared error to fixed target images [B, H, W, 3] (tests, ablations, fitting).
+
+    With a single target image and several renders, the target is broadcast.
+    """
+
+    needs_depth = False
+
+    def __init__(self, targets: torch.Tensor):
+        if targets.dim() == 3:
+            targets = targets[None]
+        if targets.dim() != 4 or targets.shape[-1] != 3:
+            raise InputError(f"targets must be [B, H, W, 3], got {list(targets.shape)}")
+        self.targets = targets.detach().float()
+
+    def __call__(
+        self,
+        images: torch.Tensor,
+        depth_cond: torch.Tensor | None,
+        cameras: Sequence[Camera],
+        step: int,
+    ) -> GuidanceOutput:
+        check_images(images, cameras)
+        targets = self.targets.to(images.device)
+        if targets.shape[1:] != images.shape[1:] or targets.shape[0] not in (1, images.shape[0]):
+            raise InputError(
+                f"targets {list(targets.shape)} do not match images {list(images.shape)}"
+            )
+        loss = torch.mean((images - targets) ** 2)
+        return GuidanceOutput(loss=loss, stats={"loss": float(loss.detach())})

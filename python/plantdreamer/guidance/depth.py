@@ -1,0 +1,261 @@
+"""Depth conditioning for the ControlNet: clean the depth of the fixed initial Gaussians.
+
+The paper renders a depth map of the *initial* Gaussians from each training camera (so the
+geometry the diffusion model sees never drifts), then cleans it with "mask thresholding,
+erosion, and dilation". ``clean_depth`` does, per image:
+
+1. background removal: keep pixels whose accumulated opacity is above ``alpha_threshold``
+   (a render's alpha, not a depth value, says what is background);
+2. far-tail removal: drop kept pixels farther than the ``far_quantile`` of the kept depths
+   (stray Gaussians behind the plant);
+3. normalisation, near = bright: ``n = (far - d) / (far - near)`` in [0, 1], then the
+   released code's contrast lift ``min((n + min_intensity) * intensity_scale, 1)`` so the
+   farthest plant pixel stays visibly brighter than the black background;
+4. grey erosion then dilation (a morphological opening) with a square kernel chosen from
+   the camera distance, which removes the thin halo of half-transparent edge Gaussians;
+5. resize to the ControlNet resolution (``out_size`` square, like the RGB render).
+
+Differences from the released code, on purpose: the kernel is chosen from the real camera
+distance (the released code takes the norm of the 4x4 camera-to-world matrix, which is
+sqrt(4 + r^2), not r); the released code only erodes (the paper says erosion and dilation);
+it removes the background by a threshold on normalised depth, which also deletes the nearest
+3% of the plant; and its thresholds are fixed. Here every parameter is in ``DepthCleaning``.
+Kernel sizes are specified in pixels of a ``kernel_reference_size`` render (768, the released
+resolution) and scaled to the actual render size.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from plantdreamer.cameras import Camera
+from plantdreamer.errors import InputError
+
+
+@dataclass(frozen=True)
+class DepthCleaning:
+    """Parameters of ``clean_depth``; defaults follow the released code where it is sound."""
+
+    alpha_threshold: float = 0.5
+    far_quantile: float = 0.99
+    min_intensity: float = 0.1
+    intensity_scale: float = 1.75
+    # (max camera distance, kernel px) pairs, tried in order; beyond all of them: far_kernel.
+    kernel_by_distance: tuple[tuple[float, int], ...] = ((2.0, 3), (5.0, 5))
+    far_kernel: int = 7
+    kernel_reference_size: int = 768
+    erode: bool = True
+    dilate: bool = True
+    # True if ``depth`` is accumulated depth (sum of T alpha z) rather than expected depth.
+    accumulated: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.alpha_threshold < 1.0:
+            raise InputError(f"alpha_threshold must be in [0, 1), got {self.alpha_threshold}")
+        if not 0.0 < self.far_quantile <= 1.0:
+            raise InputError(f"far_quantile must be in (0, 1], got {self.far_quantile}")
+        if self.intensity_scale <= 0.0 or self.min_intensity < 0.0:
+            raise InputError("intensity_scale must be > 0 and min_intensity >= 0")
+        if self.kernel_reference_size <= 0:
+            raise InputError("kernel_reference_size must be positive")
+        sizes = [k for _, k in self.kernel_by_distance] + [self.far_kernel]
+        if any(k < 1 for k in sizes):
+            raise InputError(f"kernel sizes must be >= 1 px, got {sizes}")
+
+
+def kernel_size(camera_distance: float, image_size: int, config: DepthCleaning) -> int:
+    """Odd square kernel (pixels of an ``image_size`` render) for a camera at this distance."""
+    if not np.isfinite(camera_distance) or camera_distance <= 0.0:
+        raise InputError(f"camera distance must be positive and finite, got {camera_distance}")
+    k_ref = config.far_kernel
+    for max_distance, size in config.kernel_by_distance:
+        if camera_distance < max_distance:
+            k_ref = size
+            break
+    scaled = k_ref * image_size / config.kernel_reference_size
+    return max(1, 2 * round((scaled - 1) / 2) + 1)
+
+
+def erode(image: torch.Tensor, k: int) -> torch.Tensor:
+    """Grey erosion (min filter) of [B, 1, H, W]; the image border is not treated as dark."""
+    if k <= 1:
+        return image
+    return -F.max_pool2d(-image, k, stride=1, padding=k // 2)
+
+
+def dilate(image: torch.Tensor, k: int) -> torch.Tensor:
+    """Grey dilation (max filter) of [B, 1, H, W]."""
+    if k <= 1:
+        return image
+    return F.max_pool2d(image, k, stride=1, padding=k // 2)
+
+
+def normalise_depth(
+    depth: torch.Tensor, alpha: torch.Tensor, config: DepthCleaning
+) -> torch.Tensor:
+    """Steps 1-3 for one [H, W] map: near = bright in (0, 1], removed pixels 0."""
+    if config.accumulated:
+        depth = depth / alpha.clamp_min(1e-6)
+    mask = (alpha > config.alpha_threshold) & torch.isfinite(depth) & (depth > 0)
+    if not bool(mask.any()):
+        return torch.zeros_like(depth)
+    values = depth[mask].double()
+    near = values.min()
+    far = torch.quantile(values, config.far_quantile) if config.far_quantile < 1.0 else values.max()
+    keep = mask & (depth <= far.to(depth.dtype))
+    span = float(far - near)
+    if span <= 1e-12:  # flat plant, e.g. a single Gaussian: all nearest
+        n = torch.ones_like(depth)
+    else:
+        n = ((far - depth.double()) / span).clamp(0.0, 1.0).to(depth.dtype)
+    lifted = ((n + config.min_intensity) * config.intensity_scale).clamp(max=1.0)
+    return torch.where(keep, lifted, torch.zeros_like(lifted))
+
+
+def _distances(camera_distance: float | torch.Tensor | Sequence[float], batch: int) -> list[float]:
+    if isinstance(camera_distance, torch.Tensor):
+        values = camera_distance.detach().reshape(-1).tolist()
+    elif isinstance(camera_distance, (int, float)):
+        values = [float(camera_distance)]
+    else:
+        values = [float(v) for v in camera_distance]
+    if len(values) == 1:
+        values = values * batch
+    if len(values) != batch:
+        raise InputError(f"got {len(values)} camera distances for {batch} depth maps")
+    return values
+
+
+def clean_depth(
+    depth: torch.Tensor,
+    alpha: torch.Tensor,
+    camera_distance: float | torch.Tensor | Sequence[float],
+    out_size: int = 512,
+    config: DepthCleaning | None = None,
+    **overrides: object,
+) -> torch.Tensor:
+    """ControlNet conditioning [B, 1, out_size, out_size] in [0, 1] from rendered depth.
+
+    ``depth`` and ``alpha`` are [B, H, W, 1] (or [H, W, 1]); ``camera_distance`` is one value or
+    one per image. Keyword ``overrides`` replace fields of ``config`` (see ``DepthCleaning``).
+    A view where nothing is opaque gives an all-zero map.
+    """
+    cfg = replace(config or DepthCleaning(), **overrides)  # type: ignore[arg-type]
+    if depth.dim() == 3:
+        depth, alpha = depth[None], alpha[None]
+    if depth.dim() != 4 or depth.shape[-1] != 1 or alpha.shape != depth.shape:
+        raise InputError(
+            f"depth and alpha must both be [B, H, W, 1], got {list(depth.shape)} and {list(alpha.shape)}"
+        )
+    if out_size <= 0:
+        raise InputError(f"out_size must be positive, got {out_size}")
+    batch, height, width = depth.shape[:3]
+    distances = _distances(camera_distance, batch)
+    with torch.no_grad():
+        depth = depth.detach().float()
+        alpha = alpha.detach().float()
+        maps = []
+        for b in range(batch):
+            image = normalise_depth(depth[b, ..., 0], alpha[b, ..., 0], cfg)[None, None]
+            k = kernel_size(distances[b], min(height, width), cfg)
+            if cfg.erode:
+                image = erode(image, k)
+            if cfg.dilate:
+                image = dilate(image, k)
+            maps.append(image)
+        out = torch.cat(maps)
+        if (height, width) != (out_size, out_size):
+            antialias = height > out_size or width > out_size
+            out = F.interpolate(
+                out, (out_size, out_size), mode="bilinear", align_corners=False, antialias=antialias
+            )
+        return out.clamp(0.0, 1.0)
+
+
+def camera_distance(camera: Camera) -> float:
+    """The orbit distance if known, else the distance of the camera centre from the origin."""
+    if camera.distance is not None:
+        return float(camera.distance)
+    return float(np.linalg.norm(camera.position))
+
+
+class DepthConditioner:
+    """Cleaned depth conditioning per camera, rendered once per pose.
+
+    ``render_depth(camera) -> (depth, alpha)`` renders the fixed initial Gaussians
+    ([H, W, 1] or [1, H, W, 1] each). Results are kept in an LRU cache keyed by the camera's
+    matrices and size, so evaluation orbits and repeated poses are not re-rendered.
+    """
+
+    def __init__(
+        self,
+        render_depth: Callable[[Camera], tuple[torch.Tensor, torch.Tensor]],
+        cache_size: int = 256,
+        out_size: int = 512,
+        config: DepthCleaning | None = None,
+        **overrides: object,
+    ):
+        if cache_size < 0:
+            raise InputError(f"cache_size must be >= 0, got {cache_size}")
+        self.render_depth = render_depth
+        self.cache_size = cache_size
+        self.out_size = out_size
+        self.config = replace(config or DepthCleaning(), **overrides)  # type: ignore[arg-type]
+        self._cache: OrderedDict[tuple[bytes, bytes, int, int], torch.Tensor] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    @staticmethod
+    def key(camera: Camera) -> tuple[bytes, bytes, int, int]:
+        return (
+            np.ascontiguousarray(camera.viewmat, dtype=np.float64).tobytes(),
+            np.ascontiguousarray(camera.K, dtype=np.float64).tobytes(),
+            camera.width,
+            camera.height,
+        )
+
+    def condition(self, camera: Camera) -> torch.Tensor:
+        """[1, 1, out_size, out_size] conditioning for one camera."""
+        key = self.key(camera)
+        cached = self._cache.get(key)
+        if cached is not None:
+            self.hits += 1
+            self._cache.move_to_end(key)
+            return cached
+        self.misses += 1
+        with torch.no_grad():
+            depth, alpha = self.render_depth(camera)
+        cond = clean_depth(depth, alpha, camera_distance(camera), self.out_size, self.config)
+        if self.cache_size > 0:
+            self._cache[key] = cond
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        return cond
+
+    def __call__(self, cameras: Sequence[Camera]) -> torch.Tensor:
+        """[B, 1, out_size, out_size] conditioning for a batch of cameras."""
+        if not cameras:
+            raise InputError("no cameras given")
+        return torch.cat([self.condition(c) for c in cameras])
+
+    def clear(self) -> None:
+        self._cache.clear()
+
+
+def save_depth_png(cond: torch.Tensor, path: str | Path) -> Path:
+    """Write a [1, h, w] or [1, 1, h, w] conditioning map as an 8-bit greyscale PNG."""
+    from PIL import Image
+
+    image = cond.detach().float().reshape(cond.shape[-2], cond.shape[-1]).clamp(0, 1)
+    array = (image.cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(array).save(path)
+    return path

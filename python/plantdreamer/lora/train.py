@@ -1,0 +1,298 @@
+"""Species LoRA training: rank-r adapters on the UNet attention projections, noise-prediction loss.
+
+Standard text-to-image LoRA fine-tuning (as diffusers' ``train_text_to_image_lora.py``):
+PEFT LoRA on ``to_q``, ``to_k``, ``to_v``, ``to_out.0`` of every UNet attention layer, the
+VAE and text encoder frozen; each step encodes an augmented photo to latents, adds noise at a
+uniform random timestep and regresses the noise (or the velocity for v-prediction models)
+with a mean squared error. AdamW; gradient accumulation; fp16 autocast with a grad scaler on
+a CUDA GPU. One seeded CPU generator drives every random choice (images, crops, flips, VAE
+samples, noise, timesteps), so a run and its resumption are reproducible.
+
+Outputs in ``out``: ``pytorch_lora_weights.safetensors`` (diffusers format), ``lora.json``
+(the settings, losses and versions), ``checkpoints/`` and, with ``validate > 0``,
+``validation/sample-NN.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.guidance.models import (
+    DEFAULT_BASE_MODEL,
+    DiffusionComponents,
+    load_base_model,
+    local_files_only,
+    resolve_device,
+)
+from plantdreamer.lora.checkpoint import (
+    check_fingerprint,
+    list_checkpoints,
+    load_checkpoint,
+    save_checkpoint,
+)
+from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
+from plantdreamer.lora.export import render_validation, save_lora_file
+from plantdreamer.lora.objective import NoiseLoss
+
+TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
+ADAPTER = "default"
+
+
+@dataclass
+class LoraTrainConfig:
+    """Settings of one training run (``plantdreamer lora train --help`` lists them)."""
+
+    images_dir: str
+    species: str = "bean"
+    base_model: str = DEFAULT_BASE_MODEL
+    out: str = "lora/bean"
+    rank: int = 4
+    alpha: int | None = None  # LoRA alpha; None = rank (scale 1)
+    steps: int = 1500
+    resolution: int = 512
+    learning_rate: float = 1e-4
+    batch_size: int = 1
+    grad_accum: int = 1
+    seed: int = 0
+    caption_template: str = DEFAULT_CAPTION
+    checkpoint_every: int = 500
+    resume: bool = False
+    mixed_precision: bool | None = None  # None: on for CUDA
+    device: str | None = None
+    validate: int = 0
+    validation_steps: int = 25
+
+    def check(self) -> None:
+        positive = {
+            "rank": self.rank,
+            "steps": self.steps,
+            "resolution": self.resolution,
+            "batch_size": self.batch_size,
+            "grad_accum": self.grad_accum,
+            "checkpoint_every": self.checkpoint_every,
+        }
+        bad = [f"{k}={v}" for k, v in positive.items() if v <= 0]
+        if bad or not self.learning_rate > 0 or self.validate < 0:
+            raise InputError(f"settings must be positive: {', '.join(bad) or 'learning_rate'}")
+        if self.resolution % 8:
+            raise InputError(f"resolution must be a multiple of 8, got {self.resolution}")
+
+    def fingerprint(self, examples: list[Example]) -> dict[str, Any]:
+        """What a resumed run must share with its checkpoint (``steps`` may grow)."""
+        keys = [
+            "species",
+            "base_model",
+            "rank",
+            "alpha",
+            "resolution",
+            "learning_rate",
+            "batch_size",
+            "grad_accum",
+            "seed",
+            "caption_template",
+        ]
+        fp: dict[str, Any] = {k: getattr(self, k) for k in keys}
+        fp["images"] = [e.path.name for e in examples]
+        return fp
+
+
+@dataclass
+class LoraTrainResult:
+    weights: Path
+    metadata: Path
+    losses: list[float] = field(default_factory=list)
+    eval_loss_before: float = math.nan
+    eval_loss_after: float = math.nan
+    resumed_from: int = 0
+    validation_images: list[Path] = field(default_factory=list)
+
+
+def prepare_models(
+    config: LoraTrainConfig,
+    components: DiffusionComponents | Mapping[str, Any] | None,
+    device: torch.device,
+    weight_dtype: torch.dtype,
+) -> DiffusionComponents:
+    """Frozen VAE / text encoder / UNet on ``device`` with fresh LoRA adapters (float32)."""
+    from peft import LoraConfig
+
+    if components is None:
+        offline = local_files_only([config.base_model])
+        unet, vae, text_encoder, tokenizer, scheduler = load_base_model(
+            config.base_model, weight_dtype, offline
+        )
+        parts = DiffusionComponents(unet, None, vae, text_encoder, tokenizer, scheduler)
+    elif isinstance(components, Mapping):
+        parts = DiffusionComponents(**{"controlnet": None, **components})
+    else:
+        parts = components
+    for model in (parts.vae, parts.text_encoder, parts.unet):
+        model.requires_grad_(False)
+        model.to(device=device)
+        if next(model.parameters()).dtype != weight_dtype:
+            model.to(dtype=weight_dtype)
+    parts.vae.eval()
+    parts.text_encoder.eval()
+    torch.manual_seed(config.seed)  # PEFT's initialisation of the A matrices
+    parts.unet.add_adapter(
+        LoraConfig(
+            r=config.rank,
+            lora_alpha=config.alpha if config.alpha is not None else config.rank,
+            init_lora_weights="gaussian",
+            target_modules=list(TARGET_MODULES),
+        ),
+        adapter_name=ADAPTER,
+    )
+    for p in parts.unet.parameters():
+        if p.requires_grad:  # trainable LoRA weights stay float32 under fp16 weights
+            p.data = p.data.float()
+    parts.unet.train()
+    return parts
+
+
+def _versions() -> dict[str, str]:
+    import diffusers
+    import peft
+
+    from plantdreamer import __version__
+
+    return {
+        "plantdreamer": __version__,
+        "diffusers": diffusers.__version__,
+        "peft": peft.__version__,
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def train_lora(
+    config: LoraTrainConfig,
+    components: DiffusionComponents | Mapping[str, Any] | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> LoraTrainResult:
+    """Run (or resume) a training; ``progress(step, steps, loss)`` is called after each step."""
+    config.check()
+    device = resolve_device(config.device)
+    mixed = config.mixed_precision if config.mixed_precision is not None else device.type == "cuda"
+    if mixed and device.type != "cuda":
+        raise InputError("mixed precision needs a CUDA GPU; run without --mixed-precision")
+    weight_dtype = torch.float16 if mixed else torch.float32
+    out = Path(config.out)
+    examples = load_examples(
+        config.images_dir, config.species, config.resolution, config.caption_template
+    )
+    fingerprint = config.fingerprint(examples)
+    parts = prepare_models(config, components, device, weight_dtype)
+    objective = NoiseLoss(parts, device, weight_dtype)
+    params = [p for p in parts.unet.parameters() if p.requires_grad]
+    optimizer = torch.optim.AdamW(params, lr=config.learning_rate, weight_decay=1e-2)
+    scaler = torch.amp.GradScaler(device.type, enabled=mixed)
+    generator = torch.Generator().manual_seed(config.seed)
+
+    start, losses, eval_before = 0, [], math.nan
+    if not config.resume and list_checkpoints(out):
+        raise CheckpointError(
+            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
+            "or choose another --out folder"
+        )
+    if config.resume and list_checkpoints(out):
+        from peft.utils import set_peft_model_state_dict
+
+        path = list_checkpoints(out)[-1]
+        state = load_checkpoint(path)
+        check_fingerprint(path, state["fingerprint"], fingerprint)
+        set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
+        optimizer.load_state_dict(state["optimizer"])
+        if "scaler" in state:
+            scaler.load_state_dict(state["scaler"])
+        generator.set_state(state["generator"])
+        start, losses = int(state["step"]), list(state["losses"])
+        eval_before = float(state.get("eval_loss_before", math.nan))
+    if math.isnan(eval_before):
+        eval_before = objective.evaluate(examples, config.resolution, config.seed)
+
+    def snapshot(step: int) -> dict[str, Any]:
+        from peft.utils import get_peft_model_state_dict
+
+        lora = get_peft_model_state_dict(parts.unet, adapter_name=ADAPTER)
+        return {
+            "step": step,
+            "lora": {k: v.detach().cpu() for k, v in lora.items()},
+            "optimizer": optimizer.state_dict(),
+            "scaler": scaler.state_dict(),
+            "generator": generator.get_state(),
+            "losses": losses,
+            "fingerprint": fingerprint,
+            "eval_loss_before": eval_before,
+        }
+
+    for step in range(start, config.steps):
+        optimizer.zero_grad(set_to_none=True)
+        step_loss = 0.0
+        for _ in range(config.grad_accum):
+            loss = objective.random_step(examples, config.batch_size, config.resolution, generator)
+            if not torch.isfinite(loss):
+                raise InputError(
+                    f"training loss became {float(loss.detach())} at step {step}; lower --lr"
+                )
+            scaler.scale(loss / config.grad_accum).backward()
+            step_loss += float(loss.detach()) / config.grad_accum
+        scaler.step(optimizer)
+        scaler.update()
+        losses.append(step_loss)
+        done = step + 1
+        if done % config.checkpoint_every == 0 or done == config.steps:
+            save_checkpoint(out, done, snapshot(done))
+        if progress is not None:
+            progress(done, config.steps, step_loss)
+
+    rank_alpha = config.alpha if config.alpha is not None else config.rank
+    parts.unet.eval()
+    eval_after = objective.evaluate(examples, config.resolution, config.seed)
+    weights = save_lora_file(out, parts.unet, config.rank, rank_alpha)
+    samples: list[Path] = []
+    if config.validate:
+        prompt = config.caption_template.format(species=config.species)
+        samples = render_validation(
+            out,
+            parts,
+            prompt,
+            config.validate,
+            config.resolution,
+            config.validation_steps,
+            config.seed,
+            device,
+        )
+    metadata = out / "lora.json"
+    metadata.write_text(
+        json.dumps(
+            {
+                "format": "diffusers LoRA (unet.<module>.lora.down/up.weight), alpha folded in",
+                "target_modules": list(TARGET_MODULES),
+                "config": asdict(config),
+                "images": fingerprint["images"],
+                "captions": sorted({e.caption for e in examples}),
+                "steps_done": len(losses),
+                "resumed_from_step": start,
+                "final_loss_mean_last_50": sum(losses[-50:]) / max(1, len(losses[-50:])),
+                "eval_loss_before": eval_before,
+                "eval_loss_after": eval_after,
+                "mixed_precision": mixed,
+                "device": str(device),
+                "versions": _versions(),
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            },
+            indent=2,
+        )
+    )
+    return LoraTrainResult(weights, metadata, losses, eval_before, eval_after, start, samples)

@@ -1,0 +1,263 @@
+"""Species LoRA training with tiny random models on the CPU (issue 10's acceptance)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from PIL import Image, ImageDraw
+from safetensors.torch import load_file
+
+from plantdreamer.cli import main
+from plantdreamer.errors import CheckpointError, InputError, ModelNotFoundError
+from plantdreamer.guidance.lora_weights import load_lora
+from plantdreamer.guidance.tiny import save_tiny_models, tiny_models
+from plantdreamer.lora.dataset import load_examples
+from plantdreamer.lora.train import LoraTrainConfig, train_lora
+
+RES = 64
+
+
+def make_images(folder, n=6, seed=0):
+    """Synthetic 'plant photos': green ellipses on an off-white background, in mixed sizes
+    and image modes (RGB, RGBA, greyscale, palette), one with its own caption."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    sizes = [(72, 80), (64, 64), (96, 70), (80, 120), (64, 90), (100, 64)]
+    modes = ["RGB", "RGBA", "L", "P", "RGB", "RGB"]
+    for i in range(n):
+        w, h = sizes[i % len(sizes)]
+        im = Image.new("RGB", (w, h), (245, 245, 240))
+        draw = ImageDraw.Draw(im)
+        for _ in range(5):
+            cx, cy = rng.uniform(0.2, 0.8) * w, rng.uniform(0.2, 0.8) * h
+            rx, ry = rng.uniform(5, 15), rng.uniform(3, 10)
+            draw.ellipse(
+                [cx - rx, cy - ry, cx + rx, cy + ry], fill=(30, int(rng.uniform(90, 180)), 40)
+            )
+        mode = modes[i % len(modes)]
+        im = im.convert(mode) if mode != "RGB" else im
+        im.save(folder / f"plant_{i:02d}.png")
+    (folder / "plant_00.txt").write_text("a photo of a bean plant with five leaves\n")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory):
+    return make_images(tmp_path_factory.mktemp("photos"))
+
+
+@pytest.fixture(scope="module")
+def base_model(tmp_path_factory):
+    base, _ = save_tiny_models(tmp_path_factory.mktemp("models"))
+    return base
+
+
+def config(images, out, **kw):
+    kw.setdefault("resolution", RES)
+    kw.setdefault("steps", 20)
+    kw.setdefault("learning_rate", 1e-2)
+    kw.setdefault("device", "cpu")
+    return LoraTrainConfig(images_dir=str(images), out=str(out), **kw)
+
+
+def unet_output(unet):
+    g = torch.Generator().manual_seed(9)
+    x, emb = torch.randn(1, 4, 8, 8, generator=g), torch.randn(1, 77, 32, generator=g)
+    with torch.no_grad():
+        return unet(x, torch.tensor([400]), emb).sample
+
+
+def test_dataset_converts_modes_resizes_and_reads_captions(images):
+    examples = load_examples(images, "bean", RES)
+    assert len(examples) == 6
+    assert {e.original_mode for e in examples} == {"RGB", "RGBA", "L", "P"}
+    for e in examples:
+        assert e.image.shape[0] == 3 and min(e.image.shape[1:]) == RES
+        assert 0.0 <= float(e.image.min()) and float(e.image.max()) <= 1.0
+    assert examples[0].caption == "a photo of a bean plant with five leaves"
+    assert examples[1].caption == "a photo of a bean plant"
+
+
+def test_short_run_lowers_the_loss_and_writes_a_loadable_file(images, tmp_path):
+    result = train_lora(config(images, tmp_path / "lora"), components=tiny_models())
+    assert len(result.losses) == 20 and all(np.isfinite(result.losses))
+    assert result.eval_loss_after < result.eval_loss_before
+    assert result.weights.name == "pytorch_lora_weights.safetensors"
+    keys = list(load_file(result.weights))
+    assert keys and all(k.startswith("unet.") and ".lora." in k for k in keys)
+    assert {k.split(".lora.")[0].rsplit(".", 1)[-1] for k in keys} >= {"to_q", "to_k", "to_v"}
+    assert any(".to_out.0.lora.down.weight" in k for k in keys)
+    down = next(v for k, v in load_file(result.weights).items() if k.endswith("down.weight"))
+    assert down.shape[0] == 4  # rank 4
+    meta = json.loads(result.metadata.read_text())
+    assert meta["config"]["rank"] == 4 and meta["steps_done"] == 20
+    assert meta["eval_loss_after"] < meta["eval_loss_before"]
+
+    # A fresh tiny pipeline: our loader and diffusers' load_lora_weights agree, and differ
+    # from the plain UNet.
+    from diffusers import StableDiffusionPipeline
+
+    plain = unet_output(tiny_models().unet)
+    ours = tiny_models()
+    load_lora(ours.unet, result.weights)
+    parts = tiny_models()
+    pipe = StableDiffusionPipeline(
+        vae=parts.vae,
+        text_encoder=parts.text_encoder,
+        tokenizer=parts.tokenizer,
+        unet=parts.unet,
+        scheduler=parts.scheduler,
+        safety_checker=None,
+        feature_extractor=None,
+        requires_safety_checker=False,
+    )
+    pipe.load_lora_weights(str(result.weights.parent), weight_name=result.weights.name)
+    a, b = unet_output(ours.unet), unet_output(pipe.unet)
+    assert (a - plain).abs().max() > 1e-4
+    torch.testing.assert_close(a, b)
+
+
+def test_authors_key_layout_loads_into_a_diffusers_pipeline(tmp_path):
+    """A file like the authors' (diffusers keys, rank 4, UNet attention only)."""
+    from diffusers import StableDiffusionPipeline
+
+    g = torch.Generator().manual_seed(0)
+    sd = {}
+    for name, module in tiny_models().unet.named_modules():
+        if name.endswith(("to_q", "to_k", "to_v", "to_out.0")) and isinstance(
+            module, torch.nn.Linear
+        ):
+            sd[f"unet.{name}.lora.down.weight"] = (
+                torch.randn(4, module.in_features, generator=g) * 0.1
+            )
+            sd[f"unet.{name}.lora.up.weight"] = (
+                torch.randn(module.out_features, 4, generator=g) * 0.1
+            )
+    from safetensors.torch import save_file
+
+    (tmp_path / "bean").mkdir()
+    save_file(sd, tmp_path / "bean" / "pytorch_lora_weights.safetensors")
+    parts = tiny_models()
+    pipe = StableDiffusionPipeline(
+        vae=parts.vae,
+        text_encoder=parts.text_encoder,
+        tokenizer=parts.tokenizer,
+        unet=parts.unet,
+        scheduler=parts.scheduler,
+        safety_checker=None,
+        feature_extractor=None,
+        requires_safety_checker=False,
+    )
+    plain = unet_output(parts.unet)
+    # Exactly the authors' loading call.
+    pipe.load_lora_weights(str(tmp_path / "bean"), weight_name="pytorch_lora_weights.safetensors")
+    ours = tiny_models()
+    load_lora(ours.unet, tmp_path / "bean")
+    assert (unet_output(pipe.unet) - plain).abs().max() > 1e-3
+    torch.testing.assert_close(unet_output(pipe.unet), unet_output(ours.unet))
+
+
+def test_resume_continues_the_same_run(images, tmp_path):
+    straight = train_lora(
+        config(images, tmp_path / "a", steps=6, checkpoint_every=3, grad_accum=2),
+        components=tiny_models(),
+    )
+    first = train_lora(
+        config(images, tmp_path / "b", steps=3, checkpoint_every=3, grad_accum=2),
+        components=tiny_models(),
+    )
+    assert len(first.losses) == 3
+    resumed = train_lora(
+        config(images, tmp_path / "b", steps=6, checkpoint_every=3, grad_accum=2, resume=True),
+        components=tiny_models(),
+    )
+    assert resumed.resumed_from == 3
+    assert resumed.losses == straight.losses
+    a, b = load_file(straight.weights), load_file(resumed.weights)
+    assert a.keys() == b.keys()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+
+
+def test_resume_with_other_settings_is_refused(images, tmp_path):
+    train_lora(config(images, tmp_path, steps=2, checkpoint_every=1), components=tiny_models())
+    with pytest.raises(CheckpointError, match="--resume"):
+        train_lora(config(images, tmp_path, steps=2), components=tiny_models())
+    with pytest.raises(CheckpointError, match="rank"):
+        train_lora(config(images, tmp_path, steps=4, rank=8, resume=True), components=tiny_models())
+
+
+def test_bad_image_folders_are_clear_errors(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no images"):
+        load_examples(empty, "bean", RES)
+    with pytest.raises(InputError, match="does not exist"):
+        load_examples(tmp_path / "missing", "bean", RES)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "a.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    with pytest.raises(InputError, match=r"cannot read image .*a\.png"):
+        load_examples(broken, "bean", RES)
+    with pytest.raises(InputError, match="species"):
+        load_examples(broken, "bean", RES, template="a photo")
+
+
+def test_missing_base_model_is_a_clear_error(images, tmp_path, monkeypatch):
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "cache"))
+    with pytest.raises(ModelNotFoundError, match="--base-model"):
+        train_lora(config(images, tmp_path / "o", base_model="nobody/no-such-model"))
+
+
+def test_cli_trains_from_a_local_model_folder(images, base_model, tmp_path):
+    out = tmp_path / "lora" / "bean"
+    result = CliRunner().invoke(
+        main,
+        [
+            "lora",
+            "train",
+            str(images),
+            "--base-model",
+            str(base_model),
+            "--steps",
+            "3",
+            "--resolution",
+            str(RES),
+            "--out",
+            str(out),
+            "--device",
+            "cpu",
+            "--seed",
+            "1",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert (out / "pytorch_lora_weights.safetensors").is_file()
+    assert (out / "lora.json").is_file()
+    assert "held-out denoising loss" in result.output
+
+
+def test_cli_bad_folder_is_one_line_error(tmp_path):
+    result = CliRunner().invoke(main, ["lora", "train", str(tmp_path / "nothing")])
+    assert result.exit_code == 1
+    assert result.output.strip().startswith("error:") and "does not exist" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_validate_renders_sample_images(images, tmp_path):
+    result = train_lora(
+        config(images, tmp_path, steps=1, validate=2, validation_steps=2), components=tiny_models()
+    )
+    assert [p.name for p in result.validation_images] == ["sample-00.png", "sample-01.png"]
+    with Image.open(result.validation_images[0]) as im:
+        assert im.size == (RES, RES) and im.mode == "RGB"
+
+
+def test_mixed_precision_without_a_gpu_is_refused(images, tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    with pytest.raises(InputError, match="CUDA"):
+        train_lora(config(images, tmp_path, mixed_precision=True), components=tiny_models())
