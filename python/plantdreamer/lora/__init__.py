@@ -2,6 +2,7 @@
 
 - ``dataset``: the photo folder, captions, conversion, augmentation
 - ``train``: ``LoraTrainConfig``, ``train_lora``
+- ``objective``: the noise-prediction loss and the held-out evaluation
 - ``checkpoint``: resumable checkpoints
 - ``export``: the diffusers-format weights file and validation samples
 

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.models import (
@@ -41,13 +40,12 @@ from plantdreamer.lora.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, augment, load_examples
+from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
+from plantdreamer.lora.objective import NoiseLoss
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
 ADAPTER = "default"
-EVAL_IMAGES = 8
-EVAL_TIMESTEPS = (100, 300, 500, 700, 900)
 
 
 @dataclass
@@ -160,91 +158,6 @@ def prepare_models(
             p.data = p.data.float()
     parts.unet.train()
     return parts
-
-
-class NoiseLoss:
-    """The denoising objective on VAE latents of a batch of [B, 3, R, R] images."""
-
-    def __init__(self, parts: DiffusionComponents, device: torch.device, weight_dtype: torch.dtype):
-        self.parts = parts
-        self.device = device
-        self.weight_dtype = weight_dtype
-        self.num_timesteps = int(parts.scheduler.config.num_train_timesteps)
-        self.v_prediction = parts.scheduler.config.prediction_type == "v_prediction"
-        self._embeddings: dict[str, torch.Tensor] = {}
-
-    @torch.no_grad()
-    def embed(self, captions: list[str]) -> torch.Tensor:
-        out = []
-        for caption in captions:
-            if caption not in self._embeddings:
-                tok = self.parts.tokenizer
-                ids = tok(
-                    caption,
-                    padding="max_length",
-                    max_length=tok.model_max_length,
-                    truncation=True,
-                    return_tensors="pt",
-                ).input_ids.to(self.device)
-                self._embeddings[caption] = self.parts.text_encoder(ids)[0]
-            out.append(self._embeddings[caption])
-        return torch.cat(out)
-
-    @torch.no_grad()
-    def latents(self, pixels: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-        vae = self.parts.vae
-        x = (pixels * 2.0 - 1.0).to(self.device, self.weight_dtype)
-        dist = vae.encode(x).latent_dist
-        z = dist.sample(generator=generator) if generator is not None else dist.mean
-        return (z * vae.config.scaling_factor).float()
-
-    def __call__(
-        self,
-        latents: torch.Tensor,
-        captions: list[str],
-        noise: torch.Tensor,
-        timesteps: torch.Tensor,
-    ) -> torch.Tensor:
-        scheduler = self.parts.scheduler
-        noise = noise.to(self.device)
-        timesteps = timesteps.to(self.device)
-        noisy = scheduler.add_noise(latents, noise, timesteps)
-        target = scheduler.get_velocity(latents, noise, timesteps) if self.v_prediction else noise
-        with torch.autocast(
-            self.device.type, dtype=torch.float16, enabled=self.weight_dtype == torch.float16
-        ):
-            pred = self.parts.unet(
-                noisy.to(self.weight_dtype), timesteps, self.embed(captions)
-            ).sample
-        return F.mse_loss(pred.float(), target.float())
-
-    def random_step(
-        self, examples: list[Example], batch_size: int, resolution: int, generator: torch.Generator
-    ) -> torch.Tensor:
-        """Loss of one random batch: images, crops, flips, VAE sample, noise, timesteps."""
-        idx = torch.randint(0, len(examples), (batch_size,), generator=generator).tolist()
-        pixels = torch.stack([augment(examples[i].image, resolution, generator) for i in idx])
-        latents = self.latents(pixels, generator)
-        noise = torch.randn(latents.shape, generator=generator)
-        t = torch.randint(0, self.num_timesteps, (batch_size,), generator=generator)
-        return self(latents, [examples[i].caption for i in idx], noise, t)
-
-    @torch.no_grad()
-    def evaluate(self, examples: list[Example], resolution: int, seed: int) -> float:
-        """Loss on a fixed set (centre crops, posterior means, fixed noise and timesteps)."""
-        generator = torch.Generator().manual_seed(seed + 7919)
-        total, count = 0.0, 0
-        for example in examples[:EVAL_IMAGES]:
-            _, h, w = example.image.shape
-            top, left = (h - resolution) // 2, (w - resolution) // 2
-            pixels = example.image[None, :, top : top + resolution, left : left + resolution]
-            latents = self.latents(pixels, None).expand(len(EVAL_TIMESTEPS), -1, -1, -1)
-            noise = torch.randn(latents.shape, generator=generator)
-            t = torch.tensor(EVAL_TIMESTEPS)
-            t = (t * self.num_timesteps) // 1000
-            total += float(self(latents, [example.caption] * len(t), noise, t))
-            count += 1
-        return total / count
 
 
 def _versions() -> dict[str, str]:
