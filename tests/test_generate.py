@@ -228,3 +228,36 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
     assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
     run = json.loads((out / "run.json").read_text())
     assert {"render", "depth", "guidance", "backward", "optimizer"} <= set(run["per_step_s"])
+
+
+def test_render_command_orbit_and_transforms(tmp_path):
+    result = generate(small(species="kale"), tmp_path / "g", show_progress=False)
+    runner = CliRunner()
+    orbit = runner.invoke(
+        main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--views", "3",
+               "--resolution", "32", "--no-turntable"],
+    )  # fmt: skip
+    assert orbit.exit_code == 0, orbit.output
+    assert len(list((tmp_path / "r").glob("view_*.png"))) == 3
+    # transforms.json cameras in the model's own frame (kale is ~0.2 m tall, in metres).
+    from plantdreamer.cameras import orbit as orbit_camera
+
+    cam = orbit_camera(0.6, 20.0, 30.0, 50.0, 40, 30, target=(0.0, 0.0, 0.1))
+    frame = {
+        "file_path": "images/a.png", "transform_matrix": cam.to_opengl_c2w().tolist(),
+        "fl_x": cam.K[0, 0], "fl_y": cam.K[1, 1], "cx": cam.K[0, 2], "cy": cam.K[1, 2],
+        "w": 40, "h": 30,
+    }  # fmt: skip
+    (tmp_path / "transforms.json").write_text(json.dumps({"frames": [frame]}))
+    views = runner.invoke(
+        main,
+        ["render", str(result.ply_path), "--out", str(tmp_path / "t"),
+         "--transforms", str(tmp_path / "transforms.json")],
+    )  # fmt: skip
+    assert views.exit_code == 0, views.output
+    import imageio.v3 as iio
+
+    image = iio.imread(tmp_path / "t" / "a.png")
+    assert image.shape == (30, 40, 3)
+    # The plant is in view: some pixels differ from the grey background.
+    assert (np.abs(image.astype(int) - 191).max(axis=-1) > 20).mean() > 0.05

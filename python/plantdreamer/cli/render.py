@@ -21,6 +21,12 @@ import click
 @click.option("--fovy", default=70.0, show_default=True)
 @click.option("--background", default=0.75, show_default=True, help="Grey level behind the plant.")
 @click.option("--turntable/--no-turntable", default=True, show_default=True)
+@click.option(
+    "--transforms",
+    type=click.Path(),
+    help="Render at the cameras of this transforms.json (model kept in its own frame) "
+    "instead of the orbit.",
+)
 def render(
     ply: str,
     out_dir: str,
@@ -31,10 +37,12 @@ def render(
     fovy: float,
     background: float,
     turntable: bool,
+    transforms: str | None,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
 
-    The model is framed as generate frames it: centred on its bounding box, longest side 4.
+    On the orbit, the model is framed as generate frames it: centred on its bounding box,
+    longest side 4. With --transforms, each view is named after its frame.
     """
     import torch
 
@@ -42,6 +50,10 @@ def render(
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
+    out = Path(out_dir)
+    if transforms is not None:
+        _render_dataset_views(read_splat_ply(ply), transforms, out, background)
+        return
     model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
     with torch.no_grad():
         frames = outputs.render_orbit(
@@ -52,8 +64,26 @@ def render(
             fovy,
             resolution,
         )
-    out = Path(out_dir)
     outputs.write_renders(out, frames)
     if turntable:
         outputs.write_turntable(out / "turntable.gif", frames, 40)
     click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")
+
+
+def _render_dataset_views(gaussians, transforms: str, out: Path, background: float) -> None:
+    import imageio.v3 as iio
+    import numpy as np
+    import torch
+
+    from plantdreamer.eval.datasets import scan_transforms_json
+    from plantdreamer.pipeline.model import GaussianModel
+
+    model = GaussianModel(gaussians)
+    views = scan_transforms_json(transforms, images_required=False)
+    out.mkdir(parents=True, exist_ok=True)
+    for view in views:
+        with torch.no_grad():
+            rgb = model.render([view.camera], background)[0][0].numpy()
+        image = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        iio.imwrite(out / f"{Path(view.name).name}.png", image)
+    click.echo(f"wrote {len(views)} views of {len(model)} Gaussians to {out}")

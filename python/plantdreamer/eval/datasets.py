@@ -97,9 +97,12 @@ def _check_size(meta: dict[str, Any], width: int, height: int, where: str) -> No
         )
 
 
-def scan_transforms_json(path: str | Path) -> list[FrameSource]:
+def scan_transforms_json(path: str | Path, images_required: bool = True) -> list[FrameSource]:
     """The views of a NeRF/nerfstudio ``transforms.json`` (a directory holding one, or the
     file), in file order, without reading the pixels.
+
+    With ``images_required=False`` (cameras only, e.g. to render novel views), a frame whose
+    image is absent takes its size from ``w``/``h``.
 
     ``transform_matrix`` is camera-to-world in OpenGL axes. Intrinsics and ``w``/``h`` may be
     global or per frame (per-frame values win). ``file_path`` is relative to the JSON file
@@ -126,9 +129,15 @@ def scan_transforms_json(path: str | Path) -> list[FrameSource]:
             raise InputError(f"{where}: missing transform_matrix")
         frame_meta = {**shared, **entry}
         distorted += any(float(frame_meta.get(k, 0.0)) != 0.0 for k in _DISTORTION_KEYS)
-        image_path = resolve_image_path(root / entry["file_path"])
         name = Path(entry["file_path"]).stem
-        width, height = image_size(image_path)
+        try:
+            image_path = resolve_image_path(root / entry["file_path"])
+            width, height = image_size(image_path)
+        except FileNotFoundError:
+            if images_required or "w" not in frame_meta or "h" not in frame_meta:
+                raise
+            image_path = root / entry["file_path"]
+            width, height = int(frame_meta["w"]), int(frame_meta["h"])
         _check_size(frame_meta, width, height, where)
         k = _intrinsics(frame_meta, width, height, where)
         c2w = np.asarray(entry["transform_matrix"], dtype=np.float64)
