@@ -19,14 +19,6 @@ from plantdreamer.cameras import Camera
 from plantdreamer.gaussians import SH_C0, Gaussians, rgb_to_sh_dc
 
 
-def have_rasterizer() -> bool:
-    try:
-        from plantdreamer.rasterizer import rasterization  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def _rotation(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q / np.linalg.norm(q)
     return np.array(

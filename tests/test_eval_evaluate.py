@@ -11,7 +11,6 @@ import pytest
 from PIL import Image
 
 from eval_synthetic import (
-    have_rasterizer,
     perturbed,
     render_dense,
     synthetic_plant,
@@ -25,12 +24,9 @@ from plantdreamer.gaussians import Gaussians, rgb_to_sh_dc
 
 BG = (0.75, 0.75, 0.75)
 
-needs_rasterizer = pytest.mark.skipif(
-    not have_rasterizer(), reason="plantdreamer.rasterization is not in this build yet"
-)
 RENDERERS = [
     pytest.param(render_dense, id="reference"),
-    pytest.param(None, id="rasterization", marks=needs_rasterizer),
+    pytest.param(None, id="rasterization"),
 ]
 
 
@@ -161,11 +157,3 @@ def test_evaluate_rejects_bad_input_and_bad_renders(tmp_path):
 
     with pytest.raises(PlantDreamerError, match="renderer returned"):
         evaluate(plant, frames, BG, render=wrong_size)
-
-
-@pytest.mark.skipif(have_rasterizer(), reason="only meaningful without the rasterizer")
-def test_missing_rasterizer_is_a_clear_error(tmp_path):
-    plant = synthetic_plant()
-    write_transforms_dataset(tmp_path, plant, _cameras(1, 16), render_dense, BG)
-    with pytest.raises(PlantDreamerError, match="rasterizer"):
-        evaluate(plant, load_dataset(tmp_path), BG)

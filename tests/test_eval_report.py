@@ -8,7 +8,6 @@ from click.testing import CliRunner
 from PIL import Image
 
 from eval_synthetic import (
-    have_rasterizer,
     render_dense,
     synthetic_plant,
     write_inria_ply,
@@ -147,19 +146,7 @@ def test_eval_command_writes_the_reports(tmp_path, monkeypatch):
         assert im.size[1] > 400  # two rows
 
 
-def _have_ply_io() -> bool:
-    try:
-        from plantdreamer.io import read_splat_ply  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(
-    not (have_rasterizer() and _have_ply_io()),
-    reason="needs plantdreamer.rasterization and plantdreamer.io (other branches)",
-)
 def test_eval_command_end_to_end(tmp_path):
     from plantdreamer.eval.evaluate import render_view
 

@@ -1,17 +1,15 @@
 """Acceptance of issue 7 end to end: one SDS step through the rasterizer reaches the Gaussians.
 
-Skipped until ``plantdreamer.rasterization`` (gsplat's API) is merged.
+Uses ``plantdreamer.rasterization`` (gsplat's API).
 """
 
 import numpy as np
-import pytest
 import torch
 
+from plantdreamer import rasterization
 from plantdreamer.cameras import orbit, stack
 from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 from plantdreamer.guidance.tiny import tiny_models
-
-raster = pytest.importorskip("plantdreamer.rasterization")
 
 
 def test_sds_gradient_reaches_gaussian_colours_and_positions():
@@ -24,7 +22,7 @@ def test_sds_gradient_reaches_gaussian_colours_and_positions():
     colors = torch.rand(n, 3, generator=g).requires_grad_(True)
     camera = orbit(3.0, 20.0, 30.0, 60.0, 32, 32)
     viewmats, ks = stack([camera])
-    renders, _alphas, _ = raster.rasterization(
+    renders, _alphas, _ = rasterization(
         means,
         quats,
         scales,

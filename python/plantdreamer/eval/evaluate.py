@@ -85,12 +85,8 @@ class EvalResult:
 
 
 def _rasterization() -> Callable[..., Any]:
-    try:
-        from plantdreamer.rasterizer import rasterization
-    except ImportError as exc:
-        raise PlantDreamerError(
-            "the Gaussian rasterizer (plantdreamer.rasterization) is not available in this build"
-        ) from exc
+    from plantdreamer.rasterizer import rasterization  # imports torch: only when rendering
+
     return rasterization
 
 
