@@ -54,46 +54,66 @@ _PLY_DTYPES = tuple(
 )
 
 
+def _read_fields(path: PathLike, groups: list[list[str]]) -> list[tuple[list[str], np.ndarray]]:
+    _, fields, _, _ = _core.read_ply_vertex(os.fspath(path), groups)
+    return fields
+
+
 def read_ply_columns(path: PathLike) -> dict[str, np.ndarray]:
     """The scalar properties of the vertex element, by name in header order, as stored."""
-    _, columns, _, _ = _core.read_ply_vertex(os.fspath(path))
-    return dict(columns)
+    return {names[0]: values for names, values in _read_fields(path, [])}
+
+
+# Read as [N, 3] blocks in one pass when a file stores them with one type.
+_GROUPS = [["x", "y", "z"], ["nx", "ny", "nz"], *[list(names) for names in _COLOR_NAMES]]
 
 
 def read_ply(path: PathLike) -> PointCloud:
     """Reads a point cloud (see the module docstring for what each field becomes)."""
-    cols = read_ply_columns(path)
+    blocks: dict[tuple[str, ...], np.ndarray] = {}
+    cols: dict[str, np.ndarray] = {}
+    for names, values in _read_fields(path, _GROUPS):
+        if len(names) == 1:
+            cols[names[0]] = values
+        else:
+            blocks[tuple(names)] = values
+            cols.update({n: values[:, i] for i, n in enumerate(names)})
+
+    def block(names: tuple[str, ...]) -> np.ndarray:
+        # One [N, 3] array: the gathered block if there is one, else stacked columns.
+        got = blocks.get(names)
+        for n in names:
+            del cols[n]
+        return got if got is not None else np.stack([cols_all[n] for n in names], axis=1)
+
+    cols_all = dict(cols)
     missing = [a for a in ("x", "y", "z") if a not in cols]
     if missing:
         raise PlyError(f"{os.fspath(path)}: the vertex element has no {'/'.join(missing)} property")
-    xyz = [cols.pop(a) for a in ("x", "y", "z")]
+    xyz = [cols[a] for a in ("x", "y", "z")]
     dtype = np.float64 if any(c.dtype == np.float64 for c in xyz) else np.float32
-    positions = np.stack(xyz, axis=1).astype(dtype, copy=False)
+    positions = block(("x", "y", "z")).astype(dtype, copy=False)
 
     colors = None
     for names in _COLOR_NAMES:
         if all(n in cols for n in names):
-            channels = [cols[n] for n in names]
-            kinds = {c.dtype for c in channels}
+            kinds = {cols[n].dtype for n in names}
             if len(kinds) != 1:
                 continue
             kind = kinds.pop()
             if kind in _COLOR_SCALE:
-                colors = np.stack(channels, axis=1).astype(np.float32) / np.float32(
-                    _COLOR_SCALE[kind]
-                )
+                colors = block(names).astype(np.float32) / np.float32(_COLOR_SCALE[kind])
             elif kind.kind == "f":
-                colors = np.stack(channels, axis=1).astype(np.float32)
+                colors = block(names).astype(np.float32, copy=False)
             else:
                 continue
-            for n in names:
-                del cols[n]
             break
 
     normals = None
     if all(n in cols for n in ("nx", "ny", "nz")):
-        normals = np.stack([cols.pop(n) for n in ("nx", "ny", "nz")], axis=1).astype(np.float32)
-    return PointCloud(positions=positions, colors=colors, normals=normals, attributes=cols)
+        normals = block(("nx", "ny", "nz")).astype(np.float32, copy=False)
+    attributes = {n: np.ascontiguousarray(v) for n, v in cols.items()}
+    return PointCloud(positions=positions, colors=colors, normals=normals, attributes=attributes)
 
 
 def _ply_column(name: str, values: np.ndarray) -> np.ndarray:

@@ -26,23 +26,34 @@ fn column_to_py<'py>(py: Python<'py>, col: Column) -> Bound<'py, PyAny> {
     }
 }
 
-/// Reads the vertex element: (count, [(name, array)], format, comments).
+/// Reads the vertex element: (count, [(names, array)], format, comments). Each group of
+/// `groups` whose properties exist with one type comes back as one [N, len(group)] array;
+/// every other scalar property as a 1-D array of its own.
 #[pyfunction]
+#[pyo3(signature = (path, groups=Vec::new()))]
 fn read_ply_vertex<'py>(
     py: Python<'py>,
     path: PathBuf,
+    groups: Vec<Vec<String>>,
 ) -> PyResult<(usize, Bound<'py, PyList>, &'static str, Vec<String>)> {
-    let table = run_native(py, || ply::read_vertex_columns(&path))?;
-    let columns = PyList::empty(py);
-    for (name, col) in table.columns {
-        columns.append((name, column_to_py(py, col)))?;
+    let table = run_native(py, || ply::read_vertex_fields(&path, &groups))?;
+    let fields = PyList::empty(py);
+    for field in table.fields {
+        let width = field.names.len();
+        let array = column_to_py(py, field.values);
+        let array = if width == 1 {
+            array
+        } else {
+            array.call_method1("reshape", ((table.count, width),))?
+        };
+        fields.append((field.names, array))?;
     }
     let format = match table.format {
         Format::Ascii => "ascii",
         Format::BinaryLittleEndian => "binary_little_endian",
         Format::BinaryBigEndian => "binary_big_endian",
     };
-    Ok((table.count, columns, format, table.comments))
+    Ok((table.count, fields, format, table.comments))
 }
 
 /// A 1-D contiguous array of one of the eight PLY scalar types, borrowed for the write.

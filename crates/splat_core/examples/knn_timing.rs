@@ -6,7 +6,9 @@ fn main() {
     let n = 1_000_000;
     let mut s = 1u64;
     let mut rnd = move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (s >> 40) as f64 / (1u64 << 24) as f64
     };
     let mut pts = Vec::with_capacity(3 * n);
@@ -15,10 +17,18 @@ fn main() {
         let r = (1.0 - v * v).sqrt();
         pts.extend([(r * u.cos()) as f32, (r * u.sin()) as f32, v as f32]);
     }
-    let which: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(1);
+    let which: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(1);
     for threads in [which] {
         let t = std::time::Instant::now();
-        let kept = with_threads(Some(threads), || remove_statistical_outliers(&pts, 20, 2.0)).unwrap();
-        println!("threads {threads}: {:.3} s, kept {}", t.elapsed().as_secs_f64(), kept.len());
+        let kept =
+            with_threads(Some(threads), || remove_statistical_outliers(&pts, 20, 2.0)).unwrap();
+        println!(
+            "threads {threads}: {:.3} s, kept {}",
+            t.elapsed().as_secs_f64(),
+            kept.len()
+        );
     }
 }

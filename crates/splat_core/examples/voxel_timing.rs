@@ -5,14 +5,20 @@ fn main() {
     let n = 1_000_000;
     let mut s = 1u64;
     let mut rnd = move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (s >> 40) as f64 / (1u64 << 24) as f64
     };
     let mut pts = Vec::with_capacity(3 * n);
     for _ in 0..n {
         let (u, v) = (rnd() * std::f64::consts::TAU, rnd() * 2.0 - 1.0);
         let r = (1.0 - v * v).sqrt();
-        pts.extend([(0.3 * r * u.cos()) as f32, (0.2 * r * u.sin()) as f32, 0.5 * v as f32]);
+        pts.extend([
+            (0.3 * r * u.cos()) as f32,
+            (0.2 * r * u.sin()) as f32,
+            0.5 * v as f32,
+        ]);
     }
     let colors: Vec<f32> = (0..3 * n).map(|_| rnd() as f32).collect();
     for _ in 0..5 {
@@ -22,6 +28,10 @@ fn main() {
         let t = std::time::Instant::now();
         let m = voxel_count(&pts, 0.01).unwrap();
         let b = t.elapsed().as_secs_f64();
-        println!("downsample {:.4} s ({} voxels), count {b:.4} s ({m})", a, out.points.len() / 3);
+        println!(
+            "downsample {:.4} s ({} voxels), count {b:.4} s ({m})",
+            a,
+            out.points.len() / 3
+        );
     }
 }

@@ -161,7 +161,12 @@ impl VoxelKey for u128 {
 }
 
 /// Voxel key and owning worker of every point (two arrays: the owner scan stays small).
-fn keys<T: Coord, K: VoxelKey>(points: &[T], n: usize, grid: &Grid, parts: usize) -> (Vec<K>, Vec<u8>) {
+fn keys<T: Coord, K: VoxelKey>(
+    points: &[T],
+    n: usize,
+    grid: &Grid,
+    parts: usize,
+) -> (Vec<K>, Vec<u8>) {
     let mut keys = Vec::with_capacity(n);
     let mut owners = Vec::with_capacity(n);
     (0..n)
@@ -197,7 +202,12 @@ struct Acc {
     count: u32,
 }
 
-fn grouped<T: Coord, K: VoxelKey>(points: &[T], colors: Option<&[f32]>, n: usize, grid: &Grid) -> VoxelOutput {
+fn grouped<T: Coord, K: VoxelKey>(
+    points: &[T],
+    colors: Option<&[f32]>,
+    n: usize,
+    grid: &Grid,
+) -> VoxelOutput {
     let parts = parts();
     let (keys, owners) = keys::<T, K>(points, n, grid, parts);
     let mut voxels: Vec<(K, Acc)> = (0..parts)
@@ -205,7 +215,11 @@ fn grouped<T: Coord, K: VoxelKey>(points: &[T], colors: Option<&[f32]>, n: usize
         .flat_map_iter(|part| {
             // One map per worker; each voxel's points are added in input order.
             let mut map: KeyMap<K, Acc> = KeyMap::default();
-            let zero = Acc { sum: [0.0; 3], color: [0.0; 3], count: 0 };
+            let zero = Acc {
+                sum: [0.0; 3],
+                color: [0.0; 3],
+                count: 0,
+            };
             for (i, &owner) in owners.iter().enumerate() {
                 if owner as usize != part {
                     continue;
@@ -236,15 +250,26 @@ fn grouped<T: Coord, K: VoxelKey>(points: &[T], colors: Option<&[f32]>, n: usize
             .iter()
             .flat_map(|(_, v)| {
                 let c = f64::from(v.count);
-                [(v.color[0] / c) as f32, (v.color[1] / c) as f32, (v.color[2] / c) as f32]
+                [
+                    (v.color[0] / c) as f32,
+                    (v.color[1] / c) as f32,
+                    (v.color[2] / c) as f32,
+                ]
             })
             .collect()
     });
-    VoxelOutput { points: pts, colors }
+    VoxelOutput {
+        points: pts,
+        colors,
+    }
 }
 
 /// Voxel grid downsampling (Open3D legacy semantics, output sorted by voxel index).
-pub fn voxel_downsample<T: Coord>(points: &[T], voxel_size: f64, colors: Option<&[f32]>) -> CoreResult<VoxelOutput> {
+pub fn voxel_downsample<T: Coord>(
+    points: &[T],
+    voxel_size: f64,
+    colors: Option<&[f32]>,
+) -> CoreResult<VoxelOutput> {
     let n = check_points(points)?;
     if let Some(c) = colors {
         crate::error::check_len("colors", c, n, 3)?;
