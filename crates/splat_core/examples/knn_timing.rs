@@ -21,6 +21,12 @@ fn main() {
         .nth(1)
         .and_then(|a| a.parse().ok())
         .unwrap_or(1);
+    let t = std::time::Instant::now();
+    let tree = splat_core::pointcloud::KdTree::build(&pts);
+    println!("build {:.3} s", t.elapsed().as_secs_f64());
+    let t = std::time::Instant::now();
+    let v = tree.map_knn(19, |_, nb| nb.squared_distances()[18]);
+    println!("queries {:.3} s {}", t.elapsed().as_secs_f64(), v.len());
     for threads in [which] {
         let t = std::time::Instant::now();
         let kept =

@@ -145,7 +145,8 @@ impl VoxelKey for u64 {
     }
     #[inline]
     fn part(self, parts: usize) -> usize {
-        ((self.wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 40) as usize) % parts
+        // Multiply-shift range reduction: a `%` by a runtime value costs ~30 cycles.
+        (((self.wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) * parts as u64) >> 32) as usize
     }
 }
 
@@ -195,6 +196,34 @@ pub struct VoxelOutput {
     pub colors: Option<Vec<f32>>,
 }
 
+/// The points one worker owns, ascending.
+enum Owned {
+    All(usize),
+    Some(Vec<u32>),
+}
+
+impl Owned {
+    fn indices(&self) -> Box<dyn Iterator<Item = usize> + '_> {
+        match self {
+            Owned::All(n) => Box::new(0..*n),
+            Owned::Some(v) => Box::new(v.iter().map(|&i| i as usize)),
+        }
+    }
+}
+
+/// Splits point indices by owner (one sequential pass, so each list is ascending); workers
+/// then touch only their own points instead of testing every owner byte.
+fn by_owner(owners: &[u8], parts: usize) -> Vec<Owned> {
+    if parts == 1 {
+        return vec![Owned::All(owners.len())];
+    }
+    let mut lists = vec![Vec::with_capacity(owners.len() / parts + 16); parts];
+    for (i, &o) in owners.iter().enumerate() {
+        lists[o as usize].push(i as u32);
+    }
+    lists.into_iter().map(Owned::Some).collect()
+}
+
 #[derive(Clone, Copy)]
 struct Acc {
     sum: [f64; 3],
@@ -210,9 +239,10 @@ fn grouped<T: Coord, K: VoxelKey>(
 ) -> VoxelOutput {
     let parts = parts();
     let (keys, owners) = keys::<T, K>(points, n, grid, parts);
-    let mut voxels: Vec<(K, Acc)> = (0..parts)
-        .into_par_iter()
-        .flat_map_iter(|part| {
+    let lists = by_owner(&owners, parts);
+    let mut voxels: Vec<(K, Acc)> = lists
+        .par_iter()
+        .flat_map_iter(|list| {
             // One map per worker; each voxel's points are added in input order.
             let mut map: KeyMap<K, Acc> = KeyMap::default();
             let zero = Acc {
@@ -220,10 +250,7 @@ fn grouped<T: Coord, K: VoxelKey>(
                 color: [0.0; 3],
                 count: 0,
             };
-            for (i, &owner) in owners.iter().enumerate() {
-                if owner as usize != part {
-                    continue;
-                }
+            for i in list.indices() {
                 let v = map.entry(keys[i]).or_insert(zero);
                 let p = point(points, i);
                 v.sum = [v.sum[0] + p[0], v.sum[1] + p[1], v.sum[2] + p[2]];
@@ -285,15 +312,11 @@ pub fn voxel_downsample<T: Coord>(
 fn distinct<T: Coord, K: VoxelKey>(points: &[T], n: usize, grid: &Grid) -> usize {
     let parts = parts();
     let (keys, owners) = keys::<T, K>(points, n, grid, parts);
-    (0..parts)
-        .into_par_iter()
-        .map(|part| {
+    by_owner(&owners, parts)
+        .par_iter()
+        .map(|list| {
             let mut set: HashSet<K, BuildHasherDefault<KeyHasher>> = HashSet::default();
-            for (&key, &owner) in keys.iter().zip(&owners) {
-                if owner as usize == part {
-                    set.insert(key);
-                }
-            }
+            set.extend(list.indices().map(|i| keys[i]));
             set.len()
         })
         .sum()
