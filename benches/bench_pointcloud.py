@@ -103,7 +103,9 @@ def main() -> int:
         ok = len(rp) == len(vp) and np.array_equal(ours64, rp[order])
         ok = ok and np.array_equal(vc, np.asarray(down.colors)[order].astype(np.float32))
         same = "identical" if ok else "DIFFERENT"
-    rows.append(("voxel grid, 1% of extent", "Open3D", t_ours, t_o3d, f"{same} ({len(vp):,} voxels)"))
+    rows.append(
+        ("voxel grid, 1% of extent", "Open3D", t_ours, t_o3d, f"{same} ({len(vp):,} voxels)")
+    )
     facts["voxel_threads"] = per_thread
 
     # --- binary PLY ---
@@ -115,7 +117,10 @@ def main() -> int:
         t_w, _ = best(lambda: write_ply(ours_path, pcl), args.repeat)
 
         def peer_write() -> None:
-            data = np.empty(len(p), dtype=[(n, "f4") for n in "xyz"] + [(n, "u1") for n in ("red", "green", "blue")])
+            data = np.empty(
+                len(p),
+                dtype=[(n, "f4") for n in "xyz"] + [(n, "u1") for n in ("red", "green", "blue")],
+            )
             for i, n in enumerate("xyz"):
                 data[n] = p[:, i]
             rgb = np.round(np.clip(c, 0, 1) * 255).astype(np.uint8)

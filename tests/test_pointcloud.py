@@ -3,6 +3,8 @@ is installed: the `bench` extra)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -118,7 +120,8 @@ def test_threads_do_not_change_results():
         lambda t: pc.downsample_to_count(p, 5000, c, threads=t),
     ):
         a, b = f(1), f(2)
-        for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+        a, b = (a, b) if isinstance(a, tuple) else ((a,), (b,))
+        for x, y in zip(a, b, strict=True):
             np.testing.assert_array_equal(x, y)
 
 
@@ -153,7 +156,7 @@ def test_normalize_and_invert():
     np.testing.assert_allclose(t.invert(out), p, rtol=1e-6)
     np.testing.assert_allclose(t.invert_log_scales(np.log([[t.scale]])), 0, atol=1e-12)
     assert pc.NormalizeTransform.from_dict(t.to_dict()) == t
-    with pytest.raises(Exception):  # frozen
+    with pytest.raises(dataclasses.FrozenInstanceError):
         t.scale = 2.0  # type: ignore[misc]
 
 

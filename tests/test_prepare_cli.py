@@ -63,7 +63,7 @@ def test_prepare_command(tmp_path):
 
 def test_prepare_removes_most_outliers():
     src = plant_like(60_000, seed=1)
-    prepared, transform, report = prepare_cloud(src, target=None, sor_neighbors=20, sor_std=3.0)
+    _, transform, report = prepare_cloud(src, target=None, sor_neighbors=20, sor_std=3.0)
     assert transform is None
     names = [name for name, _ in report.counts]
     assert names == ["input", "finite", "outliers removed"]

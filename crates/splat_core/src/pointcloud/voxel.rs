@@ -62,10 +62,7 @@ impl Grid {
             bits: [0; 3],
         };
         // The largest index per axis is the one of the max bound (the map is monotone).
-        let top = grid.index(&hi);
-        for a in 0..3 {
-            grid.bits[a] = 64 - top[a].leading_zeros();
-        }
+        grid.bits = grid.index(&hi).map(|top| 64 - top.leading_zeros());
         Ok(grid)
     }
 
