@@ -283,3 +283,19 @@ def test_unwritable_attributes_are_input_errors(tmp_path):
 def test_empty_cloud_round_trips(tmp_path):
     write_ply(tmp_path / "e.ply", PointCloud(np.zeros((0, 3), np.float32)))
     assert len(read_ply(tmp_path / "e.ply")) == 0
+
+
+def test_native_writer_checks_field_shapes(tmp_path):
+    from plantdreamer import _core
+
+    out = str(tmp_path / "a.ply")
+    with pytest.raises(InputError, match="shape"):
+        _core.write_ply_vertex(out, [(["x", "y"], np.zeros((4, 3), np.float32))])
+    with pytest.raises(InputError, match="contiguous"):
+        _core.write_ply_vertex(out, [(["x", "y", "z"], np.zeros((4, 6), np.float32)[:, ::2])])
+    with pytest.raises(InputError, match="int8"):
+        _core.write_ply_vertex(out, [(["x"], np.zeros(4, np.int64))])
+    with pytest.raises(InputError, match="rows"):
+        _core.write_ply_vertex(
+            out, [(["x"], np.zeros(4, np.float32)), (["y"], np.zeros(5, np.float32))]
+        )

@@ -34,7 +34,7 @@ def read_ply_vertex(
 ) -> tuple[int, list[tuple[list[str], npt.NDArray[Any]]], str, list[str]]: ...
 def write_ply_vertex(
     path: str,
-    columns: list[tuple[str, npt.NDArray[Any]]],
+    fields: list[tuple[list[str], npt.NDArray[Any]]],
     binary: bool = True,
     comments: list[str] = ...,
 ) -> None: ...

@@ -154,12 +154,10 @@ def write_ply(
     pos = cloud.positions
     if pos.dtype != np.float64:
         pos = pos.astype(np.float32, copy=False)
-    columns: list[tuple[str, np.ndarray]] = [
-        (a, np.ascontiguousarray(pos[:, i])) for i, a in enumerate("xyz")
-    ]
+    fields: list[tuple[list[str], np.ndarray]] = [(["x", "y", "z"], np.ascontiguousarray(pos))]
     if cloud.normals is not None:
-        n = cloud.normals.astype(np.float32, copy=False)
-        columns += [(a, np.ascontiguousarray(n[:, i])) for i, a in enumerate(("nx", "ny", "nz"))]
+        n = np.ascontiguousarray(cloud.normals, dtype=np.float32)
+        fields.append((["nx", "ny", "nz"], n))
     if cloud.colors is not None:
         c = np.asarray(cloud.colors, dtype=np.float32)
         if color_dtype == "uchar":
@@ -168,15 +166,13 @@ def write_ply(
             c = np.round(np.clip(c, 0.0, 1.0) * 255.0).astype(np.uint8)
         elif color_dtype != "float":
             raise InputError(f"color_dtype must be 'uchar' or 'float', got {color_dtype!r}")
-        columns += [
-            (a, np.ascontiguousarray(c[:, i])) for i, a in enumerate(("red", "green", "blue"))
-        ]
-    taken = {name for name, _ in columns}
+        fields.append((["red", "green", "blue"], np.ascontiguousarray(c)))
+    taken = {name for names, _ in fields for name in names}
     for name, values in cloud.attributes.items():
         if name in taken:
             raise InputError(f"attribute {name!r} clashes with a standard vertex property")
-        columns.append((name, _ply_column(name, values)))
-    _core.write_ply_vertex(os.fspath(path), columns, binary, list(comments))
+        fields.append(([name], _ply_column(name, values)))
+    _core.write_ply_vertex(os.fspath(path), fields, binary, list(comments))
 
 
 _F_REST = re.compile(r"f_rest_(\d+)$")
@@ -244,16 +240,20 @@ def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None 
     g.validate()
     n, k = len(g), g.sh.shape[1]
 
-    def col(a: np.ndarray) -> np.ndarray:
+    def block(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float32)
 
-    zeros = np.zeros(n, dtype=np.float32)
-    columns = [(a, col(g.means[:, i])) for i, a in enumerate("xyz")]
-    columns += [(a, zeros) for a in ("nx", "ny", "nz")]
-    columns += [(f"f_dc_{c}", col(g.sh[:, 0, c])) for c in range(3)]
-    rest = g.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))
-    columns += [(f"f_rest_{i}", col(rest[:, i])) for i in range(3 * (k - 1))]
-    columns.append(("opacity", col(g.opacity_logits)))
-    columns += [(f"scale_{i}", col(g.log_scales[:, i])) for i in range(3)]
-    columns += [(f"rot_{i}", col(g.quats[:, i])) for i in range(4)]
-    _core.write_ply_vertex(os.fspath(path), columns, True, [])
+    rest = g.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # channel-major
+    fields = [
+        (["x", "y", "z"], block(g.means)),
+        (["nx", "ny", "nz"], np.zeros((n, 3), dtype=np.float32)),
+        (["f_dc_0", "f_dc_1", "f_dc_2"], block(g.sh[:, 0, :])),
+    ]
+    if k > 1:
+        fields.append(([f"f_rest_{i}" for i in range(3 * (k - 1))], block(rest)))
+    fields += [
+        (["opacity"], block(g.opacity_logits)),
+        (["scale_0", "scale_1", "scale_2"], block(g.log_scales)),
+        (["rot_0", "rot_1", "rot_2", "rot_3"], block(g.quats)),
+    ]
+    _core.write_ply_vertex(os.fspath(path), fields, True, [])
