@@ -50,6 +50,13 @@ impl Neighbours {
         self.id.fill(u32::MAX);
     }
 
+    /// Starts a search whose k-th neighbour is known to lie within squared distance
+    /// `bound`: slots start at `bound` so farther cells are pruned from the start.
+    fn clear_within(&mut self, bound: f64) {
+        self.d2.fill(bound);
+        self.id.fill(u32::MAX);
+    }
+
     #[inline]
     fn worst(&self) -> f64 {
         self.d2[self.d2.len() - 1]
@@ -175,6 +182,24 @@ impl KdTree {
         self.search(0, 0, self.len(), &q, skip, out);
     }
 
+    /// Like `knn_of_position`, seeded by the result for the previous tree position
+    /// (`prev`, whose k-th squared distance is `prev_kth`): by the triangle inequality
+    /// the k-th neighbour of `pos` lies within sqrt(prev_kth) + |pos - prev| (+ the point
+    /// `prev` itself), inflated against rounding. Falls back to an unseeded search if the
+    /// bound ever leaves a slot unfilled.
+    fn knn_of_position_after(&self, pos: usize, prev: usize, prev_kth: f64, out: &mut Neighbours) {
+        let q = self.pts[pos];
+        let p = self.pts[prev];
+        let step = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
+        let r = prev_kth.sqrt() + step;
+        let bound = (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE;
+        out.clear_within(bound);
+        self.search(0, 0, self.len(), &q, self.ids[pos], out);
+        if out.id.iter().any(|&i| i == u32::MAX) {
+            self.knn_of_position(pos, out);
+        }
+    }
+
     /// Squared distance from `q` to the bounding box of `node`: never more than the
     /// distance to any point in it (the box corners are point coordinates, and rounding is
     /// monotone), so pruning on it is exact.
@@ -205,16 +230,15 @@ impl KdTree {
         out: &mut Neighbours,
     ) {
         if len <= LEAF {
-            for i in start..start + len {
-                let id = self.ids[i];
-                if id == skip {
-                    continue;
-                }
-                let p = self.pts[i];
+            let range = start..start + len;
+            for (p, &id) in self.pts[range.clone()].iter().zip(&self.ids[range]) {
                 let dx = q[0] - p[0];
                 let dy = q[1] - p[1];
                 let dz = q[2] - p[2];
-                out.offer(dx * dx + dy * dy + dz * dz, id);
+                let d2 = dx * dx + dy * dy + dz * dz;
+                if d2 <= out.worst() && id != skip {
+                    out.offer(d2, id);
+                }
             }
             return;
         }
@@ -239,17 +263,30 @@ impl KdTree {
     /// Runs `f(pos, neighbours)` for every point (k nearest others), in parallel over fixed
     /// chunks of tree order; returns the per-position results in tree order.
     pub fn map_knn<R: Send>(&self, k: usize, f: impl Fn(usize, &Neighbours) -> R + Sync) -> Vec<R> {
-        (0..self.len())
+        // Fixed chunks of consecutive tree positions, each searched in order and seeded by
+        // its predecessor: the chunking, and so every result, is independent of threads.
+        const CHUNK: usize = 512;
+        let chunks: Vec<Vec<R>> = (0..self.len().div_ceil(CHUNK))
             .into_par_iter()
-            .with_min_len(1024)
             .map_init(
                 || Neighbours::new(k),
-                |nb, pos| {
-                    self.knn_of_position(pos, nb);
-                    f(pos, nb)
+                |nb, c| {
+                    let range = c * CHUNK..((c + 1) * CHUNK).min(self.len());
+                    let mut out = Vec::with_capacity(range.len());
+                    for pos in range.clone() {
+                        if pos == range.start {
+                            self.knn_of_position(pos, nb);
+                        } else {
+                            let kth = nb.d2[nb.d2.len() - 1];
+                            self.knn_of_position_after(pos, pos - 1, kth, nb);
+                        }
+                        out.push(f(pos, nb));
+                    }
+                    out
                 },
             )
-            .collect()
+            .collect();
+        chunks.into_iter().flatten().collect()
     }
 }
 
