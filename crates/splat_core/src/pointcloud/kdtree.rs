@@ -195,7 +195,7 @@ impl KdTree {
         let bound = (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE;
         out.clear_within(bound);
         self.search(0, 0, self.len(), &q, self.ids[pos], out);
-        if out.id.iter().any(|&i| i == u32::MAX) {
+        if out.id.contains(&u32::MAX) {
             self.knn_of_position(pos, out);
         }
     }
