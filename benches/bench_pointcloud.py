@@ -181,10 +181,16 @@ def main() -> int:
         lines.append(f"| {label} | " + " | ".join(f"{times[t]:.3f}" for t in threads) + " |")  # type: ignore[index]
         print(f"{label:<28} " + "  ".join(f"{t} thr {times[t]:.3f} s" for t in threads))  # type: ignore[index]
     lines.append(
-        "\nSOR uses a kd-tree (median splits, nanoflann's search order) in float64 like "
-        "Open3D, so the kept sets are identical, not just close; the voxel grid sorts packed "
-        "voxel keys instead of hashing, which also makes its output order deterministic. The "
-        "PLY reader gathers whole columns from the byte buffer (no per-row parsing).\n"
+        "\nHow: SOR and kNN use a kd-tree (median splits, tight node boxes) searched in "
+        "float64 with nanoflann's distance arithmetic, as in Open3D, so the kept sets are "
+        "identical, not just close. The voxel grid hashes packed voxel keys (each voxel owned "
+        "by one worker and summed in input order) and sorts only the occupied voxels, so its "
+        "means are Open3D's to the bit and its order is deterministic. With few voxels (1% of "
+        "the extent: ~35k) Open3D's own hash map is already fast and the gain is small; it "
+        "grows with the voxel count. The PLY reader gathers x/y/z, normals and colours as "
+        "[N, 3] blocks straight from the byte buffer; the writer takes [N, k] blocks without "
+        "splitting them. On this loaded machine a second thread rarely finds a free core, "
+        "which is why the 2-thread column is not faster.\n"
     )
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "pointcloud.md").write_text("\n".join(lines))
