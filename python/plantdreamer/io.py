@@ -163,7 +163,10 @@ def write_ply(
         if color_dtype == "uchar":
             if not np.isfinite(c).all():
                 raise InputError("colors contain NaN or Inf; they cannot be written as uchar")
-            c = np.round(np.clip(c, 0.0, 1.0) * 255.0).astype(np.uint8)
+            q = np.clip(c, 0.0, 1.0)  # one temporary, then in place
+            q *= np.float32(255.0)
+            np.rint(q, out=q)
+            c = q.astype(np.uint8)
         elif color_dtype != "float":
             raise InputError(f"color_dtype must be 'uchar' or 'float', got {color_dtype!r}")
         fields.append((["red", "green", "blue"], np.ascontiguousarray(c)))
