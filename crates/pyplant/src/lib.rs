@@ -8,6 +8,8 @@ use pyo3::types::PyDict;
 
 mod errors;
 mod native;
+mod ply;
+mod pointcloud;
 
 pub use errors::to_pyerr;
 pub use native::run_native;
@@ -28,6 +30,8 @@ fn info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     errors::register(m)?;
+    ply::register(m)?;
+    pointcloud::register(m)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
     Ok(())
 }

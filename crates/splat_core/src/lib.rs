@@ -5,6 +5,8 @@
 #![forbid(unsafe_code)]
 
 pub mod error;
+pub mod ply;
+pub mod pointcloud;
 pub mod threads;
 
 pub use error::{CoreError, CoreResult};

@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "eval": "plantdreamer.cli.eval:eval_command",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
     "lora": "plantdreamer.cli.lora:lora",
+    "prepare": "plantdreamer.cli.prepare:prepare",
 }
 
 

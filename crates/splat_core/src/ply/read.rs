@@ -1,0 +1,556 @@
+//! Decoding PLY data into typed columns of the `vertex` element.
+//!
+//! Binary rows without list properties have a fixed stride, so each column is gathered
+//! straight from the byte buffer (in parallel over columns). Rows with lists, and ascii
+//! files, are walked row by row. Every element is walked to its end so that a truncated
+//! file, a lying element count or trailing garbage is reported instead of silently read.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use super::header::{parse_header, Element, Format, Property, ScalarType};
+use super::Column;
+use crate::{CoreError, CoreResult};
+
+/// The `vertex` element of a PLY file: its scalar properties in header order.
+/// List properties of the vertex element are skipped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VertexTable {
+    pub count: usize,
+    pub columns: Vec<(String, Column)>,
+    pub format: Format,
+    pub comments: Vec<String>,
+}
+
+/// Properties read together: `values` holds `names.len()` values per row, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Field {
+    pub names: Vec<String>,
+    pub values: Column,
+}
+
+/// The vertex element as fields: each requested group whose properties all exist with one
+/// type becomes one interleaved field (e.g. x, y, z as an [N, 3] block, gathered in one
+/// pass); every other scalar property is a field of its own. Header order otherwise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VertexFields {
+    pub count: usize,
+    pub fields: Vec<Field>,
+    pub format: Format,
+    pub comments: Vec<String>,
+}
+
+/// Reads the `vertex` element of the PLY file at `path`.
+pub fn read_vertex_columns(path: &Path) -> CoreResult<VertexTable> {
+    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+    read_vertex_columns_from_bytes(&bytes, path)
+}
+
+/// Reads the `vertex` element from the bytes of a whole PLY file; `path` names it in errors.
+pub fn read_vertex_columns_from_bytes(bytes: &[u8], path: &Path) -> CoreResult<VertexTable> {
+    let f = read_vertex_fields_from_bytes(bytes, path, &[])?;
+    let columns = f
+        .fields
+        .into_iter()
+        .map(|mut field| (field.names.swap_remove(0), field.values))
+        .collect();
+    Ok(VertexTable {
+        count: f.count,
+        columns,
+        format: f.format,
+        comments: f.comments,
+    })
+}
+
+/// Reads the `vertex` element of the file at `path`, grouping properties (see `VertexFields`).
+pub fn read_vertex_fields(path: &Path, groups: &[Vec<String>]) -> CoreResult<VertexFields> {
+    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+    read_vertex_fields_from_bytes(&bytes, path, groups)
+}
+
+pub fn read_vertex_fields_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    groups: &[Vec<String>],
+) -> CoreResult<VertexFields> {
+    let header = parse_header(bytes, path)?;
+    let err = |msg: String| CoreError::ply(path, msg);
+    let vertex = header
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .ok_or_else(|| err("the file has no 'vertex' element".into()))?;
+    let plan = plan(&header.elements[vertex], groups);
+    let data = &bytes[header.data_start..];
+    let columns = match header.format {
+        Format::Ascii => read_ascii(data, &header.elements, vertex).map_err(err)?,
+        Format::BinaryLittleEndian => {
+            read_binary(data, &header.elements, vertex, false, &plan).map_err(err)?
+        }
+        Format::BinaryBigEndian => {
+            read_binary(data, &header.elements, vertex, true, &plan).map_err(err)?
+        }
+    };
+    let fields = match columns {
+        Decoded::Fields(fields) => fields,
+        Decoded::Columns(cols) => assemble(cols, &plan),
+    };
+    Ok(VertexFields {
+        count: header.elements[vertex].count,
+        fields,
+        format: header.format,
+        comments: header.comments,
+    })
+}
+
+/// One planned field: (name, scalar index, byte offset in a fixed row) per member, and type.
+struct Planned {
+    members: Vec<(String, usize, usize)>,
+    ty: ScalarType,
+}
+
+fn plan(element: &Element, groups: &[Vec<String>]) -> Vec<Planned> {
+    let mut scalars = Vec::new();
+    let mut offset = 0;
+    for p in &element.properties {
+        if let Property::Scalar { name, ty } = p {
+            scalars.push((name.clone(), scalars.len(), offset, *ty));
+            offset += ty.size();
+        }
+    }
+    let mut taken = vec![false; scalars.len()];
+    let mut planned: Vec<(usize, Planned)> = Vec::new();
+    for group in groups {
+        let found: Option<Vec<&(String, usize, usize, ScalarType)>> = group
+            .iter()
+            .map(|g| scalars.iter().find(|s| &s.0 == g))
+            .collect();
+        let Some(found) = found else { continue };
+        let ty = found.first().map(|f| f.3);
+        if found.is_empty() || found.iter().any(|f| Some(f.3) != ty || taken[f.1]) {
+            continue;
+        }
+        for f in &found {
+            taken[f.1] = true;
+        }
+        let first = found.iter().map(|f| f.1).min().unwrap_or(0);
+        let members = found.iter().map(|f| (f.0.clone(), f.1, f.2)).collect();
+        planned.push((
+            first,
+            Planned {
+                members,
+                ty: found[0].3,
+            },
+        ));
+    }
+    for s in &scalars {
+        if !taken[s.1] {
+            planned.push((
+                s.1,
+                Planned {
+                    members: vec![(s.0.clone(), s.1, s.2)],
+                    ty: s.3,
+                },
+            ));
+        }
+    }
+    planned.sort_by_key(|p| p.0);
+    planned.into_iter().map(|p| p.1).collect()
+}
+
+enum Decoded {
+    /// Fields already assembled by the fast path.
+    Fields(Vec<Field>),
+    /// One column per scalar property, in header order.
+    Columns(Vec<Column>),
+}
+
+fn assemble(mut cols: Vec<Column>, plan: &[Planned]) -> Vec<Field> {
+    plan.iter()
+        .map(|p| {
+            let names = p.members.iter().map(|m| m.0.clone()).collect();
+            let values = if p.members.len() == 1 {
+                std::mem::replace(&mut cols[p.members[0].1], Column::U8(Vec::new()))
+            } else {
+                let parts: Vec<&Column> = p.members.iter().map(|m| &cols[m.1]).collect();
+                interleave(&parts)
+            };
+            Field { names, values }
+        })
+        .collect()
+}
+
+/// Row-major interleaving of same-typed columns.
+fn interleave(parts: &[&Column]) -> Column {
+    macro_rules! go {
+        ($variant:ident) => {{
+            let cols: Vec<&Vec<_>> = parts
+                .iter()
+                .filter_map(|c| match c {
+                    Column::$variant(v) => Some(v),
+                    _ => None,
+                })
+                .collect();
+            let n = cols.first().map_or(0, |c| c.len());
+            Column::$variant(
+                (0..n)
+                    .flat_map(|i| cols.iter().map(move |c| c[i]))
+                    .collect(),
+            )
+        }};
+    }
+    match parts[0] {
+        Column::I8(_) => go!(I8),
+        Column::U8(_) => go!(U8),
+        Column::I16(_) => go!(I16),
+        Column::U16(_) => go!(U16),
+        Column::I32(_) => go!(I32),
+        Column::U32(_) => go!(U32),
+        Column::F32(_) => go!(F32),
+        Column::F64(_) => go!(F64),
+    }
+}
+
+fn scalar_names(element: &Element) -> impl Iterator<Item = (&str, ScalarType)> {
+    element.properties.iter().filter_map(|p| match p {
+        Property::Scalar { name, ty } => Some((name.as_str(), *ty)),
+        Property::List { .. } => None,
+    })
+}
+
+fn empty_column(ty: ScalarType, capacity: usize) -> Column {
+    match ty {
+        ScalarType::I8 => Column::I8(Vec::with_capacity(capacity)),
+        ScalarType::U8 => Column::U8(Vec::with_capacity(capacity)),
+        ScalarType::I16 => Column::I16(Vec::with_capacity(capacity)),
+        ScalarType::U16 => Column::U16(Vec::with_capacity(capacity)),
+        ScalarType::I32 => Column::I32(Vec::with_capacity(capacity)),
+        ScalarType::U32 => Column::U32(Vec::with_capacity(capacity)),
+        ScalarType::F32 => Column::F32(Vec::with_capacity(capacity)),
+        ScalarType::F64 => Column::F64(Vec::with_capacity(capacity)),
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Binary
+
+macro_rules! array {
+    ($bytes:expr) => {
+        // The slice always has the array's length (it is cut with the type's size).
+        $bytes.try_into().unwrap_or_default()
+    };
+}
+
+macro_rules! decode {
+    ($t:ty, $bytes:expr, $be:expr) => {{
+        let raw = array!($bytes);
+        if $be {
+            <$t>::from_be_bytes(raw)
+        } else {
+            <$t>::from_le_bytes(raw)
+        }
+    }};
+}
+
+/// Gathers one field (its members' byte offsets) from fixed-stride rows, row-major.
+fn gather(rows: &[u8], stride: usize, offsets: &[usize], ty: ScalarType, be: bool) -> Column {
+    macro_rules! go {
+        ($variant:ident, $t:ty) => {{
+            const S: usize = std::mem::size_of::<$t>();
+            let mut out = Vec::with_capacity(rows.len() / stride * offsets.len());
+            match offsets {
+                [o] => out.extend(
+                    rows.chunks_exact(stride)
+                        .map(|row| decode!($t, &row[*o..*o + S], be)),
+                ),
+                [a, b, c] => {
+                    for row in rows.chunks_exact(stride) {
+                        out.push(decode!($t, &row[*a..*a + S], be));
+                        out.push(decode!($t, &row[*b..*b + S], be));
+                        out.push(decode!($t, &row[*c..*c + S], be));
+                    }
+                }
+                _ => {
+                    for row in rows.chunks_exact(stride) {
+                        for &o in offsets {
+                            out.push(decode!($t, &row[o..o + S], be));
+                        }
+                    }
+                }
+            }
+            Column::$variant(out)
+        }};
+    }
+    match ty {
+        ScalarType::I8 => go!(I8, i8),
+        ScalarType::U8 => go!(U8, u8),
+        ScalarType::I16 => go!(I16, i16),
+        ScalarType::U16 => go!(U16, u16),
+        ScalarType::I32 => go!(I32, i32),
+        ScalarType::U32 => go!(U32, u32),
+        ScalarType::F32 => go!(F32, f32),
+        ScalarType::F64 => go!(F64, f64),
+    }
+}
+
+fn push_binary(column: &mut Column, bytes: &[u8], be: bool) {
+    match column {
+        Column::I8(v) => v.push(decode!(i8, bytes, be)),
+        Column::U8(v) => v.push(decode!(u8, bytes, be)),
+        Column::I16(v) => v.push(decode!(i16, bytes, be)),
+        Column::U16(v) => v.push(decode!(u16, bytes, be)),
+        Column::I32(v) => v.push(decode!(i32, bytes, be)),
+        Column::U32(v) => v.push(decode!(u32, bytes, be)),
+        Column::F32(v) => v.push(decode!(f32, bytes, be)),
+        Column::F64(v) => v.push(decode!(f64, bytes, be)),
+    }
+}
+
+/// Reads a list length (an integer of type `ty`) and rejects negative ones.
+fn list_len(bytes: &[u8], ty: ScalarType, be: bool) -> Result<usize, String> {
+    let n: i64 = match ty {
+        ScalarType::I8 => decode!(i8, bytes, be).into(),
+        ScalarType::U8 => decode!(u8, bytes, be).into(),
+        ScalarType::I16 => decode!(i16, bytes, be).into(),
+        ScalarType::U16 => decode!(u16, bytes, be).into(),
+        ScalarType::I32 => decode!(i32, bytes, be).into(),
+        ScalarType::U32 => decode!(u32, bytes, be).into(),
+        ScalarType::F32 | ScalarType::F64 => return Err("list count of a float type".into()),
+    };
+    usize::try_from(n).map_err(|_| format!("negative list length {n}"))
+}
+
+fn truncated(element: &Element, row: usize) -> String {
+    format!(
+        "truncated file: element '{}' declares {} rows but the data ends in row {row}",
+        element.name, element.count
+    )
+}
+
+/// Walks one element with list properties; pushes its scalars into `columns` if given.
+/// Returns the number of bytes the element occupies.
+fn walk_binary_rows(
+    data: &[u8],
+    element: &Element,
+    be: bool,
+    mut columns: Option<&mut Vec<Column>>,
+) -> Result<usize, String> {
+    let mut pos = 0usize;
+    for row in 0..element.count {
+        let mut scalar = 0;
+        for p in &element.properties {
+            match p {
+                Property::Scalar { ty, .. } => {
+                    let end = pos + ty.size();
+                    let bytes = data.get(pos..end).ok_or_else(|| truncated(element, row))?;
+                    if let Some(cols) = columns.as_deref_mut() {
+                        push_binary(&mut cols[scalar], bytes, be);
+                    }
+                    scalar += 1;
+                    pos = end;
+                }
+                Property::List {
+                    name,
+                    count_ty,
+                    item_ty,
+                } => {
+                    let end = pos + count_ty.size();
+                    let bytes = data.get(pos..end).ok_or_else(|| truncated(element, row))?;
+                    let n = list_len(bytes, *count_ty, be).map_err(|e| {
+                        format!("element '{}' row {row}, list '{name}': {e}", element.name)
+                    })?;
+                    let len = n
+                        .checked_mul(item_ty.size())
+                        .ok_or_else(|| truncated(element, row))?;
+                    pos = end
+                        .checked_add(len)
+                        .filter(|&e| e <= data.len())
+                        .ok_or_else(|| truncated(element, row))?;
+                }
+            }
+        }
+    }
+    Ok(pos)
+}
+
+fn read_binary(
+    data: &[u8],
+    elements: &[Element],
+    vertex: usize,
+    be: bool,
+    plan: &[Planned],
+) -> Result<Decoded, String> {
+    let mut pos = 0usize;
+    let mut out = Decoded::Columns(Vec::new());
+    for (i, element) in elements.iter().enumerate() {
+        let rest = &data[pos..];
+        match element.fixed_row_size() {
+            Some(stride) => {
+                let len = element
+                    .count
+                    .checked_mul(stride)
+                    .filter(|&len| len <= rest.len())
+                    .ok_or_else(|| {
+                        format!(
+                            "truncated file: element '{}' declares {} rows of {stride} bytes but only {} bytes of data follow",
+                            element.name, element.count, rest.len()
+                        )
+                    })?;
+                if i == vertex {
+                    let rows = &rest[..len];
+                    out = Decoded::Fields(
+                        plan.par_iter()
+                            .map(|p| {
+                                let offsets: Vec<usize> = p.members.iter().map(|m| m.2).collect();
+                                let values = if stride == 0 {
+                                    empty_column(p.ty, 0)
+                                } else {
+                                    gather(rows, stride, &offsets, p.ty, be)
+                                };
+                                Field {
+                                    names: p.members.iter().map(|m| m.0.clone()).collect(),
+                                    values,
+                                }
+                            })
+                            .collect(),
+                    );
+                }
+                pos += len;
+            }
+            None => {
+                if i == vertex {
+                    // Lists in the vertex element: at least one byte per row bounds the count.
+                    let cap = element.count.min(rest.len());
+                    let mut cols: Vec<Column> = scalar_names(element)
+                        .map(|(_, ty)| empty_column(ty, cap))
+                        .collect();
+                    pos += walk_binary_rows(rest, element, be, Some(&mut cols))?;
+                    out = Decoded::Columns(cols);
+                } else {
+                    pos += walk_binary_rows(rest, element, be, None)?;
+                }
+            }
+        }
+    }
+    let trailing = &data[pos..];
+    if trailing.iter().any(|b| !b.is_ascii_whitespace()) {
+        return Err(format!(
+            "{} bytes of data after the last element: the header's element counts do not match the file",
+            trailing.len()
+        ));
+    }
+    Ok(out)
+}
+
+// ---------------------------------------------------------------------------------------
+// ASCII
+
+fn parse_int(token: &str) -> Option<i64> {
+    token.parse::<i64>().ok().or_else(|| {
+        // Some writers print integers as "3.0".
+        let f = token.parse::<f64>().ok()?;
+        (f.fract() == 0.0 && f.abs() < 9.0e15).then_some(f as i64)
+    })
+}
+
+fn push_ascii(column: &mut Column, token: &str) -> Option<()> {
+    macro_rules! int {
+        ($v:expr) => {
+            $v.push(parse_int(token)?.try_into().ok()?)
+        };
+    }
+    match column {
+        Column::I8(v) => int!(v),
+        Column::U8(v) => int!(v),
+        Column::I16(v) => int!(v),
+        Column::U16(v) => int!(v),
+        Column::I32(v) => int!(v),
+        Column::U32(v) => int!(v),
+        Column::F32(v) => v.push(token.parse().ok()?),
+        Column::F64(v) => v.push(token.parse().ok()?),
+    }
+    Some(())
+}
+
+fn read_ascii(data: &[u8], elements: &[Element], vertex: usize) -> Result<Decoded, String> {
+    let text = std::str::from_utf8(data)
+        .map_err(|e| format!("ascii data is not text (byte {})", e.valid_up_to()))?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let mut out = Decoded::Columns(Vec::new());
+    for (i, element) in elements.iter().enumerate() {
+        let cap = element.count.min(text.len() / 2 + 1);
+        let mut cols: Vec<Column> = if i == vertex {
+            scalar_names(element)
+                .map(|(_, ty)| empty_column(ty, cap))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        for row in 0..element.count {
+            let (line_no, line) = lines.next().ok_or_else(|| {
+                format!(
+                    "truncated file: element '{}' declares {} rows but the data has {row}",
+                    element.name, element.count
+                )
+            })?;
+            let at = |what: String| {
+                format!(
+                    "data line {}: element '{}' row {row}: {what}",
+                    line_no + 1,
+                    element.name
+                )
+            };
+            let mut tokens = line.split_ascii_whitespace();
+            let mut scalar = 0;
+            for p in &element.properties {
+                let token = tokens
+                    .next()
+                    .ok_or_else(|| at(format!("missing value for '{}'", p.name())))?;
+                match p {
+                    Property::Scalar { name, ty } => {
+                        if i == vertex {
+                            push_ascii(&mut cols[scalar], token).ok_or_else(|| {
+                                at(format!(
+                                    "'{token}' is not a valid {} for '{name}'",
+                                    ty.ply_name()
+                                ))
+                            })?;
+                            scalar += 1;
+                        } else if token.parse::<f64>().is_err() {
+                            return Err(at(format!("'{token}' is not a number")));
+                        }
+                    }
+                    Property::List { name, .. } => {
+                        let n = parse_int(token)
+                            .and_then(|n| usize::try_from(n).ok())
+                            .ok_or_else(|| {
+                                at(format!("invalid list length '{token}' for '{name}'"))
+                            })?;
+                        for _ in 0..n {
+                            tokens.next().ok_or_else(|| {
+                                at(format!("list '{name}' is shorter than its length {n}"))
+                            })?;
+                        }
+                    }
+                }
+            }
+            if let Some(extra) = tokens.next() {
+                return Err(at(format!("unexpected extra value '{extra}'")));
+            }
+        }
+        if i == vertex {
+            out = Decoded::Columns(cols);
+        }
+    }
+    if let Some((line_no, _)) = lines.next() {
+        return Err(format!(
+            "data line {}: more rows than the header's element counts declare",
+            line_no + 1
+        ));
+    }
+    Ok(out)
+}
