@@ -7,6 +7,8 @@ import struct
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError, PlyError
@@ -283,3 +285,69 @@ def test_unwritable_attributes_are_input_errors(tmp_path):
 def test_empty_cloud_round_trips(tmp_path):
     write_ply(tmp_path / "e.ply", PointCloud(np.zeros((0, 3), np.float32)))
     assert len(read_ply(tmp_path / "e.ply")) == 0
+
+
+def test_native_writer_checks_field_shapes(tmp_path):
+    from plantdreamer import _core
+
+    out = str(tmp_path / "a.ply")
+    with pytest.raises(InputError, match="shape"):
+        _core.write_ply_vertex(out, [(["x", "y"], np.zeros((4, 3), np.float32))])
+    with pytest.raises(InputError, match="contiguous"):
+        _core.write_ply_vertex(out, [(["x", "y", "z"], np.zeros((4, 6), np.float32)[:, ::2])])
+    with pytest.raises(InputError, match="int8"):
+        _core.write_ply_vertex(out, [(["x"], np.zeros(4, np.int64))])
+    with pytest.raises(InputError, match="rows"):
+        _core.write_ply_vertex(
+            out, [(["x"], np.zeros(4, np.float32)), (["y"], np.zeros(5, np.float32))]
+        )
+
+
+def test_mixed_coordinate_types_are_stacked_as_float64(tmp_path):
+    path = tmp_path / "m.ply"
+    path.write_bytes(
+        make_ply(
+            "binary_big_endian", [("x", "float"), ("y", "double"), ("z", "int")], [(0.5, 0.1, 3)]
+        )
+    )
+    cloud = read_ply(path)
+    assert cloud.positions.dtype == np.float64
+    np.testing.assert_array_equal(cloud.positions, [[0.5, 0.1, 3.0]])
+
+
+_DTYPES = [np.int8, np.uint8, np.int16, np.uint16, np.int32, np.uint32, np.float32, np.float64]
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    n=st.integers(0, 40),
+    attrs=st.lists(st.sampled_from(range(len(_DTYPES))), max_size=5),
+    binary=st.booleans(),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_round_trip_property(tmp_path, n, attrs, binary, seed):
+    rng = np.random.default_rng(seed)
+    attributes = {}
+    for i, t in enumerate(attrs):
+        dtype = np.dtype(_DTYPES[t])
+        if dtype.kind == "f":
+            v = rng.normal(size=n).astype(dtype) * dtype.type(1e3)
+        else:
+            info = np.iinfo(dtype)
+            v = rng.integers(info.min, info.max, size=n, endpoint=True, dtype=dtype)
+        attributes[f"a{i}"] = v
+    cloud = PointCloud(
+        positions=rng.normal(size=(n, 3)).astype(np.float32),
+        colors=rng.integers(0, 256, size=(n, 3)).astype(np.float32) / np.float32(255),
+        attributes=attributes,
+    )
+    path = tmp_path / f"p{seed}.ply"
+    write_ply(path, cloud, binary=binary)
+    back = read_ply(path)
+    np.testing.assert_array_equal(back.positions, cloud.positions)
+    np.testing.assert_array_equal(np.round(back.colors * 255), np.round(cloud.colors * 255))
+    for name, v in attributes.items():
+        assert back.attributes[name].dtype == v.dtype
+        np.testing.assert_array_equal(back.attributes[name], v)

@@ -3,8 +3,12 @@ is installed: the `bench` extra)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from plantdreamer import pointcloud as pc
 from plantdreamer.errors import InputError
@@ -118,7 +122,8 @@ def test_threads_do_not_change_results():
         lambda t: pc.downsample_to_count(p, 5000, c, threads=t),
     ):
         a, b = f(1), f(2)
-        for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+        a, b = (a, b) if isinstance(a, tuple) else ((a,), (b,))
+        for x, y in zip(a, b, strict=True):
             np.testing.assert_array_equal(x, y)
 
 
@@ -153,7 +158,7 @@ def test_normalize_and_invert():
     np.testing.assert_allclose(t.invert(out), p, rtol=1e-6)
     np.testing.assert_allclose(t.invert_log_scales(np.log([[t.scale]])), 0, atol=1e-12)
     assert pc.NormalizeTransform.from_dict(t.to_dict()) == t
-    with pytest.raises(Exception):  # frozen
+    with pytest.raises(dataclasses.FrozenInstanceError):
         t.scale = 2.0  # type: ignore[misc]
 
 
@@ -208,3 +213,39 @@ def test_open3d_identical_kept_set_and_voxels():
         order = np.lexsort(np.floor((ref_p - (p.min(axis=0) - v / 2)) / v).T[::-1])
         np.testing.assert_array_equal(got_p, ref_p[order])
         np.testing.assert_array_equal(got_c, ref_c[order].astype(np.float32))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(2, 250),
+    k=st.integers(1, 30),
+    ratio=st.floats(0.1, 4.0),
+    dup=st.integers(0, 40),
+    grid=st.booleans(),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_sor_and_voxel_properties(n, k, ratio, dup, grid, seed):
+    """Random small clouds, with duplicates and lattice points (ties), against the references."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    if grid:
+        p = np.round(p * 2) / 2  # many equal coordinates and equal distances
+    p = np.concatenate([p, np.repeat(p[:1], dup, axis=0)]).astype(np.float32)
+    c = rng.uniform(size=(len(p), 3)).astype(np.float32)
+    if k > len(p):
+        with pytest.raises(InputError):
+            pc.remove_statistical_outliers(p, k, ratio)
+    else:
+        np.testing.assert_array_equal(
+            pc.remove_statistical_outliers(p, k, ratio), sor_reference(p, k, ratio)
+        )
+    v = float(rng.uniform(0.05, 2.0))
+    got_p, got_c = pc.voxel_downsample(p, v, c)
+    ref_p, ref_c = voxel_reference(p, v, c)
+    np.testing.assert_array_equal(got_p, ref_p.astype(np.float32))
+    np.testing.assert_array_equal(got_c, ref_c)
+    if len(p) > 3:
+        _, d = pc.knn(p, 3)
+        full = np.sqrt(sq_dist(p))
+        np.fill_diagonal(full, np.inf)
+        np.testing.assert_array_equal(d, np.sort(full, axis=1)[:, :3].astype(np.float32))

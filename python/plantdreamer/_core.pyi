@@ -40,11 +40,11 @@ def large_gaussian_mask(
 
 # --- point clouds and PLY (crates/pyplant/src/{ply,pointcloud}.rs) ---
 def read_ply_vertex(
-    path: str,
-) -> tuple[int, list[tuple[str, npt.NDArray[Any]]], str, list[str]]: ...
+    path: str, groups: list[list[str]] = ...
+) -> tuple[int, list[tuple[list[str], npt.NDArray[Any]]], str, list[str]]: ...
 def write_ply_vertex(
     path: str,
-    columns: list[tuple[str, npt.NDArray[Any]]],
+    fields: list[tuple[list[str], npt.NDArray[Any]]],
     binary: bool = True,
     comments: list[str] = ...,
 ) -> None: ...

@@ -54,46 +54,66 @@ _PLY_DTYPES = tuple(
 )
 
 
+def _read_fields(path: PathLike, groups: list[list[str]]) -> list[tuple[list[str], np.ndarray]]:
+    _, fields, _, _ = _core.read_ply_vertex(os.fspath(path), groups)
+    return fields
+
+
 def read_ply_columns(path: PathLike) -> dict[str, np.ndarray]:
     """The scalar properties of the vertex element, by name in header order, as stored."""
-    _, columns, _, _ = _core.read_ply_vertex(os.fspath(path))
-    return dict(columns)
+    return {names[0]: values for names, values in _read_fields(path, [])}
+
+
+# Read as [N, 3] blocks in one pass when a file stores them with one type.
+_GROUPS = [["x", "y", "z"], ["nx", "ny", "nz"], *[list(names) for names in _COLOR_NAMES]]
 
 
 def read_ply(path: PathLike) -> PointCloud:
     """Reads a point cloud (see the module docstring for what each field becomes)."""
-    cols = read_ply_columns(path)
+    blocks: dict[tuple[str, ...], np.ndarray] = {}
+    cols: dict[str, np.ndarray] = {}
+    for names, values in _read_fields(path, _GROUPS):
+        if len(names) == 1:
+            cols[names[0]] = values
+        else:
+            blocks[tuple(names)] = values
+            cols.update({n: values[:, i] for i, n in enumerate(names)})
+
+    def block(names: tuple[str, ...]) -> np.ndarray:
+        # One [N, 3] array: the gathered block if there is one, else stacked columns.
+        got = blocks.get(names)
+        for n in names:
+            del cols[n]
+        return got if got is not None else np.stack([cols_all[n] for n in names], axis=1)
+
+    cols_all = dict(cols)
     missing = [a for a in ("x", "y", "z") if a not in cols]
     if missing:
         raise PlyError(f"{os.fspath(path)}: the vertex element has no {'/'.join(missing)} property")
-    xyz = [cols.pop(a) for a in ("x", "y", "z")]
+    xyz = [cols[a] for a in ("x", "y", "z")]
     dtype = np.float64 if any(c.dtype == np.float64 for c in xyz) else np.float32
-    positions = np.stack(xyz, axis=1).astype(dtype, copy=False)
+    positions = block(("x", "y", "z")).astype(dtype, copy=False)
 
     colors = None
     for names in _COLOR_NAMES:
         if all(n in cols for n in names):
-            channels = [cols[n] for n in names]
-            kinds = {c.dtype for c in channels}
+            kinds = {cols[n].dtype for n in names}
             if len(kinds) != 1:
                 continue
             kind = kinds.pop()
             if kind in _COLOR_SCALE:
-                colors = np.stack(channels, axis=1).astype(np.float32) / np.float32(
-                    _COLOR_SCALE[kind]
-                )
+                colors = block(names).astype(np.float32) / np.float32(_COLOR_SCALE[kind])
             elif kind.kind == "f":
-                colors = np.stack(channels, axis=1).astype(np.float32)
+                colors = block(names).astype(np.float32, copy=False)
             else:
                 continue
-            for n in names:
-                del cols[n]
             break
 
     normals = None
     if all(n in cols for n in ("nx", "ny", "nz")):
-        normals = np.stack([cols.pop(n) for n in ("nx", "ny", "nz")], axis=1).astype(np.float32)
-    return PointCloud(positions=positions, colors=colors, normals=normals, attributes=cols)
+        normals = block(("nx", "ny", "nz")).astype(np.float32, copy=False)
+    attributes = {n: np.ascontiguousarray(v) for n, v in cols.items()}
+    return PointCloud(positions=positions, colors=colors, normals=normals, attributes=attributes)
 
 
 def _ply_column(name: str, values: np.ndarray) -> np.ndarray:
@@ -134,29 +154,28 @@ def write_ply(
     pos = cloud.positions
     if pos.dtype != np.float64:
         pos = pos.astype(np.float32, copy=False)
-    columns: list[tuple[str, np.ndarray]] = [
-        (a, np.ascontiguousarray(pos[:, i])) for i, a in enumerate("xyz")
-    ]
+    fields: list[tuple[list[str], np.ndarray]] = [(["x", "y", "z"], np.ascontiguousarray(pos))]
     if cloud.normals is not None:
-        n = cloud.normals.astype(np.float32, copy=False)
-        columns += [(a, np.ascontiguousarray(n[:, i])) for i, a in enumerate(("nx", "ny", "nz"))]
+        n = np.ascontiguousarray(cloud.normals, dtype=np.float32)
+        fields.append((["nx", "ny", "nz"], n))
     if cloud.colors is not None:
         c = np.asarray(cloud.colors, dtype=np.float32)
         if color_dtype == "uchar":
             if not np.isfinite(c).all():
                 raise InputError("colors contain NaN or Inf; they cannot be written as uchar")
-            c = np.round(np.clip(c, 0.0, 1.0) * 255.0).astype(np.uint8)
+            q = np.clip(c, 0.0, 1.0)  # one temporary, then in place
+            q *= np.float32(255.0)
+            np.rint(q, out=q)
+            c = q.astype(np.uint8)
         elif color_dtype != "float":
             raise InputError(f"color_dtype must be 'uchar' or 'float', got {color_dtype!r}")
-        columns += [
-            (a, np.ascontiguousarray(c[:, i])) for i, a in enumerate(("red", "green", "blue"))
-        ]
-    taken = {name for name, _ in columns}
+        fields.append((["red", "green", "blue"], np.ascontiguousarray(c)))
+    taken = {name for names, _ in fields for name in names}
     for name, values in cloud.attributes.items():
         if name in taken:
             raise InputError(f"attribute {name!r} clashes with a standard vertex property")
-        columns.append((name, _ply_column(name, values)))
-    _core.write_ply_vertex(os.fspath(path), columns, binary, list(comments))
+        fields.append(([name], _ply_column(name, values)))
+    _core.write_ply_vertex(os.fspath(path), fields, binary, list(comments))
 
 
 _F_REST = re.compile(r"f_rest_(\d+)$")
@@ -224,16 +243,20 @@ def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None 
     g.validate()
     n, k = len(g), g.sh.shape[1]
 
-    def col(a: np.ndarray) -> np.ndarray:
+    def block(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float32)
 
-    zeros = np.zeros(n, dtype=np.float32)
-    columns = [(a, col(g.means[:, i])) for i, a in enumerate("xyz")]
-    columns += [(a, zeros) for a in ("nx", "ny", "nz")]
-    columns += [(f"f_dc_{c}", col(g.sh[:, 0, c])) for c in range(3)]
-    rest = g.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))
-    columns += [(f"f_rest_{i}", col(rest[:, i])) for i in range(3 * (k - 1))]
-    columns.append(("opacity", col(g.opacity_logits)))
-    columns += [(f"scale_{i}", col(g.log_scales[:, i])) for i in range(3)]
-    columns += [(f"rot_{i}", col(g.quats[:, i])) for i in range(4)]
-    _core.write_ply_vertex(os.fspath(path), columns, True, [])
+    rest = g.sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # channel-major
+    fields = [
+        (["x", "y", "z"], block(g.means)),
+        (["nx", "ny", "nz"], np.zeros((n, 3), dtype=np.float32)),
+        (["f_dc_0", "f_dc_1", "f_dc_2"], block(g.sh[:, 0, :])),
+    ]
+    if k > 1:
+        fields.append(([f"f_rest_{i}" for i in range(3 * (k - 1))], block(rest)))
+    fields += [
+        (["opacity"], block(g.opacity_logits)),
+        (["scale_0", "scale_1", "scale_2"], block(g.log_scales)),
+        (["rot_0", "rot_1", "rot_2", "rot_3"], block(g.quats)),
+    ]
+    _core.write_ply_vertex(os.fspath(path), fields, True, [])

@@ -5,10 +5,10 @@
 
 use std::path::PathBuf;
 
-use numpy::{PyArray1, PyReadonlyArray1, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyList;
-use splat_core::ply::{self, Column, ColumnRef, Format};
+use splat_core::ply::{self, Column, ColumnRef, FieldRef, Format};
 
 use crate::errors::InputError;
 use crate::run_native;
@@ -26,44 +26,69 @@ fn column_to_py<'py>(py: Python<'py>, col: Column) -> Bound<'py, PyAny> {
     }
 }
 
-/// Reads the vertex element: (count, [(name, array)], format, comments).
+/// Reads the vertex element: (count, [(names, array)], format, comments). Each group of
+/// `groups` whose properties exist with one type comes back as one [N, len(group)] array;
+/// every other scalar property as a 1-D array of its own.
 #[pyfunction]
+#[pyo3(signature = (path, groups=Vec::new()))]
 fn read_ply_vertex<'py>(
     py: Python<'py>,
     path: PathBuf,
+    groups: Vec<Vec<String>>,
 ) -> PyResult<(usize, Bound<'py, PyList>, &'static str, Vec<String>)> {
-    let table = run_native(py, || ply::read_vertex_columns(&path))?;
-    let columns = PyList::empty(py);
-    for (name, col) in table.columns {
-        columns.append((name, column_to_py(py, col)))?;
+    let table = run_native(py, || ply::read_vertex_fields(&path, &groups))?;
+    let fields = PyList::empty(py);
+    for field in table.fields {
+        let width = field.names.len();
+        let array = column_to_py(py, field.values);
+        let array = if width == 1 {
+            array
+        } else {
+            array.call_method1("reshape", ((table.count, width),))?
+        };
+        fields.append((field.names, array))?;
     }
     let format = match table.format {
         Format::Ascii => "ascii",
         Format::BinaryLittleEndian => "binary_little_endian",
         Format::BinaryBigEndian => "binary_big_endian",
     };
-    Ok((table.count, columns, format, table.comments))
+    Ok((table.count, fields, format, table.comments))
 }
 
-/// A 1-D contiguous array of one of the eight PLY scalar types, borrowed for the write.
+/// A C-contiguous array of one of the eight PLY scalar types, borrowed for the write.
 enum Held<'py> {
-    I8(PyReadonlyArray1<'py, i8>),
-    U8(PyReadonlyArray1<'py, u8>),
-    I16(PyReadonlyArray1<'py, i16>),
-    U16(PyReadonlyArray1<'py, u16>),
-    I32(PyReadonlyArray1<'py, i32>),
-    U32(PyReadonlyArray1<'py, u32>),
-    F32(PyReadonlyArray1<'py, f32>),
-    F64(PyReadonlyArray1<'py, f64>),
+    I8(PyReadonlyArrayDyn<'py, i8>),
+    U8(PyReadonlyArrayDyn<'py, u8>),
+    I16(PyReadonlyArrayDyn<'py, i16>),
+    U16(PyReadonlyArrayDyn<'py, u16>),
+    I32(PyReadonlyArrayDyn<'py, i32>),
+    U32(PyReadonlyArrayDyn<'py, u32>),
+    F32(PyReadonlyArrayDyn<'py, f32>),
+    F64(PyReadonlyArrayDyn<'py, f64>),
 }
 
-fn hold<'py>(name: &str, obj: &Bound<'py, PyAny>) -> PyResult<Held<'py>> {
+/// Borrows `obj` as the values of properties `names`: shape [N] for one name, [N, len] for
+/// several, C-contiguous.
+fn hold<'py>(names: &[String], obj: &Bound<'py, PyAny>) -> PyResult<Held<'py>> {
+    let shape_ok = |shape: &[usize]| match shape {
+        [_] => names.len() == 1,
+        [_, w] => *w == names.len(),
+        _ => false,
+    };
     macro_rules! try_as {
         ($variant:ident, $t:ty) => {
-            if let Ok(a) = obj.extract::<PyReadonlyArray1<'py, $t>>() {
+            if let Ok(a) = obj.extract::<PyReadonlyArrayDyn<'py, $t>>() {
+                if !shape_ok(a.shape()) {
+                    return Err(InputError::new_err(format!(
+                        "values of {names:?} must have shape [N] (one name) or [N, {}], got {:?}",
+                        names.len(),
+                        a.shape()
+                    )));
+                }
                 if !a.is_c_contiguous() {
                     return Err(InputError::new_err(format!(
-                        "column '{name}' must be contiguous"
+                        "values of {names:?} must be C-contiguous"
                     )));
                 }
                 return Ok(Held::$variant(a));
@@ -79,7 +104,7 @@ fn hold<'py>(name: &str, obj: &Bound<'py, PyAny>) -> PyResult<Held<'py>> {
     try_as!(F32, f32);
     try_as!(F64, f64);
     Err(InputError::new_err(format!(
-        "column '{name}' must be a 1-D array of int8/uint8/int16/uint16/int32/uint32/float32/float64"
+        "values of {names:?} must be an array of int8/uint8/int16/uint16/int32/uint32/float32/float64"
     )))
 }
 
@@ -97,28 +122,34 @@ fn as_ref<'a>(held: &'a Held<'_>) -> PyResult<ColumnRef<'a>> {
     })
 }
 
-/// Writes [(name, 1-D array)] as the vertex element (binary little endian or ascii).
+/// Writes [(names, array)] as the vertex element (binary little endian or ascii); an
+/// [N, k] array fills k properties of one type, without splitting it first.
 #[pyfunction]
-#[pyo3(signature = (path, columns, binary=true, comments=Vec::new()))]
+#[pyo3(signature = (path, fields, binary=true, comments=Vec::new()))]
 fn write_ply_vertex(
     py: Python<'_>,
     path: PathBuf,
-    columns: Vec<(String, Bound<'_, PyAny>)>,
+    fields: Vec<(Vec<String>, Bound<'_, PyAny>)>,
     binary: bool,
     comments: Vec<String>,
 ) -> PyResult<()> {
-    let held = columns
+    let held = fields
         .iter()
-        .map(|(name, obj)| hold(name, obj))
+        .map(|(names, obj)| hold(names, obj))
         .collect::<PyResult<Vec<_>>>()?;
-    let refs = columns
+    let refs = fields
         .iter()
         .zip(&held)
-        .map(|((name, _), h)| Ok((name.as_str(), as_ref(h)?)))
+        .map(|((names, _), h)| {
+            Ok(FieldRef {
+                names: names.iter().map(String::as_str).collect(),
+                values: as_ref(h)?,
+            })
+        })
         .collect::<PyResult<Vec<_>>>()?;
     let comments: Vec<&str> = comments.iter().map(String::as_str).collect();
     run_native(py, || {
-        ply::write_vertex_columns(&path, &refs, binary, &comments)
+        ply::write_vertex_fields(&path, &refs, binary, &comments)
     })
 }
 

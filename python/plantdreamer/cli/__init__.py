@@ -18,13 +18,13 @@ from plantdreamer.errors import PlantDreamerError
 # name -> "module:attribute". Only commands that work are listed here.
 COMMANDS: dict[str, str] = {
     "ablate": "plantdreamer.cli.ablate:ablate",
+    "eval": "plantdreamer.cli.eval:eval_command",
     "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
-    "render": "plantdreamer.cli.render:render",
-    "eval": "plantdreamer.cli.eval:eval_command",
+    "lora": "plantdreamer.cli.lora:lora",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
     "prepare": "plantdreamer.cli.prepare:prepare",
-    "lora": "plantdreamer.cli.lora:lora",
+    "render": "plantdreamer.cli.render:render",
 }
 
 

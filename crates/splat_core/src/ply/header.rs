@@ -162,7 +162,7 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> CoreResult<Header> {
         match keyword {
             "ply" if line_no == 1 => {}
             "comment" | "obj_info" => {
-                comments.push(line[keyword.len()..].trim().to_string());
+                comments.push(line.trim_start()[keyword.len()..].trim().to_string());
             }
             "format" => {
                 if words.len() != 3 {
@@ -225,6 +225,12 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> CoreResult<Header> {
                     },
                     _ => return Err(err(format!("header line {line_no}: malformed '{line}'"))),
                 };
+                if property.name().chars().any(char::is_control) {
+                    return Err(err(format!(
+                        "header line {line_no}: property name {:?} has control characters",
+                        property.name()
+                    )));
+                }
                 if element
                     .properties
                     .iter()

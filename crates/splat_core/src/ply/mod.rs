@@ -15,8 +15,14 @@ mod read;
 mod write;
 
 pub use header::{parse_header, Element, Format, Header, Property, ScalarType};
-pub use read::{read_vertex_columns, read_vertex_columns_from_bytes, VertexTable};
-pub use write::{write_vertex_columns, write_vertex_columns_to_vec};
+pub use read::{
+    read_vertex_columns, read_vertex_columns_from_bytes, read_vertex_fields,
+    read_vertex_fields_from_bytes, Field, VertexFields, VertexTable,
+};
+pub use write::{
+    write_vertex_columns, write_vertex_columns_to_vec, write_vertex_fields,
+    write_vertex_fields_to_vec, FieldRef,
+};
 
 /// One decoded scalar property: a column of `count` values in the file's type.
 #[derive(Debug, Clone, PartialEq)]

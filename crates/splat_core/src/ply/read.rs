@@ -23,6 +23,24 @@ pub struct VertexTable {
     pub comments: Vec<String>,
 }
 
+/// Properties read together: `values` holds `names.len()` values per row, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Field {
+    pub names: Vec<String>,
+    pub values: Column,
+}
+
+/// The vertex element as fields: each requested group whose properties all exist with one
+/// type becomes one interleaved field (e.g. x, y, z as an [N, 3] block, gathered in one
+/// pass); every other scalar property is a field of its own. Header order otherwise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VertexFields {
+    pub count: usize,
+    pub fields: Vec<Field>,
+    pub format: Format,
+    pub comments: Vec<String>,
+}
+
 /// Reads the `vertex` element of the PLY file at `path`.
 pub fn read_vertex_columns(path: &Path) -> CoreResult<VertexTable> {
     let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
@@ -31,6 +49,31 @@ pub fn read_vertex_columns(path: &Path) -> CoreResult<VertexTable> {
 
 /// Reads the `vertex` element from the bytes of a whole PLY file; `path` names it in errors.
 pub fn read_vertex_columns_from_bytes(bytes: &[u8], path: &Path) -> CoreResult<VertexTable> {
+    let f = read_vertex_fields_from_bytes(bytes, path, &[])?;
+    let columns = f
+        .fields
+        .into_iter()
+        .map(|mut field| (field.names.swap_remove(0), field.values))
+        .collect();
+    Ok(VertexTable {
+        count: f.count,
+        columns,
+        format: f.format,
+        comments: f.comments,
+    })
+}
+
+/// Reads the `vertex` element of the file at `path`, grouping properties (see `VertexFields`).
+pub fn read_vertex_fields(path: &Path, groups: &[Vec<String>]) -> CoreResult<VertexFields> {
+    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+    read_vertex_fields_from_bytes(&bytes, path, groups)
+}
+
+pub fn read_vertex_fields_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    groups: &[Vec<String>],
+) -> CoreResult<VertexFields> {
     let header = parse_header(bytes, path)?;
     let err = |msg: String| CoreError::ply(path, msg);
     let vertex = header
@@ -38,22 +81,135 @@ pub fn read_vertex_columns_from_bytes(bytes: &[u8], path: &Path) -> CoreResult<V
         .iter()
         .position(|e| e.name == "vertex")
         .ok_or_else(|| err("the file has no 'vertex' element".into()))?;
+    let plan = plan(&header.elements[vertex], groups);
     let data = &bytes[header.data_start..];
     let columns = match header.format {
         Format::Ascii => read_ascii(data, &header.elements, vertex).map_err(err)?,
         Format::BinaryLittleEndian => {
-            read_binary(data, &header.elements, vertex, false).map_err(err)?
+            read_binary(data, &header.elements, vertex, false, &plan).map_err(err)?
         }
         Format::BinaryBigEndian => {
-            read_binary(data, &header.elements, vertex, true).map_err(err)?
+            read_binary(data, &header.elements, vertex, true, &plan).map_err(err)?
         }
     };
-    Ok(VertexTable {
+    let fields = match columns {
+        Decoded::Fields(fields) => fields,
+        Decoded::Columns(cols) => assemble(cols, &plan),
+    };
+    Ok(VertexFields {
         count: header.elements[vertex].count,
-        columns,
+        fields,
         format: header.format,
         comments: header.comments,
     })
+}
+
+/// One planned field: (name, scalar index, byte offset in a fixed row) per member, and type.
+struct Planned {
+    members: Vec<(String, usize, usize)>,
+    ty: ScalarType,
+}
+
+fn plan(element: &Element, groups: &[Vec<String>]) -> Vec<Planned> {
+    let mut scalars = Vec::new();
+    let mut offset = 0;
+    for p in &element.properties {
+        if let Property::Scalar { name, ty } = p {
+            scalars.push((name.clone(), scalars.len(), offset, *ty));
+            offset += ty.size();
+        }
+    }
+    let mut taken = vec![false; scalars.len()];
+    let mut planned: Vec<(usize, Planned)> = Vec::new();
+    for group in groups {
+        let found: Option<Vec<&(String, usize, usize, ScalarType)>> = group
+            .iter()
+            .map(|g| scalars.iter().find(|s| &s.0 == g))
+            .collect();
+        let Some(found) = found else { continue };
+        let ty = found.first().map(|f| f.3);
+        if found.is_empty() || found.iter().any(|f| Some(f.3) != ty || taken[f.1]) {
+            continue;
+        }
+        for f in &found {
+            taken[f.1] = true;
+        }
+        let first = found.iter().map(|f| f.1).min().unwrap_or(0);
+        let members = found.iter().map(|f| (f.0.clone(), f.1, f.2)).collect();
+        planned.push((
+            first,
+            Planned {
+                members,
+                ty: found[0].3,
+            },
+        ));
+    }
+    for s in &scalars {
+        if !taken[s.1] {
+            planned.push((
+                s.1,
+                Planned {
+                    members: vec![(s.0.clone(), s.1, s.2)],
+                    ty: s.3,
+                },
+            ));
+        }
+    }
+    planned.sort_by_key(|p| p.0);
+    planned.into_iter().map(|p| p.1).collect()
+}
+
+enum Decoded {
+    /// Fields already assembled by the fast path.
+    Fields(Vec<Field>),
+    /// One column per scalar property, in header order.
+    Columns(Vec<Column>),
+}
+
+fn assemble(mut cols: Vec<Column>, plan: &[Planned]) -> Vec<Field> {
+    plan.iter()
+        .map(|p| {
+            let names = p.members.iter().map(|m| m.0.clone()).collect();
+            let values = if p.members.len() == 1 {
+                std::mem::replace(&mut cols[p.members[0].1], Column::U8(Vec::new()))
+            } else {
+                let parts: Vec<&Column> = p.members.iter().map(|m| &cols[m.1]).collect();
+                interleave(&parts)
+            };
+            Field { names, values }
+        })
+        .collect()
+}
+
+/// Row-major interleaving of same-typed columns.
+fn interleave(parts: &[&Column]) -> Column {
+    macro_rules! go {
+        ($variant:ident) => {{
+            let cols: Vec<&Vec<_>> = parts
+                .iter()
+                .filter_map(|c| match c {
+                    Column::$variant(v) => Some(v),
+                    _ => None,
+                })
+                .collect();
+            let n = cols.first().map_or(0, |c| c.len());
+            Column::$variant(
+                (0..n)
+                    .flat_map(|i| cols.iter().map(move |c| c[i]))
+                    .collect(),
+            )
+        }};
+    }
+    match parts[0] {
+        Column::I8(_) => go!(I8),
+        Column::U8(_) => go!(U8),
+        Column::I16(_) => go!(I16),
+        Column::U16(_) => go!(U16),
+        Column::I32(_) => go!(I32),
+        Column::U32(_) => go!(U32),
+        Column::F32(_) => go!(F32),
+        Column::F64(_) => go!(F64),
+    }
 }
 
 fn scalar_names(element: &Element) -> impl Iterator<Item = (&str, ScalarType)> {
@@ -97,16 +253,33 @@ macro_rules! decode {
     }};
 }
 
-/// Gathers one column from fixed-stride rows.
-fn gather(rows: &[u8], stride: usize, offset: usize, ty: ScalarType, be: bool) -> Column {
+/// Gathers one field (its members' byte offsets) from fixed-stride rows, row-major.
+fn gather(rows: &[u8], stride: usize, offsets: &[usize], ty: ScalarType, be: bool) -> Column {
     macro_rules! go {
         ($variant:ident, $t:ty) => {{
             const S: usize = std::mem::size_of::<$t>();
-            Column::$variant(
-                rows.chunks_exact(stride)
-                    .map(|row| decode!($t, &row[offset..offset + S], be))
-                    .collect(),
-            )
+            let mut out = Vec::with_capacity(rows.len() / stride * offsets.len());
+            match offsets {
+                [o] => out.extend(
+                    rows.chunks_exact(stride)
+                        .map(|row| decode!($t, &row[*o..*o + S], be)),
+                ),
+                [a, b, c] => {
+                    for row in rows.chunks_exact(stride) {
+                        out.push(decode!($t, &row[*a..*a + S], be));
+                        out.push(decode!($t, &row[*b..*b + S], be));
+                        out.push(decode!($t, &row[*c..*c + S], be));
+                    }
+                }
+                _ => {
+                    for row in rows.chunks_exact(stride) {
+                        for &o in offsets {
+                            out.push(decode!($t, &row[o..o + S], be));
+                        }
+                    }
+                }
+            }
+            Column::$variant(out)
         }};
     }
     match ty {
@@ -206,9 +379,10 @@ fn read_binary(
     elements: &[Element],
     vertex: usize,
     be: bool,
-) -> Result<Vec<(String, Column)>, String> {
+    plan: &[Planned],
+) -> Result<Decoded, String> {
     let mut pos = 0usize;
-    let mut out = Vec::new();
+    let mut out = Decoded::Columns(Vec::new());
     for (i, element) in elements.iter().enumerate() {
         let rest = &data[pos..];
         match element.fixed_row_size() {
@@ -225,25 +399,22 @@ fn read_binary(
                     })?;
                 if i == vertex {
                     let rows = &rest[..len];
-                    let mut offsets = Vec::new();
-                    let mut offset = 0;
-                    for p in &element.properties {
-                        if let Property::Scalar { name, ty } = p {
-                            offsets.push((name.clone(), offset, *ty));
-                            offset += ty.size();
-                        }
-                    }
-                    out = offsets
-                        .into_par_iter()
-                        .map(|(name, offset, ty)| {
-                            let col = if stride == 0 {
-                                empty_column(ty, 0)
-                            } else {
-                                gather(rows, stride, offset, ty, be)
-                            };
-                            (name, col)
-                        })
-                        .collect();
+                    out = Decoded::Fields(
+                        plan.par_iter()
+                            .map(|p| {
+                                let offsets: Vec<usize> = p.members.iter().map(|m| m.2).collect();
+                                let values = if stride == 0 {
+                                    empty_column(p.ty, 0)
+                                } else {
+                                    gather(rows, stride, &offsets, p.ty, be)
+                                };
+                                Field {
+                                    names: p.members.iter().map(|m| m.0.clone()).collect(),
+                                    values,
+                                }
+                            })
+                            .collect(),
+                    );
                 }
                 pos += len;
             }
@@ -255,10 +426,7 @@ fn read_binary(
                         .map(|(_, ty)| empty_column(ty, cap))
                         .collect();
                     pos += walk_binary_rows(rest, element, be, Some(&mut cols))?;
-                    out = scalar_names(element)
-                        .map(|(n, _)| n.to_string())
-                        .zip(cols)
-                        .collect();
+                    out = Decoded::Columns(cols);
                 } else {
                     pos += walk_binary_rows(rest, element, be, None)?;
                 }
@@ -305,18 +473,14 @@ fn push_ascii(column: &mut Column, token: &str) -> Option<()> {
     Some(())
 }
 
-fn read_ascii(
-    data: &[u8],
-    elements: &[Element],
-    vertex: usize,
-) -> Result<Vec<(String, Column)>, String> {
+fn read_ascii(data: &[u8], elements: &[Element], vertex: usize) -> Result<Decoded, String> {
     let text = std::str::from_utf8(data)
         .map_err(|e| format!("ascii data is not text (byte {})", e.valid_up_to()))?;
     let mut lines = text
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty());
-    let mut out = Vec::new();
+    let mut out = Decoded::Columns(Vec::new());
     for (i, element) in elements.iter().enumerate() {
         let cap = element.count.min(text.len() / 2 + 1);
         let mut cols: Vec<Column> = if i == vertex {
@@ -379,10 +543,7 @@ fn read_ascii(
             }
         }
         if i == vertex {
-            out = scalar_names(element)
-                .map(|(n, _)| n.to_string())
-                .zip(cols)
-                .collect();
+            out = Decoded::Columns(cols);
         }
     }
     if let Some((line_no, _)) = lines.next() {

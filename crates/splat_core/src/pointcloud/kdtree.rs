@@ -17,18 +17,19 @@ use rayon::prelude::*;
 use super::{point, Coord};
 
 /// Points per leaf.
-const LEAF: usize = 24;
+const LEAF: usize = 32;
 /// Subtrees larger than this are built on two threads.
 const PARALLEL_BUILD: usize = 1 << 15;
 
 pub struct KdTree {
-    /// Coordinates in tree order.
-    pts: Vec<[f64; 3]>,
+    /// Coordinates in tree order, one array per axis (a leaf's distances vectorise).
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    zs: Vec<f64>,
     /// Original index of each tree-order point.
     ids: Vec<u32>,
-    /// Split axis and value of inner node `i` (heap numbering: children 2i+1, 2i+2).
-    axis: Vec<u8>,
-    split: Vec<f64>,
+    /// Bounding box of the points under node `i` (heap numbering: children 2i+1, 2i+2).
+    boxes: Vec<[[f64; 3]; 2]>,
 }
 
 /// The k best (squared distance, index) pairs seen so far, ascending by (distance, index).
@@ -48,6 +49,13 @@ impl Neighbours {
 
     pub fn clear(&mut self) {
         self.d2.fill(f64::INFINITY);
+        self.id.fill(u32::MAX);
+    }
+
+    /// Starts a search whose k-th neighbour is known to lie within squared distance
+    /// `bound`: slots start at `bound` so farther cells are pruned from the start.
+    fn clear_within(&mut self, bound: f64) {
+        self.d2.fill(bound);
         self.id.fill(u32::MAX);
     }
 
@@ -83,21 +91,25 @@ impl Neighbours {
     }
 }
 
-type NodeInfo = (usize, u8, f64);
+/// Node id, its bounding box (lo, hi).
+type NodeInfo = (usize, [f64; 3], [f64; 3]);
 
-fn build_rec(pts: &[[f64; 3]], perm: &mut [u32], node: usize, out: &mut Vec<NodeInfo>) {
-    let len = perm.len();
-    if len <= LEAF {
-        return;
-    }
+/// A point and its original index; the build reorders these in place.
+type Item = ([f64; 3], u32);
+
+fn build_rec(items: &mut [Item], node: usize, out: &mut Vec<NodeInfo>) {
+    let len = items.len();
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
-    for &i in perm.iter() {
-        let p = pts[i as usize];
+    for (p, _) in items.iter() {
         for a in 0..3 {
             lo[a] = lo[a].min(p[a]);
             hi[a] = hi[a].max(p[a]);
         }
+    }
+    out.push((node, lo, hi));
+    if len <= LEAF {
+        return;
     }
     let mut axis = 0;
     for a in 1..3 {
@@ -106,24 +118,20 @@ fn build_rec(pts: &[[f64; 3]], perm: &mut [u32], node: usize, out: &mut Vec<Node
         }
     }
     let mid = len / 2;
-    perm.select_nth_unstable_by(mid, |&a, &b| {
-        pts[a as usize][axis]
-            .total_cmp(&pts[b as usize][axis])
-            .then(a.cmp(&b))
+    items.select_nth_unstable_by(mid, |a, b| {
+        a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
     });
-    let split = pts[perm[mid] as usize][axis];
-    out.push((node, axis as u8, split));
-    let (left, right) = perm.split_at_mut(mid);
+    let (left, right) = items.split_at_mut(mid);
     if len > PARALLEL_BUILD {
         let mut right_out = Vec::new();
         rayon::join(
-            || build_rec(pts, left, 2 * node + 1, out),
-            || build_rec(pts, right, 2 * node + 2, &mut right_out),
+            || build_rec(left, 2 * node + 1, out),
+            || build_rec(right, 2 * node + 2, &mut right_out),
         );
         out.extend(right_out);
     } else {
-        build_rec(pts, left, 2 * node + 1, out);
-        build_rec(pts, right, 2 * node + 2, out);
+        build_rec(left, 2 * node + 1, out);
+        build_rec(right, 2 * node + 2, out);
     }
 }
 
@@ -131,23 +139,25 @@ impl KdTree {
     /// Builds the tree over a validated flat xyz slice (see `check_points`).
     pub fn build<T: Coord>(points: &[T]) -> Self {
         let n = points.len() / 3;
-        let pts: Vec<[f64; 3]> = (0..n).into_par_iter().map(|i| point(points, i)).collect();
-        let mut perm: Vec<u32> = (0..n as u32).collect();
+        let mut items: Vec<Item> = (0..n)
+            .into_par_iter()
+            .map(|i| (point(points, i), i as u32))
+            .collect();
         let mut nodes = Vec::new();
-        build_rec(&pts, &mut perm, 0, &mut nodes);
+        build_rec(&mut items, 0, &mut nodes);
         let size = nodes.iter().map(|n| n.0 + 1).max().unwrap_or(0);
-        let mut axis = vec![0u8; size];
-        let mut split = vec![0f64; size];
-        for (node, a, s) in nodes {
-            axis[node] = a;
-            split[node] = s;
+        let mut boxes = vec![[[0.0; 3]; 2]; size];
+        for (node, lo, hi) in nodes {
+            boxes[node] = [lo, hi];
         }
-        let tree_pts = perm.par_iter().map(|&i| pts[i as usize]).collect();
+        let (pts, ids): (Vec<[f64; 3]>, Vec<u32>) = items.into_par_iter().unzip();
+        let axis = |a: usize| pts.par_iter().map(|p| p[a]).collect();
         Self {
-            pts: tree_pts,
-            ids: perm,
-            axis,
-            split,
+            xs: axis(0),
+            ys: axis(1),
+            zs: axis(2),
+            ids,
+            boxes,
         }
     }
 
@@ -157,6 +167,10 @@ impl KdTree {
 
     pub fn is_empty(&self) -> bool {
         self.ids.is_empty()
+    }
+
+    fn point(&self, pos: usize) -> [f64; 3] {
+        [self.xs[pos], self.ys[pos], self.zs[pos]]
     }
 
     /// Original index of the point stored at tree position `pos`.
@@ -176,13 +190,49 @@ impl KdTree {
     /// The k nearest points to the point at tree position `pos`, excluding that point.
     pub fn knn_of_position(&self, pos: usize, out: &mut Neighbours) {
         out.clear();
-        let q = self.pts[pos];
+        let q = self.point(pos);
         let skip = self.ids[pos];
-        let mut off = [0.0f64; 3];
-        self.search(0, 0, self.len(), &q, skip, &mut off, 0.0, out);
+        self.search(0, 0, self.len(), &q, skip, out);
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// Like `knn_of_position`, seeded by the result for the previous tree position
+    /// (`prev`, whose k-th squared distance is `prev_kth`): by the triangle inequality
+    /// the k-th neighbour of `pos` lies within sqrt(prev_kth) + |pos - prev| (+ the point
+    /// `prev` itself), inflated against rounding. Falls back to an unseeded search if the
+    /// bound ever leaves a slot unfilled.
+    fn knn_of_position_after(&self, pos: usize, prev: usize, prev_kth: f64, out: &mut Neighbours) {
+        let q = self.point(pos);
+        let p = self.point(prev);
+        let step = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
+        let r = prev_kth.sqrt() + step;
+        let bound = (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE;
+        out.clear_within(bound);
+        self.search(0, 0, self.len(), &q, self.ids[pos], out);
+        if out.id.contains(&u32::MAX) {
+            self.knn_of_position(pos, out);
+        }
+    }
+
+    /// Squared distance from `q` to the bounding box of `node`: never more than the
+    /// distance to any point in it (the box corners are point coordinates, and rounding is
+    /// monotone), so pruning on it is exact.
+    #[inline]
+    fn box_distance(&self, node: usize, q: &[f64; 3]) -> f64 {
+        let [lo, hi] = &self.boxes[node];
+        let mut d2 = 0.0;
+        for a in 0..3 {
+            let d = if q[a] < lo[a] {
+                lo[a] - q[a]
+            } else if q[a] > hi[a] {
+                q[a] - hi[a]
+            } else {
+                0.0
+            };
+            d2 += d * d;
+        }
+        d2
+    }
+
     fn search(
         &self,
         node: usize,
@@ -190,59 +240,74 @@ impl KdTree {
         len: usize,
         q: &[f64; 3],
         skip: u32,
-        off: &mut [f64; 3],
-        rd: f64,
         out: &mut Neighbours,
     ) {
         if len <= LEAF {
-            for i in start..start + len {
-                let id = self.ids[i];
-                if id == skip {
-                    continue;
+            // Distances first (a loop the compiler vectorises), then the candidates.
+            let mut d2 = [0.0f64; LEAF];
+            let (xs, ys, zs) = (
+                &self.xs[start..start + len],
+                &self.ys[start..start + len],
+                &self.zs[start..start + len],
+            );
+            for (((d, x), y), z) in d2.iter_mut().zip(xs).zip(ys).zip(zs) {
+                let dx = q[0] - x;
+                let dy = q[1] - y;
+                let dz = q[2] - z;
+                *d = dx * dx + dy * dy + dz * dz;
+            }
+            for (&d, &id) in d2[..len].iter().zip(&self.ids[start..start + len]) {
+                if d <= out.worst() && id != skip {
+                    out.offer(d, id);
                 }
-                let p = self.pts[i];
-                let dx = q[0] - p[0];
-                let dy = q[1] - p[1];
-                let dz = q[2] - p[2];
-                let d2 = dx * dx + dy * dy + dz * dz;
-                out.offer(d2, id);
             }
             return;
         }
-        let axis = self.axis[node] as usize;
-        let diff = q[axis] - self.split[node];
         let mid = len / 2;
         let left = (2 * node + 1, start, mid);
         let right = (2 * node + 2, start + mid, len - mid);
-        let (near, far) = if diff < 0.0 {
-            (left, right)
+        let dl = self.box_distance(left.0, q);
+        let dr = self.box_distance(right.0, q);
+        let ((a, da), (b, db)) = if dl <= dr {
+            ((left, dl), (right, dr))
         } else {
-            (right, left)
+            ((right, dr), (left, dl))
         };
-        self.search(near.0, near.1, near.2, q, skip, off, rd, out);
-        let old = off[axis];
-        let far_rd = rd - old * old + diff * diff;
-        if far_rd < out.worst() {
-            off[axis] = diff;
-            self.search(far.0, far.1, far.2, q, skip, off, far_rd, out);
-            off[axis] = old;
+        if da < out.worst() {
+            self.search(a.0, a.1, a.2, q, skip, out);
+        }
+        if db < out.worst() {
+            self.search(b.0, b.1, b.2, q, skip, out);
         }
     }
 
     /// Runs `f(pos, neighbours)` for every point (k nearest others), in parallel over fixed
     /// chunks of tree order; returns the per-position results in tree order.
     pub fn map_knn<R: Send>(&self, k: usize, f: impl Fn(usize, &Neighbours) -> R + Sync) -> Vec<R> {
-        (0..self.len())
+        // Fixed chunks of consecutive tree positions, each searched in order and seeded by
+        // its predecessor: the chunking, and so every result, is independent of threads.
+        const CHUNK: usize = 512;
+        let chunks: Vec<Vec<R>> = (0..self.len().div_ceil(CHUNK))
             .into_par_iter()
-            .with_min_len(1024)
             .map_init(
                 || Neighbours::new(k),
-                |nb, pos| {
-                    self.knn_of_position(pos, nb);
-                    f(pos, nb)
+                |nb, c| {
+                    let range = c * CHUNK..((c + 1) * CHUNK).min(self.len());
+                    let mut out = Vec::with_capacity(range.len());
+                    for pos in range.clone() {
+                        if pos == range.start {
+                            self.knn_of_position(pos, nb);
+                        } else {
+                            let kth = nb.d2[nb.d2.len() - 1];
+                            self.knn_of_position_after(pos, pos - 1, kth, nb);
+                        }
+                        out.push(f(pos, nb));
+                    }
+                    out
                 },
             )
-            .collect()
+            .collect();
+        chunks.into_iter().flatten().collect()
     }
 }
 

@@ -38,6 +38,8 @@ impl Coord for f64 {
 /// Checks a flat xyz slice: whole rows, at least one point, indexable by u32, all finite.
 /// Returns the number of points.
 pub fn check_points<T: Coord>(points: &[T]) -> CoreResult<usize> {
+    // `is_multiple_of` needs Rust 1.87; the workspace supports 1.80.
+    #[allow(clippy::manual_is_multiple_of)]
     if points.len() % 3 != 0 {
         return Err(CoreError::input(format!(
             "points: expected rows of 3 coordinates, got {} values",

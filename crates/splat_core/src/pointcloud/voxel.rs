@@ -7,6 +7,9 @@
 //! returns voxels in hash-map order; we return them sorted by (ix, iy, iz), which makes the
 //! output deterministic. Open3D refuses grids whose index would overflow an i32; so do we.
 
+use std::collections::{HashMap, HashSet};
+use std::hash::{BuildHasherDefault, Hash, Hasher};
+
 use rayon::prelude::*;
 
 use super::{check_points, point, Coord};
@@ -59,10 +62,7 @@ impl Grid {
             bits: [0; 3],
         };
         // The largest index per axis is the one of the max bound (the map is monotone).
-        let top = grid.index(&hi);
-        for a in 0..3 {
-            grid.bits[a] = 64 - top[a].leading_zeros();
-        }
+        grid.bits = grid.index(&hi).map(|top| 64 - top.leading_zeros());
         Ok(grid)
     }
 
@@ -70,18 +70,27 @@ impl Grid {
     fn index(&self, p: &[f64; 3]) -> [u64; 3] {
         let mut out = [0u64; 3];
         for a in 0..3 {
+            // r >= 0 (p >= min bound > origin), so truncation is floor; `f64::floor` is a
+            // libm call on baseline x86-64 and dominated the whole kernel.
             let r = (p[a] - self.origin[a]) / self.size;
-            out[a] = r.floor().max(0.0) as u64;
+            out[a] = r as u64;
         }
         out
     }
 
     #[inline]
-    fn key(&self, p: &[f64; 3]) -> u128 {
+    fn key128(&self, p: &[f64; 3]) -> u128 {
         let i = self.index(p);
         (u128::from(i[0]) << (self.bits[1] + self.bits[2]))
             | (u128::from(i[1]) << self.bits[2])
             | u128::from(i[2])
+    }
+
+    /// The packed key when `fits_u64` (u64 shifts are much cheaper than u128 ones).
+    #[inline]
+    fn key64(&self, p: &[f64; 3]) -> u64 {
+        let i = self.index(p);
+        (i[0] << (self.bits[1] + self.bits[2])) | (i[1] << self.bits[2]) | i[2]
     }
 
     fn fits_u64(&self) -> bool {
@@ -89,24 +98,90 @@ impl Grid {
     }
 }
 
-/// Sorted (voxel key, point index) pairs; the key type is the smallest that fits the grid.
-fn sorted_keys<T: Coord, K>(
+/// Multiplicative hashing of voxel keys (std's SipHash is several times slower here).
+/// The high half is folded into the low bits, which hashbrown uses for the bucket index.
+#[derive(Default, Clone, Copy)]
+struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+
+    #[inline]
+    fn write_u64(&mut self, v: u64) {
+        let h = (self.0.rotate_left(23) ^ v).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 = h ^ (h >> 29);
+    }
+
+    #[inline]
+    fn write_u128(&mut self, v: u128) {
+        self.write_u64(v as u64);
+        self.write_u64((v >> 64) as u64);
+    }
+}
+
+type KeyMap<K, V> = HashMap<K, V, BuildHasherDefault<KeyHasher>>;
+
+trait VoxelKey: Hash + Eq + Ord + Copy + Send + Sync {
+    fn of(grid: &Grid, p: &[f64; 3]) -> Self;
+    /// Which of `parts` workers owns this voxel (a hash independent of the map's).
+    fn part(self, parts: usize) -> usize;
+}
+
+impl VoxelKey for u64 {
+    #[inline]
+    fn of(grid: &Grid, p: &[f64; 3]) -> Self {
+        grid.key64(p)
+    }
+    #[inline]
+    fn part(self, parts: usize) -> usize {
+        // Multiply-shift range reduction: a `%` by a runtime value costs ~30 cycles.
+        (((self.wrapping_mul(0xD6E8_FEB8_6659_FD93) >> 32) * parts as u64) >> 32) as usize
+    }
+}
+
+impl VoxelKey for u128 {
+    #[inline]
+    fn of(grid: &Grid, p: &[f64; 3]) -> Self {
+        grid.key128(p)
+    }
+    #[inline]
+    fn part(self, parts: usize) -> usize {
+        ((self as u64) ^ ((self >> 64) as u64).rotate_left(17)).part(parts)
+    }
+}
+
+/// Voxel key and owning worker of every point (two arrays: the owner scan stays small).
+fn keys<T: Coord, K: VoxelKey>(
     points: &[T],
     n: usize,
     grid: &Grid,
-    cast: fn(u128) -> K,
-) -> Vec<(K, u32)>
-where
-    K: Ord + Copy + Send + Sync,
-{
-    let mut keys: Vec<(K, u32)> = (0..n)
+    parts: usize,
+) -> (Vec<K>, Vec<u8>) {
+    let mut keys = Vec::with_capacity(n);
+    let mut owners = Vec::with_capacity(n);
+    (0..n)
         .into_par_iter()
         .with_min_len(4096)
-        .map(|i| (cast(grid.key(&point(points, i))), i as u32))
-        .collect();
-    // Pairs are unique, so an unstable sort is deterministic; within a voxel, input order.
-    keys.par_sort_unstable();
-    keys
+        .map(|i| {
+            let k = K::of(grid, &point(points, i));
+            (k, k.part(parts) as u8)
+        })
+        .unzip_into_vecs(&mut keys, &mut owners);
+    (keys, owners)
+}
+
+/// Number of workers: the pool size, capped so a worker id fits a byte. The output does
+/// not depend on it (each voxel is summed by one worker, in input order).
+fn parts() -> usize {
+    rayon::current_num_threads().clamp(1, 64)
 }
 
 /// The voxel means, in key order.
@@ -118,51 +193,97 @@ pub struct VoxelOutput {
     pub colors: Option<Vec<f32>>,
 }
 
-fn means<T: Coord, K: Ord + Copy + Send + Sync>(
+/// The points one worker owns, ascending.
+enum Owned {
+    All(usize),
+    Some(Vec<u32>),
+}
+
+impl Owned {
+    fn indices(&self) -> Box<dyn Iterator<Item = usize> + '_> {
+        match self {
+            Owned::All(n) => Box::new(0..*n),
+            Owned::Some(v) => Box::new(v.iter().map(|&i| i as usize)),
+        }
+    }
+}
+
+/// Splits point indices by owner (one sequential pass, so each list is ascending); workers
+/// then touch only their own points instead of testing every owner byte.
+fn by_owner(owners: &[u8], parts: usize) -> Vec<Owned> {
+    if parts == 1 {
+        return vec![Owned::All(owners.len())];
+    }
+    let mut lists = vec![Vec::with_capacity(owners.len() / parts + 16); parts];
+    for (i, &o) in owners.iter().enumerate() {
+        lists[o as usize].push(i as u32);
+    }
+    lists.into_iter().map(Owned::Some).collect()
+}
+
+#[derive(Clone, Copy)]
+struct Acc {
+    sum: [f64; 3],
+    color: [f64; 3],
+    count: u32,
+}
+
+fn grouped<T: Coord, K: VoxelKey>(
     points: &[T],
     colors: Option<&[f32]>,
-    keys: &[(K, u32)],
+    n: usize,
+    grid: &Grid,
 ) -> VoxelOutput {
-    let starts: Vec<usize> = (0..keys.len())
-        .filter(|&i| i == 0 || keys[i].0 != keys[i - 1].0)
-        .collect();
-    let run = |v: usize| {
-        let end = starts.get(v + 1).copied().unwrap_or(keys.len());
-        &keys[starts[v]..end]
-    };
-    let pts: Vec<[f64; 3]> = (0..starts.len())
-        .into_par_iter()
-        .map(|v| {
-            let members = run(v);
-            let mut s = [0.0f64; 3];
-            for &(_, i) in members {
-                let p = point(points, i as usize);
-                s = [s[0] + p[0], s[1] + p[1], s[2] + p[2]];
-            }
-            let c = members.len() as f64;
-            [s[0] / c, s[1] / c, s[2] / c]
-        })
-        .collect();
-    let colors = colors.map(|colors| {
-        let rgb: Vec<[f32; 3]> = (0..starts.len())
-            .into_par_iter()
-            .map(|v| {
-                let members = run(v);
-                let mut s = [0.0f64; 3];
-                for &(_, i) in members {
-                    let i = i as usize;
+    let parts = parts();
+    let (keys, owners) = keys::<T, K>(points, n, grid, parts);
+    let lists = by_owner(&owners, parts);
+    let mut voxels: Vec<(K, Acc)> = lists
+        .par_iter()
+        .flat_map_iter(|list| {
+            // One map per worker; each voxel's points are added in input order.
+            let mut map: KeyMap<K, Acc> = KeyMap::default();
+            let zero = Acc {
+                sum: [0.0; 3],
+                color: [0.0; 3],
+                count: 0,
+            };
+            for i in list.indices() {
+                let v = map.entry(keys[i]).or_insert(zero);
+                let p = point(points, i);
+                v.sum = [v.sum[0] + p[0], v.sum[1] + p[1], v.sum[2] + p[2]];
+                if let Some(c) = colors {
                     for a in 0..3 {
-                        s[a] += f64::from(colors[3 * i + a]);
+                        v.color[a] += f64::from(c[3 * i + a]);
                     }
                 }
-                let c = members.len() as f64;
-                [(s[0] / c) as f32, (s[1] / c) as f32, (s[2] / c) as f32]
+                v.count += 1;
+            }
+            map.into_iter()
+        })
+        .collect();
+    voxels.par_sort_unstable_by_key(|v| v.0);
+    let pts = voxels
+        .iter()
+        .flat_map(|(_, v)| {
+            let c = f64::from(v.count);
+            [v.sum[0] / c, v.sum[1] / c, v.sum[2] / c]
+        })
+        .collect();
+    let colors = colors.map(|_| {
+        voxels
+            .iter()
+            .flat_map(|(_, v)| {
+                let c = f64::from(v.count);
+                [
+                    (v.color[0] / c) as f32,
+                    (v.color[1] / c) as f32,
+                    (v.color[2] / c) as f32,
+                ]
             })
-            .collect();
-        rgb.into_iter().flatten().collect()
+            .collect()
     });
     VoxelOutput {
-        points: pts.into_iter().flatten().collect(),
+        points: pts,
         colors,
     }
 }
@@ -179,31 +300,33 @@ pub fn voxel_downsample<T: Coord>(
     }
     let grid = Grid::new(points, n, voxel_size)?;
     Ok(if grid.fits_u64() {
-        means(points, colors, &sorted_keys(points, n, &grid, |k| k as u64))
+        grouped::<T, u64>(points, colors, n, &grid)
     } else {
-        means(points, colors, &sorted_keys(points, n, &grid, |k| k))
+        grouped::<T, u128>(points, colors, n, &grid)
     })
+}
+
+fn distinct<T: Coord, K: VoxelKey>(points: &[T], n: usize, grid: &Grid) -> usize {
+    let parts = parts();
+    let (keys, owners) = keys::<T, K>(points, n, grid, parts);
+    by_owner(&owners, parts)
+        .par_iter()
+        .map(|list| {
+            let mut set: HashSet<K, BuildHasherDefault<KeyHasher>> = HashSet::default();
+            set.extend(list.indices().map(|i| keys[i]));
+            set.len()
+        })
+        .sum()
 }
 
 /// Number of occupied voxels (the output size of `voxel_downsample`).
 pub fn voxel_count<T: Coord>(points: &[T], voxel_size: f64) -> CoreResult<usize> {
     let n = check_points(points)?;
     let grid = Grid::new(points, n, voxel_size)?;
-    fn distinct<K: Ord + Copy + Send>(mut keys: Vec<K>) -> usize {
-        keys.par_sort_unstable();
-        keys.windows(2).filter(|w| w[0] != w[1]).count() + 1
-    }
-    let key = |i: usize| grid.key(&point(points, i));
     Ok(if grid.fits_u64() {
-        distinct(
-            (0..n)
-                .into_par_iter()
-                .with_min_len(4096)
-                .map(|i| key(i) as u64)
-                .collect(),
-        )
+        distinct::<T, u64>(points, n, &grid)
     } else {
-        distinct((0..n).into_par_iter().with_min_len(4096).map(key).collect())
+        distinct::<T, u128>(points, n, &grid)
     })
 }
 
