@@ -37,9 +37,7 @@ def synthetic_plant(n: int, seed: int = 0, sh_degree: int | None = None) -> list
     # Stem: a slightly bent vertical cylinder of radius 0.04 from z = -2 to 2.
     t = rng.uniform(-2, 2, n_stem)
     phi = rng.uniform(0, 2 * math.pi, n_stem)
-    stem = np.stack(
-        [0.04 * np.cos(phi) + 0.1 * np.sin(t), 0.04 * np.sin(phi), t], -1
-    )
+    stem = np.stack([0.04 * np.cos(phi) + 0.1 * np.sin(t), 0.04 * np.sin(phi), t], -1)
     stem_normal = np.stack([np.cos(phi), np.sin(phi), np.zeros(n_stem)], -1)
     # Leaves: elliptic blades (length 0.9, width 0.35) attached along the stem, curled.
     leaf_id = rng.integers(0, n_leaves, n_leaf)
