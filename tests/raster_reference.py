@@ -135,11 +135,18 @@ def render(
     with_depth=False,
     antialiased=False,
     t_min=1e-4,
+    means2d_offset=None,
 ):
-    """One camera. Returns features [H, W, ch] (no background) and alpha [H, W]."""
+    """One camera. Returns features [H, W, ch] (no background) and alpha [H, W].
+
+    ``means2d_offset`` [N, 2] (zeros) is added to the projected centres; its gradient is the
+    gradient w.r.t. the 2D means.
+    """
     xy, conic, depth, opac, keep = project(
         means, quats, scales, opacities, viewmat, K, width, height, near, far, eps2d, antialiased
     )
+    if means2d_offset is not None:
+        xy = xy + means2d_offset
     feats = []
     if with_color:
         if sh_degree is None:

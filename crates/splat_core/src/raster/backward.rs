@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::forward::{box_range, pixel_alpha, Blended, TileRect};
+use super::forward::{pixel_alpha, Blended, PixelFootprint, TileRect};
 use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::ALPHA_MAX;
@@ -57,7 +57,13 @@ pub fn blend_backward(
             t_final: &blended.t_final[t * tp..(t + 1) * tp],
             last: &blended.last[t * tp..(t + 1) * tp],
         };
-        backward_tile(
+        let run = match ch {
+            1 => backward_tile::<1>,
+            3 => backward_tile::<3>,
+            4 => backward_tile::<4>,
+            _ => backward_tile::<0>,
+        };
+        run(
             splats, features, ch, ids, rect, ts, width, &tile, v_render, v_alpha, out,
         );
     });
@@ -69,7 +75,7 @@ struct TilePixels<'a> {
     last: &'a [u32],
 }
 
-fn backward_tile(
+fn backward_tile<const CH: usize>(
     splats: &[Splat],
     features: &[f32],
     ch: usize,
@@ -82,6 +88,7 @@ fn backward_tile(
     v_alpha: &[f32],
     out: &mut [f32],
 ) {
+    let ch = if CH == 0 { ch } else { CH };
     let stride = ISECT_FIXED + ch;
     let mut trans = tile.t_final.to_vec();
     let mut buf = vec![0.0f32; ts * ts * ch];
@@ -91,15 +98,15 @@ fn backward_tile(
         let g = ids[k] as usize;
         let s = &splats[g];
         let f = &features[g * ch..(g + 1) * ch];
-        let (xa, xb) = box_range(s.xy[0], s.radius[0], rect.x0, rect.x1);
-        let (ya, yb) = box_range(s.xy[1], s.radius[1], rect.y0, rect.y1);
+        let fp = PixelFootprint::new(s, &rect);
         let [ca, cb, cc] = s.conic;
         let (mut v_x, mut v_y, mut v_a, mut v_b, mut v_c, mut v_o) =
             (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0);
         v_f.fill(0.0);
-        for y in ya..yb {
+        for y in fp.y0..fp.y1 {
             let row = (y - rect.y0) as usize * ts;
             let py = y as f32 + 0.5;
+            let (xa, xb) = fp.row(s, y, &rect);
             for x in xa..xb {
                 let l = row + (x - rect.x0) as usize;
                 if k >= tile.last[l] as usize {

@@ -49,14 +49,57 @@ pub(super) fn pixel_alpha(s: &Splat, px: f32, py: f32) -> Option<PixelAlpha> {
     })
 }
 
-/// Pixel range [lo, hi) along one axis of a tile covered by a splat's box (with slack).
+/// Slack in pixels around the exact alpha = 1/255 contour; only costs a few evaluations,
+/// the per-pixel alpha test still decides.
+const SPAN_SLACK: f32 = 0.01;
+
+/// The pixels of a tile where a splat can reach alpha >= 1/255: the ellipse
+/// q(d) <= qmax = 2 ln(255 opacity), visited row by row. Forward and backward share it, so
+/// both visit exactly the same pixels.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PixelFootprint {
+    qmax: f32,
+    pub y0: u32,
+    pub y1: u32,
+}
+
+impl PixelFootprint {
+    #[inline(always)]
+    pub fn new(s: &Splat, rect: &TileRect) -> Self {
+        let qmax = 2.0 * (s.opacity / ALPHA_MIN).ln().max(0.0);
+        let [a, b, c] = s.conic;
+        let half = (qmax * a / (a * c - b * b)).sqrt();
+        let (y0, y1) = pixel_span(s.xy[1] - half, s.xy[1] + half, rect.y0, rect.y1);
+        Self { qmax, y0, y1 }
+    }
+
+    /// Pixel columns [x0, x1) of row `y` inside the footprint.
+    #[inline(always)]
+    pub fn row(&self, s: &Splat, y: u32, rect: &TileRect) -> (u32, u32) {
+        let [a, b, c] = s.conic;
+        let dy = s.xy[1] - (y as f32 + 0.5);
+        let disc = b * b * dy * dy - a * (c * dy * dy - self.qmax);
+        if disc.is_nan() || disc < 0.0 {
+            return (0, 0);
+        }
+        let root = disc.sqrt();
+        // dx = x_splat - x_pixel lies in [(-b dy - root) / a, (-b dy + root) / a].
+        let lo = s.xy[0] - (root - b * dy) / a;
+        let hi = s.xy[0] + (root + b * dy) / a;
+        pixel_span(lo, hi, rect.x0, rect.x1)
+    }
+}
+
+/// Pixel indices [i0, i1) whose centres (i + 0.5) lie in [lo, hi] (plus slack), clipped.
 #[inline(always)]
-pub(super) fn box_range(centre: f32, radius: f32, lo: u32, hi: u32) -> (u32, u32) {
-    let a = (centre - radius - 1.0)
-        .floor()
-        .max(lo as f32)
-        .min(hi as f32) as u32;
-    let b = (centre + radius + 1.0).ceil().max(lo as f32).min(hi as f32) as u32;
+fn pixel_span(lo: f32, hi: f32, min: u32, max: u32) -> (u32, u32) {
+    let a = (lo - 0.5 - SPAN_SLACK)
+        .ceil()
+        .max(min as f32)
+        .min(max as f32) as u32;
+    let b = ((hi - 0.5 + SPAN_SLACK).floor() + 1.0)
+        .max(min as f32)
+        .min(max as f32) as u32;
     (a, b.max(a))
 }
 
@@ -113,21 +156,28 @@ pub fn blend(
         last: vec![0; n_tiles * tp],
     };
     out.features
-        .par_chunks_mut(tp * ch.max(1))
+        .par_chunks_mut(tp * ch)
         .zip(out.t_final.par_chunks_mut(tp))
         .zip(out.last.par_chunks_mut(tp))
         .enumerate()
         .for_each(|(t, ((feat, trans), last))| {
             let rect = TileRect::new(t, bins, width, height);
             let ids = &bins.isect_gid[bins.tile_range(t)];
-            blend_tile(
+            // Fixed channel counts get unrolled inner loops; 0 means "use ch".
+            let run = match ch {
+                1 => blend_tile::<1>,
+                3 => blend_tile::<3>,
+                4 => blend_tile::<4>,
+                _ => blend_tile::<0>,
+            };
+            run(
                 splats, features, ch, ids, rect, ts, t_min, feat, trans, last,
             );
         });
     out
 }
 
-fn blend_tile(
+fn blend_tile<const CH: usize>(
     splats: &[Splat],
     features: &[f32],
     ch: usize,
@@ -139,16 +189,17 @@ fn blend_tile(
     trans: &mut [f32],
     last: &mut [u32],
 ) {
+    let ch = if CH == 0 { ch } else { CH };
     let mut done = vec![false; ts * ts];
     let mut active = ((rect.x1 - rect.x0) * (rect.y1 - rect.y0)) as usize;
     for (k, &g) in ids.iter().enumerate() {
         let s = &splats[g as usize];
         let f = &features[g as usize * ch..(g as usize + 1) * ch];
-        let (xa, xb) = box_range(s.xy[0], s.radius[0], rect.x0, rect.x1);
-        let (ya, yb) = box_range(s.xy[1], s.radius[1], rect.y0, rect.y1);
-        for y in ya..yb {
+        let fp = PixelFootprint::new(s, &rect);
+        for y in fp.y0..fp.y1 {
             let row = (y - rect.y0) as usize * ts;
             let py = y as f32 + 0.5;
+            let (xa, xb) = fp.row(s, y, &rect);
             for x in xa..xb {
                 let l = row + (x - rect.x0) as usize;
                 if done[l] {

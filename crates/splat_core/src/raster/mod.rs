@@ -215,7 +215,14 @@ pub fn forward(
         let t0 = Instant::now();
         let splats: Vec<Splat> = (0..n)
             .into_par_iter()
-            .map(|i| project::project(&scene.gaussian(i), cam, &opts))
+            .map(|i| {
+                // A colour with NaN/Inf would poison every pixel behind it: cull instead.
+                if scene.color_row(i).iter().all(|v| v.is_finite()) {
+                    project::project(&scene.gaussian(i), cam, &opts)
+                } else {
+                    Splat::default()
+                }
+            })
             .collect();
         let feats = features::compute(&scene, cam, &splats, opts.with_depth);
         let t1 = Instant::now();

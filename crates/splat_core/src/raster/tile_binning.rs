@@ -108,14 +108,16 @@ fn for_each_tile(
 
 /// Visible splats ordered front to back; ties broken by index, so the order is unique.
 pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
-    let mut order: Vec<u32> = (0..splats.len() as u32)
-        .filter(|&g| splats[g as usize].visible())
+    // Depths of visible splats are >= near_plane > 0, so their bit patterns sort like the
+    // values; (depth bits, index) packed in a u64 is a unique key.
+    let mut keys: Vec<u64> = splats
+        .par_iter()
+        .enumerate()
+        .filter(|(_, s)| s.visible())
+        .map(|(g, s)| ((s.depth.to_bits() as u64) << 32) | g as u64)
         .collect();
-    order.par_sort_unstable_by(|&a, &b| {
-        let (da, db) = (splats[a as usize].depth, splats[b as usize].depth);
-        da.total_cmp(&db).then(a.cmp(&b))
-    });
-    order
+    keys.par_sort_unstable();
+    keys.into_iter().map(|k| k as u32).collect()
 }
 
 /// Builds the tile lists of one camera from its visible splats in depth order.
