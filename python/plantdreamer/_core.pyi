@@ -104,6 +104,7 @@ def rasterize_forward(
     footprint_sigma: float | None = None,
     tile_ellipse: bool = True,
     t_min: float = 1e-4,
+    threads: int | None = None,
 ) -> dict[str, Any]: ...
 def rasterize_backward(
     state: RasterState,
@@ -115,6 +116,7 @@ def rasterize_backward(
     scales: bool = True,
     opacities: bool = True,
     colors: bool = True,
+    threads: int | None = None,
 ) -> dict[str, Any]: ...
 def eval_sh(
     degree: int, coeffs: npt.NDArray[np.float32], dirs: npt.NDArray[np.float32]
