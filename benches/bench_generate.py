@@ -36,7 +36,6 @@ def run(cfg, guidance=None):
 def main() -> int:
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.guidance.tiny import tiny_models
-
     from plantdreamer.pipeline import GenerateConfig
 
     rows = []
