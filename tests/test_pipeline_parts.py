@@ -7,7 +7,7 @@ import torch
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig, LearningRates
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
@@ -62,6 +62,9 @@ def test_checkpoint_is_atomic_and_corruption_is_reported(tmp_path):
     save_checkpoint(tmp_path, {"step": 3, "x": torch.arange(4)})
     assert load_checkpoint(tmp_path)["step"] == 3
     assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]  # no temp file left
+    # Readable like any other file the user creates (mkstemp alone would make it 0600).
+    expected = 0o666 & ~_umask()
+    assert (tmp_path / "checkpoint.pt").stat().st_mode & 0o777 == expected
     (tmp_path / "checkpoint.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="cannot read"):
         load_checkpoint(tmp_path)
