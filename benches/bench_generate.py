@@ -60,8 +60,8 @@ def main() -> int:
         "machine: treat them as upper bounds.\n",
         "| guidance | "
         + " | ".join(f"{p} (ms/step)" for p in PHASES[:5])
-        + " | prepare (s) | renders (s) | total (s) |",
-        "|---|" + "---|" * 8,
+        + " | densify + cull (s) | prepare (s) | renders (s) | total (s) |",
+        "|---|" + "---|" * 9,
     ]
     for name, wall, s in rows:
         per = s["per_step_s"]
@@ -70,6 +70,7 @@ def main() -> int:
         lines.append(
             f"| {name} | "
             + " | ".join(cells)
+            + f" | {t.get('densify', 0) + t.get('cull', 0):.2f}"
             + f" | {t.get('prepare', 0):.2f} | {t.get('renders', 0):.2f} | {wall:.1f} |"
         )
     lines.append("")
