@@ -135,6 +135,10 @@ pub struct Blended {
     /// Number of entries of the tile list the pixel went through up to its last
     /// contributing splat (0 = none).
     pub last: Vec<u32>,
+    /// Splats and their features copied into tile-list order (tile-major, front to back),
+    /// so blending reads memory sequentially instead of chasing indices.
+    pub packed_splats: Vec<Splat>,
+    pub packed_features: Vec<f32>,
 }
 
 /// Blends every tile of one camera.
@@ -150,11 +154,24 @@ pub fn blend(
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let n_tiles = bins.n_tiles();
+    let packed_splats: Vec<Splat> = bins
+        .isect_gid
+        .par_iter()
+        .map(|&g| splats[g as usize])
+        .collect();
+    let mut packed_features = vec![0.0f32; bins.n_intersections() * ch];
+    packed_features
+        .par_chunks_mut(ch)
+        .zip(bins.isect_gid.par_iter())
+        .for_each(|(f, &g)| f.copy_from_slice(&features[g as usize * ch..(g as usize + 1) * ch]));
     let mut out = Blended {
         features: vec![0.0; n_tiles * tp * ch],
         t_final: vec![1.0; n_tiles * tp],
         last: vec![0; n_tiles * tp],
+        packed_splats,
+        packed_features,
     };
+    let (tile_splats, tile_features) = (&out.packed_splats, &out.packed_features);
     out.features
         .par_chunks_mut(tp * ch)
         .zip(out.t_final.par_chunks_mut(tp))
@@ -162,7 +179,9 @@ pub fn blend(
         .enumerate()
         .for_each(|(t, ((feat, trans), last))| {
             let rect = TileRect::new(t, bins, width, height);
-            let ids = &bins.isect_gid[bins.tile_range(t)];
+            let range = bins.tile_range(t);
+            let feats = &tile_features[range.start * ch..range.end * ch];
+            let splats = &tile_splats[range];
             // Fixed channel counts get unrolled inner loops; 0 means "use ch".
             let run = match ch {
                 1 => blend_tile::<1>,
@@ -170,9 +189,7 @@ pub fn blend(
                 4 => blend_tile::<4>,
                 _ => blend_tile::<0>,
             };
-            run(
-                splats, features, ch, ids, rect, ts, t_min, feat, trans, last,
-            );
+            run(splats, feats, ch, rect, ts, t_min, feat, trans, last);
         });
     out
 }
@@ -181,7 +198,6 @@ fn blend_tile<const CH: usize>(
     splats: &[Splat],
     features: &[f32],
     ch: usize,
-    ids: &[u32],
     rect: TileRect,
     ts: usize,
     t_min: f32,
@@ -192,9 +208,7 @@ fn blend_tile<const CH: usize>(
     let ch = if CH == 0 { ch } else { CH };
     let mut done = vec![false; ts * ts];
     let mut active = ((rect.x1 - rect.x0) * (rect.y1 - rect.y0)) as usize;
-    for (k, &g) in ids.iter().enumerate() {
-        let s = &splats[g as usize];
-        let f = &features[g as usize * ch..(g as usize + 1) * ch];
+    for (k, (s, f)) in splats.iter().zip(features.chunks_exact(ch)).enumerate() {
         let fp = PixelFootprint::new(s, &rect);
         for y in fp.y0..fp.y1 {
             let row = (y - rect.y0) as usize * ts;
