@@ -10,6 +10,7 @@ Conventions and choices (documented behaviour):
 
 * Inputs must be float32. CUDA (or other device) tensors are copied to the CPU and the
   outputs are moved back to the device of ``means``; gradients flow back through the copy.
+  ``meta["means2d"]`` (the gradient carrier) always lives on the CPU.
 * Non-contiguous inputs are made contiguous (a copy).
 * A Gaussian with NaN/Inf in any parameter (colours included), a quaternion of norm < 1e-12, opacity < 1/255,
   centre outside [near_plane, far_plane] or footprint entirely off-screen is culled:
