@@ -353,11 +353,6 @@ pub fn project_backward(
     }
 }
 
-/// Camera-space position, for the depth channel and the SH view direction.
-pub fn camera_point(g: &Gaussian3, cam: &Camera) -> Vec3 {
-    cam.to_camera(g.mean)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
