@@ -219,7 +219,7 @@ def test_saved_state_is_linear_in_gaussians_pixels_and_intersections():
     n, c, ch = 3000, 2, 4
     isect = int(out["n_intersections"].sum())
     tile_pixels = c * 6 * 5 * 256  # ceil(96/16) x ceil(80/16) tiles of 256 pixels
-    splat = 44  # bytes of one projected splat
+    splat = 48  # bytes of one projected splat (12 f32)
     per_gaussian = 4 * (3 + 4 + 3 + 1 + 3) + c * (splat + 4 * ch + 8)  # inputs; splats, order
     per_isect = 4 + 4 + splat + 4 * ch  # tile list, permutation, packed splat + features
     per_tile_pixel = 4 * ch + 4 + 4  # features, final T, last index

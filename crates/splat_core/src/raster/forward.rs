@@ -58,7 +58,10 @@ const SPAN_SLACK: f32 = 0.01;
 /// both visit exactly the same pixels.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct PixelFootprint {
-    qmax: f32,
+    /// b^2 - a c (< 0) and a * qmax: the row discriminant is k dy^2 + aq.
+    k: f32,
+    aq: f32,
+    inv_a: f32,
     pub y0: u32,
     pub y1: u32,
 }
@@ -66,26 +69,33 @@ pub(super) struct PixelFootprint {
 impl PixelFootprint {
     #[inline(always)]
     pub fn new(s: &Splat, rect: &TileRect) -> Self {
-        let qmax = 2.0 * (s.opacity / ALPHA_MIN).ln().max(0.0);
         let [a, b, c] = s.conic;
-        let half = (qmax * a / (a * c - b * b)).sqrt();
+        let k = b * b - a * c;
+        let aq = a * s.qmax;
+        let half = (aq / -k).sqrt();
         let (y0, y1) = pixel_span(s.xy[1] - half, s.xy[1] + half, rect.y0, rect.y1);
-        Self { qmax, y0, y1 }
+        Self {
+            k,
+            aq,
+            inv_a: 1.0 / a,
+            y0,
+            y1,
+        }
     }
 
     /// Pixel columns [x0, x1) of row `y` inside the footprint.
     #[inline(always)]
     pub fn row(&self, s: &Splat, y: u32, rect: &TileRect) -> (u32, u32) {
-        let [a, b, c] = s.conic;
+        let b = s.conic[1];
         let dy = s.xy[1] - (y as f32 + 0.5);
-        let disc = b * b * dy * dy - a * (c * dy * dy - self.qmax);
+        let disc = self.k * dy * dy + self.aq;
         if disc.is_nan() || disc < 0.0 {
             return (0, 0);
         }
         let root = disc.sqrt();
         // dx = x_splat - x_pixel lies in [(-b dy - root) / a, (-b dy + root) / a].
-        let lo = s.xy[0] - (root - b * dy) / a;
-        let hi = s.xy[0] + (root + b * dy) / a;
+        let lo = s.xy[0] - (root - b * dy) * self.inv_a;
+        let hi = s.xy[0] + (root + b * dy) * self.inv_a;
         pixel_span(lo, hi, rect.x0, rect.x1)
     }
 }

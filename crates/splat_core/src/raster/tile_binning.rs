@@ -236,6 +236,7 @@ mod tests {
             depth,
             radius: [r, r],
             extent,
+            qmax: extent * extent,
         }
     }
 
