@@ -216,10 +216,13 @@ def test_saved_state_is_linear_in_gaussians_pixels_and_intersections():
     out = _core.rasterize_forward(
         *[x.numpy() for x in scene], viewmats.numpy(), ks.numpy(), 96, 80, render_depth=True
     )
-    n, c = 3000, 2
+    n, c, ch = 3000, 2, 4
     isect = int(out["n_intersections"].sum())
-    # padded tile pixels: ceil(96/16)*ceil(80/16)*256 per camera
-    tile_pixels = c * 6 * 5 * 256
-    bound = 4 * (17 + 3 * n * c * 4) + (11 + 4) * 4 * n * c + 8 * isect + 4 * 6 * tile_pixels
-    assert out["state"].nbytes <= bound
-    assert out["state"].nbytes >= 8 * isect + 24 * tile_pixels
+    tile_pixels = c * 6 * 5 * 256  # ceil(96/16) x ceil(80/16) tiles of 256 pixels
+    splat = 48  # bytes of one projected splat (12 f32)
+    per_gaussian = 4 * (3 + 4 + 3 + 1 + 3) + c * (splat + 4 * ch + 8)  # inputs; splats, order
+    per_isect = 4 + 4 + splat + 4 * ch  # tile list, permutation, packed splat + features
+    per_tile_pixel = 4 * ch + 4 + 4  # features, final T, last index
+    size = per_gaussian * n + per_isect * isect + per_tile_pixel * tile_pixels
+    assert out["state"].nbytes <= size + 4 * (31 + 1) * c
+    assert out["state"].nbytes >= per_isect * isect + per_tile_pixel * tile_pixels

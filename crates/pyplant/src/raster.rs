@@ -41,8 +41,12 @@ impl RasterState {
                         + c.bins.gauss_offsets.len()
                         + c.bins.perm.len())
                         * 4
-                    + (c.blended.features.len() + c.blended.t_final.len() + c.blended.last.len())
+                    + (c.blended.features.len()
+                        + c.blended.t_final.len()
+                        + c.blended.last.len()
+                        + c.blended.packed_features.len())
                         * 4
+                    + c.blended.packed_splats.len() * std::mem::size_of::<raster::project::Splat>()
             })
             .sum();
         scene + cams

@@ -25,8 +25,6 @@ pub const ISECT_FIXED: usize = 6;
 
 /// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`.
 pub fn blend_backward(
-    splats: &[Splat],
-    features: &[f32],
     ch: usize,
     bins: &TileBins,
     blended: &Blended,
@@ -52,7 +50,9 @@ pub fn blend_backward(
             return;
         }
         let rect = TileRect::new(t, bins, width, height);
-        let ids = &bins.isect_gid[bins.tile_range(t)];
+        let range = bins.tile_range(t);
+        let feats = &blended.packed_features[range.start * ch..range.end * ch];
+        let splats = &blended.packed_splats[range];
         let tile = TilePixels {
             t_final: &blended.t_final[t * tp..(t + 1) * tp],
             last: &blended.last[t * tp..(t + 1) * tp],
@@ -64,7 +64,7 @@ pub fn blend_backward(
             _ => backward_tile::<0>,
         };
         run(
-            splats, features, ch, ids, rect, ts, width, &tile, v_render, v_alpha, out,
+            splats, feats, ch, rect, ts, width, &tile, v_render, v_alpha, out,
         );
     });
     grads
@@ -79,7 +79,6 @@ fn backward_tile<const CH: usize>(
     splats: &[Splat],
     features: &[f32],
     ch: usize,
-    ids: &[u32],
     rect: TileRect,
     ts: usize,
     width: u32,
@@ -95,9 +94,8 @@ fn backward_tile<const CH: usize>(
     let mut v_f = vec![0.0f32; ch];
     let k_end = tile.last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..k_end).rev() {
-        let g = ids[k] as usize;
-        let s = &splats[g];
-        let f = &features[g * ch..(g + 1) * ch];
+        let s = &splats[k];
+        let f = &features[k * ch..(k + 1) * ch];
         let fp = PixelFootprint::new(s, &rect);
         let [ca, cb, cc] = s.conic;
         let (mut v_x, mut v_y, mut v_a, mut v_b, mut v_c, mut v_o) =

@@ -58,7 +58,10 @@ const SPAN_SLACK: f32 = 0.01;
 /// both visit exactly the same pixels.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct PixelFootprint {
-    qmax: f32,
+    /// b^2 - a c (< 0) and a * qmax: the row discriminant is k dy^2 + aq.
+    k: f32,
+    aq: f32,
+    inv_a: f32,
     pub y0: u32,
     pub y1: u32,
 }
@@ -66,26 +69,33 @@ pub(super) struct PixelFootprint {
 impl PixelFootprint {
     #[inline(always)]
     pub fn new(s: &Splat, rect: &TileRect) -> Self {
-        let qmax = 2.0 * (s.opacity / ALPHA_MIN).ln().max(0.0);
         let [a, b, c] = s.conic;
-        let half = (qmax * a / (a * c - b * b)).sqrt();
+        let k = b * b - a * c;
+        let aq = a * s.qmax;
+        let half = (aq / -k).sqrt();
         let (y0, y1) = pixel_span(s.xy[1] - half, s.xy[1] + half, rect.y0, rect.y1);
-        Self { qmax, y0, y1 }
+        Self {
+            k,
+            aq,
+            inv_a: 1.0 / a,
+            y0,
+            y1,
+        }
     }
 
     /// Pixel columns [x0, x1) of row `y` inside the footprint.
     #[inline(always)]
     pub fn row(&self, s: &Splat, y: u32, rect: &TileRect) -> (u32, u32) {
-        let [a, b, c] = s.conic;
+        let b = s.conic[1];
         let dy = s.xy[1] - (y as f32 + 0.5);
-        let disc = b * b * dy * dy - a * (c * dy * dy - self.qmax);
+        let disc = self.k * dy * dy + self.aq;
         if disc.is_nan() || disc < 0.0 {
             return (0, 0);
         }
         let root = disc.sqrt();
         // dx = x_splat - x_pixel lies in [(-b dy - root) / a, (-b dy + root) / a].
-        let lo = s.xy[0] - (root - b * dy) / a;
-        let hi = s.xy[0] + (root + b * dy) / a;
+        let lo = s.xy[0] - (root - b * dy) * self.inv_a;
+        let hi = s.xy[0] + (root + b * dy) * self.inv_a;
         pixel_span(lo, hi, rect.x0, rect.x1)
     }
 }
@@ -135,6 +145,10 @@ pub struct Blended {
     /// Number of entries of the tile list the pixel went through up to its last
     /// contributing splat (0 = none).
     pub last: Vec<u32>,
+    /// Splats and their features copied into tile-list order (tile-major, front to back),
+    /// so blending reads memory sequentially instead of chasing indices.
+    pub packed_splats: Vec<Splat>,
+    pub packed_features: Vec<f32>,
 }
 
 /// Blends every tile of one camera.
@@ -150,11 +164,24 @@ pub fn blend(
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let n_tiles = bins.n_tiles();
+    let packed_splats: Vec<Splat> = bins
+        .isect_gid
+        .par_iter()
+        .map(|&g| splats[g as usize])
+        .collect();
+    let mut packed_features = vec![0.0f32; bins.n_intersections() * ch];
+    packed_features
+        .par_chunks_mut(ch)
+        .zip(bins.isect_gid.par_iter())
+        .for_each(|(f, &g)| f.copy_from_slice(&features[g as usize * ch..(g as usize + 1) * ch]));
     let mut out = Blended {
         features: vec![0.0; n_tiles * tp * ch],
         t_final: vec![1.0; n_tiles * tp],
         last: vec![0; n_tiles * tp],
+        packed_splats,
+        packed_features,
     };
+    let (tile_splats, tile_features) = (&out.packed_splats, &out.packed_features);
     out.features
         .par_chunks_mut(tp * ch)
         .zip(out.t_final.par_chunks_mut(tp))
@@ -162,7 +189,9 @@ pub fn blend(
         .enumerate()
         .for_each(|(t, ((feat, trans), last))| {
             let rect = TileRect::new(t, bins, width, height);
-            let ids = &bins.isect_gid[bins.tile_range(t)];
+            let range = bins.tile_range(t);
+            let feats = &tile_features[range.start * ch..range.end * ch];
+            let splats = &tile_splats[range];
             // Fixed channel counts get unrolled inner loops; 0 means "use ch".
             let run = match ch {
                 1 => blend_tile::<1>,
@@ -170,9 +199,7 @@ pub fn blend(
                 4 => blend_tile::<4>,
                 _ => blend_tile::<0>,
             };
-            run(
-                splats, features, ch, ids, rect, ts, t_min, feat, trans, last,
-            );
+            run(splats, feats, ch, rect, ts, t_min, feat, trans, last);
         });
     out
 }
@@ -181,7 +208,6 @@ fn blend_tile<const CH: usize>(
     splats: &[Splat],
     features: &[f32],
     ch: usize,
-    ids: &[u32],
     rect: TileRect,
     ts: usize,
     t_min: f32,
@@ -192,9 +218,7 @@ fn blend_tile<const CH: usize>(
     let ch = if CH == 0 { ch } else { CH };
     let mut done = vec![false; ts * ts];
     let mut active = ((rect.x1 - rect.x0) * (rect.y1 - rect.y0)) as usize;
-    for (k, &g) in ids.iter().enumerate() {
-        let s = &splats[g as usize];
-        let f = &features[g as usize * ch..(g as usize + 1) * ch];
+    for (k, (s, f)) in splats.iter().zip(features.chunks_exact(ch)).enumerate() {
         let fp = PixelFootprint::new(s, &rect);
         for y in fp.y0..fp.y1 {
             let row = (y - rect.y0) as usize * ts;

@@ -71,8 +71,6 @@ pub fn backward(
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
         let isect = blend_backward(
-            &cs.splats,
-            &cs.features,
             ch,
             &cs.bins,
             &cs.blended,

@@ -6,9 +6,10 @@
 //! `backward` walks the same lists back to front and chains to the 3D parameters.
 //!
 //! State kept between forward and backward (`ForwardState`): a copy of the inputs
-//! (O(N)), and per camera the splats and features (O(N)), the tile lists and their
-//! permutation (O(intersections)), and the final transmittance and last-contributor count
-//! per pixel (O(pixels)). Nothing per (pixel, splat) pair is stored.
+//! (O(N)), and per camera the splats and features (O(N)), the tile lists, their
+//! permutation and the splats + features packed in tile order (O(intersections)), and the
+//! final transmittance, last-contributor count and blended features per pixel
+//! (O(pixels)). Nothing per (pixel, splat) pair is stored.
 
 pub mod backward;
 pub mod camera;

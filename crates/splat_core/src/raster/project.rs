@@ -30,6 +30,8 @@ pub struct Splat {
     pub radius: [f32; 2],
     /// Footprint extent in standard deviations; the ellipse q(d) <= extent^2 is the footprint.
     pub extent: f32,
+    /// 2 ln(255 opacity): where q(d) exceeds it, alpha < 1/255 (the pixels never blended).
+    pub qmax: f32,
 }
 
 impl Splat {
@@ -234,6 +236,7 @@ pub fn project(g: &Gaussian3, cam: &Camera, opts: &RasterOptions) -> Splat {
         depth: it.p.z,
         radius,
         extent,
+        qmax: 2.0 * (opacity / ALPHA_MIN).ln().max(0.0),
     }
 }
 
@@ -351,11 +354,6 @@ pub fn project_backward(
         scale: v_scale,
         opacity: v_opacity,
     }
-}
-
-/// Camera-space position, for the depth channel and the SH view direction.
-pub fn camera_point(g: &Gaussian3, cam: &Camera) -> Vec3 {
-    cam.to_camera(g.mean)
 }
 
 #[cfg(test)]

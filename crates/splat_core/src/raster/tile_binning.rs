@@ -48,14 +48,22 @@ impl TileBins {
 }
 
 /// Inclusive-exclusive tile index range of a splat's footprint box, clipped to the image.
+#[inline(always)]
 fn tile_box(s: &Splat, tile_size: u32, tiles_x: u32, tiles_y: u32) -> [u32; 4] {
-    let ts = tile_size as f32;
-    let clip = |v: f32, hi: u32| (v.max(0.0).min(hi as f32)) as u32;
+    let inv = 1.0 / tile_size as f32;
+    // Clip first, then round: the values are small and non-negative, so truncation is floor
+    // (and libm's floorf/ceilf are out-of-line calls on baseline x86-64).
+    let lo = |v: f32, hi: u32| (v * inv).max(0.0).min(hi as f32) as u32;
+    let up = |v: f32, hi: u32| {
+        let x = (v * inv).max(0.0).min(hi as f32);
+        let t = x as u32;
+        t + (t as f32).lt(&x) as u32
+    };
     [
-        clip(((s.xy[0] - s.radius[0]) / ts).floor(), tiles_x),
-        clip(((s.xy[0] + s.radius[0]) / ts).ceil(), tiles_x),
-        clip(((s.xy[1] - s.radius[1]) / ts).floor(), tiles_y),
-        clip(((s.xy[1] + s.radius[1]) / ts).ceil(), tiles_y),
+        lo(s.xy[0] - s.radius[0], tiles_x),
+        up(s.xy[0] + s.radius[0], tiles_x),
+        lo(s.xy[1] - s.radius[1], tiles_y),
+        up(s.xy[1] + s.radius[1], tiles_y),
     ]
 }
 
@@ -68,8 +76,9 @@ fn min_quadratic_on_rect(conic: [f32; 3], x0: f32, x1: f32, y0: f32, y1: f32) ->
     let q = |x: f32, y: f32| a * x * x + 2.0 * b * x * y + c * y * y;
     // The minimum of a convex function over a rectangle not containing its minimiser lies
     // on the boundary: minimise along each edge (closed form, clamped).
-    let on_vertical = |x: f32| q(x, (-b * x / c).clamp(y0, y1));
-    let on_horizontal = |y: f32| q((-b * y / a).clamp(x0, x1), y);
+    let (ba, bc) = (b / a, b / c);
+    let on_vertical = |x: f32| q(x, (-bc * x).clamp(y0, y1));
+    let on_horizontal = |y: f32| q((-ba * y).clamp(x0, x1), y);
     on_vertical(x0)
         .min(on_vertical(x1))
         .min(on_horizontal(y0))
@@ -97,6 +106,8 @@ fn for_each_tile(
     mut f: impl FnMut(u32),
 ) {
     let [x0, x1, y0, y1] = tile_box(s, tile_size, tiles_x, tiles_y);
+    // A box within one tile needs no test (keeping that tile is at worst conservative).
+    let ellipse = ellipse && (x1 - x0) * (y1 - y0) > 1;
     for ty in y0..y1 {
         for tx in x0..x1 {
             if !ellipse || ellipse_touches_tile(s, tx, ty, tile_size) {
@@ -133,18 +144,17 @@ pub fn bin(
     let tiles_y = height.div_ceil(tile_size);
     let n_tiles = (tiles_x * tiles_y) as usize;
 
-    let counts: Vec<u32> = depth_order
+    // One gather into depth order (independent loads) so the two passes below read memory
+    // sequentially instead of missing the cache on every splat.
+    let sorted: Vec<Splat> = depth_order
         .par_iter()
-        .map(|&g| {
+        .map(|&g| splats[g as usize])
+        .collect();
+    let counts: Vec<u32> = sorted
+        .par_iter()
+        .map(|s| {
             let mut n = 0u32;
-            for_each_tile(
-                &splats[g as usize],
-                tile_size,
-                tiles_x,
-                tiles_y,
-                ellipse,
-                |_| n += 1,
-            );
+            for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |_| n += 1);
             n
         })
         .collect();
@@ -172,20 +182,13 @@ pub fn bin(
     }
     slices
         .into_par_iter()
-        .zip(depth_order.par_iter())
-        .for_each(|(out, &g)| {
+        .zip(sorted.par_iter())
+        .for_each(|(out, s)| {
             let mut i = 0;
-            for_each_tile(
-                &splats[g as usize],
-                tile_size,
-                tiles_x,
-                tiles_y,
-                ellipse,
-                |t| {
-                    out[i] = t;
-                    i += 1;
-                },
-            );
+            for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| {
+                out[i] = t;
+                i += 1;
+            });
         });
 
     // Stable counting sort by tile.
@@ -233,6 +236,7 @@ mod tests {
             depth,
             radius: [r, r],
             extent,
+            qmax: extent * extent,
         }
     }
 

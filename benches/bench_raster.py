@@ -1,0 +1,317 @@
+"""Rasterizer benchmarks: forward speed, time against error, profile, forward + backward,
+peak memory of a training step. Writes benches/results/raster.md (+ raster.json).
+
+    python benches/bench_raster.py [--quick]
+
+Timings are wall-clock minima over repetitions: the machine is shared with other builds,
+and the minimum is the least disturbed run. Threads are set per call (`threads=`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+BENCHES = Path(__file__).resolve().parent
+sys.path.insert(0, str(BENCHES))
+sys.path.insert(0, str(BENCHES.parent / "tests"))
+
+from raster_scene import orbit_cameras, synthetic_plant  # noqa: E402
+
+import raster_reference as ref  # noqa: E402
+from plantdreamer import _core, rasterization  # noqa: E402
+
+RESULTS = BENCHES / "results"
+COMMAND = "python benches/bench_raster.py"
+
+
+def arrays(scene):
+    return [x.numpy() for x in scene]
+
+
+def forward(scene, viewmats, ks, size, threads, reps, **kw):
+    """Min wall time (s) over reps and the last output."""
+    best, out = float("inf"), None
+    for _ in range(reps):
+        t = time.perf_counter()
+        out = _core.rasterize_forward(
+            *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=threads, **kw
+        )
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
+    rows, data = [], []
+    for n in counts:
+        scene = synthetic_plant(n)
+        for size in sizes:
+            viewmats, ks = orbit_cameras(size, size)
+            times = {}
+            for threads in (1, 2):
+                times[threads], out = forward(scene, viewmats, ks, size, threads, reps)
+            tiles = ((size + 15) // 16) ** 2
+            isect = int(out["n_intersections"][0])
+            nonempty = int((out["alpha"][0] > 0).sum())
+            rows.append(
+                f"| {n:,} | {size}x{size} | {times[1] * 1e3:.1f} | {times[2] * 1e3:.1f} | "
+                f"{int(out['n_visible'][0]):,} | {isect:,} | {isect / tiles:.1f} | "
+                f"{nonempty / size**2:.2f} |"
+            )
+            data.append(
+                {
+                    "n": n,
+                    "size": size,
+                    "ms_1_thread": times[1] * 1e3,
+                    "ms_2_threads": times[2] * 1e3,
+                    "visible": int(out["n_visible"][0]),
+                    "intersections": isect,
+                }
+            )
+            print(rows[-1], flush=True)
+    table = (
+        "| Gaussians | image | 1 thread (ms) | 2 threads (ms) | visible | tile intersections "
+        "| intersections per tile | covered fraction |\n|---|---|---|---|---|---|---|---|\n"
+        + "\n".join(rows)
+    )
+    return table, data
+
+
+def error_vs_reference(size: int, n: int, **kw) -> tuple[float, float, float]:
+    """(max, 99.9th percentile, mean) abs RGB+alpha error against the float64 reference."""
+    scene = synthetic_plant(n, seed=1)
+    viewmats, ks = orbit_cameras(size, size)
+    out = _core.rasterize_forward(*arrays(scene), viewmats.numpy(), ks.numpy(), size, size, **kw)
+    key = (size, n)
+    if key not in _REFERENCE_CACHE:
+        _REFERENCE_CACHE[key] = ref.render(
+            *[x.double() for x in scene], viewmats[0].double(), ks[0].double(), size, size
+        )
+    want, want_alpha = _REFERENCE_CACHE[key]
+    err = np.concatenate(
+        [
+            np.abs(out["render"][0] - want.numpy()).ravel(),
+            np.abs(out["alpha"][0] - want_alpha.numpy()).ravel(),
+        ]
+    )
+    return float(err.max()), float(np.quantile(err, 0.999)), float(err.mean())
+
+
+_REFERENCE_CACHE: dict = {}
+
+KNOBS = [
+    ("defaults: opacity-aware, ellipse test, tile 16, T_min 1e-4", {}),
+    ("footprint 3 sigma", {"footprint_sigma": 3.0}),
+    ("footprint 3.33 sigma", {"footprint_sigma": 3.33}),
+    ("no tile-ellipse test", {"tile_ellipse": False}),
+    (
+        "3 sigma, no ellipse test (original 3DGS-like)",
+        {"footprint_sigma": 3.0, "tile_ellipse": False},
+    ),
+    ("tile 8", {"tile_size": 8}),
+    ("tile 32", {"tile_size": 32}),
+    ("T_min 1e-3", {"t_min": 1e-3}),
+    ("T_min 1e-2", {"t_min": 1e-2}),
+    ("T_min 0 (no early stop)", {"t_min": 0.0}),
+]
+
+
+def knob_table(reps: int, err_size: int, err_n: int) -> tuple[str, list[dict]]:
+    scene = synthetic_plant(100_000)
+    viewmats, ks = orbit_cameras(512, 512)
+    rows, data = [], []
+    for name, kw in KNOBS:
+        t, out = forward(scene, viewmats, ks, 512, 2, reps, **kw)
+        mx, p999, mean = error_vs_reference(err_size, err_n, **kw)
+        isect = int(out["n_intersections"][0])
+        rows.append(f"| {name} | {t * 1e3:.1f} | {isect:,} | {mx:.2e} | {p999:.2e} | {mean:.2e} |")
+        data.append(
+            {
+                "knob": name,
+                "ms": t * 1e3,
+                "intersections": isect,
+                "max": mx,
+                "p999": p999,
+                "mean": mean,
+            }
+        )
+        print(rows[-1], flush=True)
+    table = (
+        "| setting | time, 100k @ 512^2, 2 threads (ms) | intersections | max error | "
+        "99.9th pct error | mean error |\n|---|---|---|---|---|---|\n" + "\n".join(rows)
+    )
+    return table, data
+
+
+def profile_table(reps: int) -> str:
+    rows = []
+    for n, size in ((100_000, 512), (100_000, 768), (1_000_000, 512)):
+        scene = synthetic_plant(n)
+        viewmats, ks = orbit_cameras(size, size)
+        best: dict[str, float] = {}
+        for _ in range(reps):
+            out = _core.rasterize_forward(
+                *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=1
+            )
+            for k, v in out["profile"].items():
+                best[k] = min(best.get(k, float("inf")), v)
+        total = sum(best.values())
+        cells = " | ".join(
+            f"{best[k] * 1e3:.1f} ({best[k] / total:.0%})"
+            for k in ("project", "sort", "bin", "blend")
+        )
+        rows.append(f"| {n:,} @ {size}^2 | {cells} |")
+        print(rows[-1], flush=True)
+    return (
+        "| scene | projection + SH (ms) | depth sort | tile binning | blending |\n"
+        "|---|---|---|---|---|\n" + "\n".join(rows)
+    )
+
+
+def vm_kib(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field):
+            return int(line.split()[1])
+    return -1
+
+
+def train_step_table(reps: int) -> tuple[str, list[dict]]:
+    rows, data = [], []
+    for size in (512, 768):
+        scene = synthetic_plant(100_000)
+        viewmats, ks = orbit_cameras(size, size)
+        bg = torch.full((1, 3), 0.75)
+        best_f = best_b = float("inf")
+        peak = -1
+        for rep in range(reps):
+            params = [x.clone().requires_grad_(True) for x in scene]
+            base = vm_kib("VmRSS")
+            try:  # reset the peak-RSS counter (Linux)
+                Path("/proc/self/clear_refs").write_text("5")
+            except OSError:
+                pass
+            t0 = time.perf_counter()
+            img, alpha, _ = rasterization(
+                *params, viewmats, ks, size, size, backgrounds=bg, threads=2
+            )
+            loss = (img - 0.5).square().mean() + alpha.mean()
+            t1 = time.perf_counter()
+            loss.backward()
+            t2 = time.perf_counter()
+            if rep == 0:
+                peak = vm_kib("VmHWM") - base
+            best_f, best_b = min(best_f, t1 - t0), min(best_b, t2 - t1)
+        out = _core.rasterize_forward(
+            *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=2
+        )
+        state_mib = out["state"].nbytes / 2**20
+        rows.append(
+            f"| 100,000 @ {size}^2 | {best_f * 1e3:.1f} | {best_b * 1e3:.1f} | "
+            f"{best_b / best_f:.2f} | {state_mib:.1f} | {peak / 1024:.0f} |"
+        )
+        data.append(
+            {
+                "size": size,
+                "forward_ms": best_f * 1e3,
+                "backward_ms": best_b * 1e3,
+                "state_mib": state_mib,
+                "peak_mib": peak / 1024,
+            }
+        )
+        print(rows[-1], flush=True)
+    return (
+        "| scene | forward (ms) | backward (ms) | backward / forward | saved forward state (MiB) "
+        "| peak RSS growth of the step (MiB) |\n|---|---|---|---|---|---|\n" + "\n".join(rows)
+    ), data
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="fewer sizes and repetitions")
+    args = parser.parse_args()
+    reps = 2 if args.quick else 5
+    counts = (10_000, 100_000) if args.quick else (10_000, 100_000, 1_000_000)
+    sizes = (256, 512) if args.quick else (256, 512, 768)
+
+    fwd, fwd_data = forward_table(reps, sizes, counts)
+    knobs, knob_data = knob_table(reps, err_size=160, err_n=6000)
+    prof = profile_table(reps)
+    step, step_data = train_step_table(max(2, reps - 2))
+
+    at = {(d["n"], d["size"]): d["ms_2_threads"] for d in fwd_data}
+    ratio = max(d["backward_ms"] / d["forward_ms"] for d in step_data)
+    f512, f768 = at.get((100_000, 512)), at.get((100_000, 768))
+    verdict = (
+        f"Targets: backward <= 2x forward is {'met' if ratio <= 2 else 'NOT met'} "
+        f"(worst ratio {ratio:.2f}). Forward, 100k on 2 threads: "
+        + (f"{f512:.0f} ms at 512^2 (target 25), " if f512 else "")
+        + (f"{f768:.0f} ms at 768^2 (target 50); " if f768 else "")
+        + "the 512^2 target is "
+        + ("met" if f512 and f512 <= 25 else "**not met**")
+        + ". Blending is 70-77% of the time at 100k (about 9 ns per evaluated pixel-splat "
+        "pair, scalar code, no SIMD); binning most of the rest."
+    )
+    md = f"""## Rasterizer (`plantdreamer.rasterization`)
+
+Command: `{COMMAND}`. Scene: `benches/raster_scene.py`, a synthetic plant (longest side 4,
+stem + 40 leaves, Gaussians on the surfaces with kNN-like sizes, flattened along the normal,
+opacities spread over (0.05, 1)), one orbit camera at distance 4.5, elevation 15, fovy 55.
+**Measured on a shared 2-core machine while other engineers' builds and tests ran**: every
+number is the minimum over {reps} repetitions; when the second core was busy the 1- and
+2-thread columns come out close. Treat the numbers as upper bounds.
+
+### Forward time
+
+{fwd}
+
+Targets (issue 4): 100k at 512^2 <= 25 ms and at 768^2 <= 50 ms on 2 threads.
+
+### Time against error
+
+Time on the 100k scene at 512^2 (2 threads); error = absolute per-pixel error of RGB and
+alpha against the dense float64 reference (`tests/raster_reference.py`) on a 6k-Gaussian
+version of the scene at 160^2 (the reference is O(N x pixels)).
+
+{knobs}
+
+Defaults: the opacity-aware footprint (the exact box of the alpha = 1/255 contour: it
+loses nothing against the reference, unlike 3 sigma, whose cut tails give errors up to
+~2e-2), the tile-ellipse test (identical image, ~20% fewer intersections), 16-pixel tiles
+and T_min = 1e-4. These are gsplat's semantics, which the rest of plantdreamer and the
+reference assume; every row that changes the image (3 sigma, another T_min, including
+T_min = 0, i.e. no early stop) is measured against that reference, hence its error. On this
+scene the time differences between rows are within the noise of the loaded machine
+(+-20%), except tile 8 (more intersections, slower); tile 32 was not reliably faster.
+
+### Where the time goes (1 thread)
+
+{prof}
+
+### Training step (forward + backward through torch autograd, 2 threads)
+
+{step}
+
+The saved forward state (`RasterState.nbytes`: input copy, splats, tile lists packed in
+tile order, final T and last index per pixel) is O(N + pixels + intersections); nothing
+per (pixel, Gaussian) pair is stored (see `crates/splat_core/src/raster/mod.rs`). The RSS
+growth is measured with /proc (VmHWM after a reset); it under-counts memory the allocator
+had already cached from earlier runs in the same process.
+
+{verdict}
+"""
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "raster.md").write_text(md)
+    (RESULTS / "raster.json").write_text(
+        json.dumps({"forward": fwd_data, "knobs": knob_data, "train_step": step_data}, indent=1)
+    )
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
