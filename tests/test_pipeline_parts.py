@@ -149,3 +149,12 @@ def test_camera_sampler_is_seeded_and_resumable():
     assert np.array_equal(b.sample().viewmat, nxt.viewmat)
     for cam in first:
         assert 3.0 <= cam.distance <= 6.0 and -10.0 <= cam.elevation_deg <= 80.0
+
+
+def test_native_culling_names_a_wrong_array():
+    from plantdreamer import _core
+
+    with pytest.raises(InputError, match="log_scales must be a float32 array"):
+        _core.large_gaussian_mask(np.zeros((4, 3)), 3.0)  # float64
+    with pytest.raises(InputError, match=r"log_scales must have shape \[N, 3\]"):
+        _core.large_gaussian_mask(np.zeros((4, 2), np.float32), 3.0)

@@ -3,11 +3,12 @@
 //! Points are C-contiguous float32 or float64 arrays of shape [N, 3]; outputs keep the
 //! input precision. `threads` runs a call on an explicit pool (None: rayon's global pool).
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use splat_core::pointcloud as pc;
 use splat_core::threads::with_threads;
 
+use crate::arrays::{describe, float_rows};
 use crate::errors::InputError;
 use crate::run_native;
 
@@ -15,38 +16,6 @@ use crate::run_native;
 pub enum Points<'py> {
     F32(PyReadonlyArray2<'py, f32>),
     F64(PyReadonlyArray2<'py, f64>),
-}
-
-fn describe(obj: &Bound<'_, PyAny>) -> String {
-    match (obj.getattr("shape"), obj.getattr("dtype")) {
-        (Ok(shape), Ok(dtype)) => format!("shape {shape} of {dtype}"),
-        _ => obj
-            .get_type()
-            .name()
-            .map(|n| n.to_string())
-            .unwrap_or_default(),
-    }
-}
-
-/// Checks a float array of shape [N, width]: dtype, shape, contiguity.
-fn float_rows<'py, T: numpy::Element>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-    width: usize,
-) -> Option<PyResult<PyReadonlyArray2<'py, T>>> {
-    let arr = obj.extract::<PyReadonlyArray2<'py, T>>().ok()?;
-    if arr.shape()[1] != width {
-        return Some(Err(InputError::new_err(format!(
-            "{name} must have shape [N, {width}], got {}",
-            describe(obj)
-        ))));
-    }
-    if !arr.is_c_contiguous() {
-        return Some(Err(InputError::new_err(format!(
-            "{name} must be C-contiguous (use numpy.ascontiguousarray)"
-        ))));
-    }
-    Some(Ok(arr))
 }
 
 pub fn points_arg<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>> {
