@@ -274,10 +274,16 @@ pub fn to_image(
         .for_each(|(y, (rrow, arow))| {
             let tile_row = (y / ts) * bins.tiles_x as usize;
             let ly = (y % ts) * ts;
-            for x in 0..w {
-                let i = (tile_row + x / ts) * tp + ly + x % ts;
-                arow[x] = 1.0 - blended.t_final[i];
-                rrow[x * ch..(x + 1) * ch].copy_from_slice(&blended.features[i * ch..(i + 1) * ch]);
+            // Each tile's part of an image row is contiguous in the tile-major buffers: one
+            // copy per tile, not a (libc memmove) call per pixel.
+            for x0 in (0..w).step_by(ts) {
+                let n = ts.min(w - x0);
+                let i = (tile_row + x0 / ts) * tp + ly;
+                rrow[x0 * ch..(x0 + n) * ch]
+                    .copy_from_slice(&blended.features[i * ch..(i + n) * ch]);
+                for (a, t) in arow[x0..x0 + n].iter_mut().zip(&blended.t_final[i..i + n]) {
+                    *a = 1.0 - t;
+                }
             }
         });
 }
