@@ -12,7 +12,7 @@ from safetensors.torch import load_file
 from plantdreamer.cli import main
 from plantdreamer.errors import CheckpointError, InputError, ModelNotFoundError
 from plantdreamer.guidance.lora_weights import load_lora
-from plantdreamer.guidance.tiny import save_tiny_models, tiny_models
+from plantdreamer.guidance.tiny import save_tiny_models, tiny_models, tiny_pipeline
 from plantdreamer.lora.dataset import load_examples
 from plantdreamer.lora.train import LoraTrainConfig, train_lora
 
@@ -97,22 +97,10 @@ def test_short_run_lowers_the_loss_and_writes_a_loadable_file(images, tmp_path):
 
     # A fresh tiny pipeline: our loader and diffusers' load_lora_weights agree, and differ
     # from the plain UNet.
-    from diffusers import StableDiffusionPipeline
-
     plain = unet_output(tiny_models().unet)
     ours = tiny_models()
     load_lora(ours.unet, result.weights)
-    parts = tiny_models()
-    pipe = StableDiffusionPipeline(
-        vae=parts.vae,
-        text_encoder=parts.text_encoder,
-        tokenizer=parts.tokenizer,
-        unet=parts.unet,
-        scheduler=parts.scheduler,
-        safety_checker=None,
-        feature_extractor=None,
-        requires_safety_checker=False,
-    )
+    pipe = tiny_pipeline()
     pipe.load_lora_weights(str(result.weights.parent), weight_name=result.weights.name)
     a, b = unet_output(ours.unet), unet_output(pipe.unet)
     assert (a - plain).abs().max() > 1e-4
@@ -121,8 +109,6 @@ def test_short_run_lowers_the_loss_and_writes_a_loadable_file(images, tmp_path):
 
 def test_authors_key_layout_loads_into_a_diffusers_pipeline(tmp_path):
     """A file like the authors' (diffusers keys, rank 4, UNet attention only)."""
-    from diffusers import StableDiffusionPipeline
-
     g = torch.Generator().manual_seed(0)
     sd = {}
     for name, module in tiny_models().unet.named_modules():
@@ -139,18 +125,8 @@ def test_authors_key_layout_loads_into_a_diffusers_pipeline(tmp_path):
 
     (tmp_path / "bean").mkdir()
     save_file(sd, tmp_path / "bean" / "pytorch_lora_weights.safetensors")
-    parts = tiny_models()
-    pipe = StableDiffusionPipeline(
-        vae=parts.vae,
-        text_encoder=parts.text_encoder,
-        tokenizer=parts.tokenizer,
-        unet=parts.unet,
-        scheduler=parts.scheduler,
-        safety_checker=None,
-        feature_extractor=None,
-        requires_safety_checker=False,
-    )
-    plain = unet_output(parts.unet)
+    pipe = tiny_pipeline()
+    plain = unet_output(pipe.unet)
     # Exactly the authors' loading call.
     pipe.load_lora_weights(str(tmp_path / "bean"), weight_name="pytorch_lora_weights.safetensors")
     ours = tiny_models()

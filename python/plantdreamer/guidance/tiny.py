@@ -144,13 +144,12 @@ def tiny_models(seed: int = 0) -> DiffusionComponents:
     )
 
 
-def save_tiny_models(path: str | Path, seed: int = 0) -> tuple[Path, Path]:
-    """Write tiny models in the hub's folder layout; returns (base_model_dir, controlnet_dir)."""
+def tiny_pipeline(seed: int = 0):  # type: ignore[no-untyped-def]
+    """A diffusers ``StableDiffusionPipeline`` of tiny models (no safety checker)."""
     from diffusers import StableDiffusionPipeline
 
-    root = Path(path)
     parts = tiny_models(seed)
-    pipe = StableDiffusionPipeline(
+    return StableDiffusionPipeline(
         vae=parts.vae,
         text_encoder=parts.text_encoder,
         tokenizer=parts.tokenizer,
@@ -160,7 +159,12 @@ def save_tiny_models(path: str | Path, seed: int = 0) -> tuple[Path, Path]:
         feature_extractor=None,
         requires_safety_checker=False,
     )
+
+
+def save_tiny_models(path: str | Path, seed: int = 0) -> tuple[Path, Path]:
+    """Write tiny models in the hub's folder layout; returns (base_model_dir, controlnet_dir)."""
+    root = Path(path)
     base, control = root / "base", root / "controlnet"
-    pipe.save_pretrained(base)
-    parts.controlnet.save_pretrained(control)
+    tiny_pipeline(seed).save_pretrained(base)
+    tiny_models(seed).controlnet.save_pretrained(control)
     return base, control
