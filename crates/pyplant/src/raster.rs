@@ -41,8 +41,7 @@ impl RasterState {
                         + c.bins.gauss_offsets.len()
                         + c.bins.perm.len())
                         * 4
-                    + (c.blended.features.len()
-                        + c.blended.t_final.len()
+                    + (c.blended.t_final.len()
                         + c.blended.last.len()
                         + c.blended.packed_features.len())
                         * 4

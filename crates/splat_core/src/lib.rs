@@ -2,7 +2,7 @@
 //!
 //! Every public function takes plain slices (structure of arrays) and returns
 //! `Result<_, CoreError>`; the `pyplant` crate is the only place that knows about Python.
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 
 pub mod culling;
 pub mod error;

@@ -104,8 +104,7 @@ fn backward_tile<const CH: usize>(
         for y in fp.y0..fp.y1 {
             let row = (y - rect.y0) as usize * ts;
             let py = y as f32 + 0.5;
-            let (xa, xb) = fp.row(s, y, &rect);
-            for x in xa..xb {
+            for x in fp.x0..fp.x1 {
                 let l = row + (x - rect.x0) as usize;
                 if k >= tile.last[l] as usize {
                     continue;

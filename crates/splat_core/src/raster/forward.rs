@@ -1,17 +1,50 @@
-//! Front-to-back alpha blending of the depth-sorted tile lists (rayon over tiles).
+//! Front-to-back alpha blending of the depth-sorted tile lists (rayon over rows of tiles).
 //!
 //! Per pixel, exactly gsplat's classic rules: sigma = 0.5 (a dx^2 + c dy^2) + b dx dy,
 //! alpha = min(0.99, opacity exp(-sigma)), skip sigma < 0 or alpha < 1/255, stop before the
 //! splat that would bring T to <= t_min. Within a tile the loop runs splat-major and visits
-//! only the pixels of the splat's footprint box (plus one pixel of slack); each pixel still
-//! sees its splats in depth order, so the result equals the pixel-major loop bit for bit.
-//! Tile buffers are tile-major; `to_image` converts to row-major images at the end.
+//! only the pixels of the splat's footprint (plus a sliver of slack); each pixel still sees
+//! its splats in depth order, so the result equals the pixel-major loop bit for bit.
+//!
+//! The pixels of one footprint row are processed in groups of `LANES` adjacent pixels with
+//! branch-free lane code (masks instead of `continue`), which the compiler turns into SIMD:
+//! AVX2 when the CPU has it (checked at run time), SSE2 otherwise. Both compile the same
+//! scalar operations in the same order, without fused multiply-adds, so every path gives
+//! the same bits, and the backward pass (scalar, `pixel_alpha`) recomputes the same alphas.
 
 use rayon::prelude::*;
 
 use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::{ALPHA_MAX, ALPHA_MIN};
+
+/// exp(x) for x <= 0 from + and * only (Cody-Waite reduction, Cephes' degree-6 polynomial),
+/// accurate to 2 ulp. libm's `expf` is an opaque call: the blending loop could not be
+/// vectorised around it, and the forward and backward passes must agree to the bit.
+#[inline(always)]
+pub(super) fn exp_neg(x: f32) -> f32 {
+    // Below -87 the result would be subnormal; the callers discard it anyway (< 1/255).
+    // Written as comparisons so that NaN maps to -87 in every lane.
+    let x = if x > -87.0 { x } else { -87.0 };
+    let x = if x < 0.0 { x } else { 0.0 };
+    // Adding 1.5 * 2^23 rounds x / ln 2 to the nearest integer n, left in the low bits.
+    const ROUND: f32 = 12_582_912.0;
+    let t = x * std::f32::consts::LOG2_E + ROUND;
+    let n = t - ROUND;
+    // ln 2 = C1 + C2 with C1 exact in 9 bits, so n * C1 is exact.
+    let r = (x - n * 0.693_359_4) - n * -2.121_944_4e-4;
+    let mut p = 1.987_569_2e-4f32;
+    p = p * r + 1.398_199_9e-3;
+    p = p * r + 8.333_452e-3;
+    p = p * r + 4.166_579_6e-2;
+    p = p * r + 1.666_666_5e-1;
+    p = p * r + 0.5;
+    let y = p * r * r + r + 1.0;
+    // 2^n as bits: n is in [-126, 0], so the biased exponent stays in [1, 127].
+    let n_int = t.to_bits().wrapping_sub(ROUND.to_bits());
+    let scale = f32::from_bits(n_int.wrapping_add(127).wrapping_shl(23));
+    y * scale
+}
 
 /// Per-pixel blend quantities of one splat, shared with the backward pass so both see the
 /// same floats.
@@ -25,16 +58,23 @@ pub(super) struct PixelAlpha {
     pub dy: f32,
 }
 
+/// sigma at a pixel, from the row terms c dy^2 and b dy. The forward lanes evaluate exactly
+/// this expression.
+#[inline(always)]
+pub(super) fn sigma_at(a: f32, dx: f32, c_dy2: f32, b_dy: f32) -> f32 {
+    0.5 * (a * dx * dx + c_dy2) + dx * b_dy
+}
+
 #[inline(always)]
 pub(super) fn pixel_alpha(s: &Splat, px: f32, py: f32) -> Option<PixelAlpha> {
     let dx = s.xy[0] - px;
     let dy = s.xy[1] - py;
     let [a, b, c] = s.conic;
-    let sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
-    if sigma < 0.0 {
+    let sigma = sigma_at(a, dx, c * dy * dy, b * dy);
+    if sigma.is_nan() || sigma < 0.0 {
         return None;
     }
-    let vis = (-sigma).exp();
+    let vis = exp_neg(-sigma);
     let raw = s.opacity * vis;
     let alpha = raw.min(ALPHA_MAX);
     if alpha < ALPHA_MIN {
@@ -53,15 +93,16 @@ pub(super) fn pixel_alpha(s: &Splat, px: f32, py: f32) -> Option<PixelAlpha> {
 /// the per-pixel alpha test still decides.
 const SPAN_SLACK: f32 = 0.01;
 
-/// The pixels of a tile where a splat can reach alpha >= 1/255: the ellipse
-/// q(d) <= qmax = 2 ln(255 opacity), visited row by row. Forward and backward share it, so
-/// both visit exactly the same pixels.
+/// The pixels of a tile a splat visits: the tile's part of the bounding box of the ellipse
+/// q(d) <= qmax = 2 ln(255 opacity), outside which alpha < 1/255. The per-pixel alpha test
+/// decides inside the box. Forward and backward share it, so both visit the same pixels.
+///
+/// A box, not the exact row spans of the ellipse: a span costs a square root per row, more
+/// than the SIMD lanes it would save on splats a few pixels wide.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct PixelFootprint {
-    /// b^2 - a c (< 0) and a * qmax: the row discriminant is k dy^2 + aq.
-    k: f32,
-    aq: f32,
-    inv_a: f32,
+    pub x0: u32,
+    pub x1: u32,
     pub y0: u32,
     pub y1: u32,
 }
@@ -70,33 +111,13 @@ impl PixelFootprint {
     #[inline(always)]
     pub fn new(s: &Splat, rect: &TileRect) -> Self {
         let [a, b, c] = s.conic;
-        let k = b * b - a * c;
-        let aq = a * s.qmax;
-        let half = (aq / -k).sqrt();
-        let (y0, y1) = pixel_span(s.xy[1] - half, s.xy[1] + half, rect.y0, rect.y1);
-        Self {
-            k,
-            aq,
-            inv_a: 1.0 / a,
-            y0,
-            y1,
-        }
-    }
-
-    /// Pixel columns [x0, x1) of row `y` inside the footprint.
-    #[inline(always)]
-    pub fn row(&self, s: &Splat, y: u32, rect: &TileRect) -> (u32, u32) {
-        let b = s.conic[1];
-        let dy = s.xy[1] - (y as f32 + 0.5);
-        let disc = self.k * dy * dy + self.aq;
-        if disc.is_nan() || disc < 0.0 {
-            return (0, 0);
-        }
-        let root = disc.sqrt();
-        // dx = x_splat - x_pixel lies in [(-b dy - root) / a, (-b dy + root) / a].
-        let lo = s.xy[0] - (root - b * dy) * self.inv_a;
-        let hi = s.xy[0] + (root + b * dy) * self.inv_a;
-        pixel_span(lo, hi, rect.x0, rect.x1)
+        // Half-sizes of the box: sqrt(qmax Sigma_xx) and sqrt(qmax Sigma_yy), with
+        // Sigma = conic^-1 = [[c, -b], [-b, a]] / (a c - b^2).
+        let q_det = s.qmax / (a * c - b * b);
+        let (hx, hy) = ((c * q_det).sqrt(), (a * q_det).sqrt());
+        let (x0, x1) = pixel_span(s.xy[0] - hx, s.xy[0] + hx, rect.x0, rect.x1);
+        let (y0, y1) = pixel_span(s.xy[1] - hy, s.xy[1] + hy, rect.y0, rect.y1);
+        Self { x0, x1, y0, y1 }
     }
 }
 
@@ -142,11 +163,9 @@ impl TileRect {
     }
 }
 
-/// Tile-major blend results of one camera.
+/// Blend results of one camera that the backward pass needs.
 #[derive(Debug, Clone, Default)]
 pub struct Blended {
-    /// Accumulated features, [tile][pixel in tile][channel].
-    pub features: Vec<f32>,
     /// Final transmittance per pixel, [tile][pixel in tile]; 1 for padding pixels.
     pub t_final: Vec<f32>,
     /// Number of entries of the tile list the pixel went through up to its last
@@ -158,7 +177,11 @@ pub struct Blended {
     pub packed_features: Vec<f32>,
 }
 
-/// Blends every tile of one camera.
+/// Pixels per lane group: eight f32 lanes fill an AVX2 register (two SSE2 registers).
+pub(super) const LANES: usize = 8;
+
+/// Blends every tile of one camera into the row-major image `render` [H, W, ch] and
+/// `alpha` [H, W] (both zero on entry).
 pub fn blend(
     splats: &[Splat],
     features: &[f32],
@@ -167,10 +190,11 @@ pub fn blend(
     width: u32,
     height: u32,
     t_min: f32,
+    render: &mut [f32],
+    alpha: &mut [f32],
 ) -> Blended {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
-    let n_tiles = bins.n_tiles();
     let packed_splats: Vec<Splat> = bins
         .isect_gid
         .par_iter()
@@ -182,87 +206,142 @@ pub fn blend(
         .zip(bins.isect_gid.par_iter())
         .for_each(|(f, &g)| f.copy_from_slice(&features[g as usize * ch..(g as usize + 1) * ch]));
     let mut out = Blended {
-        features: vec![0.0; n_tiles * tp * ch],
-        t_final: vec![1.0; n_tiles * tp],
-        last: vec![0; n_tiles * tp],
+        t_final: vec![1.0; bins.n_tiles() * tp],
+        last: vec![0; bins.n_tiles() * tp],
         packed_splats,
         packed_features,
     };
     let (tile_splats, tile_features) = (&out.packed_splats, &out.packed_features);
-    out.features
+    // Tiles are the unit of parallel work (rows of tiles balance badly: a plant fills the
+    // middle of the image). Each tile writes its own slices; `to_image` assembles the image.
+    let mut tile_feat = vec![0.0f32; bins.n_tiles() * tp * ch];
+    tile_feat
         .par_chunks_mut(tp * ch)
         .zip(out.t_final.par_chunks_mut(tp))
         .zip(out.last.par_chunks_mut(tp))
         .enumerate()
-        .for_each(|(t, ((feat, trans), last))| {
-            let rect = TileRect::new(t, bins, width, height);
-            let range = bins.tile_range(t);
-            let feats = &tile_features[range.start * ch..range.end * ch];
-            let splats = &tile_splats[range];
-            // Fixed channel counts get unrolled inner loops; 0 means "use ch".
-            let run = match ch {
-                1 => blend_tile::<1>,
-                3 => blend_tile::<3>,
-                4 => blend_tile::<4>,
-                _ => blend_tile::<0>,
-            };
-            run(splats, feats, ch, rect, ts, t_min, feat, trans, last);
-        });
+        .with_max_len(4)
+        .for_each_init(
+            || TileScratch::new(ts, ch),
+            |scratch, (t, ((feat, t_final), last))| {
+                let range = bins.tile_range(t);
+                if range.is_empty() {
+                    return;
+                }
+                let rect = TileRect::new(t, bins, width, height);
+                let tile = TileInput {
+                    splats: &tile_splats[range.clone()],
+                    features: &tile_features[range.start * ch..range.end * ch],
+                    rect,
+                    t_min,
+                };
+                scratch.reset(&rect);
+                blend_tile(&tile, ch, scratch);
+                scratch.write(&rect, ch, feat, t_final, last);
+            },
+        );
+    to_image(
+        &tile_feat,
+        &out.t_final,
+        ch,
+        bins,
+        width,
+        height,
+        render,
+        alpha,
+    );
     out
 }
 
-fn blend_tile<const CH: usize>(
-    splats: &[Splat],
-    features: &[f32],
-    ch: usize,
-    rect: TileRect,
+/// What one tile blends.
+pub(super) struct TileInput<'a> {
+    pub splats: &'a [Splat],
+    pub features: &'a [f32],
+    pub rect: TileRect,
+    pub t_min: f32,
+}
+
+/// Per-tile pixel state, structure of arrays with rows padded to whole lane groups.
+pub(super) struct TileScratch {
+    pub stride: usize,
     ts: usize,
-    t_min: f32,
-    feat: &mut [f32],
-    trans: &mut [f32],
-    last: &mut [u32],
-) {
-    let ch = if CH == 0 { ch } else { CH };
-    let mut done = vec![false; ts * ts];
-    let mut active = ((rect.x1 - rect.x0) * (rect.y1 - rect.y0)) as usize;
-    for (k, (s, f)) in splats.iter().zip(features.chunks_exact(ch)).enumerate() {
-        let fp = PixelFootprint::new(s, &rect);
-        for y in fp.y0..fp.y1 {
-            let row = (y - rect.y0) as usize * ts;
-            let py = y as f32 + 0.5;
-            let (xa, xb) = fp.row(s, y, &rect);
-            for x in xa..xb {
-                let l = row + (x - rect.x0) as usize;
-                if done[l] {
-                    continue;
-                }
-                let Some(pa) = pixel_alpha(s, x as f32 + 0.5, py) else {
-                    continue;
-                };
-                let t = trans[l];
-                let next_t = t * (1.0 - pa.alpha);
-                if next_t <= t_min {
-                    done[l] = true;
-                    active -= 1;
-                    continue;
-                }
-                let w = pa.alpha * t;
-                for (o, v) in feat[l * ch..(l + 1) * ch].iter_mut().zip(f) {
-                    *o += w * v;
-                }
-                trans[l] = next_t;
-                last[l] = k as u32 + 1;
-            }
+    pub trans: Vec<f32>,
+    pub last: Vec<u32>,
+    /// All ones while the pixel is blending (a SIMD mask), 0 once it stopped or if padding.
+    pub live: Vec<u32>,
+    /// Planar features: channel c of pixel l at `c * plane() + l`.
+    pub feat: Vec<f32>,
+    /// Pixel-centre x of each column of the current tile.
+    pub xs: Vec<f32>,
+    /// Pixels of the tile still blending.
+    pub active: usize,
+}
+
+impl TileScratch {
+    fn new(ts: usize, ch: usize) -> Self {
+        let stride = ts.div_ceil(LANES) * LANES;
+        let plane = stride * ts;
+        Self {
+            stride,
+            ts,
+            trans: vec![1.0; plane],
+            last: vec![0; plane],
+            live: vec![0; plane],
+            feat: vec![0.0; plane * ch],
+            xs: vec![0.0; stride],
+            active: 0,
         }
-        if active == 0 {
-            break;
+    }
+
+    pub fn plane(&self) -> usize {
+        self.stride * self.ts
+    }
+
+    fn reset(&mut self, rect: &TileRect) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        self.trans.fill(1.0);
+        self.last.fill(0);
+        self.feat.fill(0.0);
+        self.live.fill(0);
+        for row in self.live.chunks_exact_mut(self.stride).take(th) {
+            row[..tw].fill(u32::MAX);
+        }
+        for (i, x) in self.xs.iter_mut().enumerate() {
+            *x = (rect.x0 as usize + i) as f32 + 0.5;
+        }
+        self.active = tw * th;
+    }
+
+    /// Copies the tile's pixels into its slices of the tile-major buffers ([pixel][channel]
+    /// for the features).
+    fn write(
+        &self,
+        rect: &TileRect,
+        ch: usize,
+        feat: &mut [f32],
+        t_final: &mut [f32],
+        last: &mut [u32],
+    ) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        let plane = self.plane();
+        for ly in 0..th {
+            let (src, dst) = (ly * self.stride, ly * self.ts);
+            t_final[dst..dst + tw].copy_from_slice(&self.trans[src..src + tw]);
+            last[dst..dst + tw].copy_from_slice(&self.last[src..src + tw]);
+            let row = &mut feat[dst * ch..(dst + tw) * ch];
+            for (lx, px) in row.chunks_exact_mut(ch).enumerate() {
+                for (c, v) in px.iter_mut().enumerate() {
+                    *v = self.feat[c * plane + src + lx];
+                }
+            }
         }
     }
 }
 
-/// Row-major image [H, W, ch] and alpha [H, W] from tile-major buffers.
-pub fn to_image(
-    blended: &Blended,
+/// Row-major image [H, W, ch] and alpha [H, W] from the tile-major buffers.
+fn to_image(
+    tile_feat: &[f32],
+    t_final: &[f32],
     ch: usize,
     bins: &TileBins,
     width: u32,
@@ -282,17 +361,130 @@ pub fn to_image(
             let tile_row = (y / ts) * bins.tiles_x as usize;
             let ly = (y % ts) * ts;
             // Each tile's part of an image row is contiguous in the tile-major buffers: one
-            // copy per tile, not a (libc memmove) call per pixel.
+            // copy per tile, not a call per pixel.
             for x0 in (0..w).step_by(ts) {
                 let n = ts.min(w - x0);
                 let i = (tile_row + x0 / ts) * tp + ly;
-                rrow[x0 * ch..(x0 + n) * ch]
-                    .copy_from_slice(&blended.features[i * ch..(i + n) * ch]);
-                for (a, t) in arow[x0..x0 + n].iter_mut().zip(&blended.t_final[i..i + n]) {
+                rrow[x0 * ch..(x0 + n) * ch].copy_from_slice(&tile_feat[i * ch..(i + n) * ch]);
+                for (a, t) in arow[x0..x0 + n].iter_mut().zip(&t_final[i..i + n]) {
                     *a = 1.0 - t;
                 }
             }
         });
+}
+
+fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        super::blend_avx2::blend_tile(tile, ch, scratch);
+        return;
+    }
+    blend_tile_scalar(tile, ch, scratch);
+}
+
+/// One group of `LANES` adjacent pixels of a footprint row, with the splat's constants.
+pub(super) struct Group {
+    /// Index of the group's first pixel in the scratch arrays, and its tile column.
+    pub base: usize,
+    pub gx: usize,
+    /// Columns whose centre lies strictly between these belong to the footprint row.
+    pub xlo: f32,
+    pub xhi: f32,
+    pub sx: f32,
+    pub a: f32,
+    pub c_dy2: f32,
+    pub b_dy: f32,
+    pub opacity: f32,
+    /// 1 + the splat's position in the tile list (the value `last` takes).
+    pub k1: u32,
+}
+
+/// Walks the tile's splats front to back and calls `group(g, features, scratch)` for each
+/// lane group of each footprint row; `group` returns how many pixels stopped. Ends when
+/// every pixel of the tile has stopped.
+#[inline(always)]
+pub(super) fn for_each_group(
+    tile: &TileInput,
+    ch: usize,
+    scratch: &mut TileScratch,
+    mut group: impl FnMut(&Group, &[f32], &mut TileScratch) -> u32,
+) {
+    let rect = &tile.rect;
+    let stride = scratch.stride;
+    for (k, (s, f)) in tile
+        .splats
+        .iter()
+        .zip(tile.features.chunks_exact(ch))
+        .enumerate()
+    {
+        let fp = PixelFootprint::new(s, rect);
+        let [a, b, c] = s.conic;
+        let mut stopped = 0u32;
+        if fp.x0 >= fp.x1 {
+            continue;
+        }
+        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
+        let (g0, g1) = (lx0 / LANES, lx1.div_ceil(LANES));
+        for y in fp.y0..fp.y1 {
+            let dy = s.xy[1] - (y as f32 + 0.5);
+            let row = (y - rect.y0) as usize * stride;
+            for gi in g0..g1 {
+                let g = Group {
+                    base: row + gi * LANES,
+                    gx: gi * LANES,
+                    // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
+                    xlo: fp.x0 as f32,
+                    xhi: fp.x1 as f32,
+                    sx: s.xy[0],
+                    a,
+                    c_dy2: c * dy * dy,
+                    b_dy: b * dy,
+                    opacity: s.opacity,
+                    k1: k as u32 + 1,
+                };
+                stopped += group(&g, f, scratch);
+            }
+        }
+        scratch.active -= stopped as usize;
+        if scratch.active == 0 {
+            break;
+        }
+    }
+}
+
+/// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
+pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    let plane = scratch.plane();
+    let t_min = tile.t_min;
+    for_each_group(tile, ch, scratch, |g, f, sc| {
+        let mut stopped = 0;
+        for i in 0..LANES {
+            let l = g.base + i;
+            let x = sc.xs[g.gx + i];
+            let inside = (x > g.xlo) & (x < g.xhi) & (sc.live[l] != 0);
+            let dx = g.sx - x;
+            let sigma = sigma_at(g.a, dx, g.c_dy2, g.b_dy);
+            let alpha = (g.opacity * exp_neg(-sigma)).min(ALPHA_MAX);
+            let ok = inside & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+            let t = sc.trans[l];
+            let next_t = t * (1.0 - alpha);
+            let stop = ok & (next_t <= t_min);
+            let add = ok & !stop;
+            let weight = if add { alpha * t } else { 0.0 };
+            for (c, &fc) in f.iter().enumerate() {
+                sc.feat[c * plane + l] += weight * fc;
+            }
+            if add {
+                sc.trans[l] = next_t;
+                sc.last[l] = g.k1;
+            }
+            if stop {
+                sc.live[l] = 0;
+                stopped += 1;
+            }
+        }
+        stopped
+    });
 }
 
 #[cfg(test)]

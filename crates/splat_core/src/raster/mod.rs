@@ -12,6 +12,8 @@
 //! (O(pixels)). Nothing per (pixel, splat) pair is stored.
 
 pub mod backward;
+#[cfg(target_arch = "x86_64")]
+mod blend_avx2;
 pub mod camera;
 pub mod features;
 pub mod forward;
@@ -238,13 +240,14 @@ pub fn forward(
             opts.tile_ellipse,
         )?;
         let t3 = Instant::now();
-        let blended = forward::blend(&splats, &feats, ch, &bins, width, height, opts.t_min);
-        forward::to_image(
-            &blended,
+        let blended = forward::blend(
+            &splats,
+            &feats,
             ch,
             &bins,
             width,
             height,
+            opts.t_min,
             &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &mut out.alpha[ci * pixels..(ci + 1) * pixels],
         );

@@ -1,0 +1,144 @@
+//! The blending lane group with AVX2 intrinsics: eight pixels per instruction.
+//!
+//! Every operation mirrors `forward::blend_tile_scalar` and `forward::exp_neg` one to one
+//! (same operands, same order, no fused multiply-add; `max`/`min` with the constant second
+//! so NaN lanes take the constant like the scalar comparisons), so this path and the scalar
+//! one produce the same bits. The only unsafe code is the unaligned loads and stores of
+//! eight-element slices whose bounds are checked by slicing first.
+#![allow(unsafe_code)]
+
+use std::arch::x86_64::*;
+
+use super::forward::{for_each_group, Group, TileInput, TileScratch, LANES};
+use super::{ALPHA_MAX, ALPHA_MIN};
+
+/// Blends one tile; the caller checked that the CPU has AVX2.
+pub(super) fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    debug_assert!(std::arch::is_x86_feature_detected!("avx2"));
+    // SAFETY: `forward::blend_tile` calls this only after detecting AVX2.
+    unsafe { blend_tile_avx2(tile, ch, scratch) }
+}
+
+#[inline(always)]
+fn load(v: &[f32]) -> __m256 {
+    let v = &v[..LANES];
+    // SAFETY: `v` holds 8 floats (sliced above); loadu has no alignment requirement.
+    unsafe { _mm256_loadu_ps(v.as_ptr()) }
+}
+
+#[inline(always)]
+fn store(v: &mut [f32], x: __m256) {
+    let v = &mut v[..LANES];
+    // SAFETY: as in `load`.
+    unsafe { _mm256_storeu_ps(v.as_mut_ptr(), x) }
+}
+
+#[inline(always)]
+fn load_u32(v: &[u32]) -> __m256i {
+    let v = &v[..LANES];
+    // SAFETY: 8 u32 = 32 bytes; loadu has no alignment requirement.
+    unsafe { _mm256_loadu_si256(v.as_ptr().cast()) }
+}
+
+#[inline(always)]
+fn store_u32(v: &mut [u32], x: __m256i) {
+    let v = &mut v[..LANES];
+    // SAFETY: as in `load_u32`.
+    unsafe { _mm256_storeu_si256(v.as_mut_ptr().cast(), x) }
+}
+
+/// `forward::exp_neg` on eight lanes.
+#[inline(always)]
+fn exp_neg(x: __m256) -> __m256 {
+    // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
+    unsafe {
+        let s = _mm256_set1_ps;
+        // maxps/minps return the second operand when a lane is NaN, like `if x > c`.
+        let x = _mm256_max_ps(x, s(-87.0));
+        let x = _mm256_min_ps(x, s(0.0));
+        const ROUND: f32 = 12_582_912.0;
+        let t = _mm256_add_ps(_mm256_mul_ps(x, s(std::f32::consts::LOG2_E)), s(ROUND));
+        let n = _mm256_sub_ps(t, s(ROUND));
+        let r = _mm256_sub_ps(
+            _mm256_sub_ps(x, _mm256_mul_ps(n, s(0.693_359_4))),
+            _mm256_mul_ps(n, s(-2.121_944_4e-4)),
+        );
+        let mut p = s(1.987_569_2e-4);
+        for c in [
+            1.398_199_9e-3,
+            8.333_452e-3,
+            4.166_579_6e-2,
+            1.666_666_5e-1,
+            0.5,
+        ] {
+            p = _mm256_add_ps(_mm256_mul_ps(p, r), s(c));
+        }
+        let y = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(p, r), r), r),
+            s(1.0),
+        );
+        let n_int = _mm256_sub_epi32(
+            _mm256_castps_si256(t),
+            _mm256_set1_epi32(ROUND.to_bits() as i32),
+        );
+        let scale = _mm256_slli_epi32(_mm256_add_epi32(n_int, _mm256_set1_epi32(127)), 23);
+        _mm256_mul_ps(y, _mm256_castsi256_ps(scale))
+    }
+}
+
+#[target_feature(enable = "avx2,avx512f,avx512vl")]
+fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    let plane = scratch.plane();
+    let s = _mm256_set1_ps;
+    let t_min = s(tile.t_min);
+    for_each_group(tile, ch, scratch, |g: &Group, f, sc| {
+        let x = load(&sc.xs[g.gx..]);
+        let live = _mm256_castsi256_ps(load_u32(&sc.live[g.base..]));
+        let inside = _mm256_and_ps(
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(g.xlo)),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(g.xhi)),
+            ),
+            live,
+        );
+        let dx = _mm256_sub_ps(s(g.sx), x);
+        // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
+        let sigma = _mm256_add_ps(
+            _mm256_mul_ps(
+                s(0.5),
+                _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(g.a), dx), dx), s(g.c_dy2)),
+            ),
+            _mm256_mul_ps(dx, s(g.b_dy)),
+        );
+        let neg_sigma = _mm256_xor_ps(sigma, s(-0.0));
+        let alpha = _mm256_min_ps(
+            _mm256_mul_ps(s(g.opacity), exp_neg(neg_sigma)),
+            s(ALPHA_MAX),
+        );
+        let ok = _mm256_and_ps(
+            _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, s(0.0))),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
+        );
+        let t = load(&sc.trans[g.base..]);
+        let next_t = _mm256_mul_ps(t, _mm256_sub_ps(s(1.0), alpha));
+        let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, t_min));
+        let add = _mm256_andnot_ps(stop, ok);
+        let weight = _mm256_and_ps(add, _mm256_mul_ps(alpha, t));
+        for (c, &fc) in f.iter().enumerate() {
+            let o = &mut sc.feat[c * plane + g.base..];
+            store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight, s(fc))));
+        }
+        store(&mut sc.trans[g.base..], _mm256_blendv_ps(t, next_t, add));
+        let last = _mm256_castsi256_ps(load_u32(&sc.last[g.base..]));
+        let k1 = _mm256_castsi256_ps(_mm256_set1_epi32(g.k1 as i32));
+        store_u32(
+            &mut sc.last[g.base..],
+            _mm256_castps_si256(_mm256_blendv_ps(last, k1, add)),
+        );
+        store_u32(
+            &mut sc.live[g.base..],
+            _mm256_castps_si256(_mm256_andnot_ps(stop, live)),
+        );
+        (_mm256_movemask_ps(stop) as u32).count_ones()
+    });
+}
