@@ -92,8 +92,12 @@ fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
     let s = _mm256_set1_ps;
     let t_min = s(tile.t_min);
     for_each_group(tile, ch, scratch, |g: &Group, f, sc| {
-        let x = load(&sc.xs[g.gx..]);
         let live = _mm256_castsi256_ps(load_u32(&sc.live[g.base..]));
+        // Pixels that already stopped cost nothing more.
+        if _mm256_movemask_ps(live) == 0 {
+            return 0;
+        }
+        let x = load(&sc.xs[g.gx..]);
         let inside = _mm256_and_ps(
             _mm256_and_ps(
                 _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(g.xlo)),

@@ -457,6 +457,10 @@ pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileS
     let plane = scratch.plane();
     let t_min = tile.t_min;
     for_each_group(tile, ch, scratch, |g, f, sc| {
+        // Pixels that already stopped cost nothing more.
+        if sc.live[g.base..g.base + LANES].iter().all(|&l| l == 0) {
+            return 0;
+        }
         let mut stopped = 0;
         for i in 0..LANES {
             let l = g.base + i;

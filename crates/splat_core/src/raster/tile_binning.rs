@@ -67,33 +67,54 @@ fn tile_box(s: &Splat, tile_size: u32, tiles_x: u32, tiles_y: u32) -> [u32; 4] {
     ]
 }
 
-/// Minimum over [x0, x1] x [y0, y1] of q(d) = a dx^2 + 2 b dx dy + c dy^2 (a, c > 0).
-fn min_quadratic_on_rect(conic: [f32; 3], x0: f32, x1: f32, y0: f32, y1: f32) -> f32 {
-    let [a, b, c] = conic;
-    if x0 <= 0.0 && 0.0 <= x1 && y0 <= 0.0 && 0.0 <= y1 {
-        return 0.0;
-    }
-    let q = |x: f32, y: f32| a * x * x + 2.0 * b * x * y + c * y * y;
-    // The minimum of a convex function over a rectangle not containing its minimiser lies
-    // on the boundary: minimise along each edge (closed form, clamped).
-    let (ba, bc) = (b / a, b / c);
-    let on_vertical = |x: f32| q(x, (-bc * x).clamp(y0, y1));
-    let on_horizontal = |y: f32| q((-ba * y).clamp(x0, x1), y);
-    on_vertical(x0)
-        .min(on_vertical(x1))
-        .min(on_horizontal(y0))
-        .min(on_horizontal(y1))
+/// The footprint ellipse q(d) = a dx^2 + 2 b dx dy + c dy^2 <= extent^2 (d = pixel - centre),
+/// cut into horizontal bands: where does a band of pixel-centre rows meet it in x?
+struct EllipseBands {
+    a: f32,
+    b: f32,
+    /// a * E and a c - b^2, for the row discriminant a E - det dy^2.
+    a_e: f32,
+    det: f32,
+    /// Half-height of the ellipse, and the dy of its leftmost (dy_left) and rightmost
+    /// (-dy_left) points.
+    half_y: f32,
+    dy_left: f32,
 }
 
-/// Whether the footprint ellipse q(d) <= extent^2 reaches a pixel centre of the tile.
-fn ellipse_touches_tile(s: &Splat, tx: u32, ty: u32, tile_size: u32) -> bool {
-    let ts = tile_size as f32;
-    // Pixel centres of the tile, relative to the splat centre.
-    let x0 = tx as f32 * ts + 0.5 - s.xy[0];
-    let y0 = ty as f32 * ts + 0.5 - s.xy[1];
-    let m = min_quadratic_on_rect(s.conic, x0, x0 + ts - 1.0, y0, y0 + ts - 1.0);
-    // Small slack so rounding never drops a tile the exact test would keep.
-    m <= s.extent * s.extent * (1.0 + 1e-4) + 1e-4
+impl EllipseBands {
+    fn new(s: &Splat) -> Self {
+        let [a, b, c] = s.conic;
+        // Small slack so rounding never drops a tile the exact test would keep.
+        let e = s.extent * s.extent * (1.0 + 1e-4) + 1e-4;
+        let det = a * c - b * b;
+        let half_x = (c * e / det).sqrt();
+        Self {
+            a,
+            b,
+            a_e: a * e,
+            det,
+            half_y: (a * e / det).sqrt(),
+            dy_left: b * half_x / c,
+        }
+    }
+
+    /// dx range of the ellipse over rows dy in [d0, d1] (None if it misses the band, NaN
+    /// bounds if the splat is degenerate). The left boundary of an ellipse is convex in
+    /// dy, so its minimum over the band is at the leftmost point clamped into the band;
+    /// likewise the right boundary's maximum.
+    #[inline(always)]
+    fn dx_range(&self, d0: f32, d1: f32) -> Option<(f32, f32)> {
+        let (d0, d1) = (d0.max(-self.half_y), d1.min(self.half_y));
+        if d0 > d1 {
+            return None;
+        }
+        let root = |dy: f32| (self.a_e - self.det * dy * dy).max(0.0).sqrt();
+        let dy = self.dy_left.clamp(d0, d1);
+        let lo = (-self.b * dy - root(dy)) / self.a;
+        let dy = (-self.dy_left).clamp(d0, d1);
+        let hi = (-self.b * dy + root(dy)) / self.a;
+        Some((lo, hi))
+    }
 }
 
 /// Calls `f(tile_id)` for every tile the splat touches, in row-major tile order.
@@ -107,12 +128,34 @@ fn for_each_tile(
 ) {
     let [x0, x1, y0, y1] = tile_box(s, tile_size, tiles_x, tiles_y);
     // A box within one tile needs no test (keeping that tile is at worst conservative).
-    let ellipse = ellipse && (x1 - x0) * (y1 - y0) > 1;
-    for ty in y0..y1 {
-        for tx in x0..x1 {
-            if !ellipse || ellipse_touches_tile(s, tx, ty, tile_size) {
+    if !ellipse || (x1 - x0) * (y1 - y0) <= 1 {
+        for ty in y0..y1 {
+            for tx in x0..x1 {
                 f(ty * tiles_x + tx);
             }
+        }
+        return;
+    }
+    let bands = EllipseBands::new(s);
+    let ts = tile_size as f32;
+    for ty in y0..y1 {
+        // Pixel centres of the tile row, relative to the splat centre.
+        let d0 = ty as f32 * ts + 0.5 - s.xy[1];
+        let Some((lo, hi)) = bands.dx_range(d0, d0 + ts - 1.0) else {
+            continue;
+        };
+        // Tile tx has pixel-centre columns tx ts + 0.5 ..= tx ts + ts - 0.5; keep those that
+        // reach [x + lo, x + hi]. Values are clipped to the box before rounding (so NaN
+        // keeps the whole box row).
+        let (first, last) = ((s.xy[0] + lo - ts + 0.5) / ts, (s.xy[0] + hi - 0.5) / ts);
+        if first > x1 as f32 || last < x0 as f32 {
+            continue;
+        }
+        let first = first.max(x0 as f32).min(x1 as f32);
+        let last = last.min(x1 as f32 - 1.0).max(x0 as f32);
+        let tx0 = first as u32 + ((first as u32 as f32) < first) as u32;
+        for tx in tx0..last as u32 + 1 {
+            f(ty * tiles_x + tx);
         }
     }
 }
@@ -150,46 +193,40 @@ pub fn bin(
         .par_iter()
         .map(|&g| splats[g as usize])
         .collect();
-    let counts: Vec<u32> = sorted
-        .par_iter()
-        .map(|s| {
-            let mut n = 0u32;
-            for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |_| n += 1);
-            n
+    // One pass: each fixed chunk of splats (fixed, so the result does not depend on the
+    // thread count) lists its tiles and per-splat counts; the chunks are then concatenated.
+    const CHUNK: usize = 2048;
+    let chunks: Vec<(Vec<u32>, Vec<u32>)> = sorted
+        .par_chunks(CHUNK)
+        .map(|chunk| {
+            let mut counts = Vec::with_capacity(chunk.len());
+            let mut tiles = Vec::with_capacity(chunk.len() * 2);
+            for s in chunk {
+                let before = tiles.len();
+                for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| tiles.push(t));
+                counts.push((tiles.len() - before) as u32);
+            }
+            (counts, tiles)
         })
         .collect();
-    let mut gauss_offsets = Vec::with_capacity(counts.len() + 1);
-    let mut total: u64 = 0;
+    let total: usize = chunks.iter().map(|(_, t)| t.len()).sum();
+    if total > u32::MAX as usize {
+        return Err(CoreError::input(
+            "more than 4 billion tile intersections: use fewer Gaussians or a smaller image",
+        ));
+    }
+    let mut gauss_offsets = Vec::with_capacity(sorted.len() + 1);
+    let mut isect_tile = Vec::with_capacity(total);
     gauss_offsets.push(0u32);
-    for &c in &counts {
-        total += c as u64;
-        if total > u32::MAX as u64 {
-            return Err(CoreError::input(
-                "more than 4 billion tile intersections: use fewer Gaussians or a smaller image",
-            ));
-        }
-        gauss_offsets.push(total as u32);
+    for (counts, tiles) in &chunks {
+        let mut at = isect_tile.len() as u32;
+        gauss_offsets.extend(counts.iter().map(|&c| {
+            at += c;
+            at
+        }));
+        isect_tile.extend_from_slice(tiles);
     }
-
-    // Depth-major tile ids: each splat fills its own slice.
-    let mut isect_tile = vec![0u32; total as usize];
-    let mut slices: Vec<&mut [u32]> = Vec::with_capacity(counts.len());
-    let mut rest = isect_tile.as_mut_slice();
-    for &c in &counts {
-        let (head, tail) = rest.split_at_mut(c as usize);
-        slices.push(head);
-        rest = tail;
-    }
-    slices
-        .into_par_iter()
-        .zip(sorted.par_iter())
-        .for_each(|(out, s)| {
-            let mut i = 0;
-            for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| {
-                out[i] = t;
-                i += 1;
-            });
-        });
+    drop(chunks);
 
     // Stable counting sort by tile.
     let mut tile_offsets = vec![0u32; n_tiles + 1];
@@ -290,20 +327,61 @@ mod tests {
     }
 
     #[test]
-    fn min_quadratic_matches_brute_force() {
-        let conic = [0.7f32, -0.4, 0.5];
-        for &(x0, y0) in &[(-3.0f32, 2.0f32), (1.0, 1.0), (-10.0, -1.0), (2.0, -12.0)] {
-            let (x1, y1) = (x0 + 5.0, y0 + 5.0);
-            let m = min_quadratic_on_rect(conic, x0, x1, y0, y1);
-            let mut brute = f32::INFINITY;
-            for i in 0..=500 {
-                for j in 0..=500 {
-                    let x = x0 + (x1 - x0) * i as f32 / 500.0;
-                    let y = y0 + (y1 - y0) * j as f32 / 500.0;
-                    brute = brute.min(conic[0] * x * x + 2.0 * conic[1] * x * y + conic[2] * y * y);
+    fn ellipse_tiles_match_brute_force() {
+        // Random ellipses: every tile with a pixel centre inside the ellipse is kept, and no
+        // kept tile is farther than the slack from the ellipse (dense sampling of the tile's
+        // pixel-centre rectangle).
+        let mut seed = 7u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (ts, tiles) = (8u32, 12u32);
+        for _ in 0..300 {
+            let (s1, s2) = (0.5 + 12.0 * rnd(), 0.5 + 12.0 * rnd());
+            let th = std::f32::consts::PI * rnd();
+            let (c, s) = (th.cos(), th.sin());
+            let (ia, ib) = (1.0 / (s1 * s1), 1.0 / (s2 * s2));
+            let conic = [
+                c * c * ia + s * s * ib,
+                c * s * (ia - ib),
+                s * s * ia + c * c * ib,
+            ];
+            let e = 3.0f32;
+            let sxx = conic[2] / (conic[0] * conic[2] - conic[1] * conic[1]);
+            let syy = conic[0] / (conic[0] * conic[2] - conic[1] * conic[1]);
+            let (x, y) = (96.0 * rnd(), 96.0 * rnd());
+            let mut sp = splat(x, y, 0.0, 1.0, conic, e);
+            sp.radius = [(e * sxx.sqrt()).ceil(), (e * syy.sqrt()).ceil()];
+            let mut kept = vec![false; (tiles * tiles) as usize];
+            for_each_tile(&sp, ts, tiles, tiles, true, |t| kept[t as usize] = true);
+            let q = |dx: f32, dy: f32| {
+                conic[0] * dx * dx + 2.0 * conic[1] * dx * dy + conic[2] * dy * dy
+            };
+            for t in 0..tiles * tiles {
+                let (tx, ty) = (
+                    (t % tiles) as f32 * ts as f32,
+                    (t / tiles) as f32 * ts as f32,
+                );
+                let (mut inside_pixel, mut near) = (false, false);
+                for i in 0..ts {
+                    for j in 0..ts {
+                        let (px, py) = (tx + i as f32 + 0.5, ty + j as f32 + 0.5);
+                        inside_pixel |= q(px - x, py - y) <= e * e * 0.999;
+                    }
                 }
+                for i in 0..=20 * (ts - 1) {
+                    for j in 0..=20 * (ts - 1) {
+                        let (px, py) = (tx + 0.5 + i as f32 / 20.0, ty + 0.5 + j as f32 / 20.0);
+                        near |= q(px - x, py - y) <= e * e * 1.01 + 0.01;
+                    }
+                }
+                let k = kept[t as usize];
+                assert!(!inside_pixel || k, "tile {t} dropped");
+                assert!(!k || near, "tile {t} kept but far");
             }
-            assert!(m <= brute + 1e-4 && m >= brute - 1e-2, "{m} vs {brute}");
         }
     }
 }
