@@ -9,7 +9,7 @@
 
 use std::arch::x86_64::*;
 
-use super::forward::{for_each_group, Group, TileInput, TileScratch, LANES};
+use super::forward::{for_each_splat, SplatInTile, TileInput, TileScratch, LANES};
 use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
@@ -86,63 +86,65 @@ fn exp_neg(x: __m256) -> __m256 {
     }
 }
 
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
+#[target_feature(enable = "avx2")]
 fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
-    let plane = scratch.plane();
+    let (plane, stride) = (scratch.plane(), scratch.stride);
     let s = _mm256_set1_ps;
     let t_min = s(tile.t_min);
-    for_each_group(tile, ch, scratch, |g: &Group, f, sc| {
-        let live = _mm256_castsi256_ps(load_u32(&sc.live[g.base..]));
-        // Pixels that already stopped cost nothing more.
-        if _mm256_movemask_ps(live) == 0 {
-            return 0;
+    for_each_splat(tile, ch, scratch, |sp: &SplatInTile, sc| {
+        let [a, _, _] = sp.s.conic;
+        let (opacity, k1) = (s(sp.s.opacity), _mm256_set1_epi32(sp.k1 as i32));
+        let mut stopped = 0;
+        for gi in sp.groups.clone() {
+            // Per column group: which lanes are footprint columns, dx and a dx^2.
+            let x = load(&sc.xs[gi * LANES..]);
+            let cols = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(sp.xlo)),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(sp.xhi)),
+            );
+            let dx = _mm256_sub_ps(s(sp.s.xy[0]), x);
+            let a_dx2 = _mm256_mul_ps(_mm256_mul_ps(s(a), dx), dx);
+            for ly in sp.rows.clone() {
+                let base = ly * stride + gi * LANES;
+                let live = _mm256_castsi256_ps(load_u32(&sc.live[base..]));
+                let inside = _mm256_and_ps(cols, live);
+                // Pixels that already stopped cost nothing more.
+                if _mm256_movemask_ps(inside) == 0 {
+                    continue;
+                }
+                // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
+                let sigma = _mm256_add_ps(
+                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.row_c[ly]))),
+                    _mm256_mul_ps(dx, s(sc.row_b[ly])),
+                );
+                let neg_sigma = _mm256_xor_ps(sigma, s(-0.0));
+                let alpha = _mm256_min_ps(_mm256_mul_ps(opacity, exp_neg(neg_sigma)), s(ALPHA_MAX));
+                let ok = _mm256_and_ps(
+                    _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, s(0.0))),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
+                );
+                let t = load(&sc.trans[base..]);
+                let next_t = _mm256_mul_ps(t, _mm256_sub_ps(s(1.0), alpha));
+                let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, t_min));
+                let add = _mm256_andnot_ps(stop, ok);
+                let weight = _mm256_and_ps(add, _mm256_mul_ps(alpha, t));
+                for (c, &fc) in sp.f.iter().enumerate() {
+                    let o = &mut sc.feat[c * plane + base..];
+                    store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight, s(fc))));
+                }
+                store(&mut sc.trans[base..], _mm256_blendv_ps(t, next_t, add));
+                let last = _mm256_castsi256_ps(load_u32(&sc.last[base..]));
+                store_u32(
+                    &mut sc.last[base..],
+                    _mm256_castps_si256(_mm256_blendv_ps(last, _mm256_castsi256_ps(k1), add)),
+                );
+                store_u32(
+                    &mut sc.live[base..],
+                    _mm256_castps_si256(_mm256_andnot_ps(stop, live)),
+                );
+                stopped += (_mm256_movemask_ps(stop) as u32).count_ones();
+            }
         }
-        let x = load(&sc.xs[g.gx..]);
-        let inside = _mm256_and_ps(
-            _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(g.xlo)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(g.xhi)),
-            ),
-            live,
-        );
-        let dx = _mm256_sub_ps(s(g.sx), x);
-        // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
-        let sigma = _mm256_add_ps(
-            _mm256_mul_ps(
-                s(0.5),
-                _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(s(g.a), dx), dx), s(g.c_dy2)),
-            ),
-            _mm256_mul_ps(dx, s(g.b_dy)),
-        );
-        let neg_sigma = _mm256_xor_ps(sigma, s(-0.0));
-        let alpha = _mm256_min_ps(
-            _mm256_mul_ps(s(g.opacity), exp_neg(neg_sigma)),
-            s(ALPHA_MAX),
-        );
-        let ok = _mm256_and_ps(
-            _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, s(0.0))),
-            _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
-        );
-        let t = load(&sc.trans[g.base..]);
-        let next_t = _mm256_mul_ps(t, _mm256_sub_ps(s(1.0), alpha));
-        let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, t_min));
-        let add = _mm256_andnot_ps(stop, ok);
-        let weight = _mm256_and_ps(add, _mm256_mul_ps(alpha, t));
-        for (c, &fc) in f.iter().enumerate() {
-            let o = &mut sc.feat[c * plane + g.base..];
-            store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight, s(fc))));
-        }
-        store(&mut sc.trans[g.base..], _mm256_blendv_ps(t, next_t, add));
-        let last = _mm256_castsi256_ps(load_u32(&sc.last[g.base..]));
-        let k1 = _mm256_castsi256_ps(_mm256_set1_epi32(g.k1 as i32));
-        store_u32(
-            &mut sc.last[g.base..],
-            _mm256_castps_si256(_mm256_blendv_ps(last, k1, add)),
-        );
-        store_u32(
-            &mut sc.live[g.base..],
-            _mm256_castps_si256(_mm256_andnot_ps(stop, live)),
-        );
-        (_mm256_movemask_ps(stop) as u32).count_ones()
+        stopped
     });
 }
