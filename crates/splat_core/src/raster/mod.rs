@@ -257,16 +257,17 @@ pub fn forward(
         out.profile.bin += (t3 - t2).as_secs_f64();
         out.profile.blend += (t4 - t3).as_secs_f64();
 
-        for (i, s) in splats.iter().enumerate() {
-            let o = ci * n + i;
-            if s.visible() {
-                out.radii[2 * o] = s.radius[0] as i32;
-                out.radii[2 * o + 1] = s.radius[1] as i32;
-                out.means2d[2 * o] = s.xy[0];
-                out.means2d[2 * o + 1] = s.xy[1];
-                out.depths[o] = s.depth;
-            }
-        }
+        out.radii[2 * ci * n..2 * (ci + 1) * n]
+            .par_chunks_mut(2)
+            .zip(out.means2d[2 * ci * n..2 * (ci + 1) * n].par_chunks_mut(2))
+            .zip(&mut out.depths[ci * n..(ci + 1) * n])
+            .zip(&splats)
+            .filter(|(_, s)| s.visible())
+            .for_each(|(((r, m), d), s)| {
+                r.copy_from_slice(&s.radius.map(|v| v as i32));
+                m.copy_from_slice(&s.xy);
+                *d = s.depth;
+            });
         out.n_visible.push(bins.depth_order.len() as u64);
         out.n_intersections.push(bins.n_intersections() as u64);
         per_camera.push(CameraState {

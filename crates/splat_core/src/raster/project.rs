@@ -194,11 +194,37 @@ fn intermediates(g: &Gaussian3, cam: &Camera, opts: &RasterOptions) -> Option<In
     })
 }
 
+/// 2 ln(255 opacity): where q(d) = d^T conic d exceeds it, alpha < 1/255.
+fn alpha_contour(opacity: f32) -> f32 {
+    2.0 * (opacity / ALPHA_MIN).ln().max(0.0)
+}
+
+fn extent_for_contour(rule: Footprint, qmax: f32) -> f32 {
+    match rule {
+        Footprint::OpacityAware => 3.33f32.min(qmax.sqrt()),
+        Footprint::Sigma(k) => k,
+    }
+}
+
 /// Footprint extent in standard deviations for a blending opacity.
 pub fn footprint_extent(rule: Footprint, opacity: f32) -> f32 {
-    match rule {
-        Footprint::OpacityAware => 3.33f32.min((2.0 * (opacity / ALPHA_MIN).ln()).max(0.0).sqrt()),
-        Footprint::Sigma(k) => k,
+    extent_for_contour(rule, alpha_contour(opacity))
+}
+
+/// `v.ceil()` for v >= 0 (or NaN) without libm: `ceilf` is an out-of-line call on
+/// baseline x86-64, and this runs twice per Gaussian.
+#[inline(always)]
+fn ceil_nonneg(v: f32) -> f32 {
+    // From 2^23 on every float is an integer; NaN takes the else branch and stays NaN.
+    if v < 8_388_608.0 {
+        let t = v as u32 as f32;
+        if t < v {
+            t + 1.0
+        } else {
+            t
+        }
+    } else {
+        v
     }
 }
 
@@ -211,10 +237,11 @@ pub fn project(g: &Gaussian3, cam: &Camera, opts: &RasterOptions) -> Splat {
     if opacity.is_nan() || opacity < ALPHA_MIN {
         return Splat::default();
     }
-    let extent = footprint_extent(opts.footprint, opacity);
+    let qmax = alpha_contour(opacity);
+    let extent = extent_for_contour(opts.footprint, qmax);
     let radius = [
-        (extent * it.cov[0].sqrt()).ceil(),
-        (extent * it.cov[2].sqrt()).ceil(),
+        ceil_nonneg(extent * it.cov[0].sqrt()),
+        ceil_nonneg(extent * it.cov[2].sqrt()),
     ];
     if radius[0] <= 0.0 && radius[1] <= 0.0 {
         return Splat::default();
@@ -236,7 +263,7 @@ pub fn project(g: &Gaussian3, cam: &Camera, opts: &RasterOptions) -> Splat {
         depth: it.p.z,
         radius,
         extent,
-        qmax: 2.0 * (opacity / ALPHA_MIN).ln().max(0.0),
+        qmax,
     }
 }
 
@@ -359,6 +386,21 @@ pub fn project_backward(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ceil_nonneg_matches_ceil() {
+        let mut v = 0.0f32;
+        while v < 100.0 {
+            for w in [v, f32::from_bits(v.to_bits() + 1), v + 0.5] {
+                assert_eq!(ceil_nonneg(w).to_bits(), w.ceil().to_bits(), "{w}");
+            }
+            v += 0.25;
+        }
+        for w in [8_388_607.5f32, 8_388_608.0, 1e30, f32::INFINITY] {
+            assert_eq!(ceil_nonneg(w), w.ceil());
+        }
+        assert!(ceil_nonneg(f32::NAN).is_nan());
+    }
 
     #[test]
     fn identity_quaternion_gives_identity_rotation() {
