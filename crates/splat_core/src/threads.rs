@@ -26,8 +26,11 @@ pub fn with_threads<R: Send>(
     }
 }
 
+/// Pools built so far, by size.
+type Pools = Mutex<Vec<(usize, Arc<ThreadPool>)>>;
+
 fn pool(n: usize) -> CoreResult<Arc<ThreadPool>> {
-    static POOLS: OnceLock<Mutex<Vec<(usize, Arc<ThreadPool>)>>> = OnceLock::new();
+    static POOLS: OnceLock<Pools> = OnceLock::new();
     let mut pools = POOLS
         .get_or_init(Default::default)
         .lock()
