@@ -52,6 +52,43 @@ fn main() {
     })
     .unwrap();
     let ms = |s: f64| s * 1e3;
+    if std::env::var_os("BACKWARD").is_some() {
+        let (_, state) = raster::forward(
+            scene.clone(),
+            vec![cam],
+            size,
+            size,
+            RasterOptions::default(),
+        )
+        .unwrap();
+        let pixels = (size * size) as usize;
+        let v_render: Vec<f32> = (0..pixels * 3)
+            .map(|i| ((i % 7) as f32 - 3.0) * 1e-3)
+            .collect();
+        let v_alpha: Vec<f32> = (0..pixels).map(|i| ((i % 5) as f32 - 2.0) * 1e-3).collect();
+        let best = with_threads(Some(threads), || {
+            let mut best = f64::INFINITY;
+            for _ in 0..reps {
+                let t = Instant::now();
+                raster::backward(
+                    &state,
+                    &v_render,
+                    &v_alpha,
+                    raster::GradRequest {
+                        means: true,
+                        quats: true,
+                        scales: true,
+                        opacities: true,
+                        colors: true,
+                    },
+                )?;
+                best = best.min(t.elapsed().as_secs_f64());
+            }
+            Ok(best)
+        })
+        .unwrap();
+        println!("backward {:.1} ms", ms(best));
+    }
     println!(
         "{n} @ {size}^2, {threads} thread(s): {:.1} ms (project {:.1}, sort {:.1}, bin {:.1}, blend {:.1})",
         ms(best),

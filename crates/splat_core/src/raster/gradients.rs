@@ -85,78 +85,81 @@ pub fn backward(
         }
         let centre = cam.centre();
         let bins = &cs.bins;
+        // Each splat's intersections summed in tile order, in a pass of its own: the loads
+        // are scattered, and with nothing else in the loop many are in flight at once.
+        let mut sums = vec![0.0f32; n * stride];
+        sums.par_chunks_mut(stride)
+            .zip(&rank)
+            .filter(|(_, &r)| r != u32::MAX)
+            .for_each(|(sum, &r)| {
+                for p in bins.gauss_offsets[r as usize]..bins.gauss_offsets[r as usize + 1] {
+                    let k = bins.perm[p as usize] as usize;
+                    for (s, v) in sum.iter_mut().zip(&isect[k * stride..(k + 1) * stride]) {
+                        *s += v;
+                    }
+                }
+            });
+        drop(isect);
         acc.par_chunks_mut(gw)
             .zip(means2d[ci * n * 2..(ci + 1) * n * 2].par_chunks_mut(2))
+            .zip(sums.par_chunks(stride))
             .enumerate()
-            .for_each_init(
-                || vec![0.0f32; stride],
-                |sum, (i, (row, m2d))| {
-                    let r = rank[i];
-                    if r == u32::MAX {
-                        return;
+            .for_each(|(i, ((row, m2d), sum))| {
+                if rank[i] == u32::MAX {
+                    return;
+                }
+                m2d.copy_from_slice(&sum[..2]);
+                let v_feat = &sum[ISECT_FIXED..];
+                let g = scene.gaussian(i);
+                if geometry {
+                    let sg = SplatGrad {
+                        xy: [sum[0], sum[1]],
+                        conic: [sum[2], sum[3], sum[4]],
+                        opacity: sum[5],
+                        depth: if state.opts.with_depth {
+                            v_feat[cc]
+                        } else {
+                            0.0
+                        },
+                    };
+                    let g3 = project_backward(&g, cam, &state.opts, &sg);
+                    for d in 0..3 {
+                        row[MEAN + d] += g3.mean[d];
+                        row[SCALE + d] += g3.scale[d];
                     }
-                    // Sum this splat's intersections in tile order.
-                    sum.fill(0.0);
-                    for p in bins.gauss_offsets[r as usize]..bins.gauss_offsets[r as usize + 1] {
-                        let k = bins.perm[p as usize] as usize;
-                        for (s, v) in sum.iter_mut().zip(&isect[k * stride..(k + 1) * stride]) {
-                            *s += v;
+                    for d in 0..4 {
+                        row[QUAT + d] += g3.quat[d];
+                    }
+                    row[OPAC] += g3.opacity;
+                }
+                match scene.color_mode {
+                    ColorMode::None => {}
+                    ColorMode::Direct { .. } => {
+                        if want.colors {
+                            for (o, v) in row[COLOR..].iter_mut().zip(&v_feat[..cc]) {
+                                *o += v;
+                            }
                         }
                     }
-                    m2d.copy_from_slice(&sum[..2]);
-                    let v_feat = &sum[ISECT_FIXED..];
-                    let g = scene.gaussian(i);
-                    if geometry {
-                        let sg = SplatGrad {
-                            xy: [sum[0], sum[1]],
-                            conic: [sum[2], sum[3], sum[4]],
-                            opacity: sum[5],
-                            depth: if state.opts.with_depth {
-                                v_feat[cc]
-                            } else {
-                                0.0
-                            },
+                    ColorMode::Sh { degree, .. } => {
+                        let coeffs = scene.color_row(i);
+                        let dir = g.mean - centre;
+                        let raw = sh::eval(degree, coeffs, dir);
+                        // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
+                        let v_rgb =
+                            [0, 1, 2].map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
+                        let v_coeffs = if want.colors {
+                            Some(&mut row[COLOR..])
+                        } else {
+                            None
                         };
-                        let g3 = project_backward(&g, cam, &state.opts, &sg);
+                        let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, v_coeffs);
                         for d in 0..3 {
-                            row[MEAN + d] += g3.mean[d];
-                            row[SCALE + d] += g3.scale[d];
-                        }
-                        for d in 0..4 {
-                            row[QUAT + d] += g3.quat[d];
-                        }
-                        row[OPAC] += g3.opacity;
-                    }
-                    match scene.color_mode {
-                        ColorMode::None => {}
-                        ColorMode::Direct { .. } => {
-                            if want.colors {
-                                for (o, v) in row[COLOR..].iter_mut().zip(&v_feat[..cc]) {
-                                    *o += v;
-                                }
-                            }
-                        }
-                        ColorMode::Sh { degree, .. } => {
-                            let coeffs = scene.color_row(i);
-                            let dir = g.mean - centre;
-                            let raw = sh::eval(degree, coeffs, dir);
-                            // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
-                            let v_rgb =
-                                [0, 1, 2]
-                                    .map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
-                            let v_coeffs = if want.colors {
-                                Some(&mut row[COLOR..])
-                            } else {
-                                None
-                            };
-                            let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, v_coeffs);
-                            for d in 0..3 {
-                                row[MEAN + d] += v_dir[d];
-                            }
+                            row[MEAN + d] += v_dir[d];
                         }
                     }
-                },
-            );
+                }
+            });
     }
 
     let column = |lo: usize, w: usize| -> Vec<f32> {
