@@ -37,9 +37,7 @@ impl RasterState {
                     + c.features.len() * 4
                     + (c.bins.tile_offsets.len()
                         + c.bins.isect_gid.len()
-                        + c.bins.depth_order.len()
-                        + c.bins.gauss_offsets.len()
-                        + c.bins.perm.len())
+                        + c.bins.depth_order.len())
                         * 4
                     + (c.blended.t_final.len()
                         + c.blended.last.len()

@@ -9,16 +9,20 @@
 //! 1 - alpha is floored at 1e-6 anyway. Where alpha was clamped at 0.99 it does not depend on
 //! opacity or position, so those gradients are zero there (gsplat's gating).
 //!
+//! Like the forward, a splat's footprint is walked in groups of `LANES` pixels; a splat's
+//! gradient sums are kept per lane and added up in a fixed tree at the end, identically in
+//! the AVX2 kernel (`blend_avx2`) and the scalar one here, so both give the same bits.
+//!
 //! Each tile writes only its own slice of the intersection-gradient array, so tiles run in
-//! parallel without locks or atomics; the caller sums a splat's intersections in a fixed
-//! order (see `tile_binning`'s permutation).
+//! parallel without locks or atomics; the caller sums a splat's intersections in tile
+//! order.
 
 use rayon::prelude::*;
 
-use super::forward::{pixel_alpha, Blended, PixelFootprint, TileRect};
+use super::forward::{exp_neg, sigma_at, Blended, PixelFootprint, TileRect, LANES};
 use super::project::Splat;
 use super::tile_binning::TileBins;
-use super::ALPHA_MAX;
+use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
 pub const ISECT_FIXED: usize = 6;
@@ -45,99 +49,247 @@ pub fn blend_backward(
         slices.push(head);
         rest = tail;
     }
-    slices.into_par_iter().enumerate().for_each(|(t, out)| {
-        if out.is_empty() {
-            return;
-        }
-        let rect = TileRect::new(t, bins, width, height);
-        let range = bins.tile_range(t);
-        let feats = &blended.packed_features[range.start * ch..range.end * ch];
-        let splats = &blended.packed_splats[range];
-        let tile = TilePixels {
-            t_final: &blended.t_final[t * tp..(t + 1) * tp],
-            last: &blended.last[t * tp..(t + 1) * tp],
-        };
-        let run = match ch {
-            1 => backward_tile::<1>,
-            3 => backward_tile::<3>,
-            4 => backward_tile::<4>,
-            _ => backward_tile::<0>,
-        };
-        run(
-            splats, feats, ch, rect, ts, width, &tile, v_render, v_alpha, out,
+    slices
+        .into_par_iter()
+        .enumerate()
+        .with_max_len(4)
+        .for_each_init(
+            || BackScratch::new(ts, ch),
+            |scratch, (t, out)| {
+                if out.is_empty() {
+                    return;
+                }
+                let rect = TileRect::new(t, bins, width, height);
+                let range = bins.tile_range(t);
+                let tile = BackTile {
+                    splats: &blended.packed_splats[range.clone()],
+                    features: &blended.packed_features[range.start * ch..range.end * ch],
+                    rect,
+                };
+                scratch.reset(
+                    &rect,
+                    ch,
+                    width as usize,
+                    &blended.t_final[t * tp..(t + 1) * tp],
+                    &blended.last[t * tp..(t + 1) * tp],
+                    v_render,
+                    v_alpha,
+                );
+                backward_tile(&tile, ch, scratch, out);
+            },
         );
-    });
     grads
 }
 
-struct TilePixels<'a> {
-    t_final: &'a [f32],
-    last: &'a [u32],
+/// What one tile's backward reads: its list (front to back) and its pixels.
+pub(super) struct BackTile<'a> {
+    pub splats: &'a [Splat],
+    pub features: &'a [f32],
+    pub rect: TileRect,
 }
 
-fn backward_tile<const CH: usize>(
-    splats: &[Splat],
-    features: &[f32],
-    ch: usize,
-    rect: TileRect,
+/// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
+/// lane groups (padding pixels have `last` 0, so no splat touches them).
+pub(super) struct BackScratch {
+    pub stride: usize,
     ts: usize,
-    width: u32,
-    tile: &TilePixels,
-    v_render: &[f32],
-    v_alpha: &[f32],
-    out: &mut [f32],
-) {
-    let ch = if CH == 0 { ch } else { CH };
-    let stride = ISECT_FIXED + ch;
-    let mut trans = tile.t_final.to_vec();
-    let mut buf = vec![0.0f32; ts * ts * ch];
-    let mut v_f = vec![0.0f32; ch];
-    let k_end = tile.last.iter().copied().max().unwrap_or(0) as usize;
-    for k in (0..k_end).rev() {
-        let s = &splats[k];
-        let f = &features[k * ch..(k + 1) * ch];
-        let fp = PixelFootprint::new(s, &rect);
-        let [ca, cb, cc] = s.conic;
-        let (mut v_x, mut v_y, mut v_a, mut v_b, mut v_c, mut v_o) =
-            (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0);
-        v_f.fill(0.0);
-        for y in fp.y0..fp.y1 {
-            let row = (y - rect.y0) as usize * ts;
-            let py = y as f32 + 0.5;
-            for x in fp.x0..fp.x1 {
-                let l = row + (x - rect.x0) as usize;
-                if k >= tile.last[l] as usize {
-                    continue;
-                }
-                let Some(pa) = pixel_alpha(s, x as f32 + 0.5, py) else {
-                    continue;
-                };
-                let pix = y as usize * width as usize + x as usize;
-                let v_out = &v_render[pix * ch..(pix + 1) * ch];
-                let ra = 1.0 / (1.0 - pa.alpha).max(1e-6);
-                let t_k = trans[l] * ra;
-                let fac = pa.alpha * t_k;
-                let b = &mut buf[l * ch..(l + 1) * ch];
-                let mut v_al = v_alpha[pix] * tile.t_final[l] * ra;
+    /// Transmittance after the splat being processed (starts at the final T).
+    pub trans: Vec<f32>,
+    pub last: Vec<u32>,
+    /// dL/d(alpha image) times the final T.
+    pub va_tf: Vec<f32>,
+    /// Planar dL/d(render) and features blended behind the current splat.
+    pub v_out: Vec<f32>,
+    pub buf: Vec<f32>,
+    pub xs: Vec<f32>,
+    /// dy, c dy^2 and b dy of each row for the current splat.
+    pub row_dy: Vec<f32>,
+    pub row_c: Vec<f32>,
+    pub row_b: Vec<f32>,
+}
+
+impl BackScratch {
+    pub(super) fn new(ts: usize, ch: usize) -> Self {
+        let stride = ts.div_ceil(LANES) * LANES;
+        let plane = stride * ts;
+        Self {
+            stride,
+            ts,
+            trans: vec![0.0; plane],
+            last: vec![0; plane],
+            va_tf: vec![0.0; plane],
+            v_out: vec![0.0; plane * ch],
+            buf: vec![0.0; plane * ch],
+            xs: vec![0.0; stride],
+            row_dy: vec![0.0; ts],
+            row_c: vec![0.0; ts],
+            row_b: vec![0.0; ts],
+        }
+    }
+
+    pub fn plane(&self) -> usize {
+        self.stride * self.ts
+    }
+
+    /// Loads the tile's pixels (tile-major `t_final` / `last`, row-major gradients).
+    pub(super) fn reset(
+        &mut self,
+        rect: &TileRect,
+        ch: usize,
+        width: usize,
+        t_final: &[f32],
+        last: &[u32],
+        v_render: &[f32],
+        v_alpha: &[f32],
+    ) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        let plane = self.plane();
+        self.last.fill(0);
+        self.buf.fill(0.0);
+        for ly in 0..th {
+            let (src, dst) = (ly * self.ts, ly * self.stride);
+            let pix = (rect.y0 as usize + ly) * width + rect.x0 as usize;
+            self.trans[dst..dst + tw].copy_from_slice(&t_final[src..src + tw]);
+            self.last[dst..dst + tw].copy_from_slice(&last[src..src + tw]);
+            for lx in 0..tw {
+                self.va_tf[dst + lx] = v_alpha[pix + lx] * t_final[src + lx];
                 for c in 0..ch {
-                    v_f[c] += fac * v_out[c];
-                    v_al += (f[c] * t_k - b[c] * ra) * v_out[c];
-                    b[c] += f[c] * fac;
-                }
-                trans[l] = t_k;
-                if pa.raw <= ALPHA_MAX {
-                    let v_sigma = -pa.raw * v_al;
-                    v_a += 0.5 * v_sigma * pa.dx * pa.dx;
-                    v_b += v_sigma * pa.dx * pa.dy;
-                    v_c += 0.5 * v_sigma * pa.dy * pa.dy;
-                    v_x += v_sigma * (ca * pa.dx + cb * pa.dy);
-                    v_y += v_sigma * (cb * pa.dx + cc * pa.dy);
-                    v_o += pa.vis * v_al;
+                    self.v_out[c * plane + dst + lx] = v_render[(pix + lx) * ch + c];
                 }
             }
         }
-        let o = &mut out[k * stride..(k + 1) * stride];
-        o[..ISECT_FIXED].copy_from_slice(&[v_x, v_y, v_a, v_b, v_c, v_o]);
-        o[ISECT_FIXED..].copy_from_slice(&v_f);
+        for (i, x) in self.xs.iter_mut().enumerate() {
+            *x = (rect.x0 as usize + i) as f32 + 0.5;
+        }
     }
+}
+
+/// One splat of a tile's list as the backward kernels see it.
+pub(super) struct BackSplat<'a> {
+    pub s: &'a Splat,
+    pub f: &'a [f32],
+    /// Its position in the tile list: pixels with `last > k` saw it.
+    pub k: u32,
+    pub xlo: f32,
+    pub xhi: f32,
+    pub groups: std::ops::Range<usize>,
+    pub rows: std::ops::Range<usize>,
+}
+
+/// Walks the tile's list back to front from the last splat any pixel used, and calls
+/// `kernel(splat, scratch, out)` with the splat's slice of the gradient array.
+#[inline(always)]
+pub(super) fn for_each_splat_back(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+    mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]),
+) {
+    let stride = ISECT_FIXED + ch;
+    let rect = &tile.rect;
+    let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
+    for k in (0..k_end).rev() {
+        let s = &tile.splats[k];
+        let fp = PixelFootprint::new(s, rect);
+        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
+            continue;
+        }
+        let [_, b, c] = s.conic;
+        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
+        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
+        for ly in rows.clone() {
+            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
+            scratch.row_dy[ly] = dy;
+            scratch.row_c[ly] = c * dy * dy;
+            scratch.row_b[ly] = b * dy;
+        }
+        let splat = BackSplat {
+            s,
+            f: &tile.features[k * ch..(k + 1) * ch],
+            k: k as u32,
+            xlo: fp.x0 as f32,
+            xhi: fp.x1 as f32,
+            groups: lx0 / LANES..lx1.div_ceil(LANES),
+            rows,
+        };
+        kernel(&splat, scratch, &mut out[k * stride..(k + 1) * stride]);
+    }
+}
+
+/// Sum of eight lanes in the tree the AVX2 kernel uses: (l0+l4 + l2+l6) + (l1+l5 + l3+l7).
+#[inline(always)]
+pub(super) fn lane_sum(v: &[f32; LANES]) -> f32 {
+    let s = [v[0] + v[4], v[1] + v[5], v[2] + v[6], v[3] + v[7]];
+    (s[0] + s[2]) + (s[1] + s[3])
+}
+
+fn backward_tile(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if ch <= super::blend_avx2::MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2")
+    {
+        super::blend_avx2::backward_tile(tile, ch, scratch, out);
+        return;
+    }
+    backward_tile_scalar(tile, ch, scratch, out);
+}
+
+/// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
+pub(super) fn backward_tile_scalar(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+) {
+    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let mut acc_f = vec![[0.0f32; LANES]; ch];
+    for_each_splat_back(tile, ch, scratch, out, |sp, sc, o| {
+        let [ca, cb, cc] = sp.s.conic;
+        // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity.
+        let mut acc = [[0.0f32; LANES]; ISECT_FIXED];
+        acc_f.iter_mut().for_each(|a| *a = [0.0; LANES]);
+        for gi in sp.groups.clone() {
+            for ly in sp.rows.clone() {
+                let base = ly * stride + gi * LANES;
+                for i in 0..LANES {
+                    let l = base + i;
+                    let x = sc.xs[gi * LANES + i];
+                    let active = (x > sp.xlo) & (x < sp.xhi) & (sp.k < sc.last[l]);
+                    let dx = sp.s.xy[0] - x;
+                    let dy = sc.row_dy[ly];
+                    let sigma = sigma_at(ca, dx, sc.row_c[ly], sc.row_b[ly]);
+                    let vis = exp_neg(-sigma);
+                    let raw = sp.s.opacity * vis;
+                    let alpha = raw.min(ALPHA_MAX);
+                    if !(active & (sigma >= 0.0) & (alpha >= ALPHA_MIN)) {
+                        continue;
+                    }
+                    let ra = 1.0 / (1.0 - alpha).max(1e-6);
+                    let t_k = sc.trans[l] * ra;
+                    let fac = alpha * t_k;
+                    let mut v_al = sc.va_tf[l] * ra;
+                    for (c, (a, &fc)) in acc_f.iter_mut().zip(sp.f).enumerate() {
+                        let vo = sc.v_out[c * plane + l];
+                        let b = &mut sc.buf[c * plane + l];
+                        a[i] += fac * vo;
+                        v_al += (fc * t_k - *b * ra) * vo;
+                        *b += fc * fac;
+                    }
+                    sc.trans[l] = t_k;
+                    if raw <= ALPHA_MAX {
+                        let v_sigma = -raw * v_al;
+                        acc[0][i] += v_sigma * (ca * dx + cb * dy);
+                        acc[1][i] += v_sigma * (cb * dx + cc * dy);
+                        acc[2][i] += 0.5 * v_sigma * dx * dx;
+                        acc[3][i] += v_sigma * dx * dy;
+                        acc[4][i] += 0.5 * v_sigma * dy * dy;
+                        acc[5][i] += vis * v_al;
+                    }
+                }
+            }
+        }
+        for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
+            *o = lane_sum(a);
+        }
+    });
 }

@@ -1,6 +1,8 @@
-//! The blending lane group with AVX2 intrinsics: eight pixels per instruction.
+//! The blending kernels, forward and backward, with AVX2 intrinsics: eight pixels per
+//! instruction.
 //!
-//! Every operation mirrors `forward::blend_tile_scalar` and `forward::exp_neg` one to one
+//! Every operation mirrors `forward::blend_tile_scalar`, `backward::backward_tile_scalar`
+//! and `forward::exp_neg` one to one
 //! (same operands, same order, no fused multiply-add; `max`/`min` with the constant second
 //! so NaN lanes take the constant like the scalar comparisons), so this path and the scalar
 //! one produce the same bits. The only unsafe code is the unaligned loads and stores of
@@ -9,6 +11,7 @@
 
 use std::arch::x86_64::*;
 
+use super::backward::{for_each_splat_back, BackScratch, BackSplat, BackTile, ISECT_FIXED};
 use super::forward::{for_each_splat, SplatInTile, TileInput, TileScratch, LANES};
 use super::{ALPHA_MAX, ALPHA_MIN};
 
@@ -146,5 +149,131 @@ fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
             }
         }
         stopped
+    });
+}
+
+/// Feature channels the AVX2 backward keeps in registers; wider features use the scalar
+/// kernel.
+pub(super) const MAX_BACKWARD_CHANNELS: usize = 4;
+
+/// Backward of one tile; the caller checked AVX2 and `ch <= MAX_BACKWARD_CHANNELS`.
+pub(super) fn backward_tile(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+) {
+    debug_assert!(ch <= MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2"));
+    // SAFETY: `backward::backward_tile` calls this only after detecting AVX2.
+    unsafe { backward_tile_avx2(tile, ch, scratch, out) }
+}
+
+/// `backward::lane_sum` on a register.
+#[inline(always)]
+fn lane_sum(v: __m256) -> f32 {
+    // SAFETY (whole body): only called from `backward_tile_avx2`, which has AVX2 enabled.
+    unsafe {
+        let s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+        let t = _mm_add_ps(s, _mm_movehl_ps(s, s));
+        _mm_cvtss_f32(_mm_add_ss(t, _mm_shuffle_ps::<1>(t, t)))
+    }
+}
+
+#[target_feature(enable = "avx2")]
+fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
+    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let s = _mm256_set1_ps;
+    let zero = _mm256_setzero_ps();
+    for_each_splat_back(tile, ch, scratch, out, |sp: &BackSplat, sc, o| {
+        let [ca, cb, cc] = sp.s.conic;
+        let (opacity, k) = (s(sp.s.opacity), _mm256_set1_epi32(sp.k as i32));
+        let mut fc = [zero; MAX_BACKWARD_CHANNELS];
+        for (c, v) in sp.f.iter().enumerate() {
+            fc[c] = s(*v);
+        }
+        // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity and the features.
+        let mut acc = [zero; ISECT_FIXED];
+        let mut acc_f = [zero; MAX_BACKWARD_CHANNELS];
+        for gi in sp.groups.clone() {
+            let x = load(&sc.xs[gi * LANES..]);
+            let cols = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(sp.xlo)),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(sp.xhi)),
+            );
+            let dx = _mm256_sub_ps(s(sp.s.xy[0]), x);
+            let a_dx2 = _mm256_mul_ps(_mm256_mul_ps(s(ca), dx), dx);
+            for ly in sp.rows.clone() {
+                let base = ly * stride + gi * LANES;
+                // Pixels whose last contributor is in front of this splat never saw it.
+                let seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load_u32(&sc.last[base..]), k));
+                let active = _mm256_and_ps(cols, seen);
+                if _mm256_movemask_ps(active) == 0 {
+                    continue;
+                }
+                let dy = s(sc.row_dy[ly]);
+                let sigma = _mm256_add_ps(
+                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.row_c[ly]))),
+                    _mm256_mul_ps(dx, s(sc.row_b[ly])),
+                );
+                let vis = exp_neg(_mm256_xor_ps(sigma, s(-0.0)));
+                let raw = _mm256_mul_ps(opacity, vis);
+                let alpha = _mm256_min_ps(raw, s(ALPHA_MAX));
+                let m = _mm256_and_ps(
+                    _mm256_and_ps(active, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero)),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
+                );
+                if _mm256_movemask_ps(m) == 0 {
+                    continue;
+                }
+                let ra =
+                    _mm256_div_ps(s(1.0), _mm256_max_ps(_mm256_sub_ps(s(1.0), alpha), s(1e-6)));
+                let t_k = _mm256_mul_ps(load(&sc.trans[base..]), ra);
+                let fac = _mm256_mul_ps(alpha, t_k);
+                let mut v_al = _mm256_mul_ps(load(&sc.va_tf[base..]), ra);
+                for c in 0..ch {
+                    let vo = load(&sc.v_out[c * plane + base..]);
+                    let b = &mut sc.buf[c * plane + base..];
+                    let bv = load(b);
+                    acc_f[c] = _mm256_add_ps(acc_f[c], _mm256_and_ps(m, _mm256_mul_ps(fac, vo)));
+                    v_al = _mm256_add_ps(
+                        v_al,
+                        _mm256_mul_ps(
+                            _mm256_sub_ps(_mm256_mul_ps(fc[c], t_k), _mm256_mul_ps(bv, ra)),
+                            vo,
+                        ),
+                    );
+                    store(
+                        b,
+                        _mm256_blendv_ps(bv, _mm256_add_ps(bv, _mm256_mul_ps(fc[c], fac)), m),
+                    );
+                }
+                let trans = load(&sc.trans[base..]);
+                store(&mut sc.trans[base..], _mm256_blendv_ps(trans, t_k, m));
+                // Where alpha was clamped it depends on neither opacity nor position.
+                let g = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, s(ALPHA_MAX)));
+                let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, s(-0.0)), v_al);
+                let half_vs = _mm256_mul_ps(s(0.5), v_sigma);
+                let terms = [
+                    _mm256_mul_ps(
+                        v_sigma,
+                        _mm256_add_ps(_mm256_mul_ps(s(ca), dx), _mm256_mul_ps(s(cb), dy)),
+                    ),
+                    _mm256_mul_ps(
+                        v_sigma,
+                        _mm256_add_ps(_mm256_mul_ps(s(cb), dx), _mm256_mul_ps(s(cc), dy)),
+                    ),
+                    _mm256_mul_ps(_mm256_mul_ps(half_vs, dx), dx),
+                    _mm256_mul_ps(_mm256_mul_ps(v_sigma, dx), dy),
+                    _mm256_mul_ps(_mm256_mul_ps(half_vs, dy), dy),
+                    _mm256_mul_ps(vis, v_al),
+                ];
+                for (a, t) in acc.iter_mut().zip(terms) {
+                    *a = _mm256_add_ps(*a, _mm256_and_ps(g, t));
+                }
+            }
+        }
+        for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f[..ch])) {
+            *o = lane_sum(*a);
+        }
     });
 }

@@ -46,47 +46,11 @@ pub(super) fn exp_neg(x: f32) -> f32 {
     y * scale
 }
 
-/// Per-pixel blend quantities of one splat, shared with the backward pass so both see the
-/// same floats.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct PixelAlpha {
-    pub alpha: f32,
-    /// opacity * exp(-sigma) before the 0.99 clamp.
-    pub raw: f32,
-    pub vis: f32,
-    pub dx: f32,
-    pub dy: f32,
-}
-
-/// sigma at a pixel, from the row terms c dy^2 and b dy. The forward lanes evaluate exactly
-/// this expression.
+/// sigma at a pixel, from the row terms c dy^2 and b dy. Every kernel (forward, backward,
+/// scalar, AVX2) evaluates exactly this expression, so all see the same alphas.
 #[inline(always)]
 pub(super) fn sigma_at(a: f32, dx: f32, c_dy2: f32, b_dy: f32) -> f32 {
     0.5 * (a * dx * dx + c_dy2) + dx * b_dy
-}
-
-#[inline(always)]
-pub(super) fn pixel_alpha(s: &Splat, px: f32, py: f32) -> Option<PixelAlpha> {
-    let dx = s.xy[0] - px;
-    let dy = s.xy[1] - py;
-    let [a, b, c] = s.conic;
-    let sigma = sigma_at(a, dx, c * dy * dy, b * dy);
-    if sigma.is_nan() || sigma < 0.0 {
-        return None;
-    }
-    let vis = exp_neg(-sigma);
-    let raw = s.opacity * vis;
-    let alpha = raw.min(ALPHA_MAX);
-    if alpha < ALPHA_MIN {
-        return None;
-    }
-    Some(PixelAlpha {
-        alpha,
-        raw,
-        vis,
-        dx,
-        dy,
-    })
 }
 
 /// Slack in pixels around the exact alpha = 1/255 contour; only costs a few evaluations,
@@ -281,7 +245,7 @@ pub(super) struct TileScratch {
 }
 
 impl TileScratch {
-    fn new(ts: usize, ch: usize) -> Self {
+    pub(super) fn new(ts: usize, ch: usize) -> Self {
         let stride = ts.div_ceil(LANES) * LANES;
         let plane = stride * ts;
         Self {
@@ -302,7 +266,7 @@ impl TileScratch {
         self.stride * self.ts
     }
 
-    fn reset(&mut self, rect: &TileRect) {
+    pub(super) fn reset(&mut self, rect: &TileRect) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
         self.trans.fill(1.0);
         self.last.fill(0);
@@ -319,7 +283,7 @@ impl TileScratch {
 
     /// Copies the tile's pixels into its slices of the tile-major buffers ([pixel][channel]
     /// for the features).
-    fn write(
+    pub(super) fn write(
         &self,
         rect: &TileRect,
         ch: usize,
@@ -516,133 +480,6 @@ mod tests {
         for v in [f32::NAN, f32::NEG_INFINITY, -1e30, 3.0, f32::INFINITY] {
             let e = exp_neg(v);
             assert!(e.is_finite() && (0.0..=1.0).contains(&e), "{v} -> {e}");
-        }
-    }
-
-    /// A random tile list: overlapping anisotropic splats, some opaque stacks.
-    fn random_tile(n: usize, seed: u64, rect: TileRect) -> (Vec<Splat>, Vec<f32>) {
-        let mut state = seed;
-        let mut rnd = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
-        let (w, h) = ((rect.x1 - rect.x0) as f32, (rect.y1 - rect.y0) as f32);
-        let mut splats = Vec::new();
-        let mut feats = Vec::new();
-        for i in 0..n {
-            let (s1, s2, th) = (0.3 + 6.0 * rnd(), 0.3 + 3.0 * rnd(), 3.2 * rnd());
-            let (c, s) = (th.cos(), th.sin());
-            let (ia, ib) = (1.0 / (s1 * s1), 1.0 / (s2 * s2));
-            let opacity = if i % 7 == 0 { 1.0 } else { 0.01 + 0.99 * rnd() };
-            splats.push(Splat {
-                xy: [
-                    rect.x0 as f32 - 4.0 + (w + 8.0) * rnd(),
-                    rect.y0 as f32 - 4.0 + (h + 8.0) * rnd(),
-                ],
-                conic: [
-                    c * c * ia + s * s * ib,
-                    c * s * (ia - ib),
-                    s * s * ia + c * c * ib,
-                ],
-                opacity,
-                depth: i as f32,
-                radius: [1.0, 1.0],
-                extent: 3.33,
-                qmax: 2.0 * (opacity / ALPHA_MIN).ln(),
-            });
-            feats.extend([rnd(), rnd() - 0.5, 4.0 * rnd()]);
-        }
-        (splats, feats)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn avx2_and_scalar_kernels_give_the_same_bits() {
-        if !std::arch::is_x86_feature_detected!("avx2") {
-            return;
-        }
-        let rects = [
-            (
-                16,
-                TileRect {
-                    x0: 32,
-                    y0: 16,
-                    x1: 48,
-                    y1: 32,
-                },
-            ),
-            (
-                16,
-                TileRect {
-                    x0: 32,
-                    y0: 16,
-                    x1: 45,
-                    y1: 21,
-                },
-            ),
-            (
-                8,
-                TileRect {
-                    x0: 8,
-                    y0: 0,
-                    x1: 16,
-                    y1: 8,
-                },
-            ),
-            (
-                13,
-                TileRect {
-                    x0: 13,
-                    y0: 13,
-                    x1: 26,
-                    y1: 26,
-                },
-            ),
-            (
-                32,
-                TileRect {
-                    x0: 0,
-                    y0: 32,
-                    x1: 32,
-                    y1: 64,
-                },
-            ),
-        ];
-        for (ts, rect) in rects {
-            for (seed, n, t_min) in [(1, 40, 1e-4), (2, 400, 1e-4), (3, 200, 0.3), (4, 5, 0.0)] {
-                let (splats, feats) = random_tile(n, seed, rect);
-                let tile = TileInput {
-                    splats: &splats,
-                    features: &feats,
-                    rect,
-                    t_min,
-                };
-                let run = |avx: bool| {
-                    let mut sc = TileScratch::new(ts, 3);
-                    sc.reset(&rect);
-                    if avx {
-                        super::super::blend_avx2::blend_tile(&tile, 3, &mut sc);
-                    } else {
-                        blend_tile_scalar(&tile, 3, &mut sc);
-                    }
-                    sc
-                };
-                let (a, b) = (run(true), run(false));
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!(bits(&a.trans), bits(&b.trans), "ts {ts} seed {seed}");
-                assert_eq!(bits(&a.feat), bits(&b.feat), "ts {ts} seed {seed}");
-                assert_eq!(a.last, b.last);
-                assert_eq!(a.live, b.live);
-                assert_eq!(a.active, b.active);
-                // The scene is not trivial: something blended, and with opaque stacks and
-                // many splats some pixels stopped early.
-                assert!(b.last.iter().any(|&l| l > 0));
-                if n >= 200 {
-                    assert!(b.active < ((rect.x1 - rect.x0) * (rect.y1 - rect.y0)) as usize);
-                }
-            }
         }
     }
 

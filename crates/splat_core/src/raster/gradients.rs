@@ -79,33 +79,25 @@ pub fn backward(
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &v_alpha[ci * pixels..(ci + 1) * pixels],
         );
-        let mut rank = vec![u32::MAX; n];
-        for (r, &g) in cs.bins.depth_order.iter().enumerate() {
-            rank[g as usize] = r as u32;
-        }
         let centre = cam.centre();
         let bins = &cs.bins;
-        // Each splat's intersections summed in tile order, in a pass of its own: the loads
-        // are scattered, and with nothing else in the loop many are in flight at once.
+        // Each splat's intersections summed in tile order: one sequential pass over the
+        // tile-major gradients (a splat's tiles come in increasing tile order), so the order,
+        // and the bits, do not depend on the thread count.
         let mut sums = vec![0.0f32; n * stride];
-        sums.par_chunks_mut(stride)
-            .zip(&rank)
-            .filter(|(_, &r)| r != u32::MAX)
-            .for_each(|(sum, &r)| {
-                for p in bins.gauss_offsets[r as usize]..bins.gauss_offsets[r as usize + 1] {
-                    let k = bins.perm[p as usize] as usize;
-                    for (s, v) in sum.iter_mut().zip(&isect[k * stride..(k + 1) * stride]) {
-                        *s += v;
-                    }
-                }
-            });
+        for (row, &g) in isect.chunks_exact(stride).zip(&bins.isect_gid) {
+            let g = g as usize;
+            for (s, v) in sums[g * stride..(g + 1) * stride].iter_mut().zip(row) {
+                *s += v;
+            }
+        }
         drop(isect);
         acc.par_chunks_mut(gw)
             .zip(means2d[ci * n * 2..(ci + 1) * n * 2].par_chunks_mut(2))
             .zip(sums.par_chunks(stride))
             .enumerate()
             .for_each(|(i, ((row, m2d), sum))| {
-                if rank[i] == u32::MAX {
+                if !cs.splats[i].visible() {
                     return;
                 }
                 m2d.copy_from_slice(&sum[..2]);

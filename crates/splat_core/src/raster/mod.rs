@@ -5,11 +5,15 @@
 //! -> `tile_binning` (depth order, tile lists) -> `forward::blend` (per-tile compositing).
 //! `backward` walks the same lists back to front and chains to the 3D parameters.
 //!
+//! The blending kernels (`forward`, `backward`) run on groups of eight pixels: AVX2 code in
+//! `blend_avx2` where the CPU has it, a scalar version of the same operations otherwise;
+//! both give the same bits (tested).
+//!
 //! State kept between forward and backward (`ForwardState`): a copy of the inputs
-//! (O(N)), and per camera the splats and features (O(N)), the tile lists, their
-//! permutation and the splats + features packed in tile order (O(intersections)), and the
-//! final transmittance, last-contributor count and blended features per pixel
-//! (O(pixels)). Nothing per (pixel, splat) pair is stored.
+//! (O(N)), and per camera the splats and features (O(N)), the tile lists and the splats +
+//! features packed in tile order (O(intersections)), and the final transmittance and
+//! last-contributor count per pixel (O(pixels)). Nothing per (pixel, splat) pair is
+//! stored.
 
 pub mod backward;
 #[cfg(target_arch = "x86_64")]
@@ -18,6 +22,8 @@ pub mod camera;
 pub mod features;
 pub mod forward;
 pub mod gradients;
+#[cfg(all(test, target_arch = "x86_64"))]
+mod kernel_tests;
 pub mod project;
 pub mod scene;
 pub mod sh;

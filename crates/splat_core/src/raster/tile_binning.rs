@@ -6,8 +6,8 @@
 //! 3. A stable counting sort by tile turns that into tile-major lists; because the input is
 //!    depth-major, every tile's list comes out depth-sorted with no per-tile sort.
 //!
-//! The permutation of step 3 is kept: the backward pass uses it to sum each splat's
-//! per-tile gradients in a fixed order without atomics.
+//! A splat's entries in the tile-major lists come in increasing tile order; the backward
+//! pass sums its per-tile gradients in that fixed order, without atomics.
 
 use rayon::prelude::*;
 
@@ -26,11 +26,6 @@ pub struct TileBins {
     pub isect_gid: Vec<u32>,
     /// Visible splats, front to back.
     pub depth_order: Vec<u32>,
-    /// Intersections of `depth_order[i]` are depth-major positions
-    /// `gauss_offsets[i]..gauss_offsets[i + 1]`.
-    pub gauss_offsets: Vec<u32>,
-    /// Depth-major position -> tile-major position.
-    pub perm: Vec<u32>,
 }
 
 impl TileBins {
@@ -270,15 +265,11 @@ pub fn bin(
     }
     let mut cursor = tile_offsets[..n_tiles].to_vec();
     let mut isect_gid = vec![0u32; isect_tile.len()];
-    let mut perm = vec![0u32; isect_tile.len()];
     for (i, &g) in depth_order.iter().enumerate() {
-        let range = gauss_offsets[i] as usize..gauss_offsets[i + 1] as usize;
-        for p in range {
-            let t = isect_tile[p] as usize;
-            let k = cursor[t];
-            cursor[t] += 1;
-            perm[p] = k;
-            isect_gid[k as usize] = g;
+        for &t in &isect_tile[gauss_offsets[i] as usize..gauss_offsets[i + 1] as usize] {
+            let k = &mut cursor[t as usize];
+            isect_gid[*k as usize] = g;
+            *k += 1;
         }
     }
     Ok(TileBins {
@@ -288,8 +279,6 @@ pub fn bin(
         tile_offsets,
         isect_gid,
         depth_order,
-        gauss_offsets,
-        perm,
     })
 }
 
@@ -310,7 +299,7 @@ mod tests {
     }
 
     #[test]
-    fn tiles_are_depth_sorted_and_permutation_is_consistent() {
+    fn tiles_are_depth_sorted_and_complete() {
         let iso = [1.0 / 25.0, 0.0, 1.0 / 25.0];
         let splats = vec![
             splat(20.0, 20.0, 15.0, 3.0, iso, 3.0),
@@ -326,10 +315,16 @@ mod tests {
                 assert!(splats[w[0] as usize].depth < splats[w[1] as usize].depth);
             }
         }
-        for (i, &g) in bins.depth_order.iter().enumerate() {
-            for p in bins.gauss_offsets[i]..bins.gauss_offsets[i + 1] {
-                assert_eq!(bins.isect_gid[bins.perm[p as usize] as usize], g);
-            }
+        // Every visible splat is listed in exactly the tiles of its box (no ellipse test).
+        for (g, s) in splats.iter().enumerate() {
+            let [x0, x1, y0, y1] = tile_box(s, 16, bins.tiles_x, bins.tiles_y);
+            let want = if s.visible() {
+                (x1 - x0) * (y1 - y0)
+            } else {
+                0
+            };
+            let got = bins.isect_gid.iter().filter(|&&i| i as usize == g).count();
+            assert_eq!(got as u32, want, "splat {g}");
         }
     }
 
