@@ -43,7 +43,8 @@ impl RasterState {
                         + c.blended.last.len()
                         + c.blended.packed_features.len())
                         * 4
-                    + c.blended.packed_splats.len() * std::mem::size_of::<raster::project::Splat>()
+                    + c.blended.packed_splats.len()
+                        * std::mem::size_of::<raster::forward::BlendSplat>()
             })
             .sum();
         scene + cams

@@ -41,7 +41,10 @@ fn main() {
                 vec![cam],
                 size,
                 size,
-                RasterOptions::default(),
+                RasterOptions {
+                    tile_size: std::env::var("TILE").map_or(16, |t| t.parse().unwrap()),
+                    ..Default::default()
+                },
             )?;
             let dt = t.elapsed().as_secs_f64();
             if dt < best.0 {

@@ -19,8 +19,7 @@
 
 use rayon::prelude::*;
 
-use super::forward::{exp_neg, sigma_at, Blended, PixelFootprint, TileRect, LANES};
-use super::project::Splat;
+use super::forward::{exp_neg, sigma_at, BlendSplat, Blended, PixelFootprint, TileRect, LANES};
 use super::tile_binning::TileBins;
 use super::{ALPHA_MAX, ALPHA_MIN};
 
@@ -83,7 +82,7 @@ pub fn blend_backward(
 
 /// What one tile's backward reads: its list (front to back) and its pixels.
 pub(super) struct BackTile<'a> {
-    pub splats: &'a [Splat],
+    pub splats: &'a [BlendSplat],
     pub features: &'a [f32],
     pub rect: TileRect,
 }
@@ -166,7 +165,7 @@ impl BackScratch {
 
 /// One splat of a tile's list as the backward kernels see it.
 pub(super) struct BackSplat<'a> {
-    pub s: &'a Splat,
+    pub s: &'a BlendSplat,
     pub f: &'a [f32],
     /// Its position in the tile list: pixels with `last > k` saw it.
     pub k: u32,

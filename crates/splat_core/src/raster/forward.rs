@@ -73,15 +73,31 @@ pub(super) struct PixelFootprint {
 
 impl PixelFootprint {
     #[inline(always)]
-    pub fn new(s: &Splat, rect: &TileRect) -> Self {
-        let [a, b, c] = s.conic;
-        // Half-sizes of the box: sqrt(qmax Sigma_xx) and sqrt(qmax Sigma_yy), with
-        // Sigma = conic^-1 = [[c, -b], [-b, a]] / (a c - b^2).
-        let q_det = s.qmax / (a * c - b * b);
-        let (hx, hy) = ((c * q_det).sqrt(), (a * q_det).sqrt());
-        let (x0, x1) = pixel_span(s.xy[0] - hx, s.xy[0] + hx, rect.x0, rect.x1);
-        let (y0, y1) = pixel_span(s.xy[1] - hy, s.xy[1] + hy, rect.y0, rect.y1);
+    pub fn new(s: &BlendSplat, rect: &TileRect) -> Self {
+        let (x0, x1) = pixel_span(s.xy[0] - s.half[0], s.xy[0] + s.half[0], rect.x0, rect.x1);
+        let (y0, y1) = pixel_span(s.xy[1] - s.half[1], s.xy[1] + s.half[1], rect.y0, rect.y1);
         Self { x0, x1, y0, y1 }
+    }
+}
+
+/// What blending needs of a splat, packed per tile-list entry (32 bytes).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BlendSplat {
+    pub xy: [f32; 2],
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    /// See `Splat::half`.
+    pub half: [f32; 2],
+}
+
+impl From<&Splat> for BlendSplat {
+    fn from(s: &Splat) -> Self {
+        Self {
+            xy: s.xy,
+            conic: s.conic,
+            opacity: s.opacity,
+            half: s.half,
+        }
     }
 }
 
@@ -137,7 +153,7 @@ pub struct Blended {
     pub last: Vec<u32>,
     /// Splats and their features copied into tile-list order (tile-major, front to back),
     /// so blending reads memory sequentially instead of chasing indices.
-    pub packed_splats: Vec<Splat>,
+    pub packed_splats: Vec<BlendSplat>,
     pub packed_features: Vec<f32>,
 }
 
@@ -159,10 +175,10 @@ pub fn blend(
 ) -> Blended {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
-    let packed_splats: Vec<Splat> = bins
+    let packed_splats: Vec<BlendSplat> = bins
         .isect_gid
         .par_iter()
-        .map(|&g| splats[g as usize])
+        .map(|&g| BlendSplat::from(&splats[g as usize]))
         .collect();
     let mut packed_features = vec![0.0f32; bins.n_intersections() * ch];
     packed_features
@@ -219,7 +235,7 @@ pub fn blend(
 
 /// What one tile blends.
 pub(super) struct TileInput<'a> {
-    pub splats: &'a [Splat],
+    pub splats: &'a [BlendSplat],
     pub features: &'a [f32],
     pub rect: TileRect,
     pub t_min: f32,
@@ -353,7 +369,7 @@ fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
 
 /// One splat of a tile's list as the lane kernels see it.
 pub(super) struct SplatInTile<'a> {
-    pub s: &'a Splat,
+    pub s: &'a BlendSplat,
     /// Its features [ch].
     pub f: &'a [f32],
     /// 1 + its position in the tile list (the value `last` takes).

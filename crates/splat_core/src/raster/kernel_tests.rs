@@ -2,8 +2,7 @@
 
 use super::backward::{backward_tile_scalar, BackScratch, BackTile, ISECT_FIXED};
 use super::blend_avx2;
-use super::forward::{blend_tile_scalar, TileInput, TileRect, TileScratch};
-use super::project::Splat;
+use super::forward::{blend_tile_scalar, BlendSplat, TileInput, TileRect, TileScratch};
 use super::ALPHA_MIN;
 
 struct Rng(u64);
@@ -19,7 +18,7 @@ impl Rng {
 }
 
 /// A random tile list: overlapping anisotropic splats, some fully opaque.
-fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<Splat>, Vec<f32>) {
+fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<BlendSplat>, Vec<f32>) {
     let (w, h) = ((rect.x1 - rect.x0) as f32, (rect.y1 - rect.y0) as f32);
     let mut splats = Vec::new();
     let mut feats = Vec::new();
@@ -36,21 +35,24 @@ fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<Splat>, Vec<f32>
         } else {
             0.01 + 0.99 * rng.next()
         };
-        splats.push(Splat {
+        let conic = [
+            c * c * ia + s * s * ib,
+            c * s * (ia - ib),
+            s * s * ia + c * c * ib,
+        ];
+        let qmax = 2.0 * (opacity / ALPHA_MIN).ln();
+        let det = conic[0] * conic[2] - conic[1] * conic[1];
+        splats.push(BlendSplat {
             xy: [
                 rect.x0 as f32 - 4.0 + (w + 8.0) * rng.next(),
                 rect.y0 as f32 - 4.0 + (h + 8.0) * rng.next(),
             ],
-            conic: [
-                c * c * ia + s * s * ib,
-                c * s * (ia - ib),
-                s * s * ia + c * c * ib,
-            ],
+            conic,
             opacity,
-            depth: i as f32,
-            radius: [1.0, 1.0],
-            extent: 3.33,
-            qmax: 2.0 * (opacity / ALPHA_MIN).ln(),
+            half: [
+                (qmax * conic[2] / det).sqrt(),
+                (qmax * conic[0] / det).sqrt(),
+            ],
         });
         feats.extend([rng.next(), rng.next() - 0.5, 4.0 * rng.next()]);
     }

@@ -30,8 +30,9 @@ pub struct Splat {
     pub radius: [f32; 2],
     /// Footprint extent in standard deviations; the ellipse q(d) <= extent^2 is the footprint.
     pub extent: f32,
-    /// 2 ln(255 opacity): where q(d) exceeds it, alpha < 1/255 (the pixels never blended).
-    pub qmax: f32,
+    /// Half-sizes in pixels of the box around the ellipse q(d) <= 2 ln(255 opacity), outside
+    /// which alpha < 1/255: sqrt(2 ln(255 opacity) Sigma_xx) and likewise in y.
+    pub half: [f32; 2],
 }
 
 impl Splat {
@@ -263,7 +264,7 @@ pub fn project(g: &Gaussian3, cam: &Camera, opts: &RasterOptions) -> Splat {
         depth: it.p.z,
         radius,
         extent,
-        qmax,
+        half: [(qmax * it.cov[0]).sqrt(), (qmax * it.cov[2]).sqrt()],
     }
 }
 

@@ -294,7 +294,7 @@ mod tests {
             depth,
             radius: [r, r],
             extent,
-            qmax: extent * extent,
+            half: [r, r],
         }
     }
 
