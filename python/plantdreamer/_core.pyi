@@ -104,6 +104,7 @@ def rasterize_forward(
     footprint_sigma: float | None = None,
     tile_ellipse: bool = True,
     t_min: float = 1e-4,
+    simd: bool = True,
     threads: int | None = None,
 ) -> dict[str, Any]: ...
 def rasterize_backward(

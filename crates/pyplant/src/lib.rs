@@ -31,6 +31,7 @@ fn info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("core_version", splat_core::VERSION)?;
     d.set_item("threads", splat_core::threads::default_threads())?;
     d.set_item("debug_build", cfg!(debug_assertions))?;
+    d.set_item("blend_kernel", splat_core::raster::blend_kernel())?;
     Ok(d)
 }
 

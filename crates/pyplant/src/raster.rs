@@ -104,7 +104,7 @@ fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult
     means, quats, scales, opacities, colors, viewmats, ks, width, height, *,
     sh_degree=None, near_plane=0.01, far_plane=1e10, eps2d=0.3, antialiased=false,
     render_color=true, render_depth=false, tile_size=16, footprint_sigma=None,
-    tile_ellipse=true, t_min=1e-4, threads=None
+    tile_ellipse=true, t_min=1e-4, simd=true, threads=None
 ))]
 fn rasterize_forward<'py>(
     py: Python<'py>,
@@ -128,6 +128,7 @@ fn rasterize_forward<'py>(
     footprint_sigma: Option<f32>,
     tile_ellipse: bool,
     t_min: f32,
+    simd: bool,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (ms, m) = f32_array("means", means, 2)?;
@@ -172,6 +173,7 @@ fn rasterize_forward<'py>(
         tile_ellipse,
         t_min,
         with_depth: render_depth,
+        simd,
     };
     let (out, state) = run_native(py, || {
         let scene = Scene::new(&m, &q, &s, &o, &col, mode)?;

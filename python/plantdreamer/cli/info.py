@@ -7,7 +7,7 @@ import click
 
 @click.command()
 def info() -> None:
-    """Show versions, CPU threads and whether a CUDA GPU is usable."""
+    """Show versions, CPU threads, the blending kernel and whether a CUDA GPU is usable."""
     import torch
 
     from plantdreamer import _core
@@ -18,6 +18,7 @@ def info() -> None:
         "native core": core["core_version"]
         + (" (debug build: slow)" if core["debug_build"] else ""),
         "cpu threads": str(core["threads"]),
+        "blending kernel": core["blend_kernel"],
         "torch": torch.__version__,
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "not available",
     }

@@ -35,6 +35,7 @@ pub fn blend_backward(
     height: u32,
     v_render: &[f32],
     v_alpha: &[f32],
+    simd: bool,
 ) -> Vec<f32> {
     let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
@@ -64,6 +65,7 @@ pub fn blend_backward(
                     splats: &blended.packed_splats[range.clone()],
                     features: &blended.packed_features[range.start * ch..range.end * ch],
                     rect,
+                    simd,
                 };
                 scratch.reset(
                     &rect,
@@ -85,6 +87,8 @@ pub(super) struct BackTile<'a> {
     pub splats: &'a [BlendSplat],
     pub features: &'a [f32],
     pub rect: TileRect,
+    /// Use the SIMD kernel when the CPU has one.
+    pub simd: bool,
 }
 
 /// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
@@ -225,7 +229,9 @@ pub(super) fn lane_sum(v: &[f32; LANES]) -> f32 {
 
 fn backward_tile(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
-    if ch <= super::blend_avx2::MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2")
+    if tile.simd
+        && ch <= super::blend_avx2::MAX_BACKWARD_CHANNELS
+        && std::arch::is_x86_feature_detected!("avx2")
     {
         super::blend_avx2::backward_tile(tile, ch, scratch, out);
         return;

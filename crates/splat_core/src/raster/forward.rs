@@ -170,6 +170,7 @@ pub fn blend(
     width: u32,
     height: u32,
     t_min: f32,
+    simd: bool,
     render: &mut [f32],
     alpha: &mut [f32],
 ) -> Blended {
@@ -214,6 +215,7 @@ pub fn blend(
                     features: &tile_features[range.start * ch..range.end * ch],
                     rect,
                     t_min,
+                    simd,
                 };
                 scratch.reset(&rect);
                 blend_tile(&tile, ch, scratch);
@@ -239,6 +241,8 @@ pub(super) struct TileInput<'a> {
     pub features: &'a [f32],
     pub rect: TileRect,
     pub t_min: f32,
+    /// Use the SIMD kernel when the CPU has one.
+    pub simd: bool,
 }
 
 /// Per-tile pixel state, structure of arrays with rows padded to whole lane groups.
@@ -360,7 +364,7 @@ fn to_image(
 
 fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if tile.simd && std::arch::is_x86_feature_detected!("avx2") {
         super::blend_avx2::blend_tile(tile, ch, scratch);
         return;
     }

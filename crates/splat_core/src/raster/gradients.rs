@@ -78,6 +78,7 @@ pub fn backward(
             state.height,
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &v_alpha[ci * pixels..(ci + 1) * pixels],
+            state.opts.simd,
         );
         let centre = cam.centre();
         let bins = &cs.bins;

@@ -140,6 +140,7 @@ fn forward_kernels_agree() {
                 features: &feats,
                 rect,
                 t_min,
+                simd: true,
             };
             let (a, b) = (
                 forward_scratch(&tile, ts, true),
@@ -173,6 +174,7 @@ fn backward_kernels_agree() {
                 features: &feats,
                 rect,
                 t_min,
+                simd: true,
             };
             let fw = forward_scratch(&tile, ts, false);
             let (mut t_final, mut last) = (vec![1.0; ts * ts], vec![0; ts * ts]);
@@ -191,6 +193,7 @@ fn backward_kernels_agree() {
                 splats: &splats,
                 features: &feats,
                 rect,
+                simd: true,
             };
             let run = |avx: bool| {
                 let mut sc = BackScratch::new(ts, 3);

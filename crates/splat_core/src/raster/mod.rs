@@ -72,6 +72,9 @@ pub struct RasterOptions {
     pub t_min: f32,
     /// Append the camera-space depth as the last feature channel.
     pub with_depth: bool,
+    /// Blend with the SIMD kernels where the CPU has them; false forces the scalar kernels
+    /// (the same bits, slower: for checking and timing).
+    pub simd: bool,
 }
 
 impl Default for RasterOptions {
@@ -86,6 +89,7 @@ impl Default for RasterOptions {
             tile_ellipse: true,
             t_min: 1e-4,
             with_depth: false,
+            simd: true,
         }
     }
 }
@@ -124,6 +128,15 @@ impl RasterOptions {
         }
         Ok(())
     }
+}
+
+/// The blending kernel this CPU runs with `simd` on: "avx2" or "scalar".
+pub fn blend_kernel() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        return "avx2";
+    }
+    "scalar"
 }
 
 /// Seconds spent in each stage, summed over cameras.
@@ -254,6 +267,7 @@ pub fn forward(
             width,
             height,
             opts.t_min,
+            opts.simd,
             &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &mut out.alpha[ci * pixels..(ci + 1) * pixels],
         );
