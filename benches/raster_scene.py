@@ -86,3 +86,30 @@ def orbit_cameras(width: int, height: int, n: int = 1) -> tuple[torch.Tensor, to
     cams = [orbit(4.5, 15.0, 30.0 + 360.0 * i / max(n, 1), 55.0, width, height) for i in range(n)]
     viewmats, ks = stack(cams)
     return torch.from_numpy(viewmats), torch.from_numpy(ks)
+
+
+def dump(path: str, n: int, size: int) -> None:
+    """Writes the scene and its camera as raw little-endian float32 for the Rust timing
+    example (`crates/splat_core/examples/raster_timing.rs`): n, size, means, quats, scales,
+    opacities, colours, viewmat, K."""
+    import numpy as np
+
+    scene = synthetic_plant(n)
+    viewmats, ks = orbit_cameras(size, size)
+    parts = [np.array([n, size], dtype=np.float32)]
+    parts += [x.numpy().ravel() for x in scene] + [
+        viewmats[0].numpy().ravel(),
+        ks[0].numpy().ravel(),
+    ]
+    np.concatenate(parts).astype("<f4").tofile(path)
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(description="Dump the benchmark scene for raster_timing.")
+    parser.add_argument("--dump", required=True, metavar="FILE")
+    parser.add_argument("--n", type=int, default=100_000)
+    parser.add_argument("--size", type=int, default=512)
+    args = parser.parse_args()
+    dump(args.dump, args.n, args.size)

@@ -1,7 +1,10 @@
 //! Times the forward rasterizer per stage on a scene dumped by
-//! `benches/raster_scene.py --dump FILE`, without Python in the way (for profiling):
+//! `python benches/raster_scene.py --dump FILE [--n N] [--size S]`, without Python in the
+//! way (for profiling with perf):
 //!
 //!     cargo run --release -p splat_core --example raster_timing -- FILE [THREADS] [REPS]
+//!
+//! `TILE=32` sets the tile size; `BACKWARD=1` also times the backward pass.
 use std::time::Instant;
 
 #[global_allocator]
