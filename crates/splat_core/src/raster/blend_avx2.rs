@@ -12,7 +12,7 @@
 use std::arch::x86_64::*;
 
 use super::backward::{for_each_splat_back, BackScratch, BackSplat, BackTile, ISECT_FIXED};
-use super::forward::{for_each_splat, SplatInTile, TileInput, TileScratch, LANES};
+use super::forward::{for_each_splat, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES};
 use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
@@ -58,7 +58,6 @@ fn exp_neg(x: __m256) -> __m256 {
         let s = _mm256_set1_ps;
         // maxps/minps return the second operand when a lane is NaN, like `if x > c`.
         let x = _mm256_max_ps(x, s(-87.0));
-        let x = _mm256_min_ps(x, s(0.0));
         const ROUND: f32 = 12_582_912.0;
         let t = _mm256_add_ps(_mm256_mul_ps(x, s(std::f32::consts::LOG2_E)), s(ROUND));
         let n = _mm256_sub_ps(t, s(ROUND));
@@ -66,20 +65,15 @@ fn exp_neg(x: __m256) -> __m256 {
             _mm256_sub_ps(x, _mm256_mul_ps(n, s(0.693_359_4))),
             _mm256_mul_ps(n, s(-2.121_944_4e-4)),
         );
-        let mut p = s(1.987_569_2e-4);
-        for c in [
-            1.398_199_9e-3,
-            8.333_452e-3,
-            4.166_579_6e-2,
-            1.666_666_5e-1,
-            0.5,
-        ] {
-            p = _mm256_add_ps(_mm256_mul_ps(p, r), s(c));
-        }
-        let y = _mm256_add_ps(
-            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(p, r), r), r),
-            s(1.0),
+        let c = EXP_COEFFS.map(|v| s(v));
+        let r2 = _mm256_mul_ps(r, r);
+        let r4 = _mm256_mul_ps(r2, r2);
+        let lin = |a: __m256, b: __m256| _mm256_add_ps(_mm256_mul_ps(a, r), b);
+        let p = _mm256_add_ps(
+            _mm256_mul_ps(lin(c[0], c[1]), r4),
+            _mm256_add_ps(_mm256_mul_ps(lin(c[2], c[3]), r2), lin(c[4], c[5])),
         );
+        let y = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(p, r2), r), s(1.0));
         let n_int = _mm256_sub_epi32(
             _mm256_castps_si256(t),
             _mm256_set1_epi32(ROUND.to_bits() as i32),
