@@ -36,8 +36,14 @@ def arrays(scene):
 
 
 def forward_times(scene, viewmats, ks, size, threads, reps, **kw):
-    """Wall times (s) of reps calls, and the last output."""
+    """Wall times (s) of reps calls after one untimed warm-up call, and the last output.
+
+    The warm-up matters: the first call on a thread pool after another pool ran finds cold
+    caches and allocator heaps without free pages (up to ~30% slower at 100k)."""
     times, out = [], None
+    _core.rasterize_forward(
+        *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=threads, **kw
+    )
     for _ in range(reps):
         t = time.perf_counter()
         out = _core.rasterize_forward(
@@ -108,7 +114,7 @@ def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
 
 
 # Rounds through all sizes and thread counts for the forward table.
-ROUNDS = 6
+ROUNDS = 3
 
 
 def error_vs_reference(size: int, n: int, **kw) -> tuple[float, float, float]:
