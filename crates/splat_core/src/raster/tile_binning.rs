@@ -1,10 +1,11 @@
 //! Which tiles each splat touches, and the per-tile lists sorted by depth.
 //!
-//! 1. Visible splats are ordered by (depth, index) once.
+//! 1. Visible splats are ordered by (depth, index) once (radix sort).
 //! 2. Each splat lists the tiles of its footprint box that its footprint ellipse really
-//!    touches (optional, `tile_ellipse`), in parallel, into one depth-major array.
-//! 3. A stable counting sort by tile turns that into tile-major lists; because the input is
-//!    depth-major, every tile's list comes out depth-sorted with no per-tile sort.
+//!    touches (optional, `tile_ellipse`); fixed chunks of the depth-ordered splats do this
+//!    in parallel and sort their pairs by tile (stable counting sort).
+//! 3. Each tile concatenates the chunks' lists for it in chunk order; because the chunks
+//!    are depth-ordered, every tile's list comes out depth-sorted with no per-tile sort.
 //!
 //! A splat's entries in the tile-major lists come in increasing tile order; the backward
 //! pass sums its per-tile gradients in that fixed order, without atomics.
@@ -201,6 +202,47 @@ fn radix_sort_by_key(mut keys: Vec<u32>, mut ids: Vec<u32>) -> Vec<u32> {
     ids
 }
 
+/// Splats per chunk of the binning pass: at least `MIN_CHUNK`, and at most `MAX_CHUNKS`
+/// chunks (each holds per-tile offsets, so their number bounds the memory).
+const MIN_CHUNK: usize = 2048;
+const MAX_CHUNKS: usize = 64;
+
+/// One chunk's (tile, splat) pairs as per-tile lists.
+struct ChunkLists {
+    /// Splat indices sorted by tile; tile t's are `gids[offsets[t]..offsets[t + 1]]`.
+    gids: Vec<u32>,
+    offsets: Vec<u32>,
+}
+
+impl ChunkLists {
+    /// Stable counting sort of (tile, splat) pairs by tile.
+    fn sorted_by_tile(pairs: &[(u32, u32)], n_tiles: usize) -> Self {
+        let mut offsets = vec![0u32; n_tiles + 1];
+        for &(t, _) in pairs {
+            offsets[t as usize + 1] += 1;
+        }
+        for t in 0..n_tiles {
+            offsets[t + 1] += offsets[t];
+        }
+        let mut cursor = offsets[..n_tiles].to_vec();
+        let mut gids = vec![0u32; pairs.len()];
+        for &(t, g) in pairs {
+            let k = &mut cursor[t as usize];
+            gids[*k as usize] = g;
+            *k += 1;
+        }
+        Self { gids, offsets }
+    }
+
+    fn len(&self, t: usize) -> u32 {
+        self.offsets[t + 1] - self.offsets[t]
+    }
+
+    fn list(&self, t: usize) -> &[u32] {
+        &self.gids[self.offsets[t] as usize..self.offsets[t + 1] as usize]
+    }
+}
+
 /// Builds the tile lists of one camera from its visible splats in depth order.
 pub fn bin(
     splats: &[Splat],
@@ -220,58 +262,52 @@ pub fn bin(
         .par_iter()
         .map(|&g| splats[g as usize])
         .collect();
-    // One pass: each fixed chunk of splats (fixed, so the result does not depend on the
-    // thread count) lists its tiles and per-splat counts; the chunks are then concatenated.
-    const CHUNK: usize = 2048;
-    let chunks: Vec<(Vec<u32>, Vec<u32>)> = sorted
-        .par_chunks(CHUNK)
-        .map(|chunk| {
-            let mut counts = Vec::with_capacity(chunk.len());
-            let mut tiles = Vec::with_capacity(chunk.len() * 2);
-            for s in chunk {
-                let before = tiles.len();
-                for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| tiles.push(t));
-                counts.push((tiles.len() - before) as u32);
+    // Each chunk of splats (fixed by N alone, so the result does not depend on the thread
+    // count) lists its (tile, splat) pairs and sorts them by tile, stably: within a tile
+    // they stay in depth order.
+    let chunk = depth_order.len().div_ceil(MAX_CHUNKS).max(MIN_CHUNK);
+    let chunks: Vec<ChunkLists> = sorted
+        .par_chunks(chunk)
+        .zip(depth_order.par_chunks(chunk))
+        .map(|(ss, gs)| {
+            let mut pairs = Vec::with_capacity(ss.len() * 2);
+            for (s, &g) in ss.iter().zip(gs) {
+                for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| {
+                    pairs.push((t, g))
+                });
             }
-            (counts, tiles)
+            ChunkLists::sorted_by_tile(&pairs, n_tiles)
         })
         .collect();
-    let total: usize = chunks.iter().map(|(_, t)| t.len()).sum();
+    let total: usize = chunks.iter().map(|c| c.gids.len()).sum();
     if total > u32::MAX as usize {
         return Err(CoreError::input(
             "more than 4 billion tile intersections: use fewer Gaussians or a smaller image",
         ));
     }
-    let mut gauss_offsets = Vec::with_capacity(sorted.len() + 1);
-    let mut isect_tile = Vec::with_capacity(total);
-    gauss_offsets.push(0u32);
-    for (counts, tiles) in &chunks {
-        let mut at = isect_tile.len() as u32;
-        gauss_offsets.extend(counts.iter().map(|&c| {
-            at += c;
-            at
-        }));
-        isect_tile.extend_from_slice(tiles);
-    }
-    drop(chunks);
-
-    // Stable counting sort by tile.
+    // Tile t's list is the concatenation of the chunks' lists for t, in chunk (= depth)
+    // order; every tile gathers its own slice, in parallel.
     let mut tile_offsets = vec![0u32; n_tiles + 1];
-    for &t in &isect_tile {
-        tile_offsets[t as usize + 1] += 1;
-    }
     for t in 0..n_tiles {
-        tile_offsets[t + 1] += tile_offsets[t];
+        let n: u32 = chunks.iter().map(|c| c.len(t)).sum();
+        tile_offsets[t + 1] = tile_offsets[t] + n;
     }
-    let mut cursor = tile_offsets[..n_tiles].to_vec();
-    let mut isect_gid = vec![0u32; isect_tile.len()];
-    for (i, &g) in depth_order.iter().enumerate() {
-        for &t in &isect_tile[gauss_offsets[i] as usize..gauss_offsets[i + 1] as usize] {
-            let k = &mut cursor[t as usize];
-            isect_gid[*k as usize] = g;
-            *k += 1;
+    let mut isect_gid = vec![0u32; total];
+    let mut slices: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);
+    let mut rest = isect_gid.as_mut_slice();
+    for t in 0..n_tiles {
+        let (head, tail) = rest.split_at_mut((tile_offsets[t + 1] - tile_offsets[t]) as usize);
+        slices.push(head);
+        rest = tail;
+    }
+    slices.into_par_iter().enumerate().for_each(|(t, out)| {
+        let mut at = 0;
+        for c in &chunks {
+            let list = c.list(t);
+            out[at..at + list.len()].copy_from_slice(list);
+            at += list.len();
         }
-    }
+    });
     Ok(TileBins {
         tile_size,
         tiles_x,
