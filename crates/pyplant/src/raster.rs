@@ -176,7 +176,7 @@ fn rasterize_forward<'py>(
         simd,
     };
     let (out, state) = run_native(py, || {
-        let scene = Scene::new(&m, &q, &s, &o, &col, mode)?;
+        let scene = Scene::from_vecs(m, q, s, o, col, mode)?;
         let cameras = (0..c)
             .map(|i| {
                 Camera::from_matrices(&v[16 * i..16 * i + 16], &k[9 * i..9 * i + 9], width, height)

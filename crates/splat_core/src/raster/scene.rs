@@ -42,20 +42,39 @@ impl Scene {
         colors: &[f32],
         color_mode: ColorMode,
     ) -> CoreResult<Self> {
+        Self::from_vecs(
+            means.to_vec(),
+            quats.to_vec(),
+            scales.to_vec(),
+            opacities.to_vec(),
+            colors.to_vec(),
+            color_mode,
+        )
+    }
+
+    /// Takes the arrays (no copy) and checks their lengths.
+    pub fn from_vecs(
+        means: Vec<f32>,
+        quats: Vec<f32>,
+        scales: Vec<f32>,
+        opacities: Vec<f32>,
+        colors: Vec<f32>,
+        color_mode: ColorMode,
+    ) -> CoreResult<Self> {
         if !means.len().is_multiple_of(3) {
             return Err(CoreError::input("means must hold N x 3 values"));
         }
         let n = means.len() / 3;
-        check_len("quats", quats, n, 4)?;
-        check_len("scales", scales, n, 3)?;
-        check_len("opacities", opacities, n, 1)?;
+        check_len("quats", &quats, n, 4)?;
+        check_len("scales", &scales, n, 3)?;
+        check_len("opacities", &opacities, n, 1)?;
         match color_mode {
             ColorMode::None => {}
             ColorMode::Direct { channels } => {
                 if channels == 0 {
                     return Err(CoreError::input("colors need at least one channel"));
                 }
-                check_len("colors", colors, n, channels)?;
+                check_len("colors", &colors, n, channels)?;
             }
             ColorMode::Sh { degree, bases } => {
                 if degree > 3 {
@@ -69,16 +88,16 @@ impl Scene {
                         sh::num_bases(degree)
                     )));
                 }
-                check_len("colors", colors, n, bases * 3)?;
+                check_len("colors", &colors, n, bases * 3)?;
             }
         }
         Ok(Self {
             n,
-            means: means.to_vec(),
-            quats: quats.to_vec(),
-            scales: scales.to_vec(),
-            opacities: opacities.to_vec(),
-            colors: colors.to_vec(),
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
             color_mode,
         })
     }
