@@ -59,6 +59,18 @@ def forward(scene, viewmats, ks, size, threads, reps, **kw):
     return min(times), out
 
 
+def calibration_ms() -> float:
+    """Wall time of a fixed pure-Python loop: how fast the machine is right now."""
+    t = time.perf_counter()
+    acc = 0
+    for i in range(300_000):
+        acc += i * i
+    return (time.perf_counter() - t) * 1e3
+
+
+CALIBRATION: list[float] = []
+
+
 def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
     """Forward times; for 100k and fewer Gaussians the calls are spread over several rounds
     through all sizes and thread counts, so that a slow spell of the machine does not land
@@ -75,6 +87,7 @@ def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
         for _ in range(rounds):
             for size in sizes:
                 for threads in (1, 2):
+                    CALIBRATION.append(calibration_ms())
                     t, outs[size] = forward_times(scene, *cams[size], size, threads, per_round)
                     times.setdefault((size, threads), []).extend(t)
         for size in sizes:
@@ -114,7 +127,7 @@ def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
 
 
 # Rounds through all sizes and thread counts for the forward table.
-ROUNDS = 3
+ROUNDS = 5
 
 
 def error_vs_reference(size: int, n: int, **kw) -> tuple[float, float, float]:
@@ -314,17 +327,25 @@ def main() -> None:
 Command: `{COMMAND}`. Scene: `benches/raster_scene.py`, a synthetic plant (longest side 4,
 stem + 40 leaves, Gaussians on the surfaces with kNN-like sizes, flattened along the normal,
 opacities spread over (0.05, 1)), one orbit camera at distance 4.5, elevation 15, fovy 55.
-Blending kernel: `{_core.info()["blend_kernel"]}` (`plantdreamer info`). The machine is a
-2-core VM whose speed drifts by up to ~30% from one minute to the next (other tenants on
-the host: with nothing else running in the VM, the same binary measured 19-32 ms for the
-100k @ 512^2 row within an hour). The forward table gives the minimum and the median over
-{reps} calls per row, spread over {ROUNDS} rounds through the sizes ({max(2, reps // 3)}
-calls in one round for 1M Gaussians); the other tables give minima over {reps // 2}
-calls.
+Blending kernel: `{_core.info()["blend_kernel"]}` (`plantdreamer info`).
+
+**How to read the times.** The machine is a 2-vCPU VM whose CPU time the host caps: with
+nothing else running in the VM, a fixed pure-Python loop takes ~10 ms in some seconds and
+~19 ms in others, on either vCPU (see the line under the forward table), and sustained
+load makes the slow spells more frequent. So the forward table gives the minimum (the
+code at the machine's full speed) and the median over {reps} calls per row, spread over
+{ROUNDS} rounds through all sizes, each block after one untimed warm-up call
+({max(2, reps // 3)} calls in one round for 1M Gaussians); the other tables give minima
+over {reps // 2} calls.
 
 ### Forward time
 
 {fwd}
+
+Machine speed during this table: a fixed pure-Python loop, timed before every block of
+calls, took {min(CALIBRATION):.1f} ms at best and {float(np.median(CALIBRATION)):.1f} ms at
+the median (median / min = {float(np.median(CALIBRATION)) / min(CALIBRATION):.2f}), the
+same kind of spread as the rasterizer's min and median.
 
 Targets (issue 4): 100k at 512^2 <= 25 ms and at 768^2 <= 50 ms on 2 threads.
 
