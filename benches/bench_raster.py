@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import random
 import sys
 import time
 from pathlib import Path
@@ -84,12 +85,16 @@ def forward_table(reps: int, sizes, counts) -> tuple[str, list[dict]]:
         per_round = max(1, reps // rounds) if n <= 100_000 else max(2, reps // 3)
         times: dict[tuple[int, int], list[float]] = {}
         outs = {}
-        for _ in range(rounds):
-            for size in sizes:
-                for threads in (1, 2):
-                    CALIBRATION.append(calibration_ms())
-                    t, outs[size] = forward_times(scene, *cams[size], size, threads, per_round)
-                    times.setdefault((size, threads), []).extend(t)
+        blocks = [(size, threads) for size in sizes for threads in (1, 2)]
+        for r in range(rounds):
+            # A fixed but shuffled order per round, so that slow spells of the machine do
+            # not fall on the same rows every round; a short rest before each block.
+            random.Random(r).shuffle(blocks)
+            for size, threads in blocks:
+                time.sleep(0.2)
+                CALIBRATION.append(calibration_ms())
+                t, outs[size] = forward_times(scene, *cams[size], size, threads, per_round)
+                times.setdefault((size, threads), []).extend(t)
         for size in sizes:
             out = outs[size]
             best = {th: min(times[size, th]) for th in (1, 2)}
@@ -334,7 +339,8 @@ nothing else running in the VM, a fixed pure-Python loop takes ~10 ms in some se
 ~19 ms in others, on either vCPU (see the line under the forward table), and sustained
 load makes the slow spells more frequent. So the forward table gives the minimum (the
 code at the machine's full speed) and the median over {reps} calls per row, spread over
-{ROUNDS} rounds through all sizes, each block after one untimed warm-up call
+{ROUNDS} rounds through all sizes (in a shuffled order, after a 0.2 s rest), each block
+after one untimed warm-up call
 ({max(2, reps // 3)} calls in one round for 1M Gaussians); the other tables give minima
 over {reps // 2} calls.
 
