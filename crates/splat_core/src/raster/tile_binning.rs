@@ -203,9 +203,11 @@ fn radix_sort_by_key(mut keys: Vec<u32>, mut ids: Vec<u32>) -> Vec<u32> {
 }
 
 /// Splats per chunk of the binning pass: at least `MIN_CHUNK`, and at most `MAX_CHUNKS`
-/// chunks (each holds per-tile offsets, so their number bounds the memory).
+/// chunks; each chunk holds an offset per tile, so chunks x tiles is also capped (tiny tiles
+/// on a huge image get fewer, larger chunks).
 const MIN_CHUNK: usize = 2048;
 const MAX_CHUNKS: usize = 64;
+const MAX_CHUNK_OFFSETS: usize = 1 << 24;
 
 /// One chunk's (tile, splat) pairs as per-tile lists.
 struct ChunkLists {
@@ -265,7 +267,8 @@ pub fn bin(
     // Each chunk of splats (fixed by N alone, so the result does not depend on the thread
     // count) lists its (tile, splat) pairs and sorts them by tile, stably: within a tile
     // they stay in depth order.
-    let chunk = depth_order.len().div_ceil(MAX_CHUNKS).max(MIN_CHUNK);
+    let n_chunks = (MAX_CHUNK_OFFSETS / (n_tiles + 1)).clamp(1, MAX_CHUNKS);
+    let chunk = depth_order.len().div_ceil(n_chunks).max(MIN_CHUNK);
     let chunks: Vec<ChunkLists> = sorted
         .par_chunks(chunk)
         .zip(depth_order.par_chunks(chunk))
