@@ -2,11 +2,13 @@
 //! instruction.
 //!
 //! Every operation mirrors `forward::blend_tile_scalar`, `backward::backward_tile_scalar`
-//! and `forward::exp_neg` one to one
-//! (same operands, same order, no fused multiply-add; `max`/`min` with the constant second
-//! so NaN lanes take the constant like the scalar comparisons), so this path and the scalar
-//! one produce the same bits. The only unsafe code is the unaligned loads and stores of
-//! eight-element slices whose bounds are checked by slicing first.
+//! and `forward::exp_neg` one to one (same operands, same order, no fused multiply-add;
+//! `max`/`min` with the constant second so NaN lanes take the constant like the scalar
+//! comparisons), so this path and the scalar one produce the same bits (`kernel_tests`).
+//! Lanes the scalar code skips are computed here and masked out (+0 added, state kept).
+//! The only unsafe code: unaligned loads and stores of eight-element slices whose bounds are
+//! checked by slicing first, and the calls into `#[target_feature]` functions after
+//! `is_x86_feature_detected!("avx2")`.
 #![allow(unsafe_code)]
 
 use std::arch::x86_64::*;

@@ -1,16 +1,17 @@
-//! Front-to-back alpha blending of the depth-sorted tile lists (rayon over rows of tiles).
+//! Front-to-back alpha blending of the depth-sorted tile lists (rayon over tiles).
 //!
 //! Per pixel, exactly gsplat's classic rules: sigma = 0.5 (a dx^2 + c dy^2) + b dx dy,
 //! alpha = min(0.99, opacity exp(-sigma)), skip sigma < 0 or alpha < 1/255, stop before the
 //! splat that would bring T to <= t_min. Within a tile the loop runs splat-major and visits
-//! only the pixels of the splat's footprint (plus a sliver of slack); each pixel still sees
-//! its splats in depth order, so the result equals the pixel-major loop bit for bit.
+//! only the pixels of the splat's footprint box; each pixel still sees its splats in depth
+//! order, so the result equals the pixel-major loop bit for bit.
 //!
-//! The pixels of one footprint row are processed in groups of `LANES` adjacent pixels with
-//! branch-free lane code (masks instead of `continue`), which the compiler turns into SIMD:
-//! AVX2 when the CPU has it (checked at run time), SSE2 otherwise. Both compile the same
-//! scalar operations in the same order, without fused multiply-adds, so every path gives
-//! the same bits, and the backward pass (scalar, `pixel_alpha`) recomputes the same alphas.
+//! The footprint is walked in lane groups of `LANES` adjacent pixels of a row, with
+//! branch-free lane rules (masks instead of `continue`). `blend_avx2` runs them with AVX2
+//! intrinsics when the CPU has AVX2 (checked at run time), `blend_tile_scalar` otherwise.
+//! Both perform the same operations in the same order, without fused multiply-adds, so
+//! every path gives the same bits (`kernel_tests`), and the backward pass, built the same
+//! way, recomputes the same alphas.
 
 use rayon::prelude::*;
 
@@ -113,8 +114,8 @@ impl From<&Splat> for BlendSplat {
 /// Pixel indices [i0, i1) whose centres (i + 0.5) lie in [lo, hi] (plus slack), clipped.
 ///
 /// Clipping to integers commutes with ceil/floor, so the values are clipped first and
-/// rounded by truncation: on baseline x86-64 `f32::ceil` is a libm call, and this runs for
-/// every row of every splat (it was ~6% of the forward time at 100k Gaussians).
+/// rounded by truncation: on baseline x86-64 `f32::ceil` is a libm call, and this runs
+/// twice per (splat, tile) pair in the forward and again in the backward.
 #[inline(always)]
 fn pixel_span(lo: f32, hi: f32, min: u32, max: u32) -> (u32, u32) {
     // max/min return the non-NaN operand: NaN bounds clip to `min`, as before.
@@ -166,7 +167,7 @@ pub struct Blended {
     pub packed_features: Vec<f32>,
 }
 
-/// Pixels per lane group: eight f32 lanes fill an AVX2 register (two SSE2 registers).
+/// Pixels per lane group: eight f32 lanes fill an AVX2 register.
 pub(super) const LANES: usize = 8;
 
 /// Blends every tile of one camera into the row-major image `render` [H, W, ch] and
@@ -203,7 +204,9 @@ pub fn blend(
     };
     let (tile_splats, tile_features) = (&out.packed_splats, &out.packed_features);
     // Tiles are the unit of parallel work (rows of tiles balance badly: a plant fills the
-    // middle of the image). Each tile writes its own slices; `to_image` assembles the image.
+    // middle of the image), handed out a few at a time so that no thread idles while the
+    // other finishes a long run of heavy tiles. Each tile writes its own slices;
+    // `to_image` assembles the image.
     let mut tile_feat = vec![0.0f32; bins.n_tiles() * tp * ch];
     tile_feat
         .par_chunks_mut(tp * ch)
