@@ -19,7 +19,9 @@
 
 use rayon::prelude::*;
 
-use super::forward::{exp_neg, sigma_at, BlendSplat, Blended, PixelFootprint, TileRect, LANES};
+use super::forward::{
+    exp_neg, sigma_at, BlendSplat, Blended, Footprint, TileGeometry, TileRect, LANES,
+};
 use super::tile_binning::TileBins;
 use super::{ALPHA_MAX, ALPHA_MIN};
 
@@ -94,8 +96,7 @@ pub(super) struct BackTile<'a> {
 /// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
 /// lane groups (padding pixels have `last` 0, so no splat touches them).
 pub(super) struct BackScratch {
-    pub stride: usize,
-    ts: usize,
+    pub geo: TileGeometry,
     /// Transmittance after the splat being processed (starts at the final T).
     pub trans: Vec<f32>,
     pub last: Vec<u32>,
@@ -104,34 +105,20 @@ pub(super) struct BackScratch {
     /// Planar dL/d(render) and features blended behind the current splat.
     pub v_out: Vec<f32>,
     pub buf: Vec<f32>,
-    pub xs: Vec<f32>,
-    /// dy, c dy^2 and b dy of each row for the current splat.
-    pub row_dy: Vec<f32>,
-    pub row_c: Vec<f32>,
-    pub row_b: Vec<f32>,
 }
 
 impl BackScratch {
     pub(super) fn new(ts: usize, ch: usize) -> Self {
-        let stride = ts.div_ceil(LANES) * LANES;
-        let plane = stride * ts;
+        let geo = TileGeometry::new(ts);
+        let plane = geo.plane();
         Self {
-            stride,
-            ts,
+            geo,
             trans: vec![0.0; plane],
             last: vec![0; plane],
             va_tf: vec![0.0; plane],
             v_out: vec![0.0; plane * ch],
             buf: vec![0.0; plane * ch],
-            xs: vec![0.0; stride],
-            row_dy: vec![0.0; ts],
-            row_c: vec![0.0; ts],
-            row_b: vec![0.0; ts],
         }
-    }
-
-    pub fn plane(&self) -> usize {
-        self.stride * self.ts
     }
 
     /// Loads the tile's pixels (tile-major `t_final` / `last`, row-major gradients).
@@ -146,11 +133,11 @@ impl BackScratch {
         v_alpha: &[f32],
     ) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-        let plane = self.plane();
+        let (plane, ts, stride) = (self.geo.plane(), self.geo.ts, self.geo.stride);
         self.last.fill(0);
         self.buf.fill(0.0);
         for ly in 0..th {
-            let (src, dst) = (ly * self.ts, ly * self.stride);
+            let (src, dst) = (ly * ts, ly * stride);
             let pix = (rect.y0 as usize + ly) * width + rect.x0 as usize;
             self.trans[dst..dst + tw].copy_from_slice(&t_final[src..src + tw]);
             self.last[dst..dst + tw].copy_from_slice(&last[src..src + tw]);
@@ -161,9 +148,7 @@ impl BackScratch {
                 }
             }
         }
-        for (i, x) in self.xs.iter_mut().enumerate() {
-            *x = (rect.x0 as usize + i) as f32 + 0.5;
-        }
+        self.geo.set_tile(rect);
     }
 }
 
@@ -173,10 +158,7 @@ pub(super) struct BackSplat<'a> {
     pub f: &'a [f32],
     /// Its position in the tile list: pixels with `last > k` saw it.
     pub k: u32,
-    pub xlo: f32,
-    pub xhi: f32,
-    pub groups: std::ops::Range<usize>,
-    pub rows: std::ops::Range<usize>,
+    pub fp: Footprint,
 }
 
 /// Walks the tile's list back to front from the last splat any pixel used, and calls
@@ -190,31 +172,17 @@ pub(super) fn for_each_splat_back(
     mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]),
 ) {
     let stride = ISECT_FIXED + ch;
-    let rect = &tile.rect;
     let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..k_end).rev() {
         let s = &tile.splats[k];
-        let fp = PixelFootprint::new(s, rect);
-        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
+        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
             continue;
-        }
-        let [_, b, c] = s.conic;
-        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
-        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
-        for ly in rows.clone() {
-            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
-            scratch.row_dy[ly] = dy;
-            scratch.row_c[ly] = c * dy * dy;
-            scratch.row_b[ly] = b * dy;
-        }
+        };
         let splat = BackSplat {
             s,
             f: &tile.features[k * ch..(k + 1) * ch],
             k: k as u32,
-            xlo: fp.x0 as f32,
-            xhi: fp.x1 as f32,
-            groups: lx0 / LANES..lx1.div_ceil(LANES),
-            rows,
+            fp,
         };
         kernel(&splat, scratch, &mut out[k * stride..(k + 1) * stride]);
     }
@@ -246,23 +214,23 @@ pub(super) fn backward_tile_scalar(
     scratch: &mut BackScratch,
     out: &mut [f32],
 ) {
-    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let mut acc_f = vec![[0.0f32; LANES]; ch];
     for_each_splat_back(tile, ch, scratch, out, |sp, sc, o| {
         let [ca, cb, cc] = sp.s.conic;
         // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity.
         let mut acc = [[0.0f32; LANES]; ISECT_FIXED];
         acc_f.iter_mut().for_each(|a| *a = [0.0; LANES]);
-        for gi in sp.groups.clone() {
-            for ly in sp.rows.clone() {
+        for gi in sp.fp.groups.clone() {
+            for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
                 for i in 0..LANES {
                     let l = base + i;
-                    let x = sc.xs[gi * LANES + i];
-                    let active = (x > sp.xlo) & (x < sp.xhi) & (sp.k < sc.last[l]);
+                    let x = sc.geo.xs[gi * LANES + i];
+                    let active = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sp.k < sc.last[l]);
                     let dx = sp.s.xy[0] - x;
-                    let dy = sc.row_dy[ly];
-                    let sigma = sigma_at(ca, dx, sc.row_c[ly], sc.row_b[ly]);
+                    let dy = sc.geo.row_dy[ly];
+                    let sigma = sigma_at(ca, dx, sc.geo.row_c[ly], sc.geo.row_b[ly]);
                     let vis = exp_neg(-sigma);
                     let raw = sp.s.opacity * vis;
                     let alpha = raw.min(ALPHA_MAX);

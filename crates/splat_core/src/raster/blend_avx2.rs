@@ -14,7 +14,9 @@
 use std::arch::x86_64::*;
 
 use super::backward::{for_each_splat_back, BackScratch, BackSplat, BackTile, ISECT_FIXED};
-use super::forward::{for_each_splat, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES};
+use super::forward::{
+    for_each_splat, Footprint, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES,
+};
 use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
@@ -85,25 +87,41 @@ fn exp_neg(x: __m256) -> __m256 {
     }
 }
 
+/// One lane group of footprint columns: the mask of lanes inside the footprint, dx = x_splat
+/// - x_pixel, and a dx^2 (the row-independent part of sigma, hoisted out of the rows).
+#[inline(always)]
+fn column_group(
+    xs: &[f32],
+    gi: usize,
+    fp: &Footprint,
+    sx: f32,
+    a: f32,
+) -> (__m256, __m256, __m256) {
+    let x = load(&xs[gi * LANES..]);
+    // SAFETY: only called from the `#[target_feature(enable = "avx2")]` kernels below.
+    unsafe {
+        let s = _mm256_set1_ps;
+        let cols = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(fp.xlo)),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(fp.xhi)),
+        );
+        let dx = _mm256_sub_ps(s(sx), x);
+        (cols, dx, _mm256_mul_ps(_mm256_mul_ps(s(a), dx), dx))
+    }
+}
+
 #[target_feature(enable = "avx2")]
 fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
-    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let t_min = s(tile.t_min);
     for_each_splat(tile, ch, scratch, |sp: &SplatInTile, sc| {
         let [a, _, _] = sp.s.conic;
         let (opacity, k1) = (s(sp.s.opacity), _mm256_set1_epi32(sp.k1 as i32));
         let mut stopped = 0;
-        for gi in sp.groups.clone() {
-            // Per column group: which lanes are footprint columns, dx and a dx^2.
-            let x = load(&sc.xs[gi * LANES..]);
-            let cols = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(sp.xlo)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(sp.xhi)),
-            );
-            let dx = _mm256_sub_ps(s(sp.s.xy[0]), x);
-            let a_dx2 = _mm256_mul_ps(_mm256_mul_ps(s(a), dx), dx);
-            for ly in sp.rows.clone() {
+        for gi in sp.fp.groups.clone() {
+            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], a);
+            for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
                 let live = _mm256_castsi256_ps(load_u32(&sc.live[base..]));
                 let inside = _mm256_and_ps(cols, live);
@@ -113,8 +131,8 @@ fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
                 }
                 // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
                 let sigma = _mm256_add_ps(
-                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.row_c[ly]))),
-                    _mm256_mul_ps(dx, s(sc.row_b[ly])),
+                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.geo.row_c[ly]))),
+                    _mm256_mul_ps(dx, s(sc.geo.row_b[ly])),
                 );
                 let neg_sigma = _mm256_xor_ps(sigma, s(-0.0));
                 let alpha = _mm256_min_ps(_mm256_mul_ps(opacity, exp_neg(neg_sigma)), s(ALPHA_MAX));
@@ -177,7 +195,7 @@ fn lane_sum(v: __m256) -> f32 {
 
 #[target_feature(enable = "avx2")]
 fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
-    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let zero = _mm256_setzero_ps();
     for_each_splat_back(tile, ch, scratch, out, |sp: &BackSplat, sc, o| {
@@ -190,15 +208,9 @@ fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out
         // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity and the features.
         let mut acc = [zero; ISECT_FIXED];
         let mut acc_f = [zero; MAX_BACKWARD_CHANNELS];
-        for gi in sp.groups.clone() {
-            let x = load(&sc.xs[gi * LANES..]);
-            let cols = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(x, s(sp.xlo)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(x, s(sp.xhi)),
-            );
-            let dx = _mm256_sub_ps(s(sp.s.xy[0]), x);
-            let a_dx2 = _mm256_mul_ps(_mm256_mul_ps(s(ca), dx), dx);
-            for ly in sp.rows.clone() {
+        for gi in sp.fp.groups.clone() {
+            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
+            for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
                 // Pixels whose last contributor is in front of this splat never saw it.
                 let seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load_u32(&sc.last[base..]), k));
@@ -206,10 +218,10 @@ fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out
                 if _mm256_movemask_ps(active) == 0 {
                     continue;
                 }
-                let dy = s(sc.row_dy[ly]);
+                let dy = s(sc.geo.row_dy[ly]);
                 let sigma = _mm256_add_ps(
-                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.row_c[ly]))),
-                    _mm256_mul_ps(dx, s(sc.row_b[ly])),
+                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.geo.row_c[ly]))),
+                    _mm256_mul_ps(dx, s(sc.geo.row_b[ly])),
                 );
                 let vis = exp_neg(_mm256_xor_ps(sigma, s(-0.0)));
                 let raw = _mm256_mul_ps(opacity, vis);

@@ -257,45 +257,103 @@ pub(super) struct TileInput<'a> {
     pub simd: bool,
 }
 
+/// The geometry every lane kernel (forward and backward) reads: the row stride (rows padded
+/// to whole lane groups), the pixel-centre x of each column of the current tile, and for
+/// each footprint row of the current splat dy, c dy^2 and b dy.
+pub(super) struct TileGeometry {
+    pub stride: usize,
+    pub ts: usize,
+    pub xs: Vec<f32>,
+    pub row_dy: Vec<f32>,
+    pub row_c: Vec<f32>,
+    pub row_b: Vec<f32>,
+}
+
+/// A splat's footprint in a tile: columns (relative to the tile) whose pixel centre lies
+/// strictly between `xlo` and `xhi`, the lane groups covering them, and the rows.
+pub(super) struct Footprint {
+    pub xlo: f32,
+    pub xhi: f32,
+    pub groups: std::ops::Range<usize>,
+    pub rows: std::ops::Range<usize>,
+}
+
+impl TileGeometry {
+    pub(super) fn new(ts: usize) -> Self {
+        let stride = ts.div_ceil(LANES) * LANES;
+        Self {
+            stride,
+            ts,
+            xs: vec![0.0; stride],
+            row_dy: vec![0.0; ts],
+            row_c: vec![0.0; ts],
+            row_b: vec![0.0; ts],
+        }
+    }
+
+    /// Pixels per tile buffer (padded rows).
+    pub fn plane(&self) -> usize {
+        self.stride * self.ts
+    }
+
+    pub(super) fn set_tile(&mut self, rect: &TileRect) {
+        for (i, x) in self.xs.iter_mut().enumerate() {
+            *x = (rect.x0 as usize + i) as f32 + 0.5;
+        }
+    }
+
+    /// The splat's footprint in the tile (None if it has no pixel there), with the row
+    /// terms of its rows filled in.
+    #[inline(always)]
+    pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<Footprint> {
+        let fp = PixelFootprint::new(s, rect);
+        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
+            return None;
+        }
+        let [_, b, c] = s.conic;
+        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
+        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
+        for ly in rows.clone() {
+            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
+            self.row_dy[ly] = dy;
+            self.row_c[ly] = c * dy * dy;
+            self.row_b[ly] = b * dy;
+        }
+        Some(Footprint {
+            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
+            xlo: fp.x0 as f32,
+            xhi: fp.x1 as f32,
+            groups: lx0 / LANES..lx1.div_ceil(LANES),
+            rows,
+        })
+    }
+}
+
 /// Per-tile pixel state, structure of arrays with rows padded to whole lane groups.
 pub(super) struct TileScratch {
-    pub stride: usize,
-    ts: usize,
+    pub geo: TileGeometry,
     pub trans: Vec<f32>,
     pub last: Vec<u32>,
     /// All ones while the pixel is blending (a SIMD mask), 0 once it stopped or if padding.
     pub live: Vec<u32>,
-    /// Planar features: channel c of pixel l at `c * plane() + l`.
+    /// Planar features: channel c of pixel l at `c * geo.plane() + l`.
     pub feat: Vec<f32>,
-    /// Pixel-centre x of each column of the current tile.
-    pub xs: Vec<f32>,
-    /// c dy^2 and b dy of each row for the splat being blended.
-    pub row_c: Vec<f32>,
-    pub row_b: Vec<f32>,
     /// Pixels of the tile still blending.
     pub active: usize,
 }
 
 impl TileScratch {
     pub(super) fn new(ts: usize, ch: usize) -> Self {
-        let stride = ts.div_ceil(LANES) * LANES;
-        let plane = stride * ts;
+        let geo = TileGeometry::new(ts);
+        let plane = geo.plane();
         Self {
-            stride,
-            ts,
+            geo,
             trans: vec![1.0; plane],
             last: vec![0; plane],
             live: vec![0; plane],
             feat: vec![0.0; plane * ch],
-            xs: vec![0.0; stride],
-            row_c: vec![0.0; ts],
-            row_b: vec![0.0; ts],
             active: 0,
         }
-    }
-
-    pub fn plane(&self) -> usize {
-        self.stride * self.ts
     }
 
     pub(super) fn reset(&mut self, rect: &TileRect) {
@@ -304,12 +362,10 @@ impl TileScratch {
         self.last.fill(0);
         self.feat.fill(0.0);
         self.live.fill(0);
-        for row in self.live.chunks_exact_mut(self.stride).take(th) {
+        for row in self.live.chunks_exact_mut(self.geo.stride).take(th) {
             row[..tw].fill(u32::MAX);
         }
-        for (i, x) in self.xs.iter_mut().enumerate() {
-            *x = (rect.x0 as usize + i) as f32 + 0.5;
-        }
+        self.geo.set_tile(rect);
         self.active = tw * th;
     }
 
@@ -324,9 +380,9 @@ impl TileScratch {
         last: &mut [u32],
     ) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-        let plane = self.plane();
+        let plane = self.geo.plane();
         for ly in 0..th {
-            let (src, dst) = (ly * self.stride, ly * self.ts);
+            let (src, dst) = (ly * self.geo.stride, ly * self.geo.ts);
             t_final[dst..dst + tw].copy_from_slice(&self.trans[src..src + tw]);
             last[dst..dst + tw].copy_from_slice(&self.last[src..src + tw]);
             let row = &mut feat[dst * ch..(dst + tw) * ch];
@@ -390,18 +446,12 @@ pub(super) struct SplatInTile<'a> {
     pub f: &'a [f32],
     /// 1 + its position in the tile list (the value `last` takes).
     pub k1: u32,
-    /// Footprint columns (relative to the tile, strictly between `xlo` and `xhi` in
-    /// pixel-centre coordinates), the lane groups covering them, and the footprint rows.
-    pub xlo: f32,
-    pub xhi: f32,
-    pub groups: std::ops::Range<usize>,
-    pub rows: std::ops::Range<usize>,
+    pub fp: Footprint,
 }
 
-/// Walks the tile's splats front to back and calls `kernel(splat, scratch)` for each; the
-/// kernel blends the splat's footprint and returns how many pixels stopped. Ends when
-/// every pixel of the tile has stopped. Fills `scratch.row_c` / `row_b` (c dy^2 and b dy of
-/// each footprint row) first.
+/// Walks the tile's splats front to back and calls `kernel(splat, scratch)` for each splat
+/// with pixels in the tile; the kernel blends the footprint and returns how many pixels
+/// stopped. Ends when every pixel of the tile has stopped.
 #[inline(always)]
 pub(super) fn for_each_splat(
     tile: &TileInput,
@@ -409,34 +459,20 @@ pub(super) fn for_each_splat(
     scratch: &mut TileScratch,
     mut kernel: impl FnMut(&SplatInTile, &mut TileScratch) -> u32,
 ) {
-    let rect = &tile.rect;
     for (k, (s, f)) in tile
         .splats
         .iter()
         .zip(tile.features.chunks_exact(ch))
         .enumerate()
     {
-        let fp = PixelFootprint::new(s, rect);
-        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
+        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
             continue;
-        }
-        let [_, b, c] = s.conic;
-        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
-        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
-        for ly in rows.clone() {
-            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
-            scratch.row_c[ly] = c * dy * dy;
-            scratch.row_b[ly] = b * dy;
-        }
+        };
         let splat = SplatInTile {
             s,
             f,
             k1: k as u32 + 1,
-            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
-            xlo: fp.x0 as f32,
-            xhi: fp.x1 as f32,
-            groups: lx0 / LANES..lx1.div_ceil(LANES),
-            rows,
+            fp,
         };
         let stopped = kernel(&splat, scratch);
         scratch.active -= stopped as usize;
@@ -448,13 +484,13 @@ pub(super) fn for_each_splat(
 
 /// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
 pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
-    let (plane, stride) = (scratch.plane(), scratch.stride);
+    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let t_min = tile.t_min;
     for_each_splat(tile, ch, scratch, |sp, sc| {
         let [a, _, _] = sp.s.conic;
         let mut stopped = 0;
-        for gi in sp.groups.clone() {
-            for ly in sp.rows.clone() {
+        for gi in sp.fp.groups.clone() {
+            for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
                 // Pixels that already stopped cost nothing more.
                 if sc.live[base..base + LANES].iter().all(|&l| l == 0) {
@@ -462,10 +498,10 @@ pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileS
                 }
                 for i in 0..LANES {
                     let l = base + i;
-                    let x = sc.xs[gi * LANES + i];
-                    let inside = (x > sp.xlo) & (x < sp.xhi) & (sc.live[l] != 0);
+                    let x = sc.geo.xs[gi * LANES + i];
+                    let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[l] != 0);
                     let dx = sp.s.xy[0] - x;
-                    let sigma = sigma_at(a, dx, sc.row_c[ly], sc.row_b[ly]);
+                    let sigma = sigma_at(a, dx, sc.geo.row_c[ly], sc.geo.row_b[ly]);
                     let alpha = (sp.s.opacity * exp_neg(-sigma)).min(ALPHA_MAX);
                     let ok = inside & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
                     let t = sc.trans[l];
