@@ -39,12 +39,7 @@ impl RasterState {
                         + c.bins.isect_gid.len()
                         + c.bins.depth_order.len())
                         * 4
-                    + (c.blended.t_final.len()
-                        + c.blended.last.len()
-                        + c.blended.packed_features.len())
-                        * 4
-                    + c.blended.packed_splats.len()
-                        * std::mem::size_of::<raster::forward::BlendSplat>()
+                    + (c.blended.t_final.len() + c.blended.last.len()) * 4
             })
             .sum();
         scene + cams

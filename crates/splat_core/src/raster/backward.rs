@@ -20,9 +20,9 @@
 use rayon::prelude::*;
 
 use super::forward::{
-    exp_neg, sigma_at, BlendSplat, Blended, Footprint, TileGeometry, TileRect, LANES,
+    exp_neg, sigma_at, BlendSplat, Footprint, TileGeometry, TileList, TileRect, LANES,
 };
-use super::tile_binning::TileBins;
+use super::CameraState;
 use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
@@ -31,14 +31,14 @@ pub const ISECT_FIXED: usize = 6;
 /// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`.
 pub fn blend_backward(
     ch: usize,
-    bins: &TileBins,
-    blended: &Blended,
+    cs: &CameraState,
     width: u32,
     height: u32,
     v_render: &[f32],
     v_alpha: &[f32],
     simd: bool,
 ) -> Vec<f32> {
+    let (bins, blended) = (&cs.bins, &cs.blended);
     let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
@@ -56,16 +56,21 @@ pub fn blend_backward(
         .enumerate()
         .with_max_len(4)
         .for_each_init(
-            || BackScratch::new(ts, ch),
-            |scratch, (t, out)| {
+            || (BackScratch::new(ts, ch), TileList::default()),
+            |(scratch, list), (t, out)| {
                 if out.is_empty() {
                     return;
                 }
                 let rect = TileRect::new(t, bins, width, height);
-                let range = bins.tile_range(t);
+                list.gather(
+                    &bins.isect_gid[bins.tile_range(t)],
+                    &cs.splats,
+                    &cs.features,
+                    ch,
+                );
                 let tile = BackTile {
-                    splats: &blended.packed_splats[range.clone()],
-                    features: &blended.packed_features[range.start * ch..range.end * ch],
+                    splats: &list.splats,
+                    features: &list.features,
                     rect,
                     simd,
                 };

@@ -161,10 +161,31 @@ pub struct Blended {
     /// Number of entries of the tile list the pixel went through up to its last
     /// contributing splat (0 = none).
     pub last: Vec<u32>,
-    /// Splats and their features copied into tile-list order (tile-major, front to back),
-    /// so blending reads memory sequentially instead of chasing indices.
-    pub packed_splats: Vec<BlendSplat>,
-    pub packed_features: Vec<f32>,
+}
+
+/// One tile's splats and features copied out of the per-splat arrays in list order
+/// (front to back), so that the kernels read them sequentially from L1 instead of chasing
+/// indices. Gathered per tile, right before use, by forward and backward alike: a
+/// tile-major copy of all lists would be written once and read back from memory.
+#[derive(Debug, Default)]
+pub(super) struct TileList {
+    pub splats: Vec<BlendSplat>,
+    /// [list entry][channel].
+    pub features: Vec<f32>,
+}
+
+impl TileList {
+    pub(super) fn gather(&mut self, gids: &[u32], splats: &[Splat], features: &[f32], ch: usize) {
+        self.splats.clear();
+        self.splats
+            .extend(gids.iter().map(|&g| BlendSplat::from(&splats[g as usize])));
+        self.features.clear();
+        for &g in gids {
+            let g = g as usize;
+            self.features
+                .extend_from_slice(&features[g * ch..(g + 1) * ch]);
+        }
+    }
 }
 
 /// Pixels per lane group: eight f32 lanes fill an AVX2 register.
@@ -186,23 +207,10 @@ pub fn blend(
 ) -> Blended {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
-    let packed_splats: Vec<BlendSplat> = bins
-        .isect_gid
-        .par_iter()
-        .map(|&g| BlendSplat::from(&splats[g as usize]))
-        .collect();
-    let mut packed_features = vec![0.0f32; bins.n_intersections() * ch];
-    packed_features
-        .par_chunks_mut(ch)
-        .zip(bins.isect_gid.par_iter())
-        .for_each(|(f, &g)| f.copy_from_slice(&features[g as usize * ch..(g as usize + 1) * ch]));
     let mut out = Blended {
         t_final: vec![1.0; bins.n_tiles() * tp],
         last: vec![0; bins.n_tiles() * tp],
-        packed_splats,
-        packed_features,
     };
-    let (tile_splats, tile_features) = (&out.packed_splats, &out.packed_features);
     // Tiles are the unit of parallel work (rows of tiles balance badly: a plant fills the
     // middle of the image), handed out a few at a time so that no thread idles while the
     // other finishes a long run of heavy tiles. Each tile writes its own slices;
@@ -215,16 +223,17 @@ pub fn blend(
         .enumerate()
         .with_max_len(4)
         .for_each_init(
-            || TileScratch::new(ts, ch),
-            |scratch, (t, ((feat, t_final), last))| {
+            || (TileScratch::new(ts, ch), TileList::default()),
+            |(scratch, list), (t, ((feat, t_final), last))| {
                 let range = bins.tile_range(t);
                 if range.is_empty() {
                     return;
                 }
+                list.gather(&bins.isect_gid[range], splats, features, ch);
                 let rect = TileRect::new(t, bins, width, height);
                 let tile = TileInput {
-                    splats: &tile_splats[range.clone()],
-                    features: &tile_features[range.start * ch..range.end * ch],
+                    splats: &list.splats,
+                    features: &list.features,
                     rect,
                     t_min,
                     simd,

@@ -72,8 +72,7 @@ pub fn backward(
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
         let isect = blend_backward(
             ch,
-            &cs.bins,
-            &cs.blended,
+            cs,
             state.width,
             state.height,
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],

@@ -1,7 +1,8 @@
 //! 3D Gaussian Splatting rasterizer on the CPU: gsplat 1.5 "classic" semantics, forward and
 //! backward, rayon-parallel and bit-identical for any thread count.
 //!
-//! Pipeline per camera: `project` (EWA splat per Gaussian) -> `features` (SH colour / depth)
+//! Pipeline per camera: `project_batch` (EWA splats, eight Gaussians at a time; `project`
+//! is the per-Gaussian reference) -> `features` (SH colour / depth)
 //! -> `tile_binning` (depth order, tile lists) -> `forward::blend` (per-tile compositing).
 //! `backward` walks the same lists back to front and chains to the 3D parameters.
 //!
@@ -10,9 +11,9 @@
 //! both give the same bits (tested).
 //!
 //! State kept between forward and backward (`ForwardState`): a copy of the inputs
-//! (O(N)), and per camera the splats and features (O(N)), the tile lists and the splats +
-//! features packed in tile order (O(intersections)), and the final transmittance and
-//! last-contributor count per pixel (O(pixels)). Nothing per (pixel, splat) pair is
+//! (O(N)), and per camera the splats and features (O(N)), the tile lists
+//! (O(intersections)), and the final transmittance and last-contributor count per pixel
+//! (O(pixels)). Nothing per (pixel, splat) pair is
 //! stored.
 
 pub mod backward;
@@ -25,6 +26,7 @@ pub mod gradients;
 #[cfg(all(test, target_arch = "x86_64"))]
 mod kernel_tests;
 pub mod project;
+mod project_batch;
 pub mod scene;
 pub mod sh;
 pub mod tile_binning;
@@ -235,17 +237,7 @@ pub fn forward(
     let mut per_camera = Vec::with_capacity(c);
     for (ci, cam) in cameras.iter().enumerate() {
         let t0 = Instant::now();
-        let splats: Vec<Splat> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                // A colour with NaN/Inf would poison every pixel behind it: cull instead.
-                if scene.color_row(i).iter().all(|v| v.is_finite()) {
-                    project::project(&scene.gaussian(i), cam, &opts)
-                } else {
-                    Splat::default()
-                }
-            })
-            .collect();
+        let splats = project_batch::project_all(&scene, cam, &opts);
         let feats = features::compute(&scene, cam, &splats, opts.with_depth);
         let t1 = Instant::now();
         let order = tile_binning::depth_order(&splats);

@@ -5,6 +5,8 @@
 //! EWA Jacobian with gsplat's clamp of x/z and y/z to 1.3x the field of view, add `eps2d` to
 //! the diagonal, invert to the conic, and size the footprint box. The backward recomputes
 //! these intermediates from the inputs instead of storing them (O(1) memory per Gaussian).
+//! The forward rasterizer runs these rules eight Gaussians at a time (`project_batch`);
+//! `project` is their per-Gaussian reference.
 
 use glam::{Mat3, Vec3};
 
@@ -200,7 +202,7 @@ fn alpha_contour(opacity: f32) -> f32 {
     2.0 * (opacity / ALPHA_MIN).ln().max(0.0)
 }
 
-fn extent_for_contour(rule: Footprint, qmax: f32) -> f32 {
+pub(super) fn extent_for_contour(rule: Footprint, qmax: f32) -> f32 {
     match rule {
         Footprint::OpacityAware => 3.33f32.min(qmax.sqrt()),
         Footprint::Sigma(k) => k,
@@ -215,7 +217,7 @@ pub fn footprint_extent(rule: Footprint, opacity: f32) -> f32 {
 /// `v.ceil()` for v >= 0 (or NaN) without libm: `ceilf` is an out-of-line call on
 /// baseline x86-64, and this runs twice per Gaussian.
 #[inline(always)]
-fn ceil_nonneg(v: f32) -> f32 {
+pub(super) fn ceil_nonneg(v: f32) -> f32 {
     // From 2^23 on every float is an integer; NaN takes the else branch and stays NaN.
     if v < 8_388_608.0 {
         let t = v as u32 as f32;
