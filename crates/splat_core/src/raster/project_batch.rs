@@ -84,6 +84,7 @@ type V3 = [Lanes; 3];
 /// behind it.
 pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> Vec<Splat> {
     let mut splats = vec![Splat::default(); scene.n];
+    let cl = CameraLanes::new(cam);
     // Blocks of many lane groups: one rayon task per block, not per eight Gaussians.
     const BLOCK: usize = 32 * N;
     splats
@@ -91,7 +92,7 @@ pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> Vec<Spl
         .enumerate()
         .for_each(|(b, block)| {
             for (k, out) in block.chunks_mut(N).enumerate() {
-                project_lanes(scene, b * BLOCK + k * N, cam, opts, out);
+                project_lanes(scene, b * BLOCK + k * N, cam, &cl, opts, out);
             }
         });
     splats
@@ -122,6 +123,7 @@ fn project_lanes(
     scene: &Scene,
     first: usize,
     cam: &Camera,
+    cl: &CameraLanes,
     opts: &RasterOptions,
     out: &mut [Splat],
 ) {
@@ -132,7 +134,6 @@ fn project_lanes(
     let mean: V3 = std::array::from_fn(|c| load(&scene.means, 3, c));
     let scale: V3 = std::array::from_fn(|c| load(&scene.scales, 3, c));
     let [w, x, y, z] = std::array::from_fn(|c| load(&scene.quats, 4, c));
-    let cl = CameraLanes::new(cam);
 
     // Camera-space centre.
     let p: V3 = std::array::from_fn(|i| {
