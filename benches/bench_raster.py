@@ -378,8 +378,9 @@ errors of the default row include the blending exp, a polynomial accurate to 2 u
 
 {prof}
 
-Projection includes the colour / SH features; blending includes packing the splats into
-tile-list order and assembling the row-major image. Per-kernel detail without Python:
+Projection (eight Gaussians at a time) includes the colour / SH features; blending
+includes gathering each tile's splats and features from its list and assembling the
+row-major image. Per-kernel detail without Python:
 `python benches/raster_scene.py --dump /tmp/scene.bin` then
 `cargo run --release -p splat_core --example raster_timing -- /tmp/scene.bin 1` (under
 `perf record` for a profile).
@@ -388,8 +389,8 @@ tile-list order and assembling the row-major image. Per-kernel detail without Py
 
 {step}
 
-The saved forward state (`RasterState.nbytes`: input copy, splats, tile lists packed in
-tile order, final T and last index per pixel) is O(N + pixels + intersections); nothing
+The saved forward state (`RasterState.nbytes`: input copy, splats and features, tile
+lists, final T and last index per pixel) is O(N + pixels + intersections); nothing
 per (pixel, Gaussian) pair is stored (see `crates/splat_core/src/raster/mod.rs`). The RSS
 growth is measured with /proc (VmHWM after a reset); it under-counts memory the allocator
 had already cached from earlier runs in the same process.

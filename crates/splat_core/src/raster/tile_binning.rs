@@ -94,46 +94,111 @@ impl EllipseBands {
         }
     }
 
+    /// `dx_range` without a branch: (lo, hi, whether the band meets the ellipse); lo and hi
+    /// mean nothing when it does not.
+    #[inline(always)]
+    fn dx_range_masked(&self, d0: f32, d1: f32) -> (f32, f32, bool) {
+        let (d0, d1) = (d0.max(-self.half_y), d1.min(self.half_y));
+        let root = |dy: f32| (self.a_e - self.det * dy * dy).max(0.0).sqrt();
+        // max then min, not clamp: clamp panics on the empty bands that are masked out.
+        let dy = self.dy_left.max(d0).min(d1);
+        let lo = (-self.b * dy - root(dy)) / self.a;
+        let dy = (-self.dy_left).max(d0).min(d1);
+        let hi = (-self.b * dy + root(dy)) / self.a;
+        // Negated so that a degenerate (NaN) splat keeps its box, as in `dx_range`.
+        (lo, hi, !(d0 > d1))
+    }
+
     /// dx range of the ellipse over rows dy in [d0, d1] (None if it misses the band, NaN
     /// bounds if the splat is degenerate). The left boundary of an ellipse is convex in
     /// dy, so its minimum over the band is at the leftmost point clamped into the band;
     /// likewise the right boundary's maximum.
     #[inline(always)]
     fn dx_range(&self, d0: f32, d1: f32) -> Option<(f32, f32)> {
-        let (d0, d1) = (d0.max(-self.half_y), d1.min(self.half_y));
-        if d0 > d1 {
-            return None;
-        }
-        let root = |dy: f32| (self.a_e - self.det * dy * dy).max(0.0).sqrt();
-        let dy = self.dy_left.clamp(d0, d1);
-        let lo = (-self.b * dy - root(dy)) / self.a;
-        let dy = (-self.dy_left).clamp(d0, d1);
-        let hi = (-self.b * dy + root(dy)) / self.a;
-        Some((lo, hi))
+        let (lo, hi, meets) = self.dx_range_masked(d0, d1);
+        meets.then_some((lo, hi))
     }
 }
 
-/// Calls `f(tile_id)` for every tile the splat touches, in row-major tile order.
-fn for_each_tile(
+/// (tile, splat) pairs of one chunk, appended without a branch per pair: a slot is always
+/// written and the length advances only if the pair is kept.
+struct TilePairs {
+    buf: Vec<(u32, u32)>,
+    len: usize,
+}
+
+impl TilePairs {
+    fn with_capacity(n: usize) -> Self {
+        Self {
+            buf: vec![(0, 0); n],
+            len: 0,
+        }
+    }
+
+    /// Room for `n` more pairs.
+    #[inline(always)]
+    fn reserve(&mut self, n: usize) {
+        if self.len + n > self.buf.len() {
+            self.buf
+                .resize((self.len + n).max(2 * self.buf.len()), (0, 0));
+        }
+    }
+
+    /// Appends (t, g) if `keep`; needs a reserved slot.
+    #[inline(always)]
+    fn push_if(&mut self, t: u32, g: u32, keep: bool) {
+        self.buf[self.len] = (t, g);
+        self.len += keep as usize;
+    }
+
+    fn as_slice(&self) -> &[(u32, u32)] {
+        &self.buf[..self.len]
+    }
+}
+
+/// Appends (tile, g) for every tile splat `s` touches, in row-major tile order.
+fn push_tiles(
     s: &Splat,
+    g: u32,
     tile_size: u32,
     tiles_x: u32,
     tiles_y: u32,
     ellipse: bool,
-    mut f: impl FnMut(u32),
+    pairs: &mut TilePairs,
 ) {
     let [x0, x1, y0, y1] = tile_box(s, tile_size, tiles_x, tiles_y);
     // A box within one tile needs no test (keeping that tile is at worst conservative).
     if !ellipse || (x1 - x0) * (y1 - y0) <= 1 {
+        pairs.reserve(((x1 - x0) * (y1 - y0)) as usize);
         for ty in y0..y1 {
             for tx in x0..x1 {
-                f(ty * tiles_x + tx);
+                pairs.push_if(ty * tiles_x + tx, g, true);
             }
         }
         return;
     }
     let bands = EllipseBands::new(s);
     let ts = tile_size as f32;
+    // Most splats span at most 2 x 2 tiles: those four candidates are tested without
+    // branches (loops of one or two trips and early exits mispredict on every splat).
+    if x1 - x0 <= 2 && y1 - y0 <= 2 {
+        pairs.reserve(4);
+        for r in 0..2 {
+            let ty = y0 + r;
+            let d0 = ty as f32 * ts + 0.5 - s.xy[1];
+            let (lo, hi, band) = bands.dx_range_masked(d0, d0 + ts - 1.0);
+            let row = band & (ty < y1);
+            for c in 0..2 {
+                let tx = x0 + c;
+                // Pixel-centre columns of the tile, relative to the splat centre. Written
+                // as negated comparisons so that NaN bounds keep the tile.
+                let left = tx as f32 * ts + 0.5 - s.xy[0];
+                let reach = !(hi < left) & !(lo > left + ts - 1.0);
+                pairs.push_if(ty * tiles_x + tx, g, row & (tx < x1) & reach);
+            }
+        }
+        return;
+    }
     for ty in y0..y1 {
         // Pixel centres of the tile row, relative to the splat centre.
         let d0 = ty as f32 * ts + 0.5 - s.xy[1];
@@ -150,8 +215,10 @@ fn for_each_tile(
         let first = first.max(x0 as f32).min(x1 as f32);
         let last = last.min(x1 as f32 - 1.0).max(x0 as f32);
         let tx0 = first as u32 + ((first as u32 as f32) < first) as u32;
-        for tx in tx0..last as u32 + 1 {
-            f(ty * tiles_x + tx);
+        let tx1 = last as u32 + 1;
+        pairs.reserve(tx1.saturating_sub(tx0) as usize);
+        for tx in tx0..tx1 {
+            pairs.push_if(ty * tiles_x + tx, g, true);
         }
     }
 }
@@ -273,13 +340,11 @@ pub fn bin(
         .par_chunks(chunk)
         .zip(depth_order.par_chunks(chunk))
         .map(|(ss, gs)| {
-            let mut pairs = Vec::with_capacity(ss.len() * 2);
+            let mut pairs = TilePairs::with_capacity(ss.len() * 2);
             for (s, &g) in ss.iter().zip(gs) {
-                for_each_tile(s, tile_size, tiles_x, tiles_y, ellipse, |t| {
-                    pairs.push((t, g))
-                });
+                push_tiles(s, g, tile_size, tiles_x, tiles_y, ellipse, &mut pairs);
             }
-            ChunkLists::sorted_by_tile(&pairs, n_tiles)
+            ChunkLists::sorted_by_tile(pairs.as_slice(), n_tiles)
         })
         .collect();
     let total: usize = chunks.iter().map(|c| c.gids.len()).sum();
@@ -432,8 +497,11 @@ mod tests {
             (seed >> 40) as f32 / (1u64 << 24) as f32
         };
         let (ts, tiles) = (8u32, 12u32);
-        for _ in 0..300 {
-            let (s1, s2) = (0.5 + 12.0 * rnd(), 0.5 + 12.0 * rnd());
+        for k in 0..600 {
+            // Large ellipses (many tiles per row) and small ones (at most 2 x 2 tiles, the
+            // branch-free path).
+            let size = if k % 2 == 0 { 12.0 } else { 1.2 };
+            let (s1, s2) = (0.3 + size * rnd(), 0.3 + size * rnd());
             let th = std::f32::consts::PI * rnd();
             let (c, s) = (th.cos(), th.sin());
             let (ia, ib) = (1.0 / (s1 * s1), 1.0 / (s2 * s2));
@@ -449,7 +517,11 @@ mod tests {
             let mut sp = splat(x, y, 0.0, 1.0, conic, e);
             sp.radius = [(e * sxx.sqrt()).ceil(), (e * syy.sqrt()).ceil()];
             let mut kept = vec![false; (tiles * tiles) as usize];
-            for_each_tile(&sp, ts, tiles, tiles, true, |t| kept[t as usize] = true);
+            let mut pairs = TilePairs::with_capacity(0);
+            push_tiles(&sp, 0, ts, tiles, tiles, true, &mut pairs);
+            for &(t, _) in pairs.as_slice() {
+                kept[t as usize] = true;
+            }
             let q = |dx: f32, dy: f32| {
                 conic[0] * dx * dx + 2.0 * conic[1] * dx * dy + conic[2] * dy * dy
             };
