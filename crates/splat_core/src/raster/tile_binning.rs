@@ -66,7 +66,8 @@ fn tile_box(s: &Splat, tile_size: u32, tiles_x: u32, tiles_y: u32) -> [u32; 4] {
 /// The footprint ellipse q(d) = a dx^2 + 2 b dx dy + c dy^2 <= extent^2 (d = pixel - centre),
 /// cut into horizontal bands: where does a band of pixel-centre rows meet it in x?
 struct EllipseBands {
-    a: f32,
+    /// 1 / a (a row's dx range is divided by a) and b.
+    inv_a: f32,
     b: f32,
     /// a * E and a c - b^2, for the row discriminant a E - det dy^2.
     a_e: f32,
@@ -83,13 +84,14 @@ impl EllipseBands {
         // Small slack so rounding never drops a tile the exact test would keep.
         let e = s.extent * s.extent * (1.0 + 1e-4) + 1e-4;
         let det = a * c - b * b;
-        let half_x = (c * e / det).sqrt();
+        let e_det = e / det;
+        let half_x = (c * e_det).sqrt();
         Self {
-            a,
+            inv_a: 1.0 / a,
             b,
             a_e: a * e,
             det,
-            half_y: (a * e / det).sqrt(),
+            half_y: (a * e_det).sqrt(),
             dy_left: b * half_x / c,
         }
     }
@@ -102,9 +104,9 @@ impl EllipseBands {
         let root = |dy: f32| (self.a_e - self.det * dy * dy).max(0.0).sqrt();
         // max then min, not clamp: clamp panics on the empty bands that are masked out.
         let dy = self.dy_left.max(d0).min(d1);
-        let lo = (-self.b * dy - root(dy)) / self.a;
+        let lo = (-self.b * dy - root(dy)) * self.inv_a;
         let dy = (-self.dy_left).max(d0).min(d1);
-        let hi = (-self.b * dy + root(dy)) / self.a;
+        let hi = (-self.b * dy + root(dy)) * self.inv_a;
         // Negated so that a degenerate (NaN) splat keeps its box, as in `dx_range`.
         (lo, hi, !(d0 > d1))
     }
