@@ -107,8 +107,8 @@ impl EllipseBands {
         let lo = (-self.b * dy - root(dy)) * self.inv_a;
         let dy = (-self.dy_left).max(d0).min(d1);
         let hi = (-self.b * dy + root(dy)) * self.inv_a;
-        // Negated so that a degenerate (NaN) splat keeps its box, as in `dx_range`.
-        (lo, hi, !(d0 > d1))
+        // NaN (a degenerate splat) keeps its box.
+        (lo, hi, (d0 <= d1) | d0.is_nan() | d1.is_nan())
     }
 
     /// dx range of the ellipse over rows dy in [d0, d1] (None if it misses the band, NaN
@@ -192,10 +192,10 @@ fn push_tiles(
             let row = band & (ty < y1);
             for c in 0..2 {
                 let tx = x0 + c;
-                // Pixel-centre columns of the tile, relative to the splat centre. Written
-                // as negated comparisons so that NaN bounds keep the tile.
+                // Pixel-centre columns of the tile, relative to the splat centre. NaN
+                // bounds keep the tile.
                 let left = tx as f32 * ts + 0.5 - s.xy[0];
-                let reach = !(hi < left) & !(lo > left + ts - 1.0);
+                let reach = ((hi >= left) | hi.is_nan()) & ((lo <= left + ts - 1.0) | lo.is_nan());
                 pairs.push_if(ty * tiles_x + tx, g, row & (tx < x1) & reach);
             }
         }
