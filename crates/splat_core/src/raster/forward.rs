@@ -180,11 +180,27 @@ impl TileList {
         self.splats
             .extend(gids.iter().map(|&g| BlendSplat::from(&splats[g as usize])));
         self.features.clear();
-        for &g in gids {
-            let g = g as usize;
-            self.features
-                .extend_from_slice(&features[g * ch..(g + 1) * ch]);
+        self.features.resize(gids.len() * ch, 0.0);
+        // Fixed-width copies for the common widths: a slice copy of a runtime length is a
+        // memcpy call per splat.
+        match ch {
+            3 => gather_rows::<3>(&mut self.features, features, gids),
+            4 => gather_rows::<4>(&mut self.features, features, gids),
+            1 => gather_rows::<1>(&mut self.features, features, gids),
+            _ => {
+                for (dst, &g) in self.features.chunks_exact_mut(ch).zip(gids) {
+                    dst.copy_from_slice(&features[g as usize * ch..][..ch]);
+                }
+            }
         }
+    }
+}
+
+/// `dst[k] = src[gids[k]]` for rows of `N` values.
+fn gather_rows<const N: usize>(dst: &mut [f32], src: &[f32], gids: &[u32]) {
+    for (d, &g) in dst.chunks_exact_mut(N).zip(gids) {
+        let row: [f32; N] = src[g as usize * N..][..N].try_into().unwrap();
+        d.copy_from_slice(&row);
     }
 }
 
