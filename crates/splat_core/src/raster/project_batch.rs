@@ -202,56 +202,56 @@ fn project_lanes(
         fx * p[0] * rz + Lanes::splat(cam.cx),
         fy * p[1] * rz + Lanes::splat(cam.cy),
     ];
-    let (sa, sc) = (a.sqrt(), c.sqrt());
+    // Footprint: alpha = 1/255 contour, extent in sigmas, gsplat's ceiled radii, box
+    // half-sizes (see `project::project`). ln stays per lane (no SIMD ln in std).
+    let qmax = opacity.map(|o| 2.0 * (o / ALPHA_MIN).ln().max(0.0));
+    let extent = qmax.map(|q| extent_for_contour(opts.footprint, q));
+    let radius = [
+        (extent * a.sqrt()).map(ceil_nonneg),
+        (extent * c.sqrt()).map(ceil_nonneg),
+    ];
+    let half = [(qmax * a).sqrt(), (qmax * c).sqrt()];
+    // 0 x is NaN exactly when x is NaN or infinite (else +-0): one sum flags every input.
+    let mut finite_probe = mean
+        .iter()
+        .chain(&scale)
+        .chain(&[w, x, y, z, load(&scene.opacities, 1, 0)])
+        .fold(Lanes::splat(0.0), |acc, v| acc + *v * Lanes::splat(0.0));
+    let cw = scene.color_width();
+    for ci in 0..cw {
+        let v = load(&scene.colors, cw, ci);
+        finite_probe = finite_probe + v * Lanes::splat(0.0);
+    }
 
     let (width, height) = (cam.width as f32, cam.height as f32);
     for (l, o) in out.iter_mut().enumerate() {
-        let i = first + l;
         let lane = |v: Lanes| v.0[l];
-        let inputs_finite = mean
-            .iter()
-            .chain(&scale)
-            .chain(&[w, x, y, z])
-            .all(|v| lane(*v).is_finite())
-            && scene.opacities[i].is_finite()
-            && scene.color_row(i).iter().all(|v| v.is_finite());
-        let z = lane(p[2]);
-        let (n2, det) = (lane(n2), lane(det));
+        let (z, n2, det) = (lane(p[2]), lane(n2), lane(det));
         let conic = conic.map(lane);
-        let opacity = lane(opacity);
-        let valid = inputs_finite
+        let (xy, radius) = (xy.map(lane), radius.map(lane));
+        let valid = lane(finite_probe) == 0.0
             && (z >= opts.near_plane && z <= opts.far_plane)
             && (n2.is_finite() && n2 >= QUAT_NORM2_MIN)
             && (det.is_finite() && det > 0.0)
             && conic.iter().all(|v| v.is_finite())
-            && opacity >= ALPHA_MIN;
-        if !valid {
-            *o = Splat::default();
-            continue;
-        }
-        let qmax = 2.0 * (opacity / ALPHA_MIN).ln().max(0.0);
-        let extent = extent_for_contour(opts.footprint, qmax);
-        let radius = [
-            ceil_nonneg(extent * lane(sa)),
-            ceil_nonneg(extent * lane(sc)),
-        ];
-        let xy = xy.map(lane);
-        let on_screen = xy[0] + radius[0] > 0.0
+            && lane(opacity) >= ALPHA_MIN
+            && (radius[0] > 0.0 || radius[1] > 0.0)
+            && xy[0] + radius[0] > 0.0
             && xy[0] - radius[0] < width
             && xy[1] + radius[1] > 0.0
             && xy[1] - radius[1] < height;
-        if !(radius[0] > 0.0 || radius[1] > 0.0) || !on_screen {
-            *o = Splat::default();
-            continue;
-        }
-        *o = Splat {
-            xy,
-            conic,
-            opacity,
-            depth: z,
-            radius,
-            extent,
-            half: [(qmax * lane(a)).sqrt(), (qmax * lane(c)).sqrt()],
+        *o = if valid {
+            Splat {
+                xy,
+                conic,
+                opacity: lane(opacity),
+                depth: z,
+                radius,
+                extent: lane(extent),
+                half: half.map(lane),
+            }
+        } else {
+            Splat::default()
         };
     }
 }
