@@ -96,10 +96,13 @@ impl EllipseBands {
         }
     }
 
-    /// `dx_range` without a branch: (lo, hi, whether the band meets the ellipse); lo and hi
-    /// mean nothing when it does not.
+    /// dx range (lo, hi) of the ellipse over rows dy in [d0, d1], and whether the band meets
+    /// the ellipse at all (lo and hi mean nothing when it does not; they are NaN if the
+    /// splat is degenerate). The left boundary of an ellipse is convex in dy, so its
+    /// minimum over the band is at the leftmost point clamped into the band; likewise the
+    /// right boundary's maximum. No branch: callers test tiles with masks.
     #[inline(always)]
-    fn dx_range_masked(&self, d0: f32, d1: f32) -> (f32, f32, bool) {
+    fn dx_range(&self, d0: f32, d1: f32) -> (f32, f32, bool) {
         let (d0, d1) = (d0.max(-self.half_y), d1.min(self.half_y));
         let root = |dy: f32| (self.a_e - self.det * dy * dy).max(0.0).sqrt();
         // max then min, not clamp: clamp panics on the empty bands that are masked out.
@@ -109,16 +112,6 @@ impl EllipseBands {
         let hi = (-self.b * dy + root(dy)) * self.inv_a;
         // NaN (a degenerate splat) keeps its box.
         (lo, hi, (d0 <= d1) | d0.is_nan() | d1.is_nan())
-    }
-
-    /// dx range of the ellipse over rows dy in [d0, d1] (None if it misses the band, NaN
-    /// bounds if the splat is degenerate). The left boundary of an ellipse is convex in
-    /// dy, so its minimum over the band is at the leftmost point clamped into the band;
-    /// likewise the right boundary's maximum.
-    #[inline(always)]
-    fn dx_range(&self, d0: f32, d1: f32) -> Option<(f32, f32)> {
-        let (lo, hi, meets) = self.dx_range_masked(d0, d1);
-        meets.then_some((lo, hi))
     }
 }
 
@@ -159,6 +152,10 @@ impl TilePairs {
 }
 
 /// Appends (tile, g) for every tile splat `s` touches, in row-major tile order.
+///
+/// Every tile of the box is tested and appended without a branch: most splats span one
+/// to four tiles, where loops over computed tile ranges and early exits would mispredict
+/// on every splat.
 fn push_tiles(
     s: &Splat,
     g: u32,
@@ -169,58 +166,22 @@ fn push_tiles(
     pairs: &mut TilePairs,
 ) {
     let [x0, x1, y0, y1] = tile_box(s, tile_size, tiles_x, tiles_y);
+    pairs.reserve(((x1 - x0) * (y1 - y0)) as usize);
     // A box within one tile needs no test (keeping that tile is at worst conservative).
-    if !ellipse || (x1 - x0) * (y1 - y0) <= 1 {
-        pairs.reserve(((x1 - x0) * (y1 - y0)) as usize);
-        for ty in y0..y1 {
-            for tx in x0..x1 {
-                pairs.push_if(ty * tiles_x + tx, g, true);
-            }
-        }
-        return;
-    }
-    let bands = EllipseBands::new(s);
+    let bands = (ellipse && (x1 - x0) * (y1 - y0) > 1).then(|| EllipseBands::new(s));
     let ts = tile_size as f32;
-    // Most splats span at most 2 x 2 tiles: those four candidates are tested without
-    // branches (loops of one or two trips and early exits mispredict on every splat).
-    if x1 - x0 <= 2 && y1 - y0 <= 2 {
-        pairs.reserve(4);
-        for r in 0..2 {
-            let ty = y0 + r;
-            let d0 = ty as f32 * ts + 0.5 - s.xy[1];
-            let (lo, hi, band) = bands.dx_range_masked(d0, d0 + ts - 1.0);
-            let row = band & (ty < y1);
-            for c in 0..2 {
-                let tx = x0 + c;
+    for ty in y0..y1 {
+        // Pixel-centre rows of the tile row, relative to the splat centre.
+        let d0 = ty as f32 * ts + 0.5 - s.xy[1];
+        let band = bands.as_ref().map(|b| b.dx_range(d0, d0 + ts - 1.0));
+        for tx in x0..x1 {
+            let keep = band.is_none_or(|(lo, hi, meets)| {
                 // Pixel-centre columns of the tile, relative to the splat centre. NaN
                 // bounds keep the tile.
                 let left = tx as f32 * ts + 0.5 - s.xy[0];
-                let reach = ((hi >= left) | hi.is_nan()) & ((lo <= left + ts - 1.0) | lo.is_nan());
-                pairs.push_if(ty * tiles_x + tx, g, row & (tx < x1) & reach);
-            }
-        }
-        return;
-    }
-    for ty in y0..y1 {
-        // Pixel centres of the tile row, relative to the splat centre.
-        let d0 = ty as f32 * ts + 0.5 - s.xy[1];
-        let Some((lo, hi)) = bands.dx_range(d0, d0 + ts - 1.0) else {
-            continue;
-        };
-        // Tile tx has pixel-centre columns tx ts + 0.5 ..= tx ts + ts - 0.5; keep those that
-        // reach [x + lo, x + hi]. Values are clipped to the box before rounding (so NaN
-        // keeps the whole box row).
-        let (first, last) = ((s.xy[0] + lo - ts + 0.5) / ts, (s.xy[0] + hi - 0.5) / ts);
-        if first > x1 as f32 || last < x0 as f32 {
-            continue;
-        }
-        let first = first.max(x0 as f32).min(x1 as f32);
-        let last = last.min(x1 as f32 - 1.0).max(x0 as f32);
-        let tx0 = first as u32 + ((first as u32 as f32) < first) as u32;
-        let tx1 = last as u32 + 1;
-        pairs.reserve(tx1.saturating_sub(tx0) as usize);
-        for tx in tx0..tx1 {
-            pairs.push_if(ty * tiles_x + tx, g, true);
+                meets & ((hi >= left) | hi.is_nan()) & ((lo <= left + ts - 1.0) | lo.is_nan())
+            });
+            pairs.push_if(ty * tiles_x + tx, g, keep);
         }
     }
 }
@@ -500,8 +461,8 @@ mod tests {
         };
         let (ts, tiles) = (8u32, 12u32);
         for k in 0..600 {
-            // Large ellipses (many tiles per row) and small ones (at most 2 x 2 tiles, the
-            // branch-free path).
+            // Large ellipses (many tiles per row) and small ones (at most 2 x 2 tiles, like
+            // most of a plant's).
             let size = if k % 2 == 0 { 12.0 } else { 1.2 };
             let (s1, s2) = (0.3 + size * rnd(), 0.3 + size * rnd());
             let th = std::f32::consts::PI * rnd();
