@@ -9,6 +9,8 @@ pub mod error;
 pub mod ply;
 pub mod pointcloud;
 pub mod raster;
+#[cfg(test)]
+mod test_rng;
 pub mod threads;
 
 pub use error::{CoreError, CoreResult};

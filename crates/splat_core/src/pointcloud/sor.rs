@@ -91,6 +91,7 @@ pub fn remove_statistical_outliers<T: Coord>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::Lcg;
     use crate::threads::with_threads;
 
     /// Plain O(n^2) float64 reference of the same semantics.
@@ -126,13 +127,8 @@ mod tests {
     }
 
     fn noisy_cloud(n: usize) -> Vec<f32> {
-        let mut s = 7u64;
-        let mut rnd = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = Lcg::new(7);
+        let mut rnd = move || rng.uniform();
         let mut v = Vec::new();
         for i in 0..n {
             let scale = if i % 50 == 0 { 5.0 } else { 1.0 };

@@ -444,17 +444,13 @@ pub fn downsample_to_count<T: Coord>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::Lcg;
     use crate::threads::with_threads;
     use std::collections::BTreeMap;
 
     fn cloud(n: usize) -> (Vec<f32>, Vec<f32>) {
-        let mut s = 99u64;
-        let mut rnd = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = Lcg::new(99);
+        let mut rnd = move || rng.uniform();
         let pts = (0..3 * n).map(|_| rnd() * 2.0 - 0.5).collect();
         let cols = (0..3 * n).map(|_| rnd()).collect();
         (pts, cols)

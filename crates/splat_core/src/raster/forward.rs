@@ -90,7 +90,7 @@ impl PixelFootprint {
     }
 }
 
-/// What blending needs of a splat, packed per tile-list entry (32 bytes).
+/// What blending needs of a splat, copied per tile-list entry (32 bytes).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct BlendSplat {
     pub xy: [f32; 2],

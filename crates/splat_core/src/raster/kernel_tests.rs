@@ -4,36 +4,25 @@ use super::backward::{backward_tile_scalar, BackScratch, BackTile, ISECT_FIXED};
 use super::blend_avx2;
 use super::forward::{blend_tile_scalar, BlendSplat, TileInput, TileRect, TileScratch};
 use super::ALPHA_MIN;
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
+use crate::test_rng::Lcg;
 
 /// A random tile list: overlapping anisotropic splats, some fully opaque.
-fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<BlendSplat>, Vec<f32>) {
+fn random_tile(n: usize, rng: &mut Lcg, rect: TileRect) -> (Vec<BlendSplat>, Vec<f32>) {
     let (w, h) = ((rect.x1 - rect.x0) as f32, (rect.y1 - rect.y0) as f32);
     let mut splats = Vec::new();
     let mut feats = Vec::new();
     for i in 0..n {
         let (s1, s2, th) = (
-            0.3 + 6.0 * rng.next(),
-            0.3 + 3.0 * rng.next(),
-            3.2 * rng.next(),
+            0.3 + 6.0 * rng.uniform(),
+            0.3 + 3.0 * rng.uniform(),
+            3.2 * rng.uniform(),
         );
         let (c, s) = (th.cos(), th.sin());
         let (ia, ib) = (1.0 / (s1 * s1), 1.0 / (s2 * s2));
         let opacity = if i % 7 == 0 {
             1.0
         } else {
-            0.01 + 0.99 * rng.next()
+            0.01 + 0.99 * rng.uniform()
         };
         let conic = [
             c * c * ia + s * s * ib,
@@ -44,8 +33,8 @@ fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<BlendSplat>, Vec
         let det = conic[0] * conic[2] - conic[1] * conic[1];
         splats.push(BlendSplat {
             xy: [
-                rect.x0 as f32 - 4.0 + (w + 8.0) * rng.next(),
-                rect.y0 as f32 - 4.0 + (h + 8.0) * rng.next(),
+                rect.x0 as f32 - 4.0 + (w + 8.0) * rng.uniform(),
+                rect.y0 as f32 - 4.0 + (h + 8.0) * rng.uniform(),
             ],
             conic,
             opacity,
@@ -54,7 +43,7 @@ fn random_tile(n: usize, rng: &mut Rng, rect: TileRect) -> (Vec<BlendSplat>, Vec
                 (qmax * conic[0] / det).sqrt(),
             ],
         });
-        feats.extend([rng.next(), rng.next() - 0.5, 4.0 * rng.next()]);
+        feats.extend([rng.uniform(), rng.uniform() - 0.5, 4.0 * rng.uniform()]);
     }
     (splats, feats)
 }
@@ -134,7 +123,7 @@ fn forward_kernels_agree() {
     }
     for (ts, rect) in RECTS {
         for (seed, n, t_min) in CASES {
-            let (splats, feats) = random_tile(n, &mut Rng(seed), rect);
+            let (splats, feats) = random_tile(n, &mut Lcg::new(seed), rect);
             let tile = TileInput {
                 splats: &splats,
                 features: &feats,
@@ -167,7 +156,7 @@ fn backward_kernels_agree() {
     }
     for (ts, rect) in RECTS {
         for (seed, n, t_min) in CASES {
-            let mut rng = Rng(seed);
+            let mut rng = Lcg::new(seed);
             let (splats, feats) = random_tile(n, &mut rng, rect);
             let tile = TileInput {
                 splats: &splats,
@@ -187,8 +176,8 @@ fn backward_kernels_agree() {
             );
             // Upstream gradients on an image just large enough for the tile.
             let (w, h) = (rect.x1 as usize, rect.y1 as usize);
-            let v_render: Vec<f32> = (0..w * h * 3).map(|_| rng.next() - 0.5).collect();
-            let v_alpha: Vec<f32> = (0..w * h).map(|_| rng.next() - 0.5).collect();
+            let v_render: Vec<f32> = (0..w * h * 3).map(|_| rng.uniform() - 0.5).collect();
+            let v_alpha: Vec<f32> = (0..w * h).map(|_| rng.uniform() - 0.5).collect();
             let back = BackTile {
                 splats: &splats,
                 features: &feats,

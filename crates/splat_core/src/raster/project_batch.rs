@@ -262,17 +262,7 @@ mod tests {
     use super::super::scene::ColorMode;
     use super::super::Footprint;
     use super::*;
-
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-        }
-    }
+    use crate::test_rng::Lcg;
 
     fn camera(w: u32, h: u32) -> Camera {
         // Looking down +z from z = -4, slightly rotated about y.
@@ -299,26 +289,30 @@ mod tests {
 
     /// Random Gaussians plus the degenerate ones the culling rules are about.
     fn scene(n: usize, seed: u64) -> Scene {
-        let mut r = Rng(seed);
+        let mut r = Lcg::new(seed);
         let mut means = Vec::new();
         let mut quats = Vec::new();
         let mut scales = Vec::new();
         let mut opac = Vec::new();
         for _ in 0..n {
             means.extend([
-                4.0 * r.next() - 2.0,
-                4.0 * r.next() - 2.0,
-                6.0 * r.next() - 3.0,
+                4.0 * r.uniform() - 2.0,
+                4.0 * r.uniform() - 2.0,
+                6.0 * r.uniform() - 3.0,
             ]);
             quats.extend([
-                r.next() - 0.5,
-                r.next() - 0.5,
-                r.next() - 0.5,
-                r.next() - 0.5,
+                r.uniform() - 0.5,
+                r.uniform() - 0.5,
+                r.uniform() - 0.5,
+                r.uniform() - 0.5,
             ]);
-            let base = 10f32.powf(-3.0 + 2.5 * r.next());
-            scales.extend([base, base * (0.05 + r.next()), base * (0.05 + r.next())]);
-            opac.push(r.next());
+            let base = 10f32.powf(-3.0 + 2.5 * r.uniform());
+            scales.extend([
+                base,
+                base * (0.05 + r.uniform()),
+                base * (0.05 + r.uniform()),
+            ]);
+            opac.push(r.uniform());
         }
         // (mean, quat, scales, opacity)
         type Special = ([f32; 3], [f32; 4], [f32; 3], f32);

@@ -352,6 +352,7 @@ pub fn bin(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::Lcg;
 
     fn splat(x: f32, y: f32, r: f32, depth: f32, conic: [f32; 3], extent: f32) -> Splat {
         Splat {
@@ -422,13 +423,8 @@ mod tests {
 
     #[test]
     fn radix_sort_matches_a_comparison_sort() {
-        let mut seed = 3u64;
-        let mut next = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 33) as u32
-        };
+        let mut rng = Lcg::new(3);
+        let mut next = move || rng.u31();
         for (n, spread) in [
             (0usize, 1u32),
             (1, 1),
@@ -452,13 +448,8 @@ mod tests {
         // Random ellipses: every tile with a pixel centre inside the ellipse is kept, and no
         // kept tile is farther than the slack from the ellipse (dense sampling of the tile's
         // pixel-centre rectangle).
-        let mut seed = 7u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = Lcg::new(7);
+        let mut rnd = move || rng.uniform();
         let (ts, tiles) = (8u32, 12u32);
         for k in 0..600 {
             // Large ellipses (many tiles per row) and small ones (at most 2 x 2 tiles, like
