@@ -146,9 +146,12 @@ def tiny_models(seed: int = 0) -> DiffusionComponents:
 
 def tiny_pipeline(seed: int = 0):  # type: ignore[no-untyped-def]
     """A diffusers ``StableDiffusionPipeline`` of tiny models (no safety checker)."""
+    return _pipeline(tiny_models(seed))
+
+
+def _pipeline(parts: DiffusionComponents):  # type: ignore[no-untyped-def]
     from diffusers import StableDiffusionPipeline
 
-    parts = tiny_models(seed)
     return StableDiffusionPipeline(
         vae=parts.vae,
         text_encoder=parts.text_encoder,
@@ -165,6 +168,7 @@ def save_tiny_models(path: str | Path, seed: int = 0) -> tuple[Path, Path]:
     """Write tiny models in the hub's folder layout; returns (base_model_dir, controlnet_dir)."""
     root = Path(path)
     base, control = root / "base", root / "controlnet"
-    tiny_pipeline(seed).save_pretrained(base)
-    tiny_models(seed).controlnet.save_pretrained(control)
+    parts = tiny_models(seed)
+    _pipeline(parts).save_pretrained(base)
+    parts.controlnet.save_pretrained(control)
     return base, control
