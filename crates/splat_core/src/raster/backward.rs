@@ -20,7 +20,7 @@
 use rayon::prelude::*;
 
 use super::forward::{
-    exp_neg, sigma_at, BlendSplat, Footprint, TileGeometry, TileList, TileRect, LANES,
+    exp_neg, sigma_at, BlendSplat, LaneFootprint, TileGeometry, TileList, TileRect, LANES,
 };
 use super::CameraState;
 use super::{ALPHA_MAX, ALPHA_MIN};
@@ -163,7 +163,7 @@ pub(super) struct BackSplat<'a> {
     pub f: &'a [f32],
     /// Its position in the tile list: pixels with `last > k` saw it.
     pub k: u32,
-    pub fp: Footprint,
+    pub fp: LaneFootprint,
 }
 
 /// Walks the tile's list back to front from the last splat any pixel used, and calls

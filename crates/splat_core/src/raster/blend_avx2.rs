@@ -15,7 +15,7 @@ use std::arch::x86_64::*;
 
 use super::backward::{for_each_splat_back, BackScratch, BackSplat, BackTile, ISECT_FIXED};
 use super::forward::{
-    for_each_splat, Footprint, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES,
+    for_each_splat, LaneFootprint, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES,
 };
 use super::{ALPHA_MAX, ALPHA_MIN};
 
@@ -93,7 +93,7 @@ fn exp_neg(x: __m256) -> __m256 {
 fn column_group(
     xs: &[f32],
     gi: usize,
-    fp: &Footprint,
+    fp: &LaneFootprint,
     sx: f32,
     a: f32,
 ) -> (__m256, __m256, __m256) {

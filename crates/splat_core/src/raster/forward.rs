@@ -296,7 +296,7 @@ pub(super) struct TileGeometry {
 
 /// A splat's footprint in a tile: columns (relative to the tile) whose pixel centre lies
 /// strictly between `xlo` and `xhi`, the lane groups covering them, and the rows.
-pub(super) struct Footprint {
+pub(super) struct LaneFootprint {
     pub xlo: f32,
     pub xhi: f32,
     pub groups: std::ops::Range<usize>,
@@ -330,7 +330,7 @@ impl TileGeometry {
     /// The splat's footprint in the tile (None if it has no pixel there), with the row
     /// terms of its rows filled in.
     #[inline(always)]
-    pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<Footprint> {
+    pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
         let fp = PixelFootprint::new(s, rect);
         if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
             return None;
@@ -344,7 +344,7 @@ impl TileGeometry {
             self.row_c[ly] = c * dy * dy;
             self.row_b[ly] = b * dy;
         }
-        Some(Footprint {
+        Some(LaneFootprint {
             // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
             xlo: fp.x0 as f32,
             xhi: fp.x1 as f32,
@@ -471,7 +471,7 @@ pub(super) struct SplatInTile<'a> {
     pub f: &'a [f32],
     /// 1 + its position in the tile list (the value `last` takes).
     pub k1: u32,
-    pub fp: Footprint,
+    pub fp: LaneFootprint,
 }
 
 /// Walks the tile's splats front to back and calls `kernel(splat, scratch)` for each splat
