@@ -54,7 +54,7 @@ def main() -> int:
     lines = [
         "## Generation pipeline (`benches/bench_generate.py`)\n",
         "Command: `python benches/run_all.py generate`. L-System bean, seed 0, 100k points,",
-        "512x512 renders, CPU only (no GPU was lent to this session). Per-step columns are",
+        "512x512 renders, CPU only (no CUDA GPU on the benchmark machine). Per-step columns are",
         "milliseconds per trained step; `prepare` (L-System + sampling + kNN init), `renders`",
         "(evaluation orbit) and the total are seconds. Measured on a shared, loaded 2-core",
         "machine: treat them as upper bounds.\n",

@@ -208,7 +208,7 @@ def markdown(r: dict) -> str:
         "`python benches/bench_guidance.py` (script: `benches/bench_guidance.py`). One SDS step",
         "= resize the render, VAE-encode it, ControlNet + UNet for both CFG branches (batch 2),",
         "CFG, weighting, clamp, loss, and the backward pass through the VAE encoder to the",
-        "render; batch 1, float32. **No GPU was available in this session**: CPU only,",
+        "render; batch 1, float32. **No CUDA GPU on the benchmark machine**: CPU only,",
         f"{r['cpu_threads']} threads, torch {r['torch']}, measured on a shared, loaded 2-core",
         "machine (other builds ran at the same time), so the numbers are upper bounds.",
         "",
