@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from plantdreamer.guidance.models import DiffusionComponents
+from plantdreamer.guidance.text import PromptEmbeddings
 from plantdreamer.lora.dataset import Example, augment
 
 EVAL_IMAGES = 8
@@ -27,24 +28,10 @@ class NoiseLoss:
         self.weight_dtype = weight_dtype
         self.num_timesteps = int(parts.scheduler.config.num_train_timesteps)
         self.v_prediction = parts.scheduler.config.prediction_type == "v_prediction"
-        self._embeddings: dict[str, torch.Tensor] = {}
+        self._embeddings = PromptEmbeddings(parts.tokenizer, parts.text_encoder, device)
 
-    @torch.no_grad()
     def embed(self, captions: list[str]) -> torch.Tensor:
-        out = []
-        for caption in captions:
-            if caption not in self._embeddings:
-                tok = self.parts.tokenizer
-                ids = tok(
-                    caption,
-                    padding="max_length",
-                    max_length=tok.model_max_length,
-                    truncation=True,
-                    return_tensors="pt",
-                ).input_ids.to(self.device)
-                self._embeddings[caption] = self.parts.text_encoder(ids)[0]
-            out.append(self._embeddings[caption])
-        return torch.cat(out)
+        return self._embeddings.batch(captions)
 
     @torch.no_grad()
     def latents(self, pixels: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import platform
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
@@ -43,6 +42,7 @@ from plantdreamer.lora.checkpoint import (
 from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
+from plantdreamer.versions import package_versions
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
 ADAPTER = "default"
@@ -160,21 +160,6 @@ def prepare_models(
     return parts
 
 
-def _versions() -> dict[str, str]:
-    import diffusers
-    import peft
-
-    from plantdreamer import __version__
-
-    return {
-        "plantdreamer": __version__,
-        "diffusers": diffusers.__version__,
-        "peft": peft.__version__,
-        "torch": torch.__version__,
-        "python": platform.python_version(),
-    }
-
-
 def train_lora(
     config: LoraTrainConfig,
     components: DiffusionComponents | Mapping[str, Any] | None = None,
@@ -289,7 +274,7 @@ def train_lora(
                 "eval_loss_after": eval_after,
                 "mixed_precision": mixed,
                 "device": str(device),
-                "versions": _versions(),
+                "versions": package_versions(),
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             },
             indent=2,

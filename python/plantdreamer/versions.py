@@ -1,0 +1,20 @@
+"""Versions of Python and the packages a run depends on, recorded in its outputs."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+from collections.abc import Sequence
+
+RUN_PACKAGES = ("plantdreamer", "torch", "numpy", "diffusers", "transformers", "peft")
+
+
+def package_versions(packages: Sequence[str] = RUN_PACKAGES) -> dict[str, str | None]:
+    """``{"python": ..., package: version or None when it is not installed}``."""
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for package in packages:
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = None
+    return versions
