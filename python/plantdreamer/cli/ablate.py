@@ -2,9 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import click
+
+from plantdreamer.cli.options import config_from_options, config_options
+from plantdreamer.pipeline.config import GenerateConfig
+
+# The generation settings an ablation varies only through the command line.
+SETTINGS = (
+    "--species", "--seed", "--steps", "--resolution", "--guidance", "--base-model",
+    "--controlnet", "--lora", "--background",
+)  # fmt: skip
 
 
 @click.command()
@@ -13,29 +23,23 @@ import click
 )
 @click.option("--dataset", required=True, type=click.Path(), help="Posed ground-truth images.")
 @click.option("--colors", default="original,noise,black,white", show_default=True)
-@click.option("--species", help="Plant named in the prompts (and the LoRA's species).")
 @click.option(
     "--out", "out_dir", type=click.Path(file_okay=False), default="ablation", show_default=True
 )
-@click.option("--seed", default=0, show_default=True)
-@click.option("--steps", default=3600, show_default=True)
-@click.option("--resolution", type=int)
-@click.option("--guidance", type=click.Choice(["sds", "none"]), default="sds", show_default=True)
-@click.option("--base-model", default="stabilityai/stable-diffusion-2-1-base", show_default=True)
-@click.option("--controlnet", default="thibaud/controlnet-sd21-depth-diffusers", show_default=True)
-@click.option("--lora")
-@click.option("--background", default=0.75, show_default=True)
+@config_options(GenerateConfig, only=SETTINGS)
 @click.option("--quiet", is_flag=True)
-def ablate(pointcloud, dataset, colors, out_dir, background, quiet, **options) -> None:
+def ablate(pointcloud, dataset, colors, out_dir, quiet, **options) -> None:
     """Generate once per colour initialisation, score each against the dataset (masked PSNR),
     and write the paper-style table and bar plot."""
     from plantdreamer.errors import InputError
     from plantdreamer.eval import evaluate, scan_dataset
     from plantdreamer.eval.report import write_ablation_table, write_json
     from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import generate
     from plantdreamer.pipeline.config import COLOR_INITS
 
+    base = config_from_options(GenerateConfig, options)
+    background = base.background
     settings = [c.strip() for c in colors.split(",") if c.strip()]
     unknown = sorted(set(settings) - set(COLOR_INITS))
     if not settings or unknown:
@@ -45,9 +49,7 @@ def ablate(pointcloud, dataset, colors, out_dir, background, quiet, **options) -
     results: dict[str, float] = {}
     for color in settings:
         click.echo(f"== colour init: {color}")
-        cfg = GenerateConfig(
-            pointcloud=pointcloud, color_init=color, background=background, eval_views=0, **options
-        )
+        cfg = dataclasses.replace(base, pointcloud=pointcloud, color_init=color, eval_views=0)
         run = generate(cfg, out / color, show_progress=not quiet)
         scored = evaluate(read_splat_ply(run.ply_path), frames, (background,) * 3, keep_views=0)
         write_json(scored, out / color / "eval.json", setting=color)

@@ -9,6 +9,11 @@ renders (and through the rasterizer into the Gaussians). The optimiser calls
 with ``images`` [B, H, W, 3] float32 in [0, 1] (requiring grad), ``depth_cond`` the cleaned
 [B, 1, h, w] depth conditioning in [0, 1] (or None when ``needs_depth`` is False), the
 ``Camera`` of each image, and the optimisation step (schedules depend on it).
+
+Besides the call, the loop reads three attributes: ``needs_depth`` (whether to render depth
+conditioning), ``resolution`` (the square size of that conditioning; None when no depth is
+needed) and ``generator`` (the guidance's own random generator, whose state checkpoints
+hold so a resumed run draws the same noise; None when it draws no random numbers).
 """
 
 from __future__ import annotations
@@ -33,7 +38,14 @@ class GuidanceOutput:
 
 @runtime_checkable
 class Guidance(Protocol):
-    needs_depth: bool
+    @property
+    def needs_depth(self) -> bool: ...
+
+    @property
+    def resolution(self) -> int | None: ...
+
+    @property
+    def generator(self) -> torch.Generator | None: ...
 
     def __call__(
         self,
@@ -58,6 +70,8 @@ class NoGuidance:
     """A zero loss that still connects to the graph (ablations: geometry-only runs)."""
 
     needs_depth = False
+    resolution = None
+    generator = None
 
     def __call__(
         self,
@@ -77,6 +91,8 @@ class PhotometricGuidance:
     """
 
     needs_depth = False
+    resolution = None
+    generator = None
 
     def __init__(self, targets: torch.Tensor):
         if targets.dim() == 3:

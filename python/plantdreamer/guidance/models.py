@@ -19,9 +19,10 @@ from typing import Any
 import torch
 
 from plantdreamer.errors import ModelNotFoundError
+from plantdreamer.guidance.config import SDS_DEFAULTS
 
-DEFAULT_BASE_MODEL = "stabilityai/stable-diffusion-2-1-base"
-DEFAULT_CONTROLNET = "thibaud/controlnet-sd21-depth-diffusers"
+DEFAULT_BASE_MODEL = SDS_DEFAULTS.base_model
+DEFAULT_CONTROLNET = SDS_DEFAULTS.controlnet
 
 # Subfolders of a diffusers Stable Diffusion repository we need, with their config file.
 _BASE_PARTS = {

@@ -30,17 +30,17 @@ import torch.nn.functional as F
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import GuidanceOutput, check_images
+from plantdreamer.guidance.config import SDS_DEFAULTS
 from plantdreamer.guidance.lora_weights import load_lora
 from plantdreamer.guidance.models import (
-    DEFAULT_BASE_MODEL,
-    DEFAULT_CONTROLNET,
     DiffusionComponents,
     load_components,
     resolve_device,
     resolve_dtype,
 )
 from plantdreamer.guidance.prompts import camera_prompt
-from plantdreamer.guidance.schedules import TimestepSchedule, make_schedule, ramp
+from plantdreamer.guidance.schedules import REFERENCE_STEPS, TimestepSchedule, make_schedule, ramp
+from plantdreamer.guidance.text import PromptEmbeddings
 
 # threestudio's grad_clip [start_step, start_value, end_value, end_step] of the released config.
 DEFAULT_GRAD_CLIP = (0, 1.5, 2.0, 1000)
@@ -62,20 +62,22 @@ class StableDiffusionDepthGuidance:
 
     def __init__(
         self,
-        base_model: str | Path = DEFAULT_BASE_MODEL,
-        controlnet: str | Path = DEFAULT_CONTROLNET,
-        lora: str | Path | None = None,
+        base_model: str | Path = SDS_DEFAULTS.base_model,
+        controlnet: str | Path = SDS_DEFAULTS.controlnet,
+        lora: str | Path | None = SDS_DEFAULTS.lora,
         species: str = "bean",
-        guidance_scale: float = 100.0,
-        conditioning_scale: float = 1.0,
-        schedule: str | TimestepSchedule | Sequence[tuple[int | None, float, float]] = "paper",
-        total_steps: int = 3600,
+        guidance_scale: float = SDS_DEFAULTS.guidance_scale,
+        conditioning_scale: float = SDS_DEFAULTS.conditioning_scale,
+        schedule: str
+        | TimestepSchedule
+        | Sequence[tuple[int | None, float, float]] = SDS_DEFAULTS.schedule,
+        total_steps: int = REFERENCE_STEPS,
         negative_prompt: str = "",
         device: str | torch.device | None = None,
         dtype: torch.dtype | str | None = None,
         seed: int = 0,
         components: DiffusionComponents | Mapping[str, Any] | None = None,
-        resolution: int = 512,
+        resolution: int = SDS_DEFAULTS.resolution,
         grad_clip: tuple[int, float, float, int] | None = DEFAULT_GRAD_CLIP,
         lora_scale: float = 1.0,
         vae_dtype: torch.dtype | str | None = torch.float32,
@@ -116,26 +118,15 @@ class StableDiffusionDepthGuidance:
             raise InputError(f"unsupported prediction type {self.prediction_type!r}")
         self.alphas_cumprod = scheduler.alphas_cumprod.to(self.device, torch.float32)
         self.generator = torch.Generator().manual_seed(seed)
-        self._embeddings: dict[str, torch.Tensor] = {}
+        self._embeddings = PromptEmbeddings(
+            self.parts.tokenizer, self.parts.text_encoder, self.device, self.dtype
+        )
 
     # -- text -------------------------------------------------------------------------------
 
-    @torch.no_grad()
     def text_embedding(self, prompt: str) -> torch.Tensor:
         """[1, tokens, dim] CLIP hidden states of a prompt, computed once per prompt."""
-        cached = self._embeddings.get(prompt)
-        if cached is None:
-            tokenizer = self.parts.tokenizer
-            ids = tokenizer(
-                prompt,
-                padding="max_length",
-                max_length=tokenizer.model_max_length,
-                truncation=True,
-                return_tensors="pt",
-            ).input_ids
-            cached = self.parts.text_encoder(ids.to(self.device))[0].to(self.dtype)
-            self._embeddings[prompt] = cached
-        return cached
+        return self._embeddings(prompt)
 
     def prompts_for(self, cameras: Sequence[Camera]) -> list[str]:
         return [camera_prompt(self.species, c) for c in cameras]

@@ -11,8 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import torch
-
+from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError
 
 CHECKPOINT_DIR = "checkpoints"
@@ -31,20 +30,14 @@ def list_checkpoints(out: Path) -> list[Path]:
 
 def save_checkpoint(out: Path, step: int, state: dict[str, Any], keep: int = 2) -> Path:
     path = checkpoint_path(out, step)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)  # never leave a half-written checkpoint behind
+    write_checkpoint(path, state)
     for old in list_checkpoints(out)[:-keep]:
         old.unlink(missing_ok=True)
     return path
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a corrupt file
-        raise CheckpointError(f"cannot read checkpoint {str(path)!r}: {exc}") from exc
+    state = read_checkpoint(path)
     missing = {"step", "lora", "optimizer", "generator", "losses", "fingerprint"} - set(state)
     if missing:
         raise CheckpointError(f"checkpoint {str(path)!r} lacks {sorted(missing)}")

@@ -1,6 +1,29 @@
-"""The generation pipeline: point cloud -> initial Gaussians -> guided optimisation -> outputs."""
+"""The generation pipeline: point cloud -> initial Gaussians -> guided optimisation -> outputs.
 
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
+Names load on first use, so ``plantdreamer.pipeline.config`` (read by the CLI at start-up)
+does not import torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
 
 __all__ = ["GenerateConfig", "RunInterrupted", "RunResult", "generate"]
+
+_MODULES = {
+    "GenerateConfig": "plantdreamer.pipeline.config",
+    "RunInterrupted": "plantdreamer.pipeline.run",
+    "RunResult": "plantdreamer.pipeline.run",
+    "generate": "plantdreamer.pipeline.run",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _MODULES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_MODULES[name]), name)

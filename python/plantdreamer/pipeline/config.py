@@ -1,18 +1,20 @@
 """Every setting of a generation run, with the paper's and released code's defaults.
 
-A run's config is written into ``run.json`` and into each checkpoint, so ``--resume``
-continues with exactly the settings it started with.
+These dataclasses are the one place a default is written: ``plantdreamer generate`` builds
+one option per field made with ``setting(...)`` (default, choices and help read from here),
+``run.json`` and each checkpoint store ``to_dict()``, and ``--resume`` rebuilds the config
+with ``from_dict`` so it continues with exactly the settings it started with.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from plantdreamer.errors import InputError
+from plantdreamer.guidance.config import SdsConfig
+from plantdreamer.settings import check_choices, option_prefix, setting
 
 COLOR_INITS = ("original", "noise", "black", "white")
 GUIDANCES = ("sds", "none")
@@ -42,77 +44,98 @@ class CameraRanges:
 
 
 @dataclass
+class DensifyConfig:
+    """3DGS adaptive density control in the released code's window: every ``every`` steps
+    strictly between ``start`` and ``until``, clone or split Gaussians whose mean 2D-mean
+    gradient (NDC units) is at least ``grad_threshold``, then prune transparent ones."""
+
+    start: int = 300
+    until: int = 900
+    every: int = 100
+    grad_threshold: float = 2e-4
+    split_scale: float = 0.04  # larger Gaussians are split, smaller cloned (1% of the scene)
+    prune_opacity: float = 0.05
+    max_gaussians: int = 500_000
+
+    def due(self, step: int) -> bool:
+        return self.start < step < self.until and step % self.every == 0
+
+
+@dataclass
+class CullConfig:
+    """Large-Gaussian culling (paper Sec. 3.3, on log-scales): every ``every`` steps after
+    ``after``, remove Gaussians with V = ||exp(s)|| > mean + ``threshold`` std."""
+
+    threshold: float = setting(3.0, "C in V > mean + C std.")
+    every: int = 100
+    after: int = 500
+
+    def due(self, step: int) -> bool:
+        return step > self.after and step % self.every == 0
+
+
+@dataclass
 class GenerateConfig:
     # Input: a point cloud (PLY), or else the species' L-System. With a point cloud, species
     # only names the plant in the prompts.
-    species: str | None = None
-    pointcloud: str | None = None
-    seed: int = 0
-    n_points: int = 100_000
+    species: str | None = setting(
+        None,
+        "L-System species to generate (see `plantdreamer lsystem --list`); with "
+        "--pointcloud, the plant named in the prompts.",
+    )
+    pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
+    seed: int = setting(0, "Seed of the plant, cameras and noise.")
+    n_points: int = setting(100_000, "Points to start from.", option="--points")
     sor_neighbors: int = 20
     sor_std: float = 3.0
     scene_size: float = 4.0  # longest side of the normalised scene
 
     # Initialisation.
-    sh_degree: int = 0
-    color_init: str = "original"
+    sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
+    color_init: str = setting("original", "Colours of the initial Gaussians.", choices=COLOR_INITS)
     opacity_init: float | None = None  # None: 0.7 for L-System meshes, 0.1 for point clouds
 
     # Optimisation.
-    steps: int = 3600
-    resolution: int | None = None  # None: 512 on CPU, 768 with a CUDA GPU
-    background: float = 0.75
+    steps: int = setting(3600, "Optimisation steps.")
+    resolution: int | None = setting(
+        None, "Training render size.", default_text="512 on CPU, 768 on GPU"
+    )
+    background: float = setting(0.75, "Grey level of the background renders are made on.")
     lr: LearningRates = field(default_factory=LearningRates)
     cameras: CameraRanges = field(default_factory=CameraRanges)
-
-    # Densification and pruning (3DGS rules, released code's window).
-    densify_from: int = 300
-    densify_until: int = 900
-    densify_every: int = 100
-    densify_grad_threshold: float = 2e-4
-    split_scale_threshold: float = 0.04  # 1% of the scene extent
-    prune_opacity: float = 0.05
-    max_gaussians: int = 500_000
-
-    # Large-Gaussian culling (paper's formula on log-scales).
-    cull_threshold: float = 3.0
-    cull_every: int = 100
-    cull_after: int = 500
+    densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
+    cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
 
     # Guidance.
-    guidance: str = "sds"
-    base_model: str = "stabilityai/stable-diffusion-2-1-base"
-    controlnet: str = "thibaud/controlnet-sd21-depth-diffusers"
-    lora: str | None = None
-    guidance_scale: float = 100.0
-    conditioning_scale: float = 1.0
-    schedule: str = "paper"
-    sds_resolution: int = 512  # renders are resized to this before VAE encoding
+    guidance: str = setting("sds", "Guidance: SDS, or none (no optimisation).", choices=GUIDANCES)
+    sds: SdsConfig = field(default_factory=SdsConfig, metadata=option_prefix(""))
 
     # Outputs.
-    eval_views: int = 120
+    eval_views: int = setting(120, "Renders on the evaluation orbit.")
     eval_distance: float = 4.0
     eval_elevation_deg: float = 15.0
     eval_fovy_deg: float = 70.0
     turntable_frames: int = 40
-    sh_degree_export: int | None = None
-    checkpoint_every: int = 500
+    sh_degree_export: int | None = setting(
+        None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
+    )
+    checkpoint_every: int = setting(500, "Steps between checkpoints.")
 
     def validate(self) -> None:
         if self.species is None and self.pointcloud is None:
             raise InputError("give an input: a species (L-System) or a point cloud")
-        if self.color_init not in COLOR_INITS:
-            raise InputError(f"color init must be one of {', '.join(COLOR_INITS)}")
-        if self.guidance not in GUIDANCES:
-            raise InputError(f"guidance must be one of {', '.join(GUIDANCES)}")
+        try:
+            check_choices(self)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
         if not 0 <= self.sh_degree <= 3:
             raise InputError(f"SH degree must be in 0..3, got {self.sh_degree}")
         if self.sh_degree_export is not None and not 0 <= self.sh_degree_export <= 3:
             raise InputError(f"export SH degree must be in 0..3, got {self.sh_degree_export}")
         if self.steps < 0 or self.n_points <= 0 or self.eval_views < 0:
             raise InputError("steps, points and views must not be negative")
-        if self.checkpoint_every <= 0:
-            raise InputError("checkpoint interval must be positive")
+        if self.checkpoint_every <= 0 or self.densify.every <= 0 or self.cull.every <= 0:
+            raise InputError("checkpoint, densify and cull intervals must be positive")
 
     def initial_opacity(self) -> float:
         if self.opacity_init is not None:
@@ -120,19 +143,40 @@ class GenerateConfig:
         return 0.1 if self.pointcloud is not None else 0.7
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """Plain values only (dicts, lists, numbers, strings, None): JSON and checkpoints."""
+        return _plain(dataclasses.asdict(self))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> GenerateConfig:
-        data = dict(data)
-        lr = LearningRates(**data.pop("lr", {}))
-        cams = {k: tuple(v) for k, v in data.pop("cameras", {}).items()}
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise InputError(f"unknown config keys: {', '.join(sorted(unknown))}")
-        return cls(lr=lr, cameras=CameraRanges(**cams), **data)
+        return _build(cls, data)
 
-    @classmethod
-    def from_json(cls, path: str | Path) -> GenerateConfig:
-        return cls.from_dict(json.loads(Path(path).read_text()))
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _build(cls: Any, data: dict[str, Any]) -> Any:
+    """``cls`` from ``to_dict`` output; nested configs recursively, lists back to tuples."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(data) - set(fields)
+    if unknown:
+        raise InputError(f"unknown config keys: {', '.join(sorted(unknown))}")
+    values = {}
+    for name, value in data.items():
+        default = _default(fields[name])
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = _build(type(default), value)
+        elif isinstance(default, tuple) and isinstance(value, list):
+            value = tuple(value)
+        values[name] = value
+    return cls(**values)
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return f.default

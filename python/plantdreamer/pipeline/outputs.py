@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.checkpoint import atomic_write
 from plantdreamer.pointcloud import NormalizeTransform
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.metadata
+import copy
 import math
 import os
 import signal
@@ -19,6 +19,7 @@ import torch
 
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
+from plantdreamer.guidance.base import Guidance
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
@@ -28,6 +29,7 @@ from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.sampler import CameraSampler
+from plantdreamer.versions import package_versions
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -64,7 +66,7 @@ def default_resolution() -> int:
     return 768 if torch.cuda.is_available() else 512
 
 
-def build_guidance(cfg: GenerateConfig):
+def build_guidance(cfg: GenerateConfig) -> Guidance:
     """The guidance a config asks for; missing weights raise ModelNotFoundError here,
     before anything is written."""
     from plantdreamer.guidance.base import NoGuidance
@@ -72,17 +74,18 @@ def build_guidance(cfg: GenerateConfig):
 
     if cfg.guidance == "none":
         return NoGuidance()
+    sds = cfg.sds
     return StableDiffusionDepthGuidance(
-        base_model=cfg.base_model,
-        controlnet=cfg.controlnet,
-        lora=cfg.lora,
+        base_model=sds.base_model,
+        controlnet=sds.controlnet,
+        lora=sds.lora,
         species=cfg.species or "plant",
-        guidance_scale=cfg.guidance_scale,
-        conditioning_scale=cfg.conditioning_scale,
-        schedule=cfg.schedule,
+        guidance_scale=sds.guidance_scale,
+        conditioning_scale=sds.conditioning_scale,
+        schedule=sds.schedule,
         total_steps=cfg.steps,
         seed=cfg.seed,
-        resolution=cfg.sds_resolution,
+        resolution=sds.resolution,
     )
 
 
@@ -90,7 +93,7 @@ def generate(
     cfg: GenerateConfig | None,
     out_dir: str | Path,
     *,
-    guidance: Any = None,
+    guidance: Guidance | None = None,
     resume: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
@@ -99,6 +102,7 @@ def generate(
 
     With ``resume=True`` the config is the checkpoint's and ``cfg`` must be None.
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
+    The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
     ``RunInterrupted`` is raised.
     """
@@ -110,6 +114,7 @@ def generate(
         raise InputError("a config is needed unless resuming")
     check_inputs(cfg)
     _check_writable(out_dir)
+    cfg = copy.deepcopy(cfg)
     if cfg.resolution is None:
         cfg.resolution = default_resolution()
     guidance = guidance if guidance is not None else build_guidance(cfg)
@@ -127,10 +132,20 @@ def _check_writable(out_dir: Path) -> None:
 
 
 class _Run:
-    def __init__(self, cfg, out_dir, guidance, state, show_progress, on_step) -> None:
+    def __init__(
+        self,
+        cfg: GenerateConfig,
+        out_dir: Path,
+        guidance: Guidance,
+        state: dict[str, Any] | None,
+        show_progress: bool,
+        on_step: Callable[[int], None] | None,
+    ) -> None:
         from plantdreamer.guidance.base import NoGuidance
 
-        self.cfg, self.out_dir, self.guidance = cfg, out_dir, guidance
+        assert cfg.resolution is not None  # generate() decides it
+        self.cfg, self.resolution, self.out_dir = cfg, cfg.resolution, out_dir
+        self.guidance = guidance
         self.show_progress, self.on_step = show_progress, on_step
         self.trains = not isinstance(guidance, NoGuidance)
         if state is None:
@@ -156,7 +171,7 @@ class _Run:
         self.transform, self.source_counts = source.transform, source.counts
         self.initial_gaussians = g
         self.model = GaussianModel(g, cfg.lr)
-        self.sampler = CameraSampler(cfg.cameras, cfg.resolution, cfg.seed)
+        self.sampler = CameraSampler(cfg.cameras, self.resolution, cfg.seed)
         self.densify = DensifyStats.zeros(len(g))
         self.start_step = 0
         self.log_rows: list[dict[str, Any]] = []
@@ -168,25 +183,25 @@ class _Run:
 
         self.transform = NormalizeTransform.from_dict(state["transform"])
         self.source_counts = state["source_counts"]
-        self.initial_gaussians = Gaussians(**state["initial"])
+        self.initial_gaussians = Gaussians(**{k: v.numpy() for k, v in state["initial"].items()})
         self.model = GaussianModel(self.initial_gaussians, self.cfg.lr)
         self.model.load_state_dict(state["model"])
-        self.sampler = CameraSampler(self.cfg.cameras, self.cfg.resolution, self.cfg.seed)
+        self.sampler = CameraSampler(self.cfg.cameras, self.resolution, self.cfg.seed)
         self.sampler.set_state(state["sampler"])
         self.densify = DensifyStats(**state["densify"])
         self.start_step = state["step"]
         self.log_rows, self.events = state["log_rows"], state["events"]
         torch.set_rng_state(state["torch_rng"])
         if state.get("guidance") is not None:
+            if self.guidance.generator is None:
+                raise InputError("the checkpoint holds a guidance's noise state; this one has none")
             self.guidance.generator.set_state(state["guidance"])
 
     # -- the loop --------------------------------------------------------------------
 
     def run(self) -> RunResult:
         cfg = self.cfg
-        conditioner = (
-            self._depth_conditioner() if getattr(self.guidance, "needs_depth", False) else None
-        )
+        conditioner = self._depth_conditioner() if self.guidance.needs_depth else None
         progress = Progress(cfg.steps, self.start_step, self.show_progress)
         previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, self._request_stop)
@@ -223,13 +238,15 @@ class _Run:
                 depth = conditioner([camera])
         with timer("guidance"):
             out = self.guidance(image, depth, [camera], step)
+        optimizer = model.optimizer
+        assert optimizer is not None  # the model is built with learning rates
         with timer("backward"):
-            model.optimizer.zero_grad(set_to_none=True)
+            optimizer.zero_grad(set_to_none=True)
             out.loss.backward()
-        if step < cfg.densify_until and meta["means2d"].grad is not None:
+        if step < cfg.densify.until and meta["means2d"].grad is not None:
             self.densify.update(meta["means2d"].grad, meta["radii"], camera.width, camera.height)
         with timer("optimizer"):
-            model.optimizer.step()
+            optimizer.step()
         loss = float(out.loss.detach())
         if not math.isfinite(loss):
             raise PlantDreamerError(
@@ -239,31 +256,29 @@ class _Run:
         return loss
 
     def _adapt_density(self, step: int) -> None:
-        cfg = self.cfg
-        if cfg.densify_from < step < cfg.densify_until and step % cfg.densify_every == 0:
+        cfg, dens, cull = self.cfg, self.cfg.densify, self.cfg.cull
+        if dens.due(step):
             with self.timer("densify"):
                 gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step)
                 counts = densify_and_prune(
                     self.model,
                     self.densify,
-                    cfg.densify_grad_threshold,
-                    cfg.split_scale_threshold,
-                    cfg.prune_opacity,
-                    cfg.max_gaussians,
+                    dens.grad_threshold,
+                    dens.split_scale,
+                    dens.prune_opacity,
+                    dens.max_gaussians,
                     gen,
                 )
                 self.densify = DensifyStats.zeros(len(self.model))
             self.events.append(
                 {"step": step, "event": "densify", **counts, "gaussians": len(self.model)}
             )
-        if step > cfg.cull_after and step % cfg.cull_every == 0:
+        if cull.due(step):
             with self.timer("cull"):
-                mask, stats = large_gaussian_mask(
-                    self.model.params["log_scales"], cfg.cull_threshold
-                )
+                mask, stats = large_gaussian_mask(self.model.params["log_scales"], cull.threshold)
                 if stats["culled"]:
                     self.model.remove(mask)
-                if stats["culled"] and step < cfg.densify_until:
+                if stats["culled"] and step < dens.until:
                     self.densify = DensifyStats(
                         self.densify.grad_sum[~mask], self.densify.count[~mask]
                     )
@@ -279,7 +294,9 @@ class _Run:
                 depth, alpha, _ = self.initial.render([camera], self.cfg.background, "ED")
             return depth, alpha
 
-        size = getattr(self.guidance, "resolution", 512)
+        size = self.guidance.resolution
+        if size is None:
+            raise InputError("a guidance that needs depth must say its resolution")
         return DepthConditioner(render_depth, out_size=size)
 
     # -- persistence -------------------------------------------------------------------
@@ -294,7 +311,7 @@ class _Run:
                     "config": self.cfg.to_dict(),
                     "model": self.model.state_dict(),
                     "initial": {
-                        k: getattr(g, k)
+                        k: torch.from_numpy(getattr(g, k).copy())
                         for k in ("means", "quats", "log_scales", "opacity_logits", "sh")
                     },
                     "transform": self.transform.to_dict(),
@@ -326,7 +343,7 @@ class _Run:
                 cfg.eval_distance,
                 cfg.eval_elevation_deg,
                 cfg.eval_fovy_deg,
-                cfg.resolution,
+                self.resolution,
             )
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntable(out / "turntable.gif", frames, cfg.turntable_frames)
@@ -335,12 +352,6 @@ class _Run:
         return RunResult(out, ply_path, cfg.steps, len(final), dict(self.timer.totals))
 
     def _summary(self, final: Gaussians) -> dict[str, Any]:
-        versions = {}
-        for pkg in ("plantdreamer", "torch", "numpy", "diffusers", "transformers", "peft"):
-            try:
-                versions[pkg] = importlib.metadata.version(pkg)
-            except importlib.metadata.PackageNotFoundError:
-                versions[pkg] = None
         steps_trained = len(self.log_rows)
         per_step = {
             k: v / steps_trained
@@ -350,7 +361,7 @@ class _Run:
         return {
             "config": self.cfg.to_dict(),
             "seed": self.cfg.seed,
-            "versions": versions,
+            "versions": package_versions(),
             "threads": torch.get_num_threads(),
             "cpu_count": os.cpu_count(),
             "device": "cuda" if torch.cuda.is_available() else "cpu",
@@ -363,8 +374,8 @@ class _Run:
         }
 
 
-def _generator_state(guidance: Any) -> torch.Tensor | None:
-    generator = getattr(guidance, "generator", None)
+def _generator_state(guidance: Guidance) -> torch.Tensor | None:
+    generator = guidance.generator
     return None if generator is None else generator.get_state()
 
 
