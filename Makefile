@@ -56,11 +56,12 @@ $(BENCH_STAMP): $(STAMP)
 bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
 	$(PY) benches/run_all.py
 
-lint: $(STAMP) ## cargo fmt --check, clippy -D warnings, ruff
+lint: $(STAMP) ## cargo fmt --check, clippy -D warnings, ruff, mypy
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check python tests benches scripts
 	$(VENV)/bin/ruff format --check python tests benches scripts
+	$(VENV)/bin/mypy python/plantdreamer
 
 format: $(STAMP) ## Format Rust and Python sources
 	cargo fmt --all

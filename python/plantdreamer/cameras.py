@@ -94,7 +94,9 @@ def intrinsics_from_fovy(fovy_deg: float, width: int, height: int) -> np.ndarray
     return intrinsics(f, f, width / 2.0, height / 2.0)
 
 
-def look_at(eye: Sequence[float], target: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+def look_at(
+    eye: Sequence[float] | np.ndarray, target: Sequence[float] = (0.0, 0.0, 0.0)
+) -> np.ndarray:
     """World-to-camera (OpenCV axes) for a camera at ``eye`` looking at ``target``, z up."""
     eye_v = np.asarray(eye, dtype=np.float64)
     forward = np.asarray(target, dtype=np.float64) - eye_v

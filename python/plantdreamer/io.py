@@ -95,16 +95,16 @@ def read_ply(path: PathLike) -> PointCloud:
     positions = block(("x", "y", "z")).astype(dtype, copy=False)
 
     colors = None
-    for names in _COLOR_NAMES:
-        if all(n in cols for n in names):
-            kinds = {cols[n].dtype for n in names}
+    for group in _COLOR_NAMES:
+        if all(n in cols for n in group):
+            kinds = {cols[n].dtype for n in group}
             if len(kinds) != 1:
                 continue
             kind = kinds.pop()
             if kind in _COLOR_SCALE:
-                colors = block(names).astype(np.float32) / np.float32(_COLOR_SCALE[kind])
+                colors = block(group).astype(np.float32) / np.float32(_COLOR_SCALE[kind])
             elif kind.kind == "f":
-                colors = block(names).astype(np.float32, copy=False)
+                colors = block(group).astype(np.float32, copy=False)
             else:
                 continue
             break

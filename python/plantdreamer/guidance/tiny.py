@@ -14,6 +14,7 @@ Nothing is downloaded: the tokenizer's vocabulary is generated here.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -132,7 +133,8 @@ def tiny_models(seed: int = 0) -> DiffusionComponents:
         steps_offset=1,
         prediction_type="epsilon",
     )
-    for model in (unet, controlnet, vae, text_encoder):
+    models: tuple[Any, ...] = (unet, controlnet, vae, text_encoder)
+    for model in models:  # all torch modules; diffusers' stubs do not say so
         model.eval()
     return DiffusionComponents(
         unet=unet,

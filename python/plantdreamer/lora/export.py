@@ -35,9 +35,10 @@ def save_lora_file(out: Path, unet: Any, rank: int, alpha: float) -> Path:
     from diffusers.loaders import StableDiffusionLoraLoaderMixin
 
     out.mkdir(parents=True, exist_ok=True)
+    layers: dict[str, torch.nn.Module | torch.Tensor] = dict(lora_state_dict(unet, rank, alpha))
     StableDiffusionLoraLoaderMixin.save_lora_weights(
         save_directory=str(out),
-        unet_lora_layers=lora_state_dict(unet, rank, alpha),
+        unet_lora_layers=layers,
         weight_name=LORA_WEIGHT_NAME,
         safe_serialization=True,
     )
@@ -60,7 +61,7 @@ def render_validation(
 
     unet_mode = parts.unet.training
     parts.unet.eval()
-    pipe = StableDiffusionPipeline(
+    pipe: Any = StableDiffusionPipeline(  # diffusers types its pipelines loosely
         vae=parts.vae,
         text_encoder=parts.text_encoder,
         tokenizer=parts.tokenizer,

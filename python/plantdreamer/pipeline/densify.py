@@ -3,6 +3,7 @@ gradients, prune transparent ones. Deterministic for a given seed and step."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -77,7 +78,7 @@ def densify_and_prune(
     return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(pruned.sum())}
 
 
-def _split(p: dict[str, torch.Tensor], mask: torch.Tensor, generator: torch.Generator):
+def _split(p: Mapping[str, torch.Tensor], mask: torch.Tensor, generator: torch.Generator):
     """Two samples from each selected Gaussian, scales divided by 1.6 (3DGS rule)."""
     if not bool(mask.any()):
         return {k: v.detach()[mask] for k, v in p.items()}

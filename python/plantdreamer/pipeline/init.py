@@ -17,7 +17,7 @@ def initial_colors(
     """Colours for the paper's colour-init ablation: original, noise, black or white."""
     if mode == "original":
         if colors is None:
-            return np.broadcast_to(np.float32(DEFAULT_RGB), (n, 3)).copy()
+            return np.broadcast_to(np.asarray(DEFAULT_RGB, np.float32), (n, 3)).copy()
         return np.clip(colors.astype(np.float32), 0.0, 1.0)
     if mode == "noise":
         return rng.random((n, 3), dtype=np.float32)

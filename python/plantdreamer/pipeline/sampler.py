@@ -25,7 +25,7 @@ class CameraSampler:
         return orbit(distance, elevation, azimuth, fovy, self.resolution, self.resolution)
 
     def state(self) -> dict[str, Any]:
-        return self.rng.bit_generator.state
+        return dict(self.rng.bit_generator.state)
 
     def set_state(self, state: dict[str, Any]) -> None:
         self.rng.bit_generator.state = state

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pointcloud import NormalizeTransform
 
@@ -42,6 +43,8 @@ def load_source(cfg: GenerateConfig) -> Source:
 
     from plantdreamer.lsystem import generate_plant, sample_points
 
+    if cfg.species is None:
+        raise InputError("give an input: a species (L-System) or a point cloud")
     cloud = sample_points(generate_plant(cfg.species, cfg.seed), n=cfg.n_points, seed=cfg.seed)
     points, transform = normalize(cloud.positions, size=cfg.scene_size)
     return Source(points.astype(np.float32), cloud.colors, transform, {"sampled": len(cloud)})
