@@ -6,7 +6,6 @@ import pytest
 import torch
 
 from plantdreamer.errors import CheckpointError, InputError
-from plantdreamer.gaussians import Gaussians
 from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig, LearningRates
 from plantdreamer.pipeline.culling import large_gaussian_mask
@@ -14,20 +13,6 @@ from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler
-
-
-def gaussians(n=50, seed=0, log_scale=-3.0):
-    rng = np.random.default_rng(seed)
-    f = np.float32
-    q = np.zeros((n, 4), f)
-    q[:, 0] = 1
-    return Gaussians(
-        rng.normal(size=(n, 3)).astype(f),
-        q,
-        np.full((n, 3), log_scale, f) + rng.normal(scale=0.05, size=(n, 3)).astype(f),
-        np.zeros(n, f),
-        rng.normal(size=(n, 1, 3)).astype(f),
-    )
 
 
 def test_config_round_trips_through_json_dict():
@@ -47,8 +32,8 @@ def test_config_rejects_bad_inputs(kwargs):
         GenerateConfig(**kwargs).validate()
 
 
-def test_culling_removes_exactly_the_planted_giants():
-    g = gaussians(400)
+def test_culling_removes_exactly_the_planted_giants(random_gaussians):
+    g = random_gaussians(400, log_scale=-3.0)
     planted = [7, 123, 399]
     g.log_scales[planted] = 0.5
     mask, stats = large_gaussian_mask(torch.from_numpy(g.log_scales), 3.0)
@@ -72,8 +57,8 @@ def test_checkpoint_is_atomic_and_corruption_is_reported(tmp_path):
         load_checkpoint(tmp_path / "nope")
 
 
-def test_remove_and_append_keep_adam_state_aligned():
-    model = GaussianModel(gaussians(10), LearningRates())
+def test_remove_and_append_keep_adam_state_aligned(random_gaussians):
+    model = GaussianModel(random_gaussians(10, log_scale=-3.0), LearningRates())
     for p in model.params.values():
         p.grad = torch.ones_like(p)
     model.optimizer.step()
@@ -97,8 +82,8 @@ def test_remove_and_append_keep_adam_state_aligned():
     assert not torch.equal(old, model.params["means"].detach())
 
 
-def test_densify_clones_small_splits_large_prunes_transparent():
-    g = gaussians(6, log_scale=-5.0)
+def test_densify_clones_small_splits_large_prunes_transparent(random_gaussians):
+    g = random_gaussians(6, log_scale=-5.0)
     g.log_scales[1] = np.log(0.2)  # large: split
     g.opacity_logits[5] = -10.0  # transparent: pruned
     model = GaussianModel(g, LearningRates())
@@ -116,8 +101,8 @@ def test_densify_clones_small_splits_large_prunes_transparent():
     assert torch.isclose(scales, torch.tensor(0.2 / 1.6)).sum() == 2
 
 
-def test_densify_respects_the_cap():
-    model = GaussianModel(gaussians(6, log_scale=-5.0), LearningRates())
+def test_densify_respects_the_cap(random_gaussians):
+    model = GaussianModel(random_gaussians(6, log_scale=-5.0), LearningRates())
     stats = DensifyStats.zeros(6)
     stats.update(torch.ones(1, 6, 2), torch.ones(1, 6, dtype=torch.int32), 64, 64)
     densify_and_prune(model, stats, 2e-4, 0.04, 0.0, 8, torch.Generator().manual_seed(0))

@@ -11,16 +11,7 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_splat_ply
 
 
-def random_gaussians(n: int, degree: int, seed: int = 0) -> Gaussians:
-    rng = np.random.default_rng(seed)
-    k = (degree + 1) ** 2
-    g = Gaussians(
-        means=rng.normal(size=(n, 3)).astype(np.float32),
-        quats=rng.normal(size=(n, 4)).astype(np.float32),
-        log_scales=rng.normal(-4, 1, size=(n, 3)).astype(np.float32),
-        opacity_logits=rng.normal(size=n).astype(np.float32),
-        sh=rng.normal(size=(n, k, 3)).astype(np.float32),
-    )
+def with_lossy_values(g: Gaussians) -> Gaussians:
     # Values a lossy path would change: NaN payloads, -0.0, subnormals, infinities.
     g.means[0] = [np.float32(-0.0), np.float32(1e-45), np.inf]
     g.sh.view(np.uint32)[1, 0, 0] = 0x7FC00123
@@ -35,16 +26,16 @@ def assert_bit_equal(a: Gaussians, b: Gaussians) -> None:
 
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
-def test_round_trip_is_bit_exact(tmp_path, degree):
-    g = random_gaussians(257, degree)
+def test_round_trip_is_bit_exact(tmp_path, degree, random_gaussians):
+    g = with_lossy_values(random_gaussians(257, degree))
     write_splat_ply(tmp_path / "g.ply", g)
     back = read_splat_ply(tmp_path / "g.ply")
     assert back.sh_degree == degree
     assert_bit_equal(g, back)
 
 
-def test_layout_is_inria(tmp_path):
-    g = random_gaussians(5, 1)
+def test_layout_is_inria(tmp_path, random_gaussians):
+    g = with_lossy_values(random_gaussians(5, 1))
     write_splat_ply(tmp_path / "g.ply", g)
     cols = read_ply_columns(tmp_path / "g.ply")
     names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
@@ -61,8 +52,8 @@ def test_layout_is_inria(tmp_path):
     assert (tmp_path / "g.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0")
 
 
-def test_padding_to_degree_3_for_strict_viewers(tmp_path):
-    g = random_gaussians(10, 0)
+def test_padding_to_degree_3_for_strict_viewers(tmp_path, random_gaussians):
+    g = with_lossy_values(random_gaussians(10, 0))
     write_splat_ply(tmp_path / "g.ply", g, sh_degree=3)
     cols = read_ply_columns(tmp_path / "g.ply")
     assert sum(n.startswith("f_rest_") for n in cols) == 45
@@ -72,9 +63,9 @@ def test_padding_to_degree_3_for_strict_viewers(tmp_path):
     assert not back.sh[:, 1:].any()
 
 
-def test_reads_files_without_normals_written_by_plyfile(tmp_path):
+def test_reads_files_without_normals_written_by_plyfile(tmp_path, random_gaussians):
     plyfile = pytest.importorskip("plyfile")
-    g = random_gaussians(20, 1, seed=3)
+    g = with_lossy_values(random_gaussians(20, 1, seed=3))
     names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2"]
     names += [f"f_rest_{i}" for i in range(9)]
     names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
@@ -89,8 +80,8 @@ def test_reads_files_without_normals_written_by_plyfile(tmp_path):
     assert_bit_equal(read_splat_ply(tmp_path / "gs.ply"), g)
 
 
-def test_bad_splat_files(tmp_path):
-    g = random_gaussians(3, 1)
+def test_bad_splat_files(tmp_path, random_gaussians):
+    g = with_lossy_values(random_gaussians(3, 1))
     write_splat_ply(tmp_path / "g.ply", g)
     raw = (tmp_path / "g.ply").read_bytes()
     (tmp_path / "b.ply").write_bytes(raw.replace(b"property float f_rest_8\n", b""))
