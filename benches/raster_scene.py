@@ -1,7 +1,7 @@
 """A synthetic plant-like 3DGS scene for the rasterizer benchmarks.
 
 Shaped like what the pipeline renders: a plant normalised to a longest side of 4 units
-(REFERENCE.md: point cloud prep), made of a stem and leaves; Gaussians sit on the
+(docs/method.md: point-cloud preparation), made of a stem and leaves; Gaussians sit on the
 surfaces with kNN-like sizes (spacing of n points over the surface area), flattened along
 the surface normal as trained 3DGS leaves are, opacities spread over (0.05, 1).
 Cameras: orbit at distance 4.5, elevation 15 degrees, fovy 55 (the middle of the

@@ -1,8 +1,8 @@
 """Test helpers for the evaluation tests: a synthetic plant, a dense reference splatting
 renderer, and a writer for posed datasets (transforms.json).
 
-``render_dense`` follows the rasterizer's conventions (gsplat classic mode, REFERENCE.md
-section 2): OpenCV world-to-camera, pixel centres at +0.5, EWA projection with 0.3 added to
+``render_dense`` follows the rasterizer's conventions (gsplat classic mode,
+docs/rasterizer.md): OpenCV world-to-camera, pixel centres at +0.5, EWA projection with 0.3 added to
 the 2D covariance, alpha = min(0.99, opacity exp(-sigma)), skipped below 1/255, front-to-back
 compositing in depth order. Dense float64 numpy, SH degree 0 only: slow and obviously correct.
 """
@@ -161,7 +161,7 @@ def write_transforms_dataset(
 
 
 def write_inria_ply(path: Path, g: Gaussians) -> Path:
-    """A binary little-endian INRIA 3DGS PLY (REFERENCE.md section 3), written by hand so the
+    """A binary little-endian INRIA 3DGS PLY (docs/formats.md), written by hand so the
     eval tests do not depend on the project's own writer."""
     n, k = len(g), g.sh.shape[1]
     rest = g.sh[:, 1:].transpose(0, 2, 1).reshape(n, -1)  # channel-major f_rest

@@ -1,7 +1,7 @@
 """``rasterization``: gsplat-compatible, differentiable 3DGS rendering on the CPU.
 
 The function mirrors ``gsplat.rasterization`` (v1.5, "classic" semantics; see
-REFERENCE.md section 2) so code can move between them. The work runs in the Rust core
+docs/rasterizer.md) so code can move between them. The work runs in the Rust core
 (``plantdreamer._core.rasterize_forward`` / ``rasterize_backward``); this module validates
 inputs, wraps the native pair in a ``torch.autograd.Function`` and applies backgrounds and
 expected depth with plain torch ops (so their gradients come from autograd).

@@ -25,7 +25,7 @@ __all__ = [
     "render_view",
 ]
 
-# The constant grey the generation pipeline renders on (REFERENCE: background 0.75).
+# The constant grey the generation pipeline renders on (docs/method.md: background 0.75).
 DEFAULT_BACKGROUND: tuple[float, float, float] = (0.75, 0.75, 0.75)
 METRIC_NAMES = ("masked_psnr", "psnr", "masked_ssim", "mask_iou")
 
