@@ -10,7 +10,7 @@ from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError
 
 CHECKPOINT_NAME = "checkpoint.pt"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: nested config sections, plain data only (weights_only loads)
 
 
 def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
