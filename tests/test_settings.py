@@ -74,8 +74,8 @@ def test_generate_does_not_change_the_callers_config(tmp_path):
 def test_bad_choice_is_an_input_error():
     from plantdreamer.errors import InputError
 
-    with pytest.raises(InputError, match="schedule must be one of paper, released"):
-        GenerateConfig(species="bean", sds=SdsConfig(schedule="fast")).validate()
+    with pytest.raises(InputError, match="color init must be one of original, noise"):
+        GenerateConfig(species="bean", color_init="red").validate()
 
 
 def test_schedule_choices_are_the_built_in_schedules():

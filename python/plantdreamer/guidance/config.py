@@ -30,7 +30,10 @@ class SdsConfig:
     )
     guidance_scale: float = setting(100.0, "Classifier-free guidance scale.")
     conditioning_scale: float = 1.0  # ControlNet residual scale
-    schedule: str = setting("paper", "Timestep schedule.", choices=SCHEDULES)
+    schedule: str = setting(
+        "paper",
+        f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
+    )
     # Renders are resized to this before VAE encoding (a multiple of the VAE's factor, 8).
     resolution: int = setting(512, "Image size given to the VAE.", option="--sds-resolution")
 
