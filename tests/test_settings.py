@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import generate as generate_cli
 from plantdreamer.cli.options import config_from_options
-from plantdreamer.guidance.config import SCHEDULES, SdsConfig
+from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
 from plantdreamer.pipeline import GenerateConfig, generate
 from plantdreamer.pipeline.config import CullConfig, DensifyConfig
@@ -24,7 +24,7 @@ def test_a_changed_dataclass_default_changes_help_and_behaviour(monkeypatch, tmp
     patch_default(monkeypatch, GenerateConfig, "steps", 0)
     patch_default(monkeypatch, GenerateConfig, "eval_views", 2)
     patch_default(monkeypatch, CullConfig, "threshold", 2.5)
-    patch_default(monkeypatch, SdsConfig, "guidance_scale", 7.5)
+    patch_default(monkeypatch, GenerateConfig, "guidance_scale", 7.5)
     command = generate_cli.build_command()
     help_text = CliRunner().invoke(command, ["--help"], terminal_width=200).output
     assert "Optimisation steps.  [default: 0]" in help_text
@@ -38,7 +38,7 @@ def test_a_changed_dataclass_default_changes_help_and_behaviour(monkeypatch, tmp
     assert result.exit_code == 0, result.output
     config = json.loads((out / "run.json").read_text())["config"]
     assert config["steps"] == 0 and config["eval_views"] == 2
-    assert config["cull"]["threshold"] == 2.5 and config["sds"]["guidance_scale"] == 7.5
+    assert config["cull"]["threshold"] == 2.5 and config["guidance_scale"] == 7.5
     assert len(list((out / "renders").iterdir())) == 2
 
 
@@ -48,7 +48,7 @@ def test_every_setting_has_its_dataclass_default_on_the_command_line():
     built = config_from_options(GenerateConfig, dict(defaults))
     assert built == GenerateConfig()
     assert defaults["cull__threshold"] == CullConfig().threshold
-    assert defaults["sds__resolution"] == SdsConfig().resolution
+    assert defaults["sds_resolution"] == SDS_DEFAULTS.resolution
 
 
 def test_config_round_trips_with_nested_settings():
@@ -56,7 +56,7 @@ def test_config_round_trips_with_nested_settings():
         species="bean",
         densify=DensifyConfig(until=700, grad_threshold=1e-4),
         cull=CullConfig(threshold=2.0),
-        sds=SdsConfig(schedule="released"),
+        schedule="released",
     )
     data = json.loads(json.dumps(cfg.to_dict()))
     assert GenerateConfig.from_dict(data) == cfg

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import SdsConfig
+from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS
 from plantdreamer.settings import check_choices, option_prefix, setting
 
 COLOR_INITS = ("original", "noise", "black", "white")
@@ -106,9 +106,22 @@ class GenerateConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
     cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
 
-    # Guidance.
+    # Guidance (SDS defaults: guidance/config.py).
     guidance: str = setting("sds", "Guidance: SDS, or none (no optimisation).", choices=GUIDANCES)
-    sds: SdsConfig = field(default_factory=SdsConfig, metadata=option_prefix(""))
+    base_model: str = setting(SDS_DEFAULTS.base_model, "Base model: a hub id or a local folder.")
+    controlnet: str = setting(
+        SDS_DEFAULTS.controlnet, "Depth ControlNet: a hub id or a local folder."
+    )
+    lora: str | None = setting(
+        SDS_DEFAULTS.lora, "Species LoRA: a folder or .safetensors file (diffusers format)."
+    )
+    guidance_scale: float = setting(SDS_DEFAULTS.guidance_scale, "Classifier-free guidance scale.")
+    conditioning_scale: float = SDS_DEFAULTS.conditioning_scale
+    schedule: str = setting(
+        SDS_DEFAULTS.schedule,
+        f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
+    )
+    sds_resolution: int = setting(SDS_DEFAULTS.resolution, "Image size given to the VAE.")
 
     # Outputs.
     eval_views: int = setting(120, "Renders on the evaluation orbit.")

@@ -74,18 +74,17 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
 
     if cfg.guidance == "none":
         return NoGuidance()
-    sds = cfg.sds
     return StableDiffusionDepthGuidance(
-        base_model=sds.base_model,
-        controlnet=sds.controlnet,
-        lora=sds.lora,
+        base_model=cfg.base_model,
+        controlnet=cfg.controlnet,
+        lora=cfg.lora,
         species=cfg.species or "plant",
-        guidance_scale=sds.guidance_scale,
-        conditioning_scale=sds.conditioning_scale,
-        schedule=sds.schedule,
+        guidance_scale=cfg.guidance_scale,
+        conditioning_scale=cfg.conditioning_scale,
+        schedule=cfg.schedule,
         total_steps=cfg.steps,
         seed=cfg.seed,
-        resolution=sds.resolution,
+        resolution=cfg.sds_resolution,
     )
 
 
