@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from plantdreamer.cloud import PointCloud
-from plantdreamer.errors import InputError, PlyError
+from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.io import read_ply, read_ply_columns, write_ply
 
 # PLY type name -> (struct code, numpy dtype); every alias of the specification.
@@ -241,12 +241,10 @@ def _xyz_file(fmt="binary_little_endian", n=4):
         (b"ply\nformat binary_little_endian 1.0\nelement vertex 2\n", "no 'end_header'"),
         (_xyz_file()[:-5], "truncated"),
         (_xyz_file().replace(b"vertex 4", b"vertex 5"), "truncated"),
-        (_xyz_file().replace(b"vertex 4", b"vertex 3"), "after the last element"),
         (_xyz_file().replace(b"vertex 4", b"vertex 99999999999999"), "truncated"),
         (_xyz_file().replace(b"float x", b"float16 x"), "unknown property type"),
         (_xyz_file().replace(b"binary_little_endian", b"binary_middle_endian"), "format"),
         (_xyz_file("ascii").replace(b"vertex 4", b"vertex 5"), "truncated"),
-        (_xyz_file("ascii").replace(b"vertex 4", b"vertex 3"), "more rows"),
         (_xyz_file("ascii").replace(b"2.0", b"abc"), "not a valid float"),
         (_xyz_file("ascii").replace(b"3.0\n", b"3.0 4.0\n", 1), "extra value"),
         (_xyz_file().replace(b"vertex", b"point"), "no 'vertex' element"),
@@ -259,6 +257,23 @@ def test_malformed_files_raise_ply_error(tmp_path, content, needle):
     with pytest.raises(PlyError, match=needle) as info:
         read_ply(path)
     assert "bad.ply" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("content", "needle"),
+    [
+        (_xyz_file().replace(b"vertex 4", b"vertex 3"), "after the last element"),
+        (_xyz_file("ascii").replace(b"vertex 4", b"vertex 3"), "more row"),
+    ],
+)
+def test_rows_past_the_declared_count_warn_or_raise_when_strict(tmp_path, content, needle):
+    # Read as plyfile reads them: the declared rows (see test_ply_robustness.py).
+    path = tmp_path / "bad.ply"
+    path.write_bytes(content)
+    with pytest.warns(PlyWarning, match=needle):
+        assert len(read_ply(path)) == 3
+    with pytest.raises(PlyError, match=needle):
+        read_ply(path, strict=True)
 
 
 def test_missing_file_and_directory_are_os_errors(tmp_path):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plantdreamer.errors import PlyError
+from plantdreamer.errors import PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_splat_ply
 
@@ -85,9 +85,13 @@ def test_bad_splat_files(tmp_path, random_gaussians):
     write_splat_ply(tmp_path / "g.ply", g)
     raw = (tmp_path / "g.ply").read_bytes()
     (tmp_path / "b.ply").write_bytes(raw.replace(b"property float f_rest_8\n", b""))
-    # Dropping a property from the header makes the data lie: a PlyError either way.
-    with pytest.raises(PlyError):
+    # Dropping a property from the header leaves data after the declared rows: a warning
+    # (the declared rows are read, as plyfile does), then a PlyError for the f_rest count;
+    # a strict read stops at the extra data.
+    with pytest.warns(PlyWarning, match="after the last element"), pytest.raises(PlyError):
         read_splat_ply(tmp_path / "b.ply")
+    with pytest.raises(PlyError, match="after the last element"):
+        read_splat_ply(tmp_path / "b.ply", strict=True)
     (tmp_path / "c.ply").write_bytes(raw.replace(b"f_rest_8", b"f_rest_9"))
     with pytest.raises(PlyError, match="numbered"):
         read_splat_ply(tmp_path / "c.ply")

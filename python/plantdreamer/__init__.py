@@ -11,6 +11,7 @@ from plantdreamer.errors import (
     ModelNotFoundError,
     PlantDreamerError,
     PlyError,
+    PlyWarning,
 )
 
 __version__: str = _core.__version__
@@ -21,6 +22,7 @@ __all__ = [
     "ModelNotFoundError",
     "PlantDreamerError",
     "PlyError",
+    "PlyWarning",
     "__version__",
     "rasterization",
 ]

@@ -40,8 +40,8 @@ def large_gaussian_mask(
 
 # --- point clouds and PLY (crates/pyplant/src/{ply,pointcloud}.rs) ---
 def read_ply_vertex(
-    path: str, groups: list[list[str]] = ...
-) -> tuple[int, list[tuple[list[str], npt.NDArray[Any]]], str, list[str]]: ...
+    path: str, groups: list[list[str]] = ..., strict: bool = False
+) -> tuple[int, list[tuple[list[str], npt.NDArray[Any]]], str, list[str], list[str]]: ...
 def write_ply_vertex(
     path: str,
     fields: list[tuple[list[str], npt.NDArray[Any]]],
@@ -100,7 +100,7 @@ def rasterize_forward(
     antialiased: bool = False,
     render_color: bool = True,
     render_depth: bool = False,
-    tile_size: int = 16,
+    tile_size: int | None = None,
     footprint_sigma: float | None = None,
     tile_ellipse: bool = True,
     t_min: float = 1e-4,

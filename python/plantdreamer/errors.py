@@ -15,7 +15,18 @@ __all__ = [
     "ModelNotFoundError",
     "PlantDreamerError",
     "PlyError",
+    "PlyWarning",
 ]
+
+
+class PlyWarning(UserWarning):
+    """A PLY file was read, but part of it after the vertex element was ignored.
+
+    Raised as a warning (``warnings.warn``) by the readers in ``plantdreamer.io``: the file
+    has extra rows at the end (as MeshLab writes), or an element after the vertices (faces)
+    is truncated or malformed. The message names the file and what was ignored. Pass
+    ``strict=True`` to the reader to get a :class:`PlyError` instead.
+    """
 
 
 class ModelNotFoundError(PlantDreamerError):

@@ -18,6 +18,16 @@ Point clouds (:func:`read_ply`, :func:`write_ply`):
   (e.g. the L-System's int ``label`` and ``instance``). Other elements (``face``...) and
   list properties are skipped.
 
+Files are read as plyfile, Open3D and trimesh read them: when the vertex element is whole
+but something after it is not (extra rows at the end, as MeshLab writes; a truncated or
+malformed face element), the vertices are returned and a :class:`PlyWarning` says what was
+ignored. ``strict=True`` makes that a :class:`PlyError`. Problems in or before the vertex
+element, and headers claiming more data than the file holds, are always a ``PlyError``.
+
+Writes are atomic (the native writer goes through a temporary file in the same folder,
+fsync and rename): a failed write leaves the previous file at the path as it was. Property
+names and comments must be ASCII, as other readers require.
+
 3DGS models (:func:`read_splat_ply`, :func:`write_splat_ply`) use the INRIA layout
 (binary little endian float32: x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2
 rot_0..3, f_rest channel-major). It is a naming convention over float32 columns, so it is
@@ -29,13 +39,14 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from collections.abc import Iterable
 
 import numpy as np
 
 from plantdreamer import _core
 from plantdreamer.cloud import PointCloud
-from plantdreamer.errors import InputError, PlyError
+from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians, sh_coeff_count
 
 __all__ = ["read_ply", "read_ply_columns", "read_splat_ply", "write_ply", "write_splat_ply"]
@@ -54,25 +65,33 @@ _PLY_DTYPES = tuple(
 )
 
 
-def _read_fields(path: PathLike, groups: list[list[str]]) -> list[tuple[list[str], np.ndarray]]:
-    _, fields, _, _ = _core.read_ply_vertex(os.fspath(path), groups)
+def _read_fields(
+    path: PathLike, groups: list[list[str]], strict: bool
+) -> list[tuple[list[str], np.ndarray]]:
+    _, fields, _, _, problems = _core.read_ply_vertex(os.fspath(path), groups, strict)
+    for problem in problems:
+        # stacklevel 3: the caller of the public reader.
+        warnings.warn(problem, PlyWarning, stacklevel=3)
     return fields
 
 
-def read_ply_columns(path: PathLike) -> dict[str, np.ndarray]:
+def read_ply_columns(path: PathLike, *, strict: bool = False) -> dict[str, np.ndarray]:
     """The scalar properties of the vertex element, by name in header order, as stored."""
-    return {names[0]: values for names, values in _read_fields(path, [])}
+    return {names[0]: values for names, values in _read_fields(path, [], strict)}
 
 
 # Read as [N, 3] blocks in one pass when a file stores them with one type.
 _GROUPS = [["x", "y", "z"], ["nx", "ny", "nz"], *[list(names) for names in _COLOR_NAMES]]
 
 
-def read_ply(path: PathLike) -> PointCloud:
-    """Reads a point cloud (see the module docstring for what each field becomes)."""
+def read_ply(path: PathLike, *, strict: bool = False) -> PointCloud:
+    """Reads a point cloud (see the module docstring for what each field becomes).
+
+    ``strict``: a problem after the vertex element is a PlyError, not a PlyWarning.
+    """
     blocks: dict[tuple[str, ...], np.ndarray] = {}
     cols: dict[str, np.ndarray] = {}
-    for names, values in _read_fields(path, _GROUPS):
+    for names, values in _read_fields(path, _GROUPS, strict):
         if len(names) == 1:
             cols[names[0]] = values
         else:
@@ -197,9 +216,12 @@ _SPLAT_REQUIRED = (
 )
 
 
-def read_splat_ply(path: PathLike) -> Gaussians:
-    """Reads a 3DGS model in the INRIA layout; the SH degree follows from the f_rest count."""
-    cols = read_ply_columns(path)
+def read_splat_ply(path: PathLike, *, strict: bool = False) -> Gaussians:
+    """Reads a 3DGS model in the INRIA layout; the SH degree follows from the f_rest count.
+
+    ``strict``: a problem after the vertex element is a PlyError, not a PlyWarning.
+    """
+    cols = {names[0]: values for names, values in _read_fields(path, [], strict)}
     where = os.fspath(path)
     missing = [n for n in _SPLAT_REQUIRED if n not in cols]
     if missing:

@@ -26,17 +26,30 @@ fn column_to_py<'py>(py: Python<'py>, col: Column) -> Bound<'py, PyAny> {
     }
 }
 
-/// Reads the vertex element: (count, [(names, array)], format, comments). Each group of
-/// `groups` whose properties exist with one type comes back as one [N, len(group)] array;
-/// every other scalar property as a 1-D array of its own.
+/// The vertex element as read by `read_ply_vertex`: count, [(names, array)], format,
+/// comments, warnings.
+type VertexRead<'py> = (
+    usize,
+    Bound<'py, PyList>,
+    &'static str,
+    Vec<String>,
+    Vec<String>,
+);
+
+/// Reads the vertex element: (count, [(names, array)], format, comments, warnings). Each
+/// group of `groups` whose properties exist with one type comes back as one
+/// [N, len(group)] array; every other scalar property as a 1-D array of its own. Problems
+/// after the vertex element are `warnings` (`plantdreamer.io` issues them as PlyWarning),
+/// or a PlyError when `strict`.
 #[pyfunction]
-#[pyo3(signature = (path, groups=Vec::new()))]
+#[pyo3(signature = (path, groups=Vec::new(), strict=false))]
 fn read_ply_vertex<'py>(
     py: Python<'py>,
     path: PathBuf,
     groups: Vec<Vec<String>>,
-) -> PyResult<(usize, Bound<'py, PyList>, &'static str, Vec<String>)> {
-    let table = run_native(py, || ply::read_vertex_fields(&path, &groups))?;
+    strict: bool,
+) -> PyResult<VertexRead<'py>> {
+    let table = run_native(py, || ply::read_vertex_fields(&path, &groups, strict))?;
     let fields = PyList::empty(py);
     for field in table.fields {
         let width = field.names.len();
@@ -53,7 +66,7 @@ fn read_ply_vertex<'py>(
         Format::BinaryLittleEndian => "binary_little_endian",
         Format::BinaryBigEndian => "binary_big_endian",
     };
-    Ok((table.count, fields, format, table.comments))
+    Ok((table.count, fields, format, table.comments, table.warnings))
 }
 
 /// A C-contiguous array of one of the eight PLY scalar types, borrowed for the write.
@@ -123,7 +136,8 @@ fn as_ref<'a>(held: &'a Held<'_>) -> PyResult<ColumnRef<'a>> {
 }
 
 /// Writes [(names, array)] as the vertex element (binary little endian or ascii); an
-/// [N, k] array fills k properties of one type, without splitting it first.
+/// [N, k] array fills k properties of one type, without splitting it first. The file is
+/// replaced atomically: on failure the previous file at `path` is left as it was.
 #[pyfunction]
 #[pyo3(signature = (path, fields, binary=true, comments=Vec::new()))]
 fn write_ply_vertex(

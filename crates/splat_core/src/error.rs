@@ -64,9 +64,31 @@ pub fn check_len<T>(name: &str, data: &[T], n: usize, width: usize) -> CoreResul
     Ok(())
 }
 
+/// A byte count for messages: "512 bytes", "3.2 GiB", "8192.0 PiB".
+pub fn human_bytes(bytes: u128) -> String {
+    const UNITS: [&str; 5] = ["KiB", "MiB", "GiB", "TiB", "PiB"];
+    if bytes < 1024 {
+        return format!("{bytes} bytes");
+    }
+    let mut value = bytes as f64 / 1024.0;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    format!("{value:.1} {}", UNITS[unit])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn human_bytes_picks_a_unit() {
+        assert_eq!(human_bytes(512), "512 bytes");
+        assert_eq!(human_bytes(3 << 30), "3.0 GiB");
+        assert_eq!(human_bytes(1 << 70), "1048576.0 PiB");
+    }
 
     #[test]
     fn check_len_names_the_argument() {

@@ -4,6 +4,7 @@
 //! `Result<_, CoreError>`; the `pyplant` crate is the only place that knows about Python.
 #![deny(unsafe_code)]
 
+pub mod atomic_file;
 pub mod culling;
 pub mod error;
 pub mod ply;

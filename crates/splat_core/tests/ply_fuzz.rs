@@ -1,7 +1,10 @@
 //! Fuzzing the PLY reader: generated files of every format are read back exactly, and
 //! thousands of mutations of them (bit flips, truncations, insertions, lying counts) give
 //! either a table or a PlyError -- never a panic, a hang or a huge allocation.
-//! Inputs that once broke (or could break) a reader are kept as regression tests below.
+//! Inputs that once broke (or could break) a reader are kept as regression tests below,
+//! with headers that lie about their sizes (rejected before any allocation) and files whose
+//! vertex element is whole but whose end is not (read with a warning, or an error when
+//! strict).
 
 use std::path::Path;
 
@@ -152,8 +155,17 @@ fn as_f64(c: &Column) -> Vec<f64> {
     }
 }
 
-fn read(bytes: &[u8]) -> Result<Vec<(String, Column)>, CoreError> {
-    read_vertex_columns_from_bytes(bytes, Path::new("fuzz.ply")).map(|t| t.columns)
+type Columns = Vec<(String, Column)>;
+
+/// A strict read: every problem is an error.
+fn read(bytes: &[u8]) -> Result<Columns, CoreError> {
+    read_vertex_columns_from_bytes(bytes, Path::new("fuzz.ply"), true).map(|t| t.columns)
+}
+
+/// A lenient read: the columns and the warnings.
+fn read_lenient(bytes: &[u8]) -> Result<(Columns, Vec<String>), CoreError> {
+    read_vertex_columns_from_bytes(bytes, Path::new("fuzz.ply"), false)
+        .map(|t| (t.columns, t.warnings))
 }
 
 #[test]
@@ -204,10 +216,22 @@ fn mutated_files_never_panic() {
                 }
             }
         }
-        match read(&bytes) {
+        let strict = read(&bytes);
+        match &strict {
             Ok(cols) => assert!(cols.iter().all(|(_, c)| c.len() < 1 << 20)),
             Err(CoreError::Ply { .. }) => errors += 1,
             Err(other) => panic!("unexpected error kind: {other}"),
+        }
+        // Lenient reads accept more, never less, and agree with strict ones where both read.
+        match (strict, read_lenient(&bytes)) {
+            (Ok(a), Ok((b, warnings))) => {
+                assert_eq!(a, b);
+                assert!(warnings.is_empty(), "{warnings:?}");
+            }
+            (Ok(_), Err(e)) => panic!("strict read passed, lenient failed: {e}"),
+            (Err(_), Ok((_, warnings))) => assert!(!warnings.is_empty()),
+            (Err(_), Err(CoreError::Ply { .. })) => {}
+            (Err(_), Err(other)) => panic!("unexpected error kind: {other}"),
         }
     }
     // Most mutations must be caught; a few land in values or comments and stay valid.
@@ -228,8 +252,8 @@ fn ply_err(bytes: &[u8]) -> String {
 fn regression_cases() {
     // Element count whose byte size overflows usize.
     let m = ply_err(b"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\nproperty double x\nend_header\n");
-    assert!(m.contains("truncated"), "{m}");
-    // A list length far past the end of the data.
+    assert!(m.contains("lying header"), "{m}");
+    // A list length far past the end of the data (in the face element after the vertices).
     let m = ply_err(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nelement face 1\nproperty list uint int i\nend_header\n\0\0\0\0\xff\xff\xff\xff");
     assert!(m.contains("truncated"), "{m}");
     // A negative list length.
@@ -253,7 +277,7 @@ fn regression_cases() {
     let m = ply_err(
         b"ply\nformat ascii 1.0\nelement vertex 999999999999\nproperty float x\nend_header\n1\n",
     );
-    assert!(m.contains("truncated"), "{m}");
+    assert!(m.contains("lying header"), "{m}");
     // Values out of range for their declared type.
     assert!(ply_err(
         b"ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar x\nend_header\n256\n"
@@ -267,4 +291,120 @@ fn regression_cases() {
     let t = read(b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nend_header\n")
         .unwrap();
     assert!(t.is_empty());
+}
+
+/// A header claiming `count` rows of `props` float properties (plus a list when `list`),
+/// in `format`, followed by `data_len` bytes of data.
+fn lying(format: &str, count: u64, props: usize, list: bool, data_len: usize) -> Vec<u8> {
+    let mut head = format!("ply\nformat {format} 1.0\nelement vertex {count}\n");
+    for i in 0..props {
+        head += &format!("property float p{i}\n");
+    }
+    if list {
+        head += "property list uchar int l\n";
+    }
+    head += "end_header\n";
+    let mut bytes = head.into_bytes();
+    bytes.extend(vec![b'1'; data_len]);
+    bytes
+}
+
+#[test]
+fn lying_headers_are_rejected_before_allocating() {
+    // Claims of up to 2^64 rows of up to thousands of properties, over a few KB of data:
+    // each must be a PlyError naming the claim (an allocation of the claimed size would
+    // abort the test process instead).
+    for format in ["ascii", "binary_little_endian", "binary_big_endian"] {
+        for (count, props, list) in [
+            (1u64 << 40, 3000, false),
+            (1 << 40, 3000, true),
+            (u64::MAX, 1, false),
+            (1 << 33, 1, true),
+            (100_000, 4000, false),
+            (1_000_000, 0, true),
+        ] {
+            let bytes = lying(format, count, props, list, 200_000);
+            let m = ply_err(&bytes);
+            assert!(
+                m.contains("lying header") && m.contains(&count.to_string()),
+                "{format} {count} x {props}: {m}"
+            );
+            assert!(read_lenient(&bytes).is_err());
+        }
+    }
+    // A face element that lies is after the vertex element: no allocation, a warning.
+    let mut bytes = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nelement face 1099511627776\nproperty list uchar int i\nend_header\n".to_vec();
+    bytes.extend_from_slice(&1.5f32.to_le_bytes());
+    bytes.extend_from_slice(&[3, 0, 0, 0, 0]);
+    let (cols, warnings) = read_lenient(&bytes).unwrap();
+    assert_eq!(cols[0].1, Column::F32(vec![1.5]));
+    assert!(warnings[0].contains("element 'face'"), "{warnings:?}");
+}
+
+#[test]
+fn problems_after_the_vertex_element_are_warnings_unless_strict() {
+    let vertex_ascii = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n";
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        // One more row than declared (as MeshLab writes), with and without a face element.
+        (
+            format!("{vertex_ascii}end_header\n1\n2\n3\n").into_bytes(),
+            "more row",
+        ),
+        (
+            format!("{vertex_ascii}element face 1\nproperty list uchar int i\nend_header\n1\n2\n2 0 1\n2 1 0\n")
+                .into_bytes(),
+            "more row",
+        ),
+        // A truncated face element, in ascii and binary.
+        (
+            format!("{vertex_ascii}element face 2\nproperty list uchar int i\nend_header\n1\n2\n3 0 1 1\n")
+                .into_bytes(),
+            "truncated",
+        ),
+        (
+            format!("{vertex_ascii}element face 1\nproperty list uchar int i\nend_header\n1\n2\n3 0 1\n")
+                .into_bytes(),
+            "shorter than its length",
+        ),
+        {
+            let mut b = b"ply\nformat binary_big_endian 1.0\nelement vertex 2\nproperty float x\nelement face 1\nproperty list uchar int i\nend_header\n".to_vec();
+            b.extend_from_slice(&1.0f32.to_be_bytes());
+            b.extend_from_slice(&2.0f32.to_be_bytes());
+            b.extend_from_slice(&[3, 0, 0, 0, 0, 0]);
+            (b, "truncated")
+        },
+        // Binary data after the last element.
+        {
+            let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\nend_header\n".to_vec();
+            for v in [1.0f32, 2.0, 3.0] {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+            (b, "after the last element")
+        },
+        // Non-text bytes in an ascii face element.
+        {
+            let mut b = format!("{vertex_ascii}element face 1\nproperty list uchar int i\nend_header\n1\n2\n")
+                .into_bytes();
+            b.extend_from_slice(b"3 0 1 \xff\n");
+            (b, "not text")
+        },
+    ];
+    for (bytes, needle) in cases {
+        let m = ply_err(&bytes);
+        assert!(m.contains(needle), "strict: {m}");
+        let (cols, warnings) = read_lenient(&bytes).unwrap_or_else(|e| panic!("{needle}: {e}"));
+        assert_eq!(cols, vec![("x".to_string(), Column::F32(vec![1.0, 2.0]))]);
+        assert_eq!(warnings.len(), 1);
+        assert!(
+            warnings[0].starts_with("fuzz.ply: ") && warnings[0].contains(needle),
+            "{warnings:?}"
+        );
+    }
+    // Problems in or before the vertex element stay errors when lenient.
+    for bytes in [
+        format!("{vertex_ascii}end_header\n1\n").into_bytes(),
+        b"ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int i\nelement vertex 1\nproperty float x\nend_header\n3 0 1\n1\n".to_vec(),
+    ] {
+        assert!(read_lenient(&bytes).is_err());
+    }
 }

@@ -1,5 +1,6 @@
 //! The PLY text header: format, elements and their properties.
 
+use std::collections::HashSet;
 use std::path::Path;
 
 use crate::{CoreError, CoreResult};
@@ -131,6 +132,9 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> CoreResult<Header> {
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
     let mut comments = Vec::new();
+    // Names seen so far (sets: a header may declare a hundred thousand properties).
+    let mut element_names: HashSet<String> = HashSet::new();
+    let mut property_names: HashSet<String> = HashSet::new();
     let mut pos = 0;
     let mut line_no = 0;
     loop {
@@ -188,9 +192,10 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> CoreResult<Header> {
                         words[1], words[2]
                     ))
                 })?;
-                if elements.iter().any(|e| e.name == words[1]) {
+                if !element_names.insert(words[1].to_string()) {
                     return Err(err(format!("element '{}' is declared twice", words[1])));
                 }
+                property_names.clear();
                 elements.push(Element {
                     name: words[1].to_string(),
                     count,
@@ -231,11 +236,7 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> CoreResult<Header> {
                         property.name()
                     )));
                 }
-                if element
-                    .properties
-                    .iter()
-                    .any(|p| p.name() == property.name())
-                {
+                if !property_names.insert(property.name().to_string()) {
                     return Err(err(format!(
                         "property '{}' of element '{}' is declared twice",
                         property.name(),

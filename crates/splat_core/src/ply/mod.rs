@@ -8,10 +8,15 @@
 //! columns, `write.rs` writes typed columns back.
 //!
 //! Only the `vertex` element is returned; other elements (faces, edges, ...) are parsed
-//! only to find where they end, so a truncated file or a lying header is still detected.
+//! only to find where they end, so a truncated file or a lying header is still detected
+//! (an error before the vertex element, a warning after it unless the read is strict).
+//! `claims.rs` checks the header's counts against the file's length before any
+//! allocation; `read_ascii.rs` decodes ascii data. Files are written atomically.
 
+mod claims;
 mod header;
 mod read;
+mod read_ascii;
 mod write;
 
 pub use header::{parse_header, Element, Format, Header, Property, ScalarType};

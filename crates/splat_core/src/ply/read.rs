@@ -2,14 +2,23 @@
 //!
 //! Binary rows without list properties have a fixed stride, so each column is gathered
 //! straight from the byte buffer (in parallel over columns). Rows with lists, and ascii
-//! files, are walked row by row. Every element is walked to its end so that a truncated
-//! file, a lying element count or trailing garbage is reported instead of silently read.
+//! files (`read_ascii.rs`), are walked row by row. Before anything is allocated, the
+//! header's element counts are checked against the length of the data (`claims.rs`), so
+//! memory is bounded by the file, not by what its header claims.
+//!
+//! Every element is walked to its end so that a truncated file, a lying element count or
+//! trailing garbage is reported instead of silently read. Problems in or before the vertex
+//! element are errors. Problems after it (a truncated face element, extra rows at the end,
+//! as some writers emit) are errors with `strict`; otherwise the vertex element is returned
+//! with a warning that says what was ignored, as plyfile, Open3D and trimesh read them.
 
 use std::path::Path;
 
 use rayon::prelude::*;
 
+use super::claims::check_claimed_sizes;
 use super::header::{parse_header, Element, Format, Property, ScalarType};
+use super::read_ascii::read_ascii;
 use super::Column;
 use crate::{CoreError, CoreResult};
 
@@ -21,6 +30,8 @@ pub struct VertexTable {
     pub columns: Vec<(String, Column)>,
     pub format: Format,
     pub comments: Vec<String>,
+    /// What a lenient read ignored (see the module documentation); each names the file.
+    pub warnings: Vec<String>,
 }
 
 /// Properties read together: `values` holds `names.len()` values per row, row-major.
@@ -39,17 +50,23 @@ pub struct VertexFields {
     pub fields: Vec<Field>,
     pub format: Format,
     pub comments: Vec<String>,
+    /// What a lenient read ignored (see the module documentation); each names the file.
+    pub warnings: Vec<String>,
 }
 
 /// Reads the `vertex` element of the PLY file at `path`.
-pub fn read_vertex_columns(path: &Path) -> CoreResult<VertexTable> {
+pub fn read_vertex_columns(path: &Path, strict: bool) -> CoreResult<VertexTable> {
     let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
-    read_vertex_columns_from_bytes(&bytes, path)
+    read_vertex_columns_from_bytes(&bytes, path, strict)
 }
 
 /// Reads the `vertex` element from the bytes of a whole PLY file; `path` names it in errors.
-pub fn read_vertex_columns_from_bytes(bytes: &[u8], path: &Path) -> CoreResult<VertexTable> {
-    let f = read_vertex_fields_from_bytes(bytes, path, &[])?;
+pub fn read_vertex_columns_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    strict: bool,
+) -> CoreResult<VertexTable> {
+    let f = read_vertex_fields_from_bytes(bytes, path, &[], strict)?;
     let columns = f
         .fields
         .into_iter()
@@ -60,19 +77,25 @@ pub fn read_vertex_columns_from_bytes(bytes: &[u8], path: &Path) -> CoreResult<V
         columns,
         format: f.format,
         comments: f.comments,
+        warnings: f.warnings,
     })
 }
 
 /// Reads the `vertex` element of the file at `path`, grouping properties (see `VertexFields`).
-pub fn read_vertex_fields(path: &Path, groups: &[Vec<String>]) -> CoreResult<VertexFields> {
+pub fn read_vertex_fields(
+    path: &Path,
+    groups: &[Vec<String>],
+    strict: bool,
+) -> CoreResult<VertexFields> {
     let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
-    read_vertex_fields_from_bytes(&bytes, path, groups)
+    read_vertex_fields_from_bytes(&bytes, path, groups, strict)
 }
 
 pub fn read_vertex_fields_from_bytes(
     bytes: &[u8],
     path: &Path,
     groups: &[Vec<String>],
+    strict: bool,
 ) -> CoreResult<VertexFields> {
     let header = parse_header(bytes, path)?;
     let err = |msg: String| CoreError::ply(path, msg);
@@ -81,17 +104,23 @@ pub fn read_vertex_fields_from_bytes(
         .iter()
         .position(|e| e.name == "vertex")
         .ok_or_else(|| err("the file has no 'vertex' element".into()))?;
-    let plan = plan(&header.elements[vertex], groups);
     let data = &bytes[header.data_start..];
+    check_claimed_sizes(&header.elements[..=vertex], header.format, data.len()).map_err(err)?;
+    let plan = plan(&header.elements[vertex], groups);
+    let mut lenience = Lenience {
+        strict,
+        warnings: Vec::new(),
+    };
     let columns = match header.format {
-        Format::Ascii => read_ascii(data, &header.elements, vertex).map_err(err)?,
+        Format::Ascii => read_ascii(data, &header.elements, vertex, &mut lenience),
         Format::BinaryLittleEndian => {
-            read_binary(data, &header.elements, vertex, false, &plan).map_err(err)?
+            read_binary(data, &header.elements, vertex, false, &plan, &mut lenience)
         }
         Format::BinaryBigEndian => {
-            read_binary(data, &header.elements, vertex, true, &plan).map_err(err)?
+            read_binary(data, &header.elements, vertex, true, &plan, &mut lenience)
         }
-    };
+    }
+    .map_err(err)?;
     let fields = match columns {
         Decoded::Fields(fields) => fields,
         Decoded::Columns(cols) => assemble(cols, &plan),
@@ -101,7 +130,31 @@ pub fn read_vertex_fields_from_bytes(
         fields,
         format: header.format,
         comments: header.comments,
+        warnings: lenience
+            .warnings
+            .into_iter()
+            .map(|w| format!("{}: {w}", path.display()))
+            .collect(),
     })
+}
+
+/// What becomes of a problem found after the vertex element: an error when strict, else a
+/// warning (the caller then stops reading and returns the vertex element).
+pub(super) struct Lenience {
+    strict: bool,
+    warnings: Vec<String>,
+}
+
+impl Lenience {
+    pub(super) fn past_vertex(&mut self, problem: String) -> Result<(), String> {
+        if self.strict {
+            return Err(problem);
+        }
+        self.warnings.push(format!(
+            "{problem} (read the vertex element, which is complete, and ignored the rest)"
+        ));
+        Ok(())
+    }
 }
 
 /// One planned field: (name, scalar index, byte offset in a fixed row) per member, and type.
@@ -159,7 +212,7 @@ fn plan(element: &Element, groups: &[Vec<String>]) -> Vec<Planned> {
     planned.into_iter().map(|p| p.1).collect()
 }
 
-enum Decoded {
+pub(super) enum Decoded {
     /// Fields already assembled by the fast path.
     Fields(Vec<Field>),
     /// One column per scalar property, in header order.
@@ -212,14 +265,14 @@ fn interleave(parts: &[&Column]) -> Column {
     }
 }
 
-fn scalar_names(element: &Element) -> impl Iterator<Item = (&str, ScalarType)> {
+pub(super) fn scalar_names(element: &Element) -> impl Iterator<Item = (&str, ScalarType)> {
     element.properties.iter().filter_map(|p| match p {
         Property::Scalar { name, ty } => Some((name.as_str(), *ty)),
         Property::List { .. } => None,
     })
 }
 
-fn empty_column(ty: ScalarType, capacity: usize) -> Column {
+pub(super) fn empty_column(ty: ScalarType, capacity: usize) -> Column {
     match ty {
         ScalarType::I8 => Column::I8(Vec::with_capacity(capacity)),
         ScalarType::U8 => Column::U8(Vec::with_capacity(capacity)),
@@ -380,177 +433,87 @@ fn read_binary(
     vertex: usize,
     be: bool,
     plan: &[Planned],
+    lenience: &mut Lenience,
 ) -> Result<Decoded, String> {
     let mut pos = 0usize;
     let mut out = Decoded::Columns(Vec::new());
     for (i, element) in elements.iter().enumerate() {
         let rest = &data[pos..];
-        match element.fixed_row_size() {
-            Some(stride) => {
-                let len = element
-                    .count
-                    .checked_mul(stride)
-                    .filter(|&len| len <= rest.len())
-                    .ok_or_else(|| {
-                        format!(
-                            "truncated file: element '{}' declares {} rows of {stride} bytes but only {} bytes of data follow",
-                            element.name, element.count, rest.len()
-                        )
-                    })?;
-                if i == vertex {
-                    let rows = &rest[..len];
-                    out = Decoded::Fields(
-                        plan.par_iter()
-                            .map(|p| {
-                                let offsets: Vec<usize> = p.members.iter().map(|m| m.2).collect();
-                                let values = if stride == 0 {
-                                    empty_column(p.ty, 0)
-                                } else {
-                                    gather(rows, stride, &offsets, p.ty, be)
-                                };
-                                Field {
-                                    names: p.members.iter().map(|m| m.0.clone()).collect(),
-                                    values,
-                                }
-                            })
-                            .collect(),
-                    );
-                }
-                pos += len;
+        if i == vertex {
+            let (decoded, len) = read_binary_vertex(rest, element, be, plan)?;
+            out = decoded;
+            pos += len;
+            continue;
+        }
+        let len = match element.fixed_row_size() {
+            Some(stride) => fixed_len(rest, element, stride),
+            None => walk_binary_rows(rest, element, be, None),
+        };
+        match len {
+            Ok(len) => pos += len,
+            Err(problem) if i > vertex => {
+                lenience.past_vertex(problem)?;
+                return Ok(out);
             }
-            None => {
-                if i == vertex {
-                    // Lists in the vertex element: at least one byte per row bounds the count.
-                    let cap = element.count.min(rest.len());
-                    let mut cols: Vec<Column> = scalar_names(element)
-                        .map(|(_, ty)| empty_column(ty, cap))
-                        .collect();
-                    pos += walk_binary_rows(rest, element, be, Some(&mut cols))?;
-                    out = Decoded::Columns(cols);
-                } else {
-                    pos += walk_binary_rows(rest, element, be, None)?;
-                }
-            }
+            Err(problem) => return Err(problem),
         }
     }
     let trailing = &data[pos..];
     if trailing.iter().any(|b| !b.is_ascii_whitespace()) {
-        return Err(format!(
+        lenience.past_vertex(format!(
             "{} bytes of data after the last element: the header's element counts do not match the file",
             trailing.len()
-        ));
+        ))?;
     }
     Ok(out)
 }
 
-// ---------------------------------------------------------------------------------------
-// ASCII
-
-fn parse_int(token: &str) -> Option<i64> {
-    token.parse::<i64>().ok().or_else(|| {
-        // Some writers print integers as "3.0".
-        let f = token.parse::<f64>().ok()?;
-        (f.fract() == 0.0 && f.abs() < 9.0e15).then_some(f as i64)
-    })
+/// Bytes of an element of fixed-size rows, if the data holds them.
+fn fixed_len(rest: &[u8], element: &Element, stride: usize) -> Result<usize, String> {
+    element
+        .count
+        .checked_mul(stride)
+        .filter(|&len| len <= rest.len())
+        .ok_or_else(|| {
+            format!(
+                "truncated file: element '{}' declares {} rows of {stride} bytes but only {} bytes of data follow",
+                element.name, element.count, rest.len()
+            )
+        })
 }
 
-fn push_ascii(column: &mut Column, token: &str) -> Option<()> {
-    macro_rules! int {
-        ($v:expr) => {
-            $v.push(parse_int(token)?.try_into().ok()?)
-        };
-    }
-    match column {
-        Column::I8(v) => int!(v),
-        Column::U8(v) => int!(v),
-        Column::I16(v) => int!(v),
-        Column::U16(v) => int!(v),
-        Column::I32(v) => int!(v),
-        Column::U32(v) => int!(v),
-        Column::F32(v) => v.push(token.parse().ok()?),
-        Column::F64(v) => v.push(token.parse().ok()?),
-    }
-    Some(())
-}
-
-fn read_ascii(data: &[u8], elements: &[Element], vertex: usize) -> Result<Decoded, String> {
-    let text = std::str::from_utf8(data)
-        .map_err(|e| format!("ascii data is not text (byte {})", e.valid_up_to()))?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let mut out = Decoded::Columns(Vec::new());
-    for (i, element) in elements.iter().enumerate() {
-        let cap = element.count.min(text.len() / 2 + 1);
-        let mut cols: Vec<Column> = if i == vertex {
-            scalar_names(element)
-                .map(|(_, ty)| empty_column(ty, cap))
-                .collect()
-        } else {
-            Vec::new()
-        };
-        for row in 0..element.count {
-            let (line_no, line) = lines.next().ok_or_else(|| {
-                format!(
-                    "truncated file: element '{}' declares {} rows but the data has {row}",
-                    element.name, element.count
-                )
-            })?;
-            let at = |what: String| {
-                format!(
-                    "data line {}: element '{}' row {row}: {what}",
-                    line_no + 1,
-                    element.name
-                )
-            };
-            let mut tokens = line.split_ascii_whitespace();
-            let mut scalar = 0;
-            for p in &element.properties {
-                let token = tokens
-                    .next()
-                    .ok_or_else(|| at(format!("missing value for '{}'", p.name())))?;
-                match p {
-                    Property::Scalar { name, ty } => {
-                        if i == vertex {
-                            push_ascii(&mut cols[scalar], token).ok_or_else(|| {
-                                at(format!(
-                                    "'{token}' is not a valid {} for '{name}'",
-                                    ty.ply_name()
-                                ))
-                            })?;
-                            scalar += 1;
-                        } else if token.parse::<f64>().is_err() {
-                            return Err(at(format!("'{token}' is not a number")));
-                        }
-                    }
-                    Property::List { name, .. } => {
-                        let n = parse_int(token)
-                            .and_then(|n| usize::try_from(n).ok())
-                            .ok_or_else(|| {
-                                at(format!("invalid list length '{token}' for '{name}'"))
-                            })?;
-                        for _ in 0..n {
-                            tokens.next().ok_or_else(|| {
-                                at(format!("list '{name}' is shorter than its length {n}"))
-                            })?;
-                        }
-                    }
+/// Decodes the vertex element at the start of `rest`; returns it and the bytes it takes.
+fn read_binary_vertex(
+    rest: &[u8],
+    element: &Element,
+    be: bool,
+    plan: &[Planned],
+) -> Result<(Decoded, usize), String> {
+    if let Some(stride) = element.fixed_row_size() {
+        let len = fixed_len(rest, element, stride)?;
+        let rows = &rest[..len];
+        let fields = plan
+            .par_iter()
+            .map(|p| {
+                let offsets: Vec<usize> = p.members.iter().map(|m| m.2).collect();
+                let values = if stride == 0 {
+                    empty_column(p.ty, 0)
+                } else {
+                    gather(rows, stride, &offsets, p.ty, be)
+                };
+                Field {
+                    names: p.members.iter().map(|m| m.0.clone()).collect(),
+                    values,
                 }
-            }
-            if let Some(extra) = tokens.next() {
-                return Err(at(format!("unexpected extra value '{extra}'")));
-            }
-        }
-        if i == vertex {
-            out = Decoded::Columns(cols);
-        }
+            })
+            .collect();
+        return Ok((Decoded::Fields(fields), len));
     }
-    if let Some((line_no, _)) = lines.next() {
-        return Err(format!(
-            "data line {}: more rows than the header's element counts declare",
-            line_no + 1
-        ));
-    }
-    Ok(out)
+    // The header's count was checked against the data length (claims.rs): the columns'
+    // capacity is bounded by the file.
+    let mut cols: Vec<Column> = scalar_names(element)
+        .map(|(_, ty)| empty_column(ty, element.count))
+        .collect();
+    let len = walk_binary_rows(rest, element, be, Some(&mut cols))?;
+    Ok((Decoded::Columns(cols), len))
 }

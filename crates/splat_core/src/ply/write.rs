@@ -6,12 +6,12 @@
 //! interleaved in parallel over fixed chunks, so the bytes do not depend on the thread count.
 //! ASCII floats use Rust's shortest round-trip formatting, so ascii files round-trip too.
 
-use std::io::Write;
 use std::path::Path;
 
 use rayon::prelude::*;
 
 use super::ColumnRef;
+use crate::atomic_file::write_atomic;
 use crate::{CoreError, CoreResult};
 
 const CHUNK_ROWS: usize = 16 * 1024;
@@ -52,7 +52,8 @@ fn singles<'a>(columns: &[(&'a str, ColumnRef<'a>)]) -> Vec<FieldRef<'a>> {
         .collect()
 }
 
-/// Writes `fields` as the vertex element of a PLY file at `path`.
+/// Writes `fields` as the vertex element of a PLY file at `path`, atomically: on failure the
+/// previous file at `path` is left as it was.
 pub fn write_vertex_fields(
     path: &Path,
     fields: &[FieldRef<'_>],
@@ -60,9 +61,7 @@ pub fn write_vertex_fields(
     comments: &[&str],
 ) -> CoreResult<()> {
     let bytes = write_vertex_fields_to_vec(fields, binary, comments)?;
-    let mut file = std::fs::File::create(path).map_err(|e| CoreError::io(path, e))?;
-    file.write_all(&bytes).map_err(|e| CoreError::io(path, e))?;
-    Ok(())
+    write_atomic(path, &bytes)
 }
 
 /// Checks names and lengths; returns the row count.
@@ -80,6 +79,12 @@ fn check_fields(fields: &[FieldRef<'_>], comments: &[&str]) -> CoreResult<usize>
             if name.is_empty() || name.chars().any(|c| c.is_whitespace() || c.is_control()) {
                 return Err(CoreError::input(format!(
                     "PLY property name {name:?} must be non-empty without whitespace"
+                )));
+            }
+            if !name.is_ascii() {
+                return Err(CoreError::input(format!(
+                    "PLY property name {name:?} must be ASCII (other readers, plyfile among \
+                     them, reject other characters in a header)"
                 )));
             }
             if seen.contains(name) {
@@ -111,6 +116,12 @@ fn check_fields(fields: &[FieldRef<'_>], comments: &[&str]) -> CoreResult<usize>
     if let Some(c) = comments.iter().find(|c| c.contains(['\n', '\r'])) {
         return Err(CoreError::input(format!(
             "PLY comment {c:?} must be one line"
+        )));
+    }
+    if let Some(c) = comments.iter().find(|c| !c.is_ascii()) {
+        return Err(CoreError::input(format!(
+            "PLY comment {c:?} must be ASCII (other readers, plyfile among them, reject \
+             other characters in a header)"
         )));
     }
     Ok(n.unwrap_or(0))
@@ -260,7 +271,7 @@ mod tests {
                 },
             ];
             let bytes = write_vertex_fields_to_vec(&fields, binary, &["hi"]).unwrap();
-            let t = read_vertex_columns_from_bytes(&bytes, Path::new("t.ply")).unwrap();
+            let t = read_vertex_columns_from_bytes(&bytes, Path::new("t.ply"), true).unwrap();
             assert_eq!(t.count, 2);
             assert_eq!(
                 t.columns[1],
@@ -318,5 +329,14 @@ mod tests {
             values: ColumnRef::U8(&b),
         }];
         assert!(write_vertex_fields_to_vec(&one, true, &["two\nlines"]).is_err());
+        let accented = [FieldRef {
+            names: vec!["\u{e9}t\u{e9}"],
+            values: ColumnRef::U8(&b),
+        }];
+        for (fields, comments) in [(&accented[..], &[][..]), (&one[..], &["caf\u{e9}"][..])] {
+            let err = write_vertex_fields_to_vec(fields, true, comments).unwrap_err();
+            assert!(matches!(err, CoreError::Input(_)), "{err}");
+            assert!(err.to_string().contains("ASCII"), "{err}");
+        }
     }
 }
