@@ -5,8 +5,10 @@ outputs keep the input precision. Distances are computed in float64 as Open3D do
 :func:`remove_statistical_outliers` keeps exactly the points Open3D 0.20's
 ``remove_statistical_outlier`` keeps and :func:`voxel_downsample` returns the same voxel
 means as its ``voxel_down_sample``. Non-finite coordinates, empty clouds and too few points
-raise :class:`~plantdreamer.errors.InputError`. ``threads`` runs a call on its own pool of
-that many threads (default: all cores); results do not depend on it.
+raise :class:`~plantdreamer.errors.InputError`, and so do integer arguments (``k``,
+``nb_neighbors``, ``target``, ``threads``) that are negative, too large or not integers
+(a float is never truncated). ``threads`` runs a call on its own pool of that many threads
+(default: all cores; at most 4 x the cores); results do not depend on it.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def remove_statistical_outliers(
     and are removed, as in Open3D. Needs N >= nb_neighbors.
     """
     return _core.remove_statistical_outliers(
-        _points(points), int(nb_neighbors), float(std_ratio), threads
+        _points(points), nb_neighbors, float(std_ratio), threads
     )
 
 
@@ -95,7 +97,7 @@ def downsample_to_count(
     clusters), an InputError names the closest count.
     """
     return _core.downsample_to_count(
-        _points(points), int(target), _colors(colors), float(tolerance), threads
+        _points(points), target, _colors(colors), float(tolerance), threads
     )
 
 
@@ -104,7 +106,7 @@ def knn(points: np.ndarray, k: int, *, threads: int | None = None) -> tuple[np.n
     [N, k]), nearest first. Among equidistant candidates the smaller index wins, so the
     result is deterministic and independent of the thread count. Needs N > k.
     """
-    return _core.knn(_points(points), int(k), threads)
+    return _core.knn(_points(points), k, threads)
 
 
 def knn_mean_distance(points: np.ndarray, k: int = 3, *, threads: int | None = None) -> np.ndarray:
@@ -112,7 +114,7 @@ def knn_mean_distance(points: np.ndarray, k: int = 3, *, threads: int | None = N
 
     PlantDreamer initialises each Gaussian with this isotropic scale (k = 3). Needs N > k.
     """
-    return _core.knn_mean_distance(_points(points), int(k), threads)
+    return _core.knn_mean_distance(_points(points), k, threads)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ Conventions and choices (documented behaviour):
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 from typing import Any
 
@@ -155,6 +156,15 @@ def _check_shape(name: str, t: torch.Tensor, shape: tuple[int | None, ...]) -> N
         raise InputError(f"{name} must have shape [{want}], got {list(t.shape)}")
 
 
+def _integer(name: str, value: Any) -> int:
+    """An integer argument as an int; a float (3.7) is an InputError, never truncated.
+    Ranges are checked by the native binding (also an InputError)."""
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise InputError(f"{name} must be an integer, got {value!r}") from None
+
+
 def rasterization(
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -206,7 +216,11 @@ def rasterization(
         raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
     if rasterize_mode not in RASTERIZE_MODES:
         raise InputError(f"rasterize_mode must be one of {RASTERIZE_MODES}, got {rasterize_mode!r}")
-    if int(width) <= 0 or int(height) <= 0:
+    width, height = _integer("width", width), _integer("height", height)
+    tile_size = _integer("tile_size", tile_size)
+    if sh_degree is not None:
+        sh_degree = _integer("sh_degree", sh_degree)
+    if width <= 0 or height <= 0:
         raise InputError(f"image size must be positive, got {width}x{height}")
     tensors = {
         "means": means,
@@ -228,12 +242,12 @@ def rasterization(
         _check_shape("colors", t["colors"], (n, None))
         n_color = t["colors"].shape[1]
     else:
-        if not 0 <= int(sh_degree) <= 3:
+        if not 0 <= sh_degree <= 3:
             raise InputError(f"sh_degree must be 0..3, got {sh_degree}")
         _check_shape("colors (SH coefficients)", t["colors"], (n, None, 3))
-        if t["colors"].shape[1] < (int(sh_degree) + 1) ** 2:
+        if t["colors"].shape[1] < (sh_degree + 1) ** 2:
             raise InputError(
-                f"sh_degree {sh_degree} needs {(int(sh_degree) + 1) ** 2} coefficients per "
+                f"sh_degree {sh_degree} needs {(sh_degree + 1) ** 2} coefficients per "
                 f"Gaussian, colors has {t['colors'].shape[1]}"
             )
         n_color = 3
@@ -252,16 +266,16 @@ def rasterization(
     settings = _Settings(
         viewmats=_numpy(t["viewmats"].cpu()),
         ks=_numpy(t["Ks"].cpu()),
-        width=int(width),
-        height=int(height),
+        width=width,
+        height=height,
         near_plane=float(near_plane),
         far_plane=float(far_plane),
         eps2d=float(eps2d),
-        sh_degree=None if sh_degree is None else int(sh_degree),
+        sh_degree=sh_degree,
         antialiased=rasterize_mode == "antialiased",
         render_color=render_color,
         render_depth=render_depth,
-        tile_size=int(tile_size),
+        tile_size=tile_size,
         threads=threads,
     )
     params = [t[k].to("cpu").contiguous() for k in ("means", "quats", "scales", "opacities")]
@@ -290,9 +304,9 @@ def rasterization(
         "depths": torch.from_numpy(out["depths"]).to(device),
         "n_visible": torch.from_numpy(out["n_visible"].astype(np.int64)).to(device),
         "n_intersections": torch.from_numpy(out["n_intersections"].astype(np.int64)).to(device),
-        "width": int(width),
-        "height": int(height),
-        "tile_size": int(tile_size),
+        "width": width,
+        "height": height,
+        "tile_size": tile_size,
         "n_cameras": c,
         "render_mode": render_mode,
         "profile": dict(out["profile"]),

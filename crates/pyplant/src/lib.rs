@@ -9,6 +9,7 @@ use pyo3::types::PyDict;
 mod arrays;
 mod culling;
 mod errors;
+mod ints;
 mod native;
 mod ply;
 mod pointcloud;
@@ -23,13 +24,15 @@ pub use native::run_native;
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// Build facts: versions, the rayon pool size, and whether this is an optimised build.
+/// Build facts: versions, the rayon pool size, the most `threads=` a call accepts, and
+/// whether this is an optimised build.
 #[pyfunction]
 fn info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("version", env!("CARGO_PKG_VERSION"))?;
     d.set_item("core_version", splat_core::VERSION)?;
     d.set_item("threads", splat_core::threads::default_threads())?;
+    d.set_item("max_threads", splat_core::threads::max_threads())?;
     d.set_item("debug_build", cfg!(debug_assertions))?;
     d.set_item("blend_kernel", splat_core::raster::blend_kernel())?;
     Ok(d)

@@ -10,6 +10,7 @@ use splat_core::threads::with_threads;
 
 use crate::arrays::{describe, float_rows};
 use crate::errors::InputError;
+use crate::ints::{threads_from, usize_from};
 use crate::run_native;
 
 /// A borrowed [N, 3] point array of either precision.
@@ -98,10 +99,12 @@ fn points_out<'py>(
 fn remove_statistical_outliers<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    nb_neighbors: usize,
+    nb_neighbors: &Bound<'py, PyAny>,
     std_ratio: f64,
-    threads: Option<usize>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<i64>>> {
+    let nb_neighbors = usize_from(nb_neighbors, "nb_neighbors", 1)?;
+    let threads = threads_from(threads)?;
     let points = points_arg(points, "points")?;
     let kept = with_points!(points, p => run_native(py, || with_threads(threads, || pc::remove_statistical_outliers(p, nb_neighbors, std_ratio))))?;
     Ok(PyArray1::from_vec(py, kept))
@@ -114,8 +117,9 @@ fn voxel_downsample<'py>(
     points: &Bound<'py, PyAny>,
     voxel_size: f64,
     colors: Option<&Bound<'py, PyAny>>,
-    threads: Option<usize>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Option<Bound<'py, PyAny>>)> {
+    let threads = threads_from(threads)?;
     let pts = points_arg(points, "points")?;
     let colors = colors_arg(colors)?;
     let c = colors.as_ref().map(slice).transpose()?;
@@ -131,11 +135,13 @@ fn voxel_downsample<'py>(
 fn downsample_to_count<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    target: usize,
+    target: &Bound<'py, PyAny>,
     colors: Option<&Bound<'py, PyAny>>,
     tolerance: f64,
-    threads: Option<usize>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Option<Bound<'py, PyAny>>, f64)> {
+    let target = usize_from(target, "target", 1)?;
+    let threads = threads_from(threads)?;
     let pts = points_arg(points, "points")?;
     let colors = colors_arg(colors)?;
     let c = colors.as_ref().map(slice).transpose()?;
@@ -152,9 +158,11 @@ fn downsample_to_count<'py>(
 fn knn<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    k: usize,
-    threads: Option<usize>,
+    k: &Bound<'py, PyAny>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let k = usize_from(k, "k", 1)?;
+    let threads = threads_from(threads)?;
     let pts = points_arg(points, "points")?;
     let (ids, d) =
         with_points!(pts, p => run_native(py, || with_threads(threads, || pc::knn(p, k))))?;
@@ -166,9 +174,11 @@ fn knn<'py>(
 fn knn_mean_distance<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,
-    k: usize,
-    threads: Option<usize>,
+    k: &Bound<'py, PyAny>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    let k = usize_from(k, "k", 1)?;
+    let threads = threads_from(threads)?;
     let pts = points_arg(points, "points")?;
     let m = with_points!(pts, p => run_native(py, || with_threads(threads, || pc::knn_mean_distance(p, k))))?;
     Ok(PyArray1::from_vec(py, m))

@@ -9,6 +9,7 @@ use splat_core::raster::{
 use splat_core::threads::with_threads;
 
 use crate::errors::InputError;
+use crate::ints::{threads_from, u32_from, usize_from};
 use crate::run_native;
 
 /// The forward pass's saved state; pass it to `rasterize_backward`. Opaque.
@@ -93,12 +94,13 @@ fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult
 /// `colors` is [N, D] (used as is) or, with `sh_degree`, [N, K, 3] SH coefficients; it is
 /// ignored when `render_color` is false. Returns a dict: render [C, H, W, ch] (no
 /// background), alpha [C, H, W], radii [C, N, 2] int32, means2d [C, N, 2], depths [C, N],
-/// n_visible [C], n_intersections [C], profile (seconds per stage), state.
+/// n_visible [C], n_intersections [C], profile (seconds per stage), state. Integer
+/// arguments are checked in `ints.rs`; `tile_size=None` is the core default (16).
 #[pyfunction]
 #[pyo3(signature = (
     means, quats, scales, opacities, colors, viewmats, ks, width, height, *,
     sh_degree=None, near_plane=0.01, far_plane=1e10, eps2d=0.3, antialiased=false,
-    render_color=true, render_depth=false, tile_size=16, footprint_sigma=None,
+    render_color=true, render_depth=false, tile_size=None, footprint_sigma=None,
     tile_ellipse=true, t_min=1e-4, simd=true, threads=None
 ))]
 fn rasterize_forward<'py>(
@@ -110,22 +112,33 @@ fn rasterize_forward<'py>(
     colors: &Bound<'py, PyAny>,
     viewmats: &Bound<'py, PyAny>,
     ks: &Bound<'py, PyAny>,
-    width: u32,
-    height: u32,
-    sh_degree: Option<usize>,
+    width: &Bound<'py, PyAny>,
+    height: &Bound<'py, PyAny>,
+    sh_degree: Option<&Bound<'py, PyAny>>,
     near_plane: f32,
     far_plane: f32,
     eps2d: f32,
     antialiased: bool,
     render_color: bool,
     render_depth: bool,
-    tile_size: u32,
+    tile_size: Option<&Bound<'py, PyAny>>,
     footprint_sigma: Option<f32>,
     tile_ellipse: bool,
     t_min: f32,
     simd: bool,
-    threads: Option<usize>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let width = u32_from(width, "width", 1)?;
+    let height = u32_from(height, "height", 1)?;
+    let sh_degree = sh_degree
+        .filter(|d| !d.is_none())
+        .map(|d| usize_from(d, "sh_degree", 0))
+        .transpose()?;
+    let tile_size = match tile_size.filter(|t| !t.is_none()) {
+        Some(t) => u32_from(t, "tile_size", 0)?,
+        None => RasterOptions::default().tile_size,
+    };
+    let threads = threads_from(threads)?;
     let (ms, m) = f32_array("means", means, 2)?;
     let n = ms[0];
     expect_shape("means", &ms, &[None, Some(3)])?;
@@ -222,8 +235,9 @@ fn rasterize_backward<'py>(
     scales: bool,
     opacities: bool,
     colors: bool,
-    threads: Option<usize>,
+    threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let threads = threads_from(threads)?;
     let st = &state.get().inner;
     let (c, n) = (st.cameras.len(), st.scene.n);
     let (h, w) = (st.height as usize, st.width as usize);
@@ -270,10 +284,11 @@ fn rasterize_backward<'py>(
 #[pyfunction]
 fn eval_sh<'py>(
     py: Python<'py>,
-    degree: usize,
+    degree: &Bound<'py, PyAny>,
     coeffs: &Bound<'py, PyAny>,
     dirs: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let degree = usize_from(degree, "degree", 0)?;
     let (cs, c) = f32_array("coeffs", coeffs, 3)?;
     let n = cs[0];
     expect_shape("coeffs", &cs, &[Some(n), None, Some(3)])?;

@@ -32,11 +32,19 @@ pub struct KdTree {
     boxes: Vec<[[f64; 3]; 2]>,
 }
 
-/// The k best (squared distance, index) pairs seen so far, ascending by (distance, index).
-/// Unfilled slots hold (+inf, u32::MAX), so the worst distance is always `d2[k - 1]`.
+/// Above this many neighbours the k best are kept in a binary max-heap (O(log k) per
+/// accepted candidate) instead of a sorted array (O(k) per accepted candidate, which made
+/// k close to N cost O(N^3): 28 s for 4,000 points). Both keep the same k pairs.
+const HEAP_ABOVE: usize = 32;
+
+/// The k best (squared distance, index) pairs seen so far, by (distance, index). Unfilled
+/// slots hold (bound or +inf, u32::MAX). Small k: a sorted array, worst last. Large k: a
+/// max-heap, worst first, sorted by `finish` when a search ends. Either way the kept pairs
+/// are the k smallest offered, so the result does not depend on the layout.
 pub struct Neighbours {
     d2: Vec<f64>,
     id: Vec<u32>,
+    heap: bool,
 }
 
 impl Neighbours {
@@ -44,33 +52,53 @@ impl Neighbours {
         Self {
             d2: vec![f64::INFINITY; k],
             id: vec![u32::MAX; k],
+            heap: k > HEAP_ABOVE,
         }
     }
 
     pub fn clear(&mut self) {
-        self.d2.fill(f64::INFINITY);
-        self.id.fill(u32::MAX);
+        self.clear_within(f64::INFINITY);
     }
 
     /// Starts a search whose k-th neighbour is known to lie within squared distance
-    /// `bound`: slots start at `bound` so farther cells are pruned from the start.
+    /// `bound`: slots start at `bound` so farther cells are pruned from the start (equal
+    /// slots are a valid heap as well as a sorted array).
     fn clear_within(&mut self, bound: f64) {
         self.d2.fill(bound);
         self.id.fill(u32::MAX);
     }
 
     #[inline]
+    fn worst_at(&self) -> usize {
+        if self.heap {
+            0
+        } else {
+            self.d2.len() - 1
+        }
+    }
+
+    #[inline]
     fn worst(&self) -> f64 {
-        self.d2[self.d2.len() - 1]
+        self.d2[self.worst_at()]
+    }
+
+    /// (d2, id) sorts after slot `at`.
+    #[inline]
+    fn after(&self, d2: f64, id: u32, at: usize) -> bool {
+        d2 > self.d2[at] || (d2 == self.d2[at] && id > self.id[at])
     }
 
     #[inline]
     fn offer(&mut self, d2: f64, id: u32) {
-        let last = self.d2.len() - 1;
-        if d2 > self.d2[last] || (d2 == self.d2[last] && id >= self.id[last]) {
+        let w = self.worst_at();
+        if d2 > self.d2[w] || (d2 == self.d2[w] && id >= self.id[w]) {
             return;
         }
-        let mut at = last;
+        if self.heap {
+            self.replace_worst(d2, id);
+            return;
+        }
+        let mut at = w;
         while at > 0 && (self.d2[at - 1] > d2 || (self.d2[at - 1] == d2 && self.id[at - 1] > id)) {
             self.d2[at] = self.d2[at - 1];
             self.id[at] = self.id[at - 1];
@@ -78,6 +106,56 @@ impl Neighbours {
         }
         self.d2[at] = d2;
         self.id[at] = id;
+    }
+
+    /// Heap layout: drops the root (the worst) for (d2, id) and sifts it down.
+    fn replace_worst(&mut self, d2: f64, id: u32) {
+        let n = self.d2.len();
+        let mut at = 0;
+        loop {
+            let left = 2 * at + 1;
+            if left >= n {
+                break;
+            }
+            let right = left + 1;
+            let big = if right < n && self.after(self.d2[right], self.id[right], left) {
+                right
+            } else {
+                left
+            };
+            if !self.after_pair(big, d2, id) {
+                break;
+            }
+            self.d2[at] = self.d2[big];
+            self.id[at] = self.id[big];
+            at = big;
+        }
+        self.d2[at] = d2;
+        self.id[at] = id;
+    }
+
+    /// Slot `at` sorts after (d2, id).
+    #[inline]
+    fn after_pair(&self, at: usize, d2: f64, id: u32) -> bool {
+        self.d2[at] > d2 || (self.d2[at] == d2 && self.id[at] > id)
+    }
+
+    /// Ends a search: sorts a heap nearest first (a sorted array already is).
+    fn finish(&mut self) {
+        if !self.heap {
+            return;
+        }
+        let mut pairs: Vec<(f64, u32)> = self
+            .d2
+            .iter()
+            .copied()
+            .zip(self.id.iter().copied())
+            .collect();
+        pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for (slot, (d2, id)) in pairs.into_iter().enumerate() {
+            self.d2[slot] = d2;
+            self.id[slot] = id;
+        }
     }
 
     /// Squared distances, nearest first (all k slots are filled once a search has run
@@ -193,6 +271,7 @@ impl KdTree {
         let q = self.point(pos);
         let skip = self.ids[pos];
         self.search(0, 0, self.len(), &q, skip, out);
+        out.finish();
     }
 
     /// Like `knn_of_position`, seeded by the result for the previous tree position
@@ -208,6 +287,7 @@ impl KdTree {
         let bound = (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE;
         out.clear_within(bound);
         self.search(0, 0, self.len(), &q, self.ids[pos], out);
+        out.finish();
         if out.id.contains(&u32::MAX) {
             self.knn_of_position(pos, out);
         }
@@ -349,17 +429,26 @@ mod tests {
         let flat: Vec<f64> = pts.iter().flatten().copied().collect();
         let tree = KdTree::build(&flat);
         let inv = tree.positions();
-        let mut nb = Neighbours::new(7);
-        for q in (0..2000).step_by(13) {
-            tree.knn_of_position(inv[q] as usize, &mut nb);
-            let want = brute(&pts, q, 7);
-            let got: Vec<(f64, u32)> = nb
-                .squared_distances()
-                .iter()
-                .copied()
-                .zip(nb.indices().iter().copied())
-                .collect();
-            assert_eq!(got, want, "query {q}");
+        // A sorted array (small k) and a heap (large k, up to every other point).
+        for k in [7, HEAP_ABOVE + 1, 200, 1999] {
+            let mut nb = Neighbours::new(k);
+            for q in (0..2000).step_by(97) {
+                tree.knn_of_position(inv[q] as usize, &mut nb);
+                let want = brute(&pts, q, k);
+                let got: Vec<(f64, u32)> = nb
+                    .squared_distances()
+                    .iter()
+                    .copied()
+                    .zip(nb.indices().iter().copied())
+                    .collect();
+                assert_eq!(got, want, "k {k} query {q}");
+            }
+            // The seeded search of map_knn keeps the same neighbours.
+            let seeded = tree.map_knn(k, |pos, nb| (pos, nb.indices().to_vec()));
+            for (pos, ids) in seeded.into_iter().step_by(89) {
+                tree.knn_of_position(pos, &mut nb);
+                assert_eq!(ids, nb.indices(), "k {k} position {pos}");
+            }
         }
     }
 

@@ -3,7 +3,13 @@
 use rayon::prelude::*;
 
 use super::{check_points, Coord, KdTree};
+use crate::error::human_bytes;
 use crate::{CoreError, CoreResult};
+
+/// n x k at most for one call (2^31): the neighbour pairs it finds, and so its work and,
+/// for `knn`, its output (12 bytes a pair: 24 GiB at the limit). Larger calls are refused
+/// before anything is allocated.
+pub const MAX_NEIGHBOUR_PAIRS: usize = 1 << 31;
 
 pub(super) fn check_k(n: usize, k: usize, what: &str) -> CoreResult<()> {
     if k == 0 {
@@ -13,6 +19,15 @@ pub(super) fn check_k(n: usize, k: usize, what: &str) -> CoreResult<()> {
         return Err(CoreError::input(format!(
             "the cloud has {n} points: too few for {what}={k} neighbours (need at least {})",
             k + 1
+        )));
+    }
+    let pairs = n as u128 * k as u128;
+    if pairs > MAX_NEIGHBOUR_PAIRS as u128 {
+        return Err(CoreError::input(format!(
+            "{what}={k} neighbours of each of {n} points is {pairs} pairs, more than the \
+             {MAX_NEIGHBOUR_PAIRS} one call handles (the indices and distances alone would \
+             take {})",
+            human_bytes(pairs * 12)
         )));
     }
     Ok(())
@@ -110,12 +125,41 @@ mod tests {
     }
 
     #[test]
+    fn k_close_to_n_matches_brute_force() {
+        // Every other point but one: the heap layout of the neighbour list.
+        let pts = cloud(300);
+        let (ids, d) = knn(&pts, 298).unwrap();
+        for q in (0..300).step_by(37) {
+            let mut all: Vec<(f64, i64)> = (0..300)
+                .filter(|&j| j != q)
+                .map(|j| {
+                    let d2: f64 = (0..3)
+                        .map(|a| (f64::from(pts[3 * q + a]) - f64::from(pts[3 * j + a])).powi(2))
+                        .sum();
+                    (d2, j as i64)
+                })
+                .collect();
+            all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            for c in 0..298 {
+                assert_eq!(ids[q * 298 + c], all[c].1, "query {q} rank {c}");
+                assert_eq!(d[q * 298 + c], all[c].0.sqrt() as f32);
+            }
+        }
+    }
+
+    #[test]
     fn bad_k_is_an_input_error() {
         let pts = cloud(4);
         assert!(matches!(knn(&pts, 4), Err(CoreError::Input(_))));
         assert!(matches!(knn(&pts, 0), Err(CoreError::Input(_))));
         assert!(knn(&pts, 3).is_ok());
         assert!(matches!(knn::<f32>(&[], 1), Err(CoreError::Input(_))));
+        let err = check_k(1 << 20, 1 << 12, "k").unwrap_err().to_string();
+        assert!(
+            err.contains("4294967296 pairs") && err.contains("48.0 GiB"),
+            "{err}"
+        );
+        assert!(check_k(1 << 20, 1 << 11, "k").is_ok());
         assert!(matches!(
             knn(&[0.0, f32::NAN, 0.0, 1.0, 1.0, 1.0], 1),
             Err(CoreError::Input(_))

@@ -10,7 +10,7 @@ mod sor;
 mod voxel;
 
 pub use kdtree::KdTree;
-pub use knn::{knn, knn_mean_distance};
+pub use knn::{knn, knn_mean_distance, MAX_NEIGHBOUR_PAIRS};
 pub use sor::{remove_statistical_outliers, statistical_outlier_scores};
 pub use voxel::{downsample_to_count, voxel_count, voxel_downsample, CountDownsample, VoxelOutput};
 

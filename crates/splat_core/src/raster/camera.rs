@@ -2,7 +2,34 @@
 
 use glam::{Mat3, Vec3};
 
+use crate::error::human_bytes;
 use crate::{CoreError, CoreResult};
+
+/// Pixels one forward call renders at most, over all its cameras: 2^30, e.g. one image of
+/// 32768 x 32768 or 64 of 4096 x 4096. Larger calls are refused before allocating.
+pub const MAX_PIXELS: u64 = 1 << 30;
+
+/// Refuses a call whose image buffers cannot be allocated: more than `MAX_PIXELS` pixels,
+/// or a size whose byte count overflows. The message gives the size asked for and the
+/// memory its per-pixel buffers need (the image's `channels`, alpha, final transmittance
+/// and last contributor: 4 bytes each per pixel), before any of it is allocated.
+pub fn check_image_size(
+    cameras: usize,
+    width: u32,
+    height: u32,
+    channels: usize,
+) -> CoreResult<()> {
+    let pixels = cameras as u128 * u128::from(width) * u128::from(height);
+    let bytes = pixels * (channels as u128 + 3) * 4;
+    if pixels > u128::from(MAX_PIXELS) || usize::try_from(bytes).is_err() {
+        return Err(CoreError::input(format!(
+            "{cameras} image(s) of {width} x {height} pixels is {pixels} pixels, more than \
+             the {MAX_PIXELS} one call renders; its image buffers alone would need {}",
+            human_bytes(bytes)
+        )));
+    }
+    Ok(())
+}
 
 /// One camera: world-to-camera rotation and translation (x right, y down, z forward),
 /// focal lengths and principal point in pixels, and the image size.
@@ -98,5 +125,23 @@ mod tests {
         let view = [0.0f32; 16];
         let k = [0.0, 0.0, 32.0, 0.0, 100.0, 32.0, 0.0, 0.0, 1.0];
         assert!(Camera::from_matrices(&view, &k, 64, 64).is_err());
+    }
+
+    #[test]
+    fn image_sizes_past_the_pixel_limit_are_refused() {
+        assert!(check_image_size(64, 4096, 4096, 3).is_ok());
+        for (c, w, h) in [
+            (65, 4096, 4096),
+            (1, 1 << 31, 1 << 31),
+            (1, u32::MAX, u32::MAX),
+        ] {
+            let err = check_image_size(c, w, h, 3).unwrap_err().to_string();
+            assert!(err.contains(&format!("{w} x {h}")), "{err}");
+            assert!(err.contains("would need"), "{err}");
+        }
+        let err = check_image_size(1, 1 << 31, 1 << 31, 3)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("98304.0 PiB"), "{err}");
     }
 }

@@ -224,6 +224,7 @@ pub fn forward(
             "nothing to render: no colour and no depth channel",
         ));
     }
+    camera::check_image_size(cameras.len(), width, height, ch)?;
     let (n, c) = (scene.n, cameras.len());
     let pixels = width as usize * height as usize;
     let mut out = ForwardOutput {

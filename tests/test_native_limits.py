@@ -1,0 +1,225 @@
+"""Sizes that reach the native core: every integer argument of every entry point of
+``plantdreamer._core`` (see ``_core.pyi``) is checked with a clear InputError, image sizes
+whose buffers cannot fit are refused before allocating, kNN cost is bounded, and the
+thread-pool cache does not grow with every distinct ``threads=`` value."""
+
+from __future__ import annotations
+
+import inspect
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from plantdreamer import _core
+from plantdreamer.errors import InputError
+
+# Every function of the native module, with its integer arguments and their minimum.
+INT_ARGS: dict[str, list[tuple[str, int]]] = {
+    "downsample_to_count": [("target", 1), ("threads", 1)],
+    "eval_sh": [("degree", 0)],
+    "info": [],
+    "knn": [("k", 1), ("threads", 1)],
+    "knn_mean_distance": [("k", 1), ("threads", 1)],
+    "large_gaussian_mask": [],
+    "rasterize_backward": [("threads", 1)],
+    "rasterize_forward": [
+        ("width", 1),
+        ("height", 1),
+        ("sh_degree", 0),
+        ("tile_size", 0),
+        ("threads", 1),
+    ],
+    "read_ply_vertex": [],
+    "remove_statistical_outliers": [("nb_neighbors", 1), ("threads", 1)],
+    "voxel_downsample": [("threads", 1)],
+    "write_ply_vertex": [],
+}
+
+_RNG = np.random.default_rng(0)
+_PTS = _RNG.random((60, 3)).astype(np.float32)
+
+
+def _scene() -> dict:
+    n = 8
+    return {
+        "means": (_RNG.random((n, 3)) - 0.5).astype(np.float32),
+        "quats": np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+        "scales": np.full((n, 3), 0.05, np.float32),
+        "opacities": np.full(n, 0.8, np.float32),
+        "colors": _RNG.random((n, 4, 3)).astype(np.float32),
+        "viewmats": np.array(
+            [[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]]], np.float32
+        ),
+        "ks": np.array([[[20, 0, 8], [0, 20, 8], [0, 0, 1]]], np.float32),
+        "width": 16,
+        "height": 16,
+        "sh_degree": 1,
+        "tile_size": 16,
+        "threads": None,
+    }
+
+
+def _call(name: str, tmp_path, **override):
+    """A valid call of `name`, with `override` replacing some arguments."""
+    if name == "rasterize_backward":
+        out = _core.rasterize_forward(**_scene())
+        args = {
+            "state": out["state"],
+            "v_render": np.ones_like(out["render"]),
+            "v_alpha": np.ones_like(out["alpha"]),
+            "threads": None,
+        }
+    else:
+        args = {
+            "downsample_to_count": {"points": _PTS, "target": 20, "threads": None},
+            "eval_sh": {
+                "degree": 1,
+                "coeffs": np.ones((5, 4, 3), np.float32),
+                "dirs": np.ones((5, 3), np.float32),
+            },
+            "info": {},
+            "knn": {"points": _PTS, "k": 4, "threads": None},
+            "knn_mean_distance": {"points": _PTS, "k": 4, "threads": None},
+            "large_gaussian_mask": {"log_scales": np.zeros((4, 3), np.float32)},
+            "rasterize_forward": _scene(),
+            "read_ply_vertex": {"path": str(tmp_path / "ok.ply")},
+            "remove_statistical_outliers": {
+                "points": _PTS,
+                "nb_neighbors": 5,
+                "std_ratio": 2.0,
+                "threads": None,
+            },
+            "voxel_downsample": {"points": _PTS, "voxel_size": 0.1, "threads": None},
+            "write_ply_vertex": {
+                "path": str(tmp_path / "ok.ply"),
+                "fields": [(["x", "y", "z"], _PTS)],
+            },
+        }[name]
+    args.update(override)
+    return getattr(_core, name)(**args)
+
+
+def test_the_table_covers_every_native_function():
+    functions = {
+        name
+        for name in _core.__all__
+        if inspect.isroutine(getattr(_core, name)) and not name.startswith("_")
+    }
+    assert functions == set(INT_ARGS)
+
+
+@pytest.mark.parametrize("name", sorted(INT_ARGS))
+def test_each_base_call_is_valid(tmp_path, name):
+    _core.write_ply_vertex(str(tmp_path / "ok.ply"), [(["x", "y", "z"], _PTS)])
+    _call(name, tmp_path)
+
+
+BAD_VALUES = [-1, -(2**63), 2**63, 2**70, 2.5, "3", [1]]
+CASES = [(name, arg, low) for name, args in INT_ARGS.items() for arg, low in args]
+
+
+@pytest.mark.parametrize(("name", "arg", "low"), CASES)
+@pytest.mark.parametrize("bad", [*BAD_VALUES, "below"], ids=repr)
+def test_bad_integers_are_input_errors(tmp_path, name, arg, low, bad):
+    value = low - 1 if bad == "below" else bad
+    with pytest.raises(InputError, match=arg):
+        _call(name, tmp_path, **{arg: value})
+
+
+@pytest.mark.parametrize("size", [(2**31, 2**31), (2**32 - 1, 2**32 - 1), (100_000, 100_000)])
+def test_image_sizes_whose_buffers_cannot_fit_are_refused(tmp_path, size):
+    w, h = size
+    with pytest.raises(InputError, match=rf"{w} x {h} pixels.*would need [0-9.]+ [KMGTP]iB"):
+        _call("rasterize_forward", tmp_path, width=w, height=h)
+
+
+def test_rasterization_refuses_huge_images_before_allocating():
+    torch = pytest.importorskip("torch")
+    from plantdreamer import rasterization
+
+    s = _scene()
+    t = {k: torch.from_numpy(s[k]) for k in ("means", "quats", "scales", "opacities", "viewmats")}
+    with pytest.raises(InputError, match="pixels"):
+        rasterization(
+            t["means"],
+            t["quats"],
+            t["scales"],
+            t["opacities"],
+            torch.ones(8, 3),
+            t["viewmats"],
+            torch.from_numpy(s["ks"]),
+            2**31,
+            2**31,
+        )
+
+
+def test_too_many_threads_is_an_input_error_naming_the_limit(tmp_path):
+    with pytest.raises(InputError, match=r"threads must be in 1\.\.=\d+ \(4 x the"):
+        _call("knn", tmp_path, threads=10**6)
+
+
+# --- kNN: k close to N is exact and bounded; n x k beyond the limit is refused ---------
+
+
+def test_knn_with_k_close_to_n_matches_brute_force():
+    p = _RNG.random((700, 3)).astype(np.float32)
+    k = 699
+    idx, d = _core.knn(p, k)
+    full = np.sqrt(((p[:, None, :].astype(np.float64) - p[None]) ** 2).sum(-1))
+    np.fill_diagonal(full, np.inf)
+    order = np.argsort(full, axis=1, kind="stable")[:, :k]
+    np.testing.assert_array_equal(idx, order)
+    np.testing.assert_array_equal(d, np.take_along_axis(full, order, 1).astype(np.float32))
+
+
+def test_knn_output_beyond_the_pair_limit_is_refused_before_allocating():
+    p = _RNG.random((70_000, 3)).astype(np.float32)
+    with pytest.raises(InputError, match=r"pairs, more than the 2147483648.*GiB"):
+        _core.knn(p, 40_000)
+    with pytest.raises(InputError, match="pairs"):
+        _core.remove_statistical_outliers(p, 40_000, 2.0)
+
+
+# --- the thread-pool cache is bounded ------------------------------------------------
+
+_POOL_CHURN = """
+    import os, time
+    import numpy as np
+    from plantdreamer import _core
+
+    def pool_threads():
+        n = 0
+        for t in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{t}/comm") as f:
+                    n += f.read().startswith("plantdreamer")
+            except FileNotFoundError:
+                pass
+        return n
+
+    top = TOP
+    p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
+    for _ in range(3):
+        for t in range(1, top + 1):
+            _core.knn(p, 3, threads=t)
+    # Dropped pools end their threads asynchronously: wait for them (up to 30 s).
+    deadline = time.monotonic() + 30
+    while pool_threads() > BOUND and time.monotonic() < deadline:
+        time.sleep(0.05)
+    print(pool_threads())
+"""
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="needs Linux /proc")
+def test_distinct_thread_counts_do_not_accumulate_threads():
+    top = _core.info()["max_threads"]
+    kept = sum(range(top, top - 4, -1))  # the four most recent pools
+    code = textwrap.dedent(_POOL_CHURN).replace("TOP", str(top)).replace("BOUND", str(kept))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    # Without a bound every size 1..top would stay alive: top * (top + 1) / 2 threads.
+    assert int(out.stdout) <= kept < top * (top + 1) // 2
