@@ -223,3 +223,41 @@ def test_distinct_thread_counts_do_not_accumulate_threads():
     assert out.returncode == 0, out.stderr
     # Without a bound every size 1..top would stay alive: top * (top + 1) / 2 threads.
     assert int(out.stdout) <= kept < top * (top + 1) // 2
+
+
+def test_render_refuses_a_resolution_whose_buffers_cannot_fit(tmp_path):
+    """`render --resolution 100000` was killed by the OOM killer at 23.9 GB; now the core
+    refuses it before allocating (run under a 16 GiB address-space limit, so a regression
+    fails fast instead of exhausting the machine)."""
+    import resource
+
+    from plantdreamer.gaussians import Gaussians
+    from plantdreamer.io import write_splat_ply
+
+    n = 10
+    write_splat_ply(
+        tmp_path / "g.ply",
+        Gaussians(
+            means=_RNG.random((n, 3)).astype(np.float32),
+            quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+            log_scales=np.full((n, 3), -3, np.float32),
+            opacity_logits=np.zeros(n, np.float32),
+            sh=np.zeros((n, 1, 3), np.float32),
+        ),
+    )
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (16 << 30, 16 << 30))
+
+    args = ["render", str(tmp_path / "g.ply"), "--out", str(tmp_path / "out")]
+    args += ["--resolution", "100000", "--views", "1"]
+    out = subprocess.run(
+        [sys.executable, "-m", "plantdreamer", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=limit,
+    )
+    assert out.returncode == 1, out.stderr
+    assert "100000 x 100000 pixels" in out.stderr and "GiB" in out.stderr
+    assert "Traceback" not in out.stderr + out.stdout
