@@ -216,7 +216,7 @@ _POOL_CHURN = """
 
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="needs Linux /proc")
 def test_distinct_thread_counts_do_not_accumulate_threads():
-    top = _core.info()["max_threads"]
+    top = min(_core.info()["max_threads"], 16)  # sizes 1..top; 16 keeps big machines quick
     kept = sum(range(top, top - 4, -1))  # the four most recent pools
     code = textwrap.dedent(_POOL_CHURN).replace("TOP", str(top)).replace("BOUND", str(kept))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
