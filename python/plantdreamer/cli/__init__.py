@@ -19,6 +19,7 @@ from plantdreamer.errors import PlantDreamerError
 COMMANDS: dict[str, str] = {
     "ablate": "plantdreamer.cli.ablate:ablate",
     "eval": "plantdreamer.cli.eval:eval_command",
+    "dataset": "plantdreamer.cli.dataset:dataset",
     "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
     "lora": "plantdreamer.cli.lora:lora",

@@ -1,0 +1,134 @@
+"""``plantdreamer dataset``: many plants in one command, on this machine or a Ray cluster."""
+
+from __future__ import annotations
+
+import click
+
+
+def _key_values(pairs: tuple[str, ...], what: str) -> dict[str, str]:
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"{pair!r} is not KEY=VALUE", param_hint=what)
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _toml_value(text: str) -> object:
+    """``--set steps=20`` gives an int, ``--set lora=lora/bean`` a string."""
+    from plantdreamer.dataset.spec import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+@click.command()
+@click.argument("spec_file", required=False, type=click.Path(dir_okay=False, exists=True))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False))
+@click.option("--species", help="Without a spec: comma-separated species, e.g. bean,mint,kale.")
+@click.option("--count", type=click.IntRange(1), default=1, show_default=True)
+@click.option("--seed-start", type=click.IntRange(0), default=0, show_default=True)
+@click.option("--guidance", type=click.Choice(["sds", "none"]), help="Setting for every plant.")
+@click.option("--steps", type=click.IntRange(0), help="Setting for every plant.")
+@click.option("--points", "n_points", type=click.IntRange(1), help="Setting for every plant.")
+@click.option("--resolution", type=click.IntRange(1), help="Setting for every plant.")
+@click.option("--eval-views", type=click.IntRange(0), help="Setting for every plant.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help="Any generate setting.")
+@click.option("--address", help="Join a Ray cluster: auto or HOST:PORT [default: local Ray].")
+@click.option("--local-cpus", type=click.IntRange(1), help="CPUs of the local Ray [all].")
+@click.option("--cpus-per-plant", type=float, help="[default: 2 with sds, 1 with none]")
+@click.option("--gpus-per-plant", type=float, help="[default: 1 with sds, 0 with none]")
+@click.option(
+    "--resource",
+    "resources",
+    multiple=True,
+    metavar="NAME=AMOUNT",
+    help="A custom Ray resource every plant needs.",
+)
+@click.option(
+    "--max-retries",
+    type=click.IntRange(0),
+    default=3,
+    show_default=True,
+    help="Re-runs of a plant whose worker died.",
+)
+@click.option("--quiet", is_flag=True, help="No progress bar or summary.")
+def dataset(
+    spec_file: str | None,
+    out_dir: str,
+    species: str | None,
+    count: int,
+    seed_start: int,
+    settings: tuple[str, ...],
+    address: str | None,
+    local_cpus: int | None,
+    cpus_per_plant: float | None,
+    gpus_per_plant: float | None,
+    resources: tuple[str, ...],
+    max_retries: int,
+    quiet: bool,
+    **quick_settings: object,
+) -> None:
+    """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
+
+    SPEC_FILE (TOML) lists groups of plants and their settings; without one, --species,
+    --count and --seed-start give one group per species. Settings given here apply to
+    every plant, over the spec's [defaults]. Plants already complete in OUT are skipped.
+    """
+    from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
+    from plantdreamer.dataset.engine import import_ray
+    from plantdreamer.errors import InputError
+
+    import_ray()  # fail first, with what to install, when Ray is missing
+    if spec_file is not None:
+        if species is not None:
+            raise InputError("give a spec file or --species, not both")
+        spec = load_spec(spec_file)
+    elif species is not None:
+        groups = [s.strip() for s in species.split(",") if s.strip()]
+        spec = {"group": [{"species": s, "count": count, "seed_start": seed_start} for s in groups]}
+    else:
+        raise InputError("give a spec file or --species")
+    overrides = {k: v for k, v in quick_settings.items() if v is not None}
+    overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
+    spec["defaults"] = {**spec.get("defaults", {}), **overrides}
+    plants = expand(spec)
+    try:
+        custom = {k: float(v) for k, v in _key_values(resources, "--resource").items()}
+    except ValueError:
+        raise click.BadParameter("amounts must be numbers", param_hint="--resource") from None
+    options = RunOptions(
+        address=address,
+        local_cpus=local_cpus,
+        cpus_per_plant=cpus_per_plant,
+        gpus_per_plant=gpus_per_plant,
+        resources=custom,
+        max_retries=max_retries,
+        show_progress=not quiet,
+    )
+    report = run_dataset(spec, plants, out_dir, options)
+    if report.interrupted:
+        click.secho(
+            f"stopped: {report.interrupted} plants interrupted (checkpoints kept); "
+            "run the same command again to finish them",
+            err=True,
+            fg="yellow",
+        )
+        raise SystemExit(130)
+    if report.failed:
+        click.secho(
+            f"error: {report.failed} of {len(plants)} plants failed "
+            f"({report.done} done, {report.skipped} skipped); see {out_dir}/manifest.jsonl",
+            err=True,
+            fg="red",
+        )
+        for plant_id, error in sorted(report.failures.items()):
+            click.echo(f"  {plant_id}: {error}", err=True)
+        raise SystemExit(1)
+    click.echo(
+        f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: "
+        f"{report.out_dir}"
+    )

@@ -1,0 +1,68 @@
+"""What the terminal shows: one live bar of plants, then a summary table."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from typing import Any
+
+
+class DatasetProgress:
+    """A rich bar (done / failed / running, ETA) on a terminal; one line per finished plant
+    otherwise. Plant logs never reach the terminal: they are in each plant's folder."""
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        self.total, self.enabled = total, enabled
+        self._bar: Any = None
+        if enabled and sys.stderr.isatty():
+            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+            from rich.progress import Progress as RichProgress
+
+            self._bar = RichProgress(
+                TextColumn("[bold green]dataset"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[info]}"),
+                TimeRemainingColumn(),
+            )
+            self._task = self._bar.add_task("", total=total, info="")
+            self._bar.start()
+
+    def update(self, counts: Counter[str]) -> None:
+        if self._bar is None:
+            return
+        finished = counts["done"] + counts["failed"]
+        info = f"done {counts['done']}  failed {counts['failed']}  running {counts['running']}"
+        self._bar.update(self._task, completed=finished, info=info)
+
+    def finished(self, plant_id: str, record: dict[str, Any]) -> None:
+        if not self.enabled or self._bar is not None:
+            return
+        detail = record.get("error") or f"{record.get('seconds', 0):.1f} s"
+        print(f"{record['status']:<11} {plant_id}  {detail}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+
+def print_summary(
+    totals: dict[str, dict[str, int]], skipped: int, ran: int, seconds: float
+) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    statuses = ("done", "failed", "interrupted", "running")
+    table = Table(title="dataset")
+    table.add_column("species")
+    for status in statuses:
+        table.add_column(status, justify="right")
+    for species, row in sorted(totals.items()):
+        table.add_row(species, *(str(row.get(s, 0)) for s in statuses))
+    console = Console(stderr=True)
+    console.print(table)
+    rate = ran / seconds * 3600 if seconds > 0 and ran else 0.0
+    console.print(
+        f"{ran} plants run in {seconds:.1f} s ({rate:.1f} plants/hour), "
+        f"{skipped} already complete and skipped"
+    )

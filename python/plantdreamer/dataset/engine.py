@@ -1,0 +1,117 @@
+"""Ray for the dataset: joining or starting an instance, and what each plant asks of it.
+
+Without an address, Ray starts on this machine (all on 127.0.0.1, no dashboard) and stops
+with the command. With ``--address auto|HOST:PORT`` the command joins an existing cluster
+and leaves it running.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from plantdreamer.errors import InputError
+from plantdreamer.pipeline.config import GenerateConfig
+
+RAY_MISSING = (
+    "`plantdreamer dataset` runs on Ray, which is not installed; install it with "
+    "`pip install 'plantdreamer[cluster]'` (or `pip install 'ray>=2.9'`)"
+)
+# CPUs a plant takes unless --cpus-per-plant says otherwise. With SDS the diffusion model
+# runs on the GPU but rendering (the native rasterizer) stays on the CPU.
+DEFAULT_CPUS = {"sds": 2.0, "none": 1.0}
+LOCAL_HOST = "127.0.0.1"
+
+
+def import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise InputError(RAY_MISSING) from None
+    return ray
+
+
+@dataclass(frozen=True)
+class Demand:
+    """Ray resources of one plant; its rasterizer and torch get ``threads`` threads."""
+
+    cpus: float
+    gpus: float
+    custom: tuple[tuple[str, float], ...] = field(default=())
+
+    @property
+    def threads(self) -> int:
+        return max(1, math.floor(self.cpus))
+
+    def ray_options(self, max_retries: int, extra_env: dict[str, str]) -> dict[str, Any]:
+        env = {"RAYON_NUM_THREADS": str(self.threads), "OMP_NUM_THREADS": str(self.threads)}
+        return {
+            "num_cpus": self.cpus,
+            "num_gpus": self.gpus,
+            "resources": dict(self.custom),
+            "max_retries": max_retries,
+            "retry_exceptions": False,  # only a lost worker is retried, never a plant's error
+            "runtime_env": {"env_vars": {**env, **extra_env}},
+        }
+
+    def describe(self) -> str:
+        parts = [f"{self.cpus:g} CPU", f"{self.gpus:g} GPU"]
+        parts += [f"{v:g} {k}" for k, v in self.custom]
+        return ", ".join(parts)
+
+
+def plant_demand(
+    cfg: GenerateConfig,
+    cpus_per_plant: float | None,
+    gpus_per_plant: float | None,
+    custom: dict[str, float],
+) -> Demand:
+    sds = cfg.guidance != "none"
+    cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.guidance]
+    gpus = gpus_per_plant if gpus_per_plant is not None else (1.0 if sds else 0.0)
+    if cpus < 1 or gpus < 0:
+        raise InputError("a plant needs at least 1 CPU and a non-negative number of GPUs")
+    return Demand(cpus, gpus, tuple(sorted(custom.items())))
+
+
+def connect(address: str | None, local_cpus: int | None) -> bool:
+    """Starts or joins Ray; True when this call started it (and should stop it)."""
+    ray = import_ray()
+    if ray.is_initialized():
+        return False
+    common: dict[str, Any] = {"log_to_driver": False, "logging_level": "WARNING"}
+    if address is None:
+        ray.init(
+            address="local",
+            num_cpus=local_cpus or os.cpu_count() or 1,
+            include_dashboard=False,
+            _node_ip_address=LOCAL_HOST,
+            **common,
+        )
+    else:
+        try:
+            ray.init(address=address, **common)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise InputError(f"cannot join the Ray cluster at {address}: {exc}") from None
+    return True
+
+
+def check_feasible(demands: set[Demand]) -> None:
+    """Fails now, with the reason, if no node could ever run a plant (Ray would wait)."""
+    ray = import_ray()
+    nodes = [n["Resources"] for n in ray.nodes() if n.get("Alive")]
+    for demand in demands:
+        need = {"CPU": demand.cpus, "GPU": demand.gpus, **dict(demand.custom)}
+        if not any(all(node.get(k, 0.0) >= v for k, v in need.items() if v) for node in nodes):
+            raise InputError(
+                f"no Ray node can run a plant needing {demand.describe()} (nodes have: "
+                + "; ".join(_node_text(n) for n in nodes)
+                + "); use --cpus-per-plant / --gpus-per-plant or add nodes"
+            )
+
+
+def _node_text(resources: dict[str, float]) -> str:
+    keys = [k for k in sorted(resources) if not k.startswith(("node:", "memory", "object_"))]
+    return ", ".join(f"{resources[k]:g} {k}" for k in keys)

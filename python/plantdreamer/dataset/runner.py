@@ -1,0 +1,261 @@
+"""Runs a dataset: plan (skip, resume, redo), schedule plants as Ray tasks, record results.
+
+Every plant is one `generate` run into ``DIR/plants/<id>/``. A plant is complete when the
+manifest says ``done`` with the same config hash and its ``plant.ply`` exists; those are
+skipped. A plant folder left by an earlier run with the same config keeps its checkpoint,
+so the plant resumes; any other leftover folder is cleared first.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from plantdreamer.dataset import engine
+from plantdreamer.dataset.display import DatasetProgress, print_summary
+from plantdreamer.dataset.lock import DatasetLock
+from plantdreamer.dataset.manifest import Manifest, totals, write_summary
+from plantdreamer.dataset.spec import Plant
+from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
+
+PLANTS_DIR = "plants"
+# After Ctrl-C, how long running plants get to write their checkpoint and stop.
+STOP_GRACE_S = 60.0
+
+
+@dataclass
+class RunOptions:
+    address: str | None = None  # None: a local Ray instance
+    local_cpus: int | None = None  # CPUs of the local instance (None: all)
+    cpus_per_plant: float | None = None
+    gpus_per_plant: float | None = None
+    resources: dict[str, float] = field(default_factory=dict)  # custom, per plant
+    max_retries: int = 3  # re-runs of a plant whose worker died
+    show_progress: bool = True
+
+
+@dataclass
+class DatasetReport:
+    out_dir: Path
+    done: int
+    failed: int
+    skipped: int
+    interrupted: int
+    seconds: float
+    failures: dict[str, str]
+
+    @property
+    def ok(self) -> bool:
+        return self.failed == 0 and self.interrupted == 0
+
+
+def run_dataset(
+    spec: dict[str, Any], plants: list[Plant], out_dir: str | Path, options: RunOptions
+) -> DatasetReport:
+    out_dir = Path(out_dir).resolve()
+    with DatasetLock(out_dir):
+        return _DatasetRun(spec, plants, out_dir, options).run()
+
+
+class _DatasetRun:
+    def __init__(
+        self, spec: dict[str, Any], plants: list[Plant], out_dir: Path, options: RunOptions
+    ) -> None:
+        self.spec, self.plants, self.out_dir, self.options = spec, plants, out_dir, options
+        self.manifest = Manifest(out_dir)
+        self.by_id = {p.id: p for p in plants}
+        self.t0 = time.time()
+        self.ray_nodes: int | None = None
+
+    def run(self) -> DatasetReport:
+        todo, skipped = self._plan()
+        demands = {
+            p.id: engine.plant_demand(
+                p.config,
+                self.options.cpus_per_plant,
+                self.options.gpus_per_plant,
+                self.options.resources,
+            )
+            for p in todo
+        }
+        self._write_summary("running", skipped)
+        results: dict[str, dict[str, Any]] = {}
+        try:
+            if todo:
+                results = self._run_on_ray(todo, demands)
+        finally:
+            for plant in todo:  # still running after a stop: its checkpoint is what is left
+                if self._status(plant.id) == "running":
+                    self.manifest.update(plant.id, status="interrupted", error="stopped by Ctrl-C")
+            self._write_summary("finished", skipped)
+        seconds = time.time() - self.t0
+        ids = [p.id for p in todo]
+        counts = self.manifest.counts(ids)
+        records = [
+            self.manifest.records[p.id] for p in self.plants if p.id in self.manifest.records
+        ]
+        if self.options.show_progress:
+            print_summary(totals(records), len(skipped), len(results), seconds)
+        return DatasetReport(
+            self.out_dir,
+            counts["done"],
+            counts["failed"],
+            len(skipped),
+            counts["interrupted"],
+            seconds,
+            {i: r["error"] for i, r in results.items() if r["status"] == "failed"},
+        )
+
+    # -- planning ----------------------------------------------------------------------
+
+    def _plan(self) -> tuple[list[Plant], list[Plant]]:
+        todo, skipped = [], []
+        for plant in self.plants:
+            record = self.manifest.get(plant.id)
+            folder = self._plant_dir(plant)
+            same_config = record is not None and record.get("config_hash") == plant.config_hash
+            done = same_config and record is not None and record["status"] == "done"
+            if done and (folder / "plant.ply").is_file():
+                skipped.append(plant)
+                continue
+            if folder.exists() and not same_config:
+                shutil.rmtree(folder)  # another config's leftovers: start this plant afresh
+            todo.append(plant)
+        return todo, skipped
+
+    def _plant_dir(self, plant: Plant) -> Path:
+        return self.out_dir / PLANTS_DIR / plant.id
+
+    def _status(self, plant_id: str) -> str | None:
+        record = self.manifest.get(plant_id)
+        return None if record is None else record.get("status")
+
+    # -- scheduling --------------------------------------------------------------------
+
+    def _run_on_ray(
+        self, todo: list[Plant], demands: dict[str, engine.Demand]
+    ) -> dict[str, dict[str, Any]]:
+        ray = engine.import_ray()
+        started_ray = engine.connect(self.options.address, self.options.local_cpus)
+        try:
+            engine.check_feasible(set(demands.values()))
+            self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
+            board = ray.remote(num_cpus=0)(StatusBoard).remote()
+            task = ray.remote(run_plant)
+            extra_env = {HOLD_ENV: os.environ[HOLD_ENV]} if HOLD_ENV in os.environ else {}
+            pending = {}
+            for plant in todo:
+                options = demands[plant.id].ray_options(self.options.max_retries, extra_env)
+                request = {
+                    "id": plant.id,
+                    "config": plant.config.to_dict(),
+                    "plant_dir": str(self._plant_dir(plant)),
+                    "threads": demands[plant.id].threads,
+                }
+                pending[task.options(**options).remote(request, board)] = plant
+            return self._follow(ray, pending, board, len(todo))
+        finally:
+            if started_ray:
+                ray.shutdown()
+
+    def _follow(self, ray, pending, board, total: int) -> dict[str, dict[str, Any]]:
+        results: dict[str, dict[str, Any]] = {}
+        progress = DatasetProgress(total, self.options.show_progress)
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+                self._record_starts(ray.get(board.drain.remote()))
+                for ref in ready:
+                    plant = pending.pop(ref)
+                    results[plant.id] = self._record_result(ray, plant, ref)
+                    progress.finished(plant.id, results[plant.id])
+                progress.update(self.manifest.counts([p.id for p in self.plants]))
+        except KeyboardInterrupt:
+            progress.close()
+            self._stop(ray, pending, board, results)
+            raise
+        finally:
+            progress.close()
+        return results
+
+    def _record_starts(self, events: list[dict[str, Any]]) -> None:
+        for event in events:
+            plant = self.by_id[event["id"]]
+            self.manifest.replace(
+                plant.id, {**self._base_record(plant), **event, "status": "running"}
+            )
+
+    def _record_result(self, ray, plant: Plant, ref) -> dict[str, Any]:
+        try:
+            result = ray.get(ref)
+        except ray.exceptions.RayError as exc:  # the worker died more often than retried
+            result = {"status": "failed", "error": first_line(exc)}
+        record = self.manifest.get(plant.id) or self._base_record(plant)
+        record = {**record, **result, "finished": time.time()}
+        self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
+        return result
+
+    def _stop(self, ray, pending, board, results) -> None:
+        """Ctrl-C: ask running plants to checkpoint and stop, then record what happened."""
+        for ref in pending:
+            ray.cancel(ref, force=False)
+        deadline = time.time() + STOP_GRACE_S
+        try:
+            while pending and time.time() < deadline:
+                ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+                self._record_starts(ray.get(board.drain.remote()))
+                for ref in ready:
+                    plant = pending.pop(ref)
+                    if self._status(plant.id) == "running":
+                        results[plant.id] = self._record_result(ray, plant, ref)
+        except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
+            pass
+
+    def _base_record(self, plant: Plant) -> dict[str, Any]:
+        folder = f"{PLANTS_DIR}/{plant.id}"
+        return {
+            "group": plant.group,
+            "species": plant.species,
+            "source": plant.source,
+            "seed": plant.config.seed,
+            "config_hash": plant.config_hash,
+            "plant_dir": folder,
+            "log": f"{folder}/{LOG_NAME}",
+        }
+
+    # -- dataset.json ------------------------------------------------------------------
+
+    def _write_summary(self, state: str, skipped: list[Plant]) -> None:
+        records = [
+            self.manifest.records[p.id] for p in self.plants if p.id in self.manifest.records
+        ]
+        write_summary(
+            self.out_dir,
+            {
+                "state": state,
+                "spec": self.spec,
+                "plants": len(self.plants),
+                "skipped": len(skipped),
+                "totals": totals(records),
+                "started": self.t0,
+                "seconds": round(time.time() - self.t0, 3),
+                "ray": {"address": self.options.address or "local", "nodes": self.ray_nodes},
+                "versions": _versions(),
+            },
+        )
+
+
+def _versions() -> dict[str, str | None]:
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for pkg in ("plantdreamer", "ray", "torch", "numpy"):
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = None
+    return versions

@@ -1,0 +1,177 @@
+"""`plantdreamer dataset` on real Ray instances: local (2 CPUs), a two-node loopback cluster,
+a SIGKILLed worker, a bad input among good ones, and a rerun that skips finished plants.
+
+Every Ray process a test starts is stopped by it: the command stops the local instance it
+starts, and the cluster fixture shuts its nodes down.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.pipeline import GenerateConfig, generate
+
+ray = pytest.importorskip("ray")
+pytestmark = pytest.mark.slow
+
+SMALL = {"guidance": "none", "steps": 20, "n_points": 2000, "eval_views": 1, "resolution": 32}
+SMALL_FLAGS = ["--guidance", "none", "--steps", "20", "--points", "2000", "--eval-views", "1",
+               "--resolution", "32", "--quiet"]  # fmt: skip
+
+
+def loopback_env(**extra):
+    """The environment of a driver subprocess, read when called (Ray may have added its
+    auth token since import); on loopback only, as Ray would otherwise swap 127.0.0.1 for
+    the machine's outward address."""
+    return {**os.environ, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", **extra}
+
+
+def manifest(out_dir):
+    return {
+        r["id"]: r for r in map(json.loads, (out_dir / "manifest.jsonl").read_text().splitlines())
+    }
+
+
+def direct_ply(tmp_path, **settings):
+    out = tmp_path / "direct" / f"{settings.get('species')}-{settings['seed']}"
+    generate(GenerateConfig(**{**SMALL, **settings}), out, show_progress=False)
+    return (out / "plant.ply").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def six_plants(tmp_path_factory):
+    out = tmp_path_factory.mktemp("six")
+    args = ["dataset", "--species", "bean,mint,kale", "--count", "2", "--local-cpus", "2"]
+    result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
+    assert not ray.is_initialized()  # the command stopped the Ray it started
+    return out, args, result
+
+
+def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):
+    out, _, result = six_plants
+    assert result.exit_code == 0, result.output
+    records = manifest(out)
+    assert sorted(records) == sorted(
+        f"{s}-s000{i}" for s in ("bean", "mint", "kale") for i in (0, 1)
+    )
+    for plant_id, record in records.items():
+        assert record["status"] == "done" and record["error"] is None
+        assert record["raster_threads"] == 1  # one CPU per plant with --guidance none
+        assert "plant.ply" in record["outputs"] and "run.json" in record["outputs"]
+        species, seed = plant_id.split("-s")
+        expected = direct_ply(tmp_path, species=species, seed=int(seed))
+        assert (out / "plants" / plant_id / "plant.ply").read_bytes() == expected, plant_id
+    summary = json.loads((out / "dataset.json").read_text())
+    assert summary["state"] == "finished" and summary["totals"]["mint"] == {"done": 2}
+
+
+def test_rerun_skips_complete_plants(six_plants):
+    out, args, _ = six_plants
+    before = (out / "manifest.jsonl").read_text()
+    result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "0 plants done, 6 skipped" in result.output
+    assert (out / "manifest.jsonl").read_text() == before  # no timestamp moved
+
+
+def test_bad_point_cloud_fails_alone(tmp_path):
+    from plantdreamer.cloud import PointCloud
+    from plantdreamer.io import write_ply
+
+    clouds = tmp_path / "clouds"
+    clouds.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        pts = (rng.normal(size=(3000, 3)) * [0.2, 0.2, 0.5]).astype(np.float32)
+        write_ply(
+            clouds / f"{name}.ply", PointCloud(pts, colors=rng.random((3000, 3), dtype=np.float32))
+        )
+    (clouds / "broken.ply").write_bytes(
+        b"ply\nformat ascii 1.0\nelement vertex 5\nend_header\n1 2\n"
+    )
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[group]]\npointclouds = "clouds/*.ply"\nspecies = "bean"\nsor_std = 100.0\n')
+    out = tmp_path / "out"
+    result = CliRunner().invoke(
+        main, ["dataset", str(spec), "--local-cpus", "2", *SMALL_FLAGS, "--out", str(out)]
+    )
+    assert result.exit_code == 1
+    assert "error: 1 of 3 plants failed" in result.output and "broken-s0000:" in result.output
+    assert "Traceback" not in result.output
+    records = manifest(out)
+    assert {i: r["status"] for i, r in records.items()} == {
+        "a-s0000": "done", "b-s0000": "done", "broken-s0000": "failed"
+    }  # fmt: skip
+    error = records["broken-s0000"]["error"]
+    assert error and "\n" not in error and "ply" in error.lower()
+
+
+def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path):
+    out = tmp_path / "out"
+    env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
+    cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count", "2",
+           "--local-cpus", "2", "--set", "checkpoint_every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        log = out / "plants" / "bean-s0001" / "generate.log"
+        deadline = time.time() + 300
+        while not (log.is_file() and "holding after step 12" in log.read_text()):
+            assert proc.poll() is None and time.time() < deadline, "the plant never reached step 12"
+            time.sleep(0.5)
+        pid = manifest(out)["bean-s0001"]["pid"]
+        os.kill(pid, signal.SIGKILL)
+        output, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:  # stop it the way a user would, so it stops its Ray
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=120)
+    assert proc.returncode == 0, output
+    record = manifest(out)["bean-s0001"]
+    assert record["status"] == "done" and record["attempt"] == 2 and record["pid"] != pid
+    assert record["resumed_from_step"] == 10  # the checkpoint before the kill
+    expected = direct_ply(tmp_path, species="bean", seed=1)
+    assert (out / "plants" / "bean-s0001" / "plant.ply").read_bytes() == expected
+
+
+@pytest.fixture
+def two_node_cluster():
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(
+        initialize_head=True,
+        head_node_args={
+            "num_cpus": 1, "resources": {"plant_slot": 1, "node_a": 1},
+            "include_dashboard": False, "node_ip_address": "127.0.0.1",
+        },
+    )  # fmt: skip
+    try:
+        cluster.add_node(
+            num_cpus=1, resources={"plant_slot": 1, "node_b": 1}, node_ip_address="127.0.0.1"
+        )
+        cluster.wait_for_nodes()
+        yield cluster
+    finally:
+        cluster.shutdown()
+
+
+def test_plants_spread_over_a_two_node_cluster(two_node_cluster, tmp_path):
+    nodes = {n.node_id for n in [two_node_cluster.head_node, *two_node_cluster.worker_nodes]}
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean,kale",
+           "--count", "2", "--address", two_node_cluster.address, "--resource", "plant_slot=1",
+           *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
+    result = subprocess.run(cmd, env=loopback_env(), capture_output=True, text=True, timeout=400)
+    assert result.returncode == 0, result.stderr[-3000:]
+    records = manifest(out)
+    assert all(r["status"] == "done" for r in records.values())
+    assert {r["node"] for r in records.values()} == nodes  # both nodes ran plants

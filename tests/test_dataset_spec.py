@@ -1,0 +1,104 @@
+"""Dataset specs, config hashes, the folder lock and the missing-Ray message (no Ray started)."""
+
+import builtins
+
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.dataset import config_hash, expand, load_spec
+from plantdreamer.dataset.engine import RAY_MISSING, plant_demand
+from plantdreamer.dataset.lock import DatasetLock
+from plantdreamer.errors import InputError
+from plantdreamer.pipeline import GenerateConfig
+
+
+def test_groups_expand_to_plants_with_settings_passed_through(tmp_path):
+    (tmp_path / "scans").mkdir()
+    for name in ("b.ply", "a.ply"):
+        (tmp_path / "scans" / name).write_bytes(b"")
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(
+        "[defaults]\nsteps = 20\neval-views = 2\n\n"
+        '[[group]]\nspecies = "bean"\ncount = 2\nseed_start = 5\nn_points = 3000\n\n'
+        '[[group]]\nname = "scan"\npointclouds = "scans/*.ply"\nspecies = "mint"\n'
+        'seeds = [1]\nguidance = "none"\n'
+    )
+    plants = expand(load_spec(spec_file))
+    assert [p.id for p in plants] == ["bean-s0005", "bean-s0006", "scan-a-s0001", "scan-b-s0001"]
+    bean, scan = plants[0].config, plants[2].config
+    assert (bean.steps, bean.eval_views, bean.n_points, bean.seed) == (20, 2, 3000, 5)
+    assert bean.guidance == "sds" and scan.guidance == "none"
+    assert scan.pointcloud == str((tmp_path / "scans" / "a.ply").resolve())
+    assert plants[2].source == scan.pointcloud and plants[0].source == "lsystem"
+
+
+@pytest.mark.parametrize(
+    ("group", "message"),
+    [
+        ('species = "bean"\nsteps_typo = 3', "unknown config keys: steps_typo"),
+        ('species = "bean"\nseeds = [1, 1]', "duplicates"),
+        ('species = "bean"\nseeds = [1]\ncount = 2', "not both"),
+        ('species = "bean"\nseed = 3', "chosen per plant"),
+        ('pointclouds = "nothing/*.ply"', "no files match"),
+        ("count = 2", "needs 'species' or 'pointclouds'"),
+        ('species = "bean"\ncolor_init = "blue"', "color init must be one of"),
+    ],
+)
+def test_bad_groups_are_clear_errors(tmp_path, group, message):
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(f"[[group]]\n{group}\n")
+    with pytest.raises(InputError, match=message):
+        expand(load_spec(spec_file))
+
+
+def test_same_ids_in_two_groups_are_refused():
+    spec = {"group": [{"species": "bean"}, {"species": "bean"}]}
+    with pytest.raises(InputError, match="appears twice"):
+        expand(spec)
+
+
+def test_config_hash_is_stable_and_sees_every_setting():
+    a = GenerateConfig(species="bean", seed=1)
+    assert config_hash(a) == config_hash(GenerateConfig.from_dict(a.to_dict()))
+    assert config_hash(a) != config_hash(GenerateConfig(species="bean", seed=2))
+    b = GenerateConfig(species="bean", seed=1)
+    b.lr.means *= 2
+    assert config_hash(a) != config_hash(b)
+
+
+def test_resources_follow_guidance_and_overrides():
+    sds = plant_demand(GenerateConfig(species="bean"), None, None, {})
+    none = plant_demand(GenerateConfig(species="bean", guidance="none"), None, None, {})
+    assert (sds.gpus, none.gpus) == (1.0, 0.0) and none.threads == 1
+    custom = plant_demand(GenerateConfig(species="bean"), 3.5, 0.5, {"slot": 1})
+    assert (custom.cpus, custom.gpus, custom.threads) == (3.5, 0.5, 3)
+    options = custom.ray_options(max_retries=2, extra_env={})
+    assert options["resources"] == {"slot": 1} and options["max_retries"] == 2
+    assert options["runtime_env"]["env_vars"]["RAYON_NUM_THREADS"] == "3"
+
+
+def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
+    with DatasetLock(tmp_path):
+        result = CliRunner().invoke(
+            main, ["dataset", "--species", "bean", "--guidance", "none", "--out", str(tmp_path)]
+        )
+    assert result.exit_code == 1
+    assert "another `plantdreamer dataset`" in result.output and "Traceback" not in result.output
+    with DatasetLock(tmp_path):  # released when the holder is done
+        pass
+
+
+def test_without_ray_the_command_says_what_to_install(tmp_path, monkeypatch):
+    real_import = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    result = CliRunner().invoke(main, ["dataset", "--species", "bean", "--out", str(tmp_path)])
+    assert result.exit_code == 1
+    assert RAY_MISSING in result.output
+    assert "pip install 'plantdreamer[cluster]'" in result.output
