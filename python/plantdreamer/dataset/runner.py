@@ -159,14 +159,14 @@ class _DatasetRun:
                     "threads": demands[plant.id].threads,
                 }
                 pending[task.options(**options).remote(request, board)] = plant
-            return self._follow(ray, pending, board, len(todo))
+            return self._follow(ray, pending, board, [p.id for p in todo])
         finally:
             if started_ray:
                 ray.shutdown()
 
-    def _follow(self, ray, pending, board, total: int) -> dict[str, dict[str, Any]]:
+    def _follow(self, ray, pending, board, ids: list[str]) -> dict[str, dict[str, Any]]:
         results: dict[str, dict[str, Any]] = {}
-        progress = DatasetProgress(total, self.options.show_progress)
+        progress = DatasetProgress(len(ids), self.options.show_progress)
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
@@ -175,7 +175,7 @@ class _DatasetRun:
                     plant = pending.pop(ref)
                     results[plant.id] = self._record_result(ray, plant, ref)
                     progress.finished(plant.id, results[plant.id])
-                progress.update(self.manifest.counts([p.id for p in self.plants]))
+                progress.update(self.manifest.counts(ids))
         except KeyboardInterrupt:
             progress.close()
             self._stop(ray, pending, board, results)

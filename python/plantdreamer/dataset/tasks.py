@@ -49,6 +49,7 @@ def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
     import torch
 
     from plantdreamer import _core
+    from plantdreamer.dataset.lock import LOCK_NAME
     from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
     from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 
@@ -63,7 +64,7 @@ def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
         "started": time.time(),
     }
     attempt = ray.get(board.started.remote(plant_id, info))
-    if not plant_dir.parent.parent.joinpath(".lock").exists():
+    if not plant_dir.parent.parent.joinpath(LOCK_NAME).exists():
         return _failed(
             f"output folder {plant_dir.parent.parent} is not visible on this node "
             f"({info['host']}); a cluster needs it on a shared filesystem"
