@@ -86,14 +86,16 @@ class _DatasetRun:
         }
         self._write_summary("running", skipped)
         results: dict[str, dict[str, Any]] = {}
+        state = "stopped"
         try:
             if todo:
                 results = self._run_on_ray(todo, demands)
+            state = "finished"
         finally:
             for plant in todo:  # still running after a stop: its checkpoint is what is left
                 if self._status(plant.id) == "running":
                     self.manifest.update(plant.id, status="interrupted", error="stopped by Ctrl-C")
-            self._write_summary("finished", skipped)
+            self._write_summary(state, skipped)
         seconds = time.time() - self.t0
         ids = [p.id for p in todo]
         counts = self.manifest.counts(ids)
@@ -170,7 +172,7 @@ class _DatasetRun:
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
-                self._record_starts(ray.get(board.drain.remote()))
+                self._record_starts(ray.get(board.drain.remote()), set(results))
                 for ref in ready:
                     plant = pending.pop(ref)
                     results[plant.id] = self._record_result(ray, plant, ref)
@@ -184,9 +186,12 @@ class _DatasetRun:
             progress.close()
         return results
 
-    def _record_starts(self, events: list[dict[str, Any]]) -> None:
+    def _record_starts(self, events: list[dict[str, Any]], finished: set[str]) -> None:
         for event in events:
             plant = self.by_id[event["id"]]
+            if plant.id in finished:  # the report came after the result: keep the result
+                self.manifest.update(plant.id, attempt=event["attempt"])
+                continue
             self.manifest.replace(
                 plant.id, {**self._base_record(plant), **event, "status": "running"}
             )
@@ -196,8 +201,10 @@ class _DatasetRun:
             result = ray.get(ref)
         except ray.exceptions.RayError as exc:  # the worker died more often than retried
             result = {"status": "failed", "error": first_line(exc)}
-        record = self.manifest.get(plant.id) or self._base_record(plant)
-        record = {**record, **result, "finished": time.time()}
+        record = self.manifest.get(plant.id)
+        if record is None or record.get("status") != "running":  # its start report is late
+            record = self._base_record(plant)
+        record = {"finished": time.time(), **record, **result}
         self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
         return result
 
@@ -209,7 +216,7 @@ class _DatasetRun:
         try:
             while pending and time.time() < deadline:
                 ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
-                self._record_starts(ray.get(board.drain.remote()))
+                self._record_starts(ray.get(board.drain.remote()), set(results))
                 for ref in ready:
                     plant = pending.pop(ref)
                     if self._status(plant.id) == "running":
