@@ -13,8 +13,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from plantdreamer.atomic import atomic_write
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.checkpoint import atomic_write
 
 MANIFEST_NAME = "manifest.jsonl"
 SUMMARY_NAME = "dataset.json"

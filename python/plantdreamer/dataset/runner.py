@@ -8,9 +8,7 @@ so the plant resumes; any other leftover folder is cleared first.
 
 from __future__ import annotations
 
-import importlib.metadata
 import os
-import platform
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -23,6 +21,7 @@ from plantdreamer.dataset.lock import DatasetLock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.spec import Plant
 from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
+from plantdreamer.versions import package_versions
 
 PLANTS_DIR = "plants"
 # After Ctrl-C, how long running plants get to write their checkpoint and stop.
@@ -253,16 +252,6 @@ class _DatasetRun:
                 "started": self.t0,
                 "seconds": round(time.time() - self.t0, 3),
                 "ray": {"address": self.options.address or "local", "nodes": self.ray_nodes},
-                "versions": _versions(),
+                "versions": package_versions(("plantdreamer", "ray", "torch", "numpy")),
             },
         )
-
-
-def _versions() -> dict[str, str | None]:
-    versions: dict[str, str | None] = {"python": platform.python_version()}
-    for pkg in ("plantdreamer", "ray", "torch", "numpy"):
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
-    return versions
