@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import click
 
+from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
+
+_PER_PLANT = "[default: {:g} with sds, {:g} with none]"
+
 
 def _key_values(pairs: tuple[str, ...], what: str) -> dict[str, str]:
     out = {}
@@ -39,8 +43,16 @@ def _toml_value(text: str) -> object:
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help="Any generate setting.")
 @click.option("--address", help="Join a Ray cluster: auto or HOST:PORT [default: local Ray].")
 @click.option("--local-cpus", type=click.IntRange(1), help="CPUs of the local Ray [all].")
-@click.option("--cpus-per-plant", type=float, help="[default: 2 with sds, 1 with none]")
-@click.option("--gpus-per-plant", type=float, help="[default: 1 with sds, 0 with none]")
+@click.option(
+    "--cpus-per-plant",
+    type=float,
+    help=_PER_PLANT.format(DEFAULT_CPUS["sds"], DEFAULT_CPUS["none"]),
+)
+@click.option(
+    "--gpus-per-plant",
+    type=float,
+    help=_PER_PLANT.format(DEFAULT_GPUS["sds"], DEFAULT_GPUS["none"]),
+)
 @click.option(
     "--resource",
     "resources",

@@ -22,6 +22,7 @@ RAY_MISSING = (
 # CPUs a plant takes unless --cpus-per-plant says otherwise. With SDS the diffusion model
 # runs on the GPU but rendering (the native rasterizer) stays on the CPU.
 DEFAULT_CPUS = {"sds": 2.0, "none": 1.0}
+DEFAULT_GPUS = {"sds": 1.0, "none": 0.0}
 LOCAL_HOST = "127.0.0.1"
 
 
@@ -68,9 +69,8 @@ def plant_demand(
     gpus_per_plant: float | None,
     custom: dict[str, float],
 ) -> Demand:
-    sds = cfg.guidance != "none"
     cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.guidance]
-    gpus = gpus_per_plant if gpus_per_plant is not None else (1.0 if sds else 0.0)
+    gpus = gpus_per_plant if gpus_per_plant is not None else DEFAULT_GPUS[cfg.guidance]
     if cpus < 1 or gpus < 0:
         raise InputError("a plant needs at least 1 CPU and a non-negative number of GPUs")
     return Demand(cpus, gpus, tuple(sorted(custom.items())))
