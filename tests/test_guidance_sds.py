@@ -9,6 +9,7 @@ import torch
 from plantdreamer.cameras import orbit
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import Guidance, NoGuidance, PhotometricGuidance
+from plantdreamer.guidance.config import RELEASED_NEGATIVE_PROMPT
 from plantdreamer.guidance.schedules import TimestepSchedule
 from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 from plantdreamer.guidance.tiny import tiny_models
@@ -128,7 +129,7 @@ def test_loss_gradient_is_the_clamped_sds_gradient_over_batch():
     t = schedule.sample_timestep(step, replay, 2)
     noise = torch.randn(latents.shape, generator=replay)
     text = torch.cat([guidance.text_embedding(p) for p in guidance.prompts_for(cams)])
-    uncond = guidance.text_embedding("").expand(2, -1, -1)
+    uncond = guidance.text_embedding(guidance.negative_prompt).expand(2, -1, -1)
     control = guidance.control_image(depth)
     grad = guidance.sds_gradient(latents, noise, t, text, uncond, control)
     clip = 1.5 + 0.5 * step / 1000
@@ -192,12 +193,12 @@ def test_text_embeddings_are_computed_once_per_prompt():
     images, depth = inputs()
     for step in range(3):
         guidance(images, depth, cameras(), step)
-    # Two view prompts (front, side) and the empty negative prompt.
+    # Two view prompts (front, side) and the negative prompt (the authors' by default).
     assert len(calls) == 3
     assert set(guidance._embeddings) == {
         "a bean plant in a pot, front view",
         "a bean plant in a pot, side view",
-        "",
+        RELEASED_NEGATIVE_PROMPT,
     }
 
 

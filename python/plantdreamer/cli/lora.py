@@ -29,9 +29,9 @@ def lora() -> None:
 @click.option("--seed", default=0, show_default=True)
 @click.option(
     "--caption-template",
-    default="a photo of a {species} plant",
-    show_default=True,
-    help="Caption for images without a <name>.txt beside them.",
+    default=None,
+    help="Caption for images without a <name>.txt beside them "
+    "[default: the generation prompt template, 'a {species} plant in a pot'].",
 )
 @click.option(
     "--checkpoint-every", default=500, show_default=True, help="Steps between checkpoints."
@@ -54,6 +54,8 @@ def train(images_dir: str, out: str | None, **options: object) -> None:
     from plantdreamer.lora.train import LoraTrainConfig, train_lora
 
     out = out or f"lora/{options['species']}"
+    if options["caption_template"] is None:
+        del options["caption_template"]  # the config's default: the generation template
     config = LoraTrainConfig(images_dir=images_dir, out=out, **options)  # type: ignore[arg-type]
     with Progress(
         TextColumn("[bold]lora[/bold] step {task.completed}/{task.total}"),

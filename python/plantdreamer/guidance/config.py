@@ -11,6 +11,20 @@ from dataclasses import dataclass
 
 # Names of the built-in timestep schedules (``schedules.BUILTIN_SCHEDULES``; a test checks).
 SCHEDULES = ("paper", "released")
+# Depth normalisation rules (``guidance/depth.py``) and control-image resampling.
+DEPTH_RULES = ("stretch", "released", "stretch-lift")
+RESIZE_MODES = ("bilinear", "nearest")
+
+PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
+RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"
+# Generation and LoRA training share one template unless a LoRA records its own.
+DEFAULT_PROMPT_TEMPLATE = PAPER_PROMPT_TEMPLATE
+# The authors' released negative prompt (their generation config), word for word.
+RELEASED_NEGATIVE_PROMPT = (
+    "ugly, bad anatomy, blurry, pixelated obscure, unnatural colors, poor lighting, dull, "
+    "and unclear, cropped, lowres, low quality, artifacts, duplicate, morbid, mutilated, "
+    "poorly drawn face, deformed, dehydrated, bad proportions, unfocused"
+)
 
 
 @dataclass(frozen=True)
@@ -24,6 +38,9 @@ class SdsConfig:
     conditioning_scale: float = 1.0  # ControlNet residual scale
     schedule: str = "paper"
     resolution: int = 512  # renders are resized to this before VAE encoding
+    negative_prompt: str = RELEASED_NEGATIVE_PROMPT  # the unconditional CFG branch
+    prompt_template: str = DEFAULT_PROMPT_TEMPLATE  # with a {species} field
+    control_resize: str = "bilinear"  # of the depth control image: bilinear or nearest
 
 
 SDS_DEFAULTS = SdsConfig()

@@ -2,26 +2,39 @@
 
 The paper renders a depth map of the *initial* Gaussians from each training camera (so the
 geometry the diffusion model sees never drifts), then cleans it with "mask thresholding,
-erosion, and dilation". ``clean_depth`` does, per image:
+erosion, and dilation". ``clean_depth`` does, per image, with ``rule="stretch"`` (ours):
 
 1. background removal: keep pixels whose accumulated opacity is above ``alpha_threshold``
    (a render's alpha, not a depth value, says what is background);
 2. far-tail removal: drop kept pixels farther than the ``far_quantile`` of the kept depths
    (stray Gaussians behind the plant);
-3. normalisation, near = bright: ``n = (far - d) / (far - near)`` in [0, 1], then the
-   released code's contrast lift ``min((n + min_intensity) * intensity_scale, 1)`` so the
-   farthest plant pixel stays visibly brighter than the black background;
+3. normalisation, near = bright: ``n = (far - d) / (far - near)`` in [0, 1], mapped linearly
+   onto [f, 1] with the released code's floor ``f = min_intensity * intensity_scale`` (0.175),
+   so the farthest plant pixel stays visibly brighter than the black background and no two
+   depths share a value;
 4. grey erosion then dilation (a morphological opening) with a square kernel chosen from
    the camera distance, which removes the thin halo of half-transparent edge Gaussians;
 5. resize to the ControlNet resolution (``out_size`` square, like the RGB render).
 
-Differences from the released code, on purpose: the kernel is chosen from the real camera
-distance (the released code takes the norm of the 4x4 camera-to-world matrix, which is
-sqrt(4 + r^2), not r); the released code only erodes (the paper says erosion and dilation);
-it removes the background by a threshold on normalised depth, which also deletes the nearest
-3% of the plant; and its thresholds are fixed. Here every parameter is in ``DepthCleaning``.
-Kernel sizes are specified in pixels of a ``kernel_reference_size`` render (768, the released
-resolution) and scaled to the actual render size.
+``rule="released"`` is the authors' released processing instead (``released_normalise``):
+accumulated depth D (sum of T alpha z) rounded to 2 decimals; ``start`` = the second-smallest
+value (the smallest is the background's 0; the next comes from faint edge pixels, so
+``start`` is nearly 0); ``n = 1 - max(D - start, 0) / (D_max - start)``, which is close to
+``1 - D / D_max``; pixels with ``n >= 0.97`` are dropped (the background, and faint pixels:
+D is alpha times depth, so with depths near 4 this drops alpha below about 4%); then
+``min((n + 0.1) * 1.75, 1)``, dropping values <= 0.175 (the farthest pixel); erosion only.
+Because a plant spans a small part of D_max, this map is bright and flat: near leaves
+differ by a few grey levels. ``rule="stretch-lift"`` is this project's earlier rule: step 3
+as ``min((n + 0.1) * 1.75, 1)`` on the stretched n, which sets the nearest ~half of the depth
+range to 1.0 (docs/fidelity.md measures all three).
+
+Other differences from the released code, on purpose: the kernel is chosen from the real
+camera distance (the released code takes the norm of the 4x4 camera-to-world matrix, which
+is sqrt(4 + r^2), not r); the background is found from alpha, not from depth values; and
+every threshold is a field of ``DepthCleaning``. Kernel sizes are specified in pixels of a
+``kernel_reference_size`` render (768, the released resolution) and scaled to the actual
+render size. ``resize="nearest"`` resizes as the released code's control-image preparation
+does (bilinear with antialiasing otherwise).
 """
 
 from __future__ import annotations
@@ -37,6 +50,7 @@ import torch.nn.functional as F
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
+from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES
 
 
 @dataclass(frozen=True)
@@ -55,8 +69,16 @@ class DepthCleaning:
     dilate: bool = True
     # True if ``depth`` is accumulated depth (sum of T alpha z) rather than expected depth.
     accumulated: bool = False
+    rule: str = "stretch"  # "stretch", "released" or "stretch-lift" (module docstring)
+    background_cutoff: float = 0.97  # released rule: drop n >= this
+    round_decimals: int = 2  # released rule: depth rounding before finding ``start``
+    resize: str = "bilinear"  # or "nearest"
 
     def __post_init__(self) -> None:
+        if self.rule not in DEPTH_RULES:
+            raise InputError(f"depth rule must be one of {', '.join(DEPTH_RULES)}")
+        if self.resize not in RESIZE_MODES:
+            raise InputError(f"depth resize must be bilinear or nearest, got {self.resize!r}")
         if not 0.0 <= self.alpha_threshold < 1.0:
             raise InputError(f"alpha_threshold must be in [0, 1), got {self.alpha_threshold}")
         if not 0.0 < self.far_quantile <= 1.0:
@@ -101,6 +123,9 @@ def normalise_depth(
     depth: torch.Tensor, alpha: torch.Tensor, config: DepthCleaning
 ) -> torch.Tensor:
     """Steps 1-3 for one [H, W] map: near = bright in (0, 1], removed pixels 0."""
+    if config.rule == "released":
+        accumulated = depth if config.accumulated else depth * alpha
+        return released_normalise(accumulated, config)
     if config.accumulated:
         depth = depth / alpha.clamp_min(1e-6)
     mask = (alpha > config.alpha_threshold) & torch.isfinite(depth) & (depth > 0)
@@ -115,8 +140,34 @@ def normalise_depth(
         n = torch.ones_like(depth)
     else:
         n = ((far - depth.double()) / span).clamp(0.0, 1.0).to(depth.dtype)
+    floor = config.min_intensity * config.intensity_scale
+    if config.rule == "stretch-lift":
+        mapped = ((n + config.min_intensity) * config.intensity_scale).clamp(max=1.0)
+    else:
+        mapped = floor + (1.0 - floor) * n
+    return torch.where(keep, mapped, torch.zeros_like(mapped))
+
+
+def released_normalise(accumulated: torch.Tensor, config: DepthCleaning) -> torch.Tensor:
+    """The authors' released normalisation of one [H, W] accumulated-depth map (module
+    docstring); 0 where dropped. Computed in float64 like their numpy code."""
+    d = accumulated.double()
+    d = torch.where(torch.isfinite(d), d, torch.zeros_like(d))
+    d = torch.round(d, decimals=config.round_decimals)
+    unique = torch.unique(d)
+    if unique.numel() < 2:  # nothing but background
+        return torch.zeros_like(accumulated)
+    start, end = unique[1], unique[-1]
+    span = end - start
+    if float(span) <= 0.0:  # one depth value besides the background
+        n = torch.where(d >= start, torch.zeros_like(d), torch.ones_like(d))
+    else:
+        n = 1.0 - (d - start).clamp_min(0.0) / span
+    n = torch.where(n < config.background_cutoff, n, torch.zeros_like(n))
     lifted = ((n + config.min_intensity) * config.intensity_scale).clamp(max=1.0)
-    return torch.where(keep, lifted, torch.zeros_like(lifted))
+    floor = config.min_intensity * config.intensity_scale
+    out = torch.where(lifted > floor, lifted, torch.zeros_like(lifted))
+    return out.to(accumulated.dtype)
 
 
 def _distances(camera_distance: float | torch.Tensor | Sequence[float], batch: int) -> list[float]:
@@ -167,16 +218,23 @@ def clean_depth(
             k = kernel_size(distances[b], min(height, width), cfg)
             if cfg.erode:
                 image = erode(image, k)
-            if cfg.dilate:
+            if cfg.dilate and cfg.rule != "released":  # the released code only erodes
                 image = dilate(image, k)
             maps.append(image)
         out = torch.cat(maps)
         if (height, width) != (out_size, out_size):
-            antialias = height > out_size or width > out_size
-            out = F.interpolate(
-                out, (out_size, out_size), mode="bilinear", align_corners=False, antialias=antialias
-            )
+            out = resize_control(out, out_size, cfg.resize)
         return out.clamp(0.0, 1.0)
+
+
+def resize_control(image: torch.Tensor, size: int, mode: str = "bilinear") -> torch.Tensor:
+    """[B, C, h, w] -> [B, C, size, size]: bilinear (antialiased when shrinking) or nearest."""
+    if mode == "nearest":
+        return F.interpolate(image, (size, size), mode="nearest")
+    antialias = image.shape[-2] > size or image.shape[-1] > size
+    return F.interpolate(
+        image, (size, size), mode="bilinear", align_corners=False, antialias=antialias
+    )
 
 
 def camera_distance(camera: Camera) -> float:

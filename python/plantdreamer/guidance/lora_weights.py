@@ -145,3 +145,19 @@ def load_lora(
     if scale != 1.0:
         unet.set_adapters([adapter_name], weights=[scale])
     return added
+
+
+def recorded_template(lora: str | Path) -> str | None:
+    """The caption template a LoRA was trained with, from the ``lora.json`` that
+    ``plantdreamer lora train`` writes beside its weights; None if there is none."""
+    import json
+
+    path = Path(lora)
+    meta = (path if path.is_dir() else path.parent) / "lora.json"
+    if not meta.is_file():
+        return None
+    try:
+        template = json.loads(meta.read_text())["config"]["caption_template"]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{meta} has no readable config.caption_template: {exc}") from None
+    return str(template)

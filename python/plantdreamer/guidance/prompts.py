@@ -1,6 +1,10 @@
-"""View-dependent text prompts: the paper's prompt plus a suffix naming the view.
+"""View-dependent text prompts: a species prompt plus a suffix naming the view.
 
-The paper prompts with "a [species] plant in a pot"; the released code (threestudio) appends
+The prompt comes from a template with a ``{species}`` field: the paper's "a {species} plant
+in a pot" by default (LoRA training captions use the same template, so a LoRA is used with
+the words it was trained on), or the authors' released "A photo of {species} plants". The
+negative prompt (the unconditional branch of classifier-free guidance) defaults to the
+authors' released one. The released code (threestudio) appends
 a view word chosen from the camera angles, which helps SDS keep the back of an object from
 growing a second front. Angles follow ``plantdreamer.cameras``: azimuth 0 looks from +x
 towards the plant, positive azimuth turns towards +y, elevation is above the ground plane.
@@ -20,6 +24,7 @@ import numpy as np
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
+from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE
 
 OVERHEAD_ELEVATION_DEG = 60.0
 FRONT_HALF_ANGLE_DEG = 45.0
@@ -28,12 +33,23 @@ BACK_HALF_ANGLE_DEG = 45.0  # back = |azimuth| > 180 - this
 VIEWS = ("front", "side", "back", "overhead")
 
 
-def base_prompt(species: str) -> str:
-    """The paper's prompt for a species."""
+def check_template(template: str) -> str:
+    """The template itself, or InputError unless it has exactly the field ``{species}``."""
+    try:
+        template.format(species="x")
+    except (KeyError, IndexError, ValueError) as exc:
+        raise InputError(f"prompt template {template!r} is not valid: {exc}") from None
+    if "{species}" not in template:
+        raise InputError(f"prompt template must contain '{{species}}', got {template!r}")
+    return template
+
+
+def base_prompt(species: str, template: str = DEFAULT_PROMPT_TEMPLATE) -> str:
+    """The prompt for a species from a ``{species}`` template."""
     species = species.strip()
     if not species:
         raise InputError("species name is empty")
-    return f"a {species} plant in a pot"
+    return check_template(template).format(species=species)
 
 
 def wrap_azimuth(azimuth_deg: float) -> float:
@@ -60,9 +76,14 @@ def view_name(elevation_deg: float, azimuth_deg: float) -> str:
     return "side"
 
 
-def view_prompt(species: str, elevation_deg: float, azimuth_deg: float) -> str:
+def view_prompt(
+    species: str,
+    elevation_deg: float,
+    azimuth_deg: float,
+    template: str = DEFAULT_PROMPT_TEMPLATE,
+) -> str:
     """ "a {species} plant in a pot, {front|side|back|overhead} view"."""
-    return f"{base_prompt(species)}, {view_name(elevation_deg, azimuth_deg)} view"
+    return f"{base_prompt(species, template)}, {view_name(elevation_deg, azimuth_deg)} view"
 
 
 def camera_angles(
@@ -81,6 +102,6 @@ def camera_angles(
     return elevation, azimuth
 
 
-def camera_prompt(species: str, camera: Camera) -> str:
+def camera_prompt(species: str, camera: Camera, template: str = DEFAULT_PROMPT_TEMPLATE) -> str:
     """The view-dependent prompt for one camera."""
-    return view_prompt(species, *camera_angles(camera))
+    return view_prompt(species, *camera_angles(camera), template=template)

@@ -2,11 +2,13 @@
 
 One call, for renders x [B, H, W, 3] in [0, 1] and cleaned depth maps d:
 
-1. resize x to ``resolution`` (512) and VAE-encode: z = E(2x - 1) * scaling_factor
+1. clamp x to [0, 1] (as the released code does: a render's additive blending can exceed 1),
+   resize it to ``resolution`` (512) and VAE-encode: z = E(2x - 1) * scaling_factor
    (a posterior sample, drawn from the seeded generator);
 2. draw t per image from the timestep schedule and noise eps ~ N(0, I); z_t = add_noise(z, eps, t);
 3. ControlNet residuals from d (as a 3-channel image) for both classifier-free-guidance
-   branches, then the UNet noise prediction for the view prompt and the negative prompt;
+   branches, then the UNet noise prediction for the view prompt and the negative prompt
+   (the authors' released negative prompt by default: it is the unconditional branch);
 4. CFG: eps_hat = eps_uncond + s (eps_text - eps_uncond), s = ``guidance_scale`` (100);
 5. grad = w(t) (eps_hat - eps) with w(t) = 1 - alpha_bar_t; ``nan_to_num``; clamp to [-c, c]
    with c rising linearly 1.5 -> 2.0 over the first 1000 steps;
@@ -30,7 +32,8 @@ import torch.nn.functional as F
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import GuidanceOutput, check_images
-from plantdreamer.guidance.config import SDS_DEFAULTS
+from plantdreamer.guidance.config import RESIZE_MODES, SDS_DEFAULTS
+from plantdreamer.guidance.depth import resize_control
 from plantdreamer.guidance.lora_weights import load_lora
 from plantdreamer.guidance.models import (
     DiffusionComponents,
@@ -38,7 +41,7 @@ from plantdreamer.guidance.models import (
     resolve_device,
     resolve_dtype,
 )
-from plantdreamer.guidance.prompts import camera_prompt
+from plantdreamer.guidance.prompts import camera_prompt, check_template
 from plantdreamer.guidance.schedules import REFERENCE_STEPS, TimestepSchedule, make_schedule, ramp
 from plantdreamer.guidance.text import PromptEmbeddings
 
@@ -53,6 +56,8 @@ class StableDiffusionDepthGuidance:
     moved, frozen and, with ``lora``, modified in place. ``resolution`` is the SDS image size
     (512 for SD 2.1; a multiple of the VAE's downsampling factor). ``grad_clip`` is
     threestudio's ``(start_step, start_value, end_value, end_step)`` ramp, or None for no clamp.
+    ``prompt_template`` builds the view prompts; ``control_resize`` ("bilinear" or "nearest")
+    resizes the depth map to ``resolution``.
     UNet, ControlNet and text encoder run in ``dtype`` (fp16 on CUDA by default); the VAE in
     ``vae_dtype`` (float32 by default, because its backward pass produces the render
     gradients; None = ``dtype``).
@@ -72,7 +77,9 @@ class StableDiffusionDepthGuidance:
         | TimestepSchedule
         | Sequence[tuple[int | None, float, float]] = SDS_DEFAULTS.schedule,
         total_steps: int = REFERENCE_STEPS,
-        negative_prompt: str = "",
+        negative_prompt: str = SDS_DEFAULTS.negative_prompt,
+        prompt_template: str = SDS_DEFAULTS.prompt_template,
+        control_resize: str = SDS_DEFAULTS.control_resize,
         device: str | torch.device | None = None,
         dtype: torch.dtype | str | None = None,
         seed: int = 0,
@@ -109,6 +116,10 @@ class StableDiffusionDepthGuidance:
         self.guidance_scale = float(guidance_scale)
         self.conditioning_scale = float(conditioning_scale)
         self.negative_prompt = negative_prompt
+        self.prompt_template = check_template(prompt_template)
+        if control_resize not in RESIZE_MODES:
+            raise InputError(f"control resize must be bilinear or nearest, got {control_resize!r}")
+        self.control_resize = control_resize
         self.grad_clip = grad_clip
         self.schedule = make_schedule(schedule, total_steps)
         scheduler = parts.scheduler
@@ -129,7 +140,7 @@ class StableDiffusionDepthGuidance:
         return self._embeddings(prompt)
 
     def prompts_for(self, cameras: Sequence[Camera]) -> list[str]:
-        return [camera_prompt(self.species, c) for c in cameras]
+        return [camera_prompt(self.species, c, self.prompt_template) for c in cameras]
 
     # -- latents ----------------------------------------------------------------------------
 
@@ -146,9 +157,7 @@ class StableDiffusionDepthGuidance:
             raise InputError(f"depth_cond must be [B, 1, h, w], got {list(depth_cond.shape)}")
         control = depth_cond.detach().float().to(self.device)
         if control.shape[-2:] != (self.resolution, self.resolution):
-            control = F.interpolate(
-                control, (self.resolution, self.resolution), mode="bilinear", align_corners=False
-            )
+            control = resize_control(control, self.resolution, self.control_resize)
         return control.clamp(0.0, 1.0).repeat(1, 3, 1, 1).to(self.dtype)
 
     # -- the SDS gradient -------------------------------------------------------------------
@@ -226,7 +235,7 @@ class StableDiffusionDepthGuidance:
             raise InputError(f"got {depth_cond.shape[0]} depth maps for {batch} images")
         control = self.control_image(depth_cond)
 
-        rgb = images.permute(0, 3, 1, 2).to(self.device)
+        rgb = images.clamp(0.0, 1.0).permute(0, 3, 1, 2).to(self.device)
         if rgb.shape[-2:] != (self.resolution, self.resolution):
             rgb = F.interpolate(
                 rgb, (self.resolution, self.resolution), mode="bilinear", align_corners=False

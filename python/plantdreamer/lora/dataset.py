@@ -2,7 +2,8 @@
 
 A folder of photos (png, jpg, jpeg, webp, bmp, tif, tiff) of one species against a plain
 background, about 30 in the paper. Each image may have a caption in ``<name>.txt`` beside
-it; otherwise the template (default "a photo of a {species} plant") is used.
+it; otherwise the template is used (default: the generation prompt template,
+"a {species} plant in a pot", so generation prompts a LoRA with the words it learnt).
 
 - Images of any size are accepted: each is resized so its shorter side is ``resolution``
   (Lanczos), then training crops a random ``resolution`` square from it.
@@ -21,9 +22,10 @@ import numpy as np
 import torch
 
 from plantdreamer.errors import InputError
+from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
-DEFAULT_CAPTION = "a photo of a {species} plant"
+DEFAULT_CAPTION = DEFAULT_PROMPT_TEMPLATE
 
 
 @dataclass
