@@ -5,9 +5,9 @@ removal (k = 20, std ratio 3.0), voxel grid down to a target count (+-5%), and o
 centring on the bounding-box midpoint with the longest side scaled to 4 units.
 
 Order: outliers are removed first, on the raw density, as the paper describes; the
-released code downsamples first. Removing them first keeps stray points from inflating the
-bounding box that the voxel search and normalisation use, and the final count then lands
-within the target band. Voxel averaging cannot keep normals or integer attributes (labels),
+released code downsamples first (``sor_after_voxel=True``). Removing them first keeps stray
+points from inflating the bounding box that the voxel search and normalisation use, and the
+final count then lands within the target band. Voxel averaging cannot keep normals or integer attributes (labels),
 so the prepared cloud has positions and colours only.
 """
 
@@ -44,9 +44,11 @@ def prepare_cloud(
     normalize_size: float | None = None,
     tolerance: float = 0.05,
     log: Callable[[str, int], None] | None = None,
+    sor_after_voxel: bool = False,
 ) -> tuple[PointCloud, NormalizeTransform | None, PrepareReport]:
     """Runs the preparation steps; ``target=None`` skips downsampling, ``sor_neighbors=0``
-    skips outlier removal, ``normalize_size=None`` skips normalisation."""
+    skips outlier removal, ``normalize_size=None`` skips normalisation,
+    ``sor_after_voxel`` swaps the two middle steps (the released code's order)."""
     report = PrepareReport()
 
     def step(name: str, c: PointCloud) -> PointCloud:
@@ -61,22 +63,34 @@ def prepare_cloud(
         cloud = step("finite", cloud.subset(np.flatnonzero(finite)))
     if len(cloud) == 0:
         raise InputError("the cloud has no points with finite coordinates")
-    colors = cloud.colors
-    if sor_neighbors > 0:
-        if len(cloud) < sor_neighbors:
+
+    def remove_outliers(c: PointCloud) -> PointCloud:
+        if sor_neighbors <= 0:
+            return c
+        if len(c) < sor_neighbors:
             raise InputError(
-                f"the cloud has {len(cloud)} points, fewer than --sor-neighbors={sor_neighbors}"
+                f"the cloud has {len(c)} points, fewer than --sor-neighbors={sor_neighbors}"
             )
-        kept = remove_statistical_outliers(cloud.positions, sor_neighbors, sor_std)
-        cloud = step("outliers removed", cloud.subset(kept))
-        if len(cloud) == 0:
-            raise InputError("outlier removal kept no points (are all points duplicates?)")
-    points, colors = cloud.positions, cloud.colors
-    if target is not None:
-        points, colors, report.voxel_size = downsample_to_count(
-            points, target, colors, tolerance=tolerance
+        c = step(
+            "outliers removed",
+            c.subset(remove_statistical_outliers(c.positions, sor_neighbors, sor_std)),
         )
-        cloud = step("downsampled", PointCloud(positions=points, colors=colors))
+        if len(c) == 0:
+            raise InputError("outlier removal kept no points (are all points duplicates?)")
+        return c
+
+    def downsample(c: PointCloud) -> PointCloud:
+        if target is None:
+            return c
+        points, colors, report.voxel_size = downsample_to_count(
+            c.positions, target, c.colors, tolerance=tolerance
+        )
+        return step("downsampled", PointCloud(positions=points, colors=colors))
+
+    if sor_after_voxel:
+        cloud = remove_outliers(downsample(cloud))
+    else:
+        cloud = downsample(remove_outliers(cloud))
     transform = None
     if normalize_size is not None:
         points, transform = normalize(cloud.positions, normalize_size)

@@ -2,6 +2,8 @@
 
 The run's options are the settings of ``GenerateConfig`` (defaults, choices and help come
 from the dataclass); this module only adds the output folder, ``--resume`` and ``--quiet``.
+``--preset`` picks the base values (``pipeline/presets.py``); only the options given on the
+command line override them.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from plantdreamer.cli.options import config_from_options, config_options
+from plantdreamer.cli.options import config_options, given_on_command_line, options_tree
 from plantdreamer.pipeline.config import GenerateConfig
 
 
@@ -31,14 +33,16 @@ def build_command() -> click.Command:
     @click.option("--quiet", is_flag=True, help="No progress output.")
     def generate(resume_dir: str | None, out_dir: str, quiet: bool, **options) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv."""
-        from plantdreamer.pipeline import RunInterrupted
+        from plantdreamer.pipeline import RunInterrupted, resolve_config
         from plantdreamer.pipeline import generate as run_generate
 
         try:
             if resume_dir is not None:
                 result = run_generate(None, resume_dir, resume=True, show_progress=not quiet)
             else:
-                cfg = config_from_options(GenerateConfig, options)
+                preset = options.pop("preset")
+                given = options_tree(GenerateConfig, given_on_command_line(options))
+                cfg = resolve_config(preset, given)
                 result = run_generate(cfg, out_dir, show_progress=not quiet)
         except RunInterrupted as stop:
             click.secho(

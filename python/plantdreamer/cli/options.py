@@ -102,6 +102,11 @@ def config_from_options(cls: type, values: dict[str, Any]) -> Any:
 
     Consumes the values it uses from ``values``.
     """
+    return _build(cls, options_tree(cls, values))
+
+
+def options_tree(cls: type, values: dict[str, Any]) -> dict[str, Any]:
+    """The given option values as a dict nested like ``cls``'s fields; consumes them."""
     tree: dict[str, Any] = {}
     for opt in _walk(cls):
         if opt.param in values:
@@ -109,7 +114,17 @@ def config_from_options(cls: type, values: dict[str, Any]) -> Any:
             for name in opt.path[:-1]:
                 node = node.setdefault(name, {})
             node[opt.path[-1]] = values.pop(opt.param)
-    return _build(cls, tree)
+    return tree
+
+
+def given_on_command_line(values: dict[str, Any]) -> dict[str, Any]:
+    """The values of the current click command that were not left at their defaults."""
+    ctx = click.get_current_context()
+    return {
+        name: value
+        for name, value in values.items()
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
+    }
 
 
 def _build(cls: type, tree: dict[str, Any]) -> Any:

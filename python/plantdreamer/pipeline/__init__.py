@@ -11,12 +11,15 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
 
-__all__ = ["GenerateConfig", "RunInterrupted", "RunResult", "generate"]
+__all__ = ["PRESETS", "GenerateConfig", "RunInterrupted", "RunResult", "generate", "resolve_config"]
 
 _MODULES = {
     "GenerateConfig": "plantdreamer.pipeline.config",
+    "PRESETS": "plantdreamer.pipeline.presets",
+    "resolve_config": "plantdreamer.pipeline.presets",
     "RunInterrupted": "plantdreamer.pipeline.run",
     "RunResult": "plantdreamer.pipeline.run",
     "generate": "plantdreamer.pipeline.run",

@@ -13,11 +13,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS
+from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES, SCHEDULES, SDS_DEFAULTS
 from plantdreamer.settings import check_choices, option_prefix, setting
 
 COLOR_INITS = ("original", "noise", "black", "white")
 GUIDANCES = ("sds", "none")
+# Where ours, the paper and the authors' released code differ (docs/fidelity.md);
+# pipeline/presets.py holds each preset's values.
+PRESET_NAMES = ("plantdreamer", "released", "paper")
 
 
 @dataclass
@@ -56,6 +59,12 @@ class DensifyConfig:
     split_scale: float = 0.04  # larger Gaussians are split, smaller cloned (1% of the scene)
     prune_opacity: float = 0.05
     max_gaussians: int = 500_000
+    cap_rule: str = setting(
+        "strongest",
+        "At the cap: densify the strongest gradients, or all then prune at random (released).",
+        choices=("strongest", "random"),
+    )
+    split_std: float = setting(1.0, "Split samples' std as a fraction of the scale.")
 
     def due(self, step: int) -> bool:
         return self.start < step < self.until and step % self.every == 0
@@ -69,6 +78,11 @@ class CullConfig:
     threshold: float = setting(3.0, "C in V > mean + C std.")
     every: int = 100
     after: int = 500
+    volume: str = setting(
+        "log",
+        "V on log-scales (paper), or double-exp: exp of activated scales (released).",
+        choices=("log", "double-exp"),
+    )
 
     def due(self, step: int) -> bool:
         return step > self.after and step % self.every == 0
@@ -76,6 +90,13 @@ class CullConfig:
 
 @dataclass
 class GenerateConfig:
+    preset: str = setting(
+        "plantdreamer",
+        "Base settings: ours, the authors' released code or the paper's stated values "
+        "(docs/fidelity.md); options given override them.",
+        choices=PRESET_NAMES,
+    )
+
     # Input: a point cloud (PLY), or else the species' L-System. With a point cloud, species
     # only names the plant in the prompts.
     species: str | None = setting(
@@ -89,11 +110,16 @@ class GenerateConfig:
     sor_neighbors: int = 20
     sor_std: float = 3.0
     scene_size: float = 4.0  # longest side of the normalised scene
+    sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
+    mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
 
     # Initialisation.
     sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
     color_init: str = setting("original", "Colours of the initial Gaussians.", choices=COLOR_INITS)
     opacity_init: float | None = None  # None: 0.7 for L-System meshes, 0.1 for point clouds
+    init_scale: str = setting(
+        "mean", "Initial scale from the 3 nearest neighbours' distances.", choices=("mean", "rms")
+    )
 
     # Optimisation.
     steps: int = setting(3600, "Optimisation steps.")
@@ -103,6 +129,11 @@ class GenerateConfig:
     background: float = setting(0.75, "Grey level of the background renders are made on.")
     lr: LearningRates = field(default_factory=LearningRates)
     cameras: CameraRanges = field(default_factory=CameraRanges)
+    elevation_sampling: str = setting(
+        "uniform",
+        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix.",
+        choices=("uniform", "mixed"),
+    )
     densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
     cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
 
@@ -122,6 +153,25 @@ class GenerateConfig:
         f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
     )
     sds_resolution: int = setting(SDS_DEFAULTS.resolution, "Image size given to the VAE.")
+    prompt_template: str | None = setting(
+        None,
+        "Prompt with a {species} field.",
+        default_text=f"the LoRA's lora.json, else '{SDS_DEFAULTS.prompt_template}'",
+    )
+    negative_prompt: str = setting(
+        SDS_DEFAULTS.negative_prompt,
+        "The unconditional CFG prompt.",
+        default_text="the authors'",
+    )
+    depth_rule: str = setting("stretch", "Depth-map normalisation.", choices=DEPTH_RULES)
+    control_resize: str = setting(
+        SDS_DEFAULTS.control_resize, "Resizing of the depth control image.", choices=RESIZE_MODES
+    )
+    network_dtype: str = setting(
+        "auto",
+        "UNet and ControlNet precision (auto: float16 on CUDA).",
+        choices=("auto", "float32", "float16"),
+    )
 
     # Outputs.
     eval_views: int = setting(120, "Renders on the evaluation orbit.")
@@ -149,6 +199,12 @@ class GenerateConfig:
             raise InputError("steps, points and views must not be negative")
         if self.checkpoint_every <= 0 or self.densify.every <= 0 or self.cull.every <= 0:
             raise InputError("checkpoint, densify and cull intervals must be positive")
+        if not 0.0 < self.densify.split_std <= 4.0:
+            raise InputError(f"split std must be in (0, 4], got {self.densify.split_std}")
+        if self.prompt_template is not None:
+            from plantdreamer.guidance.prompts import check_template
+
+            check_template(self.prompt_template)
 
     def initial_opacity(self) -> float:
         if self.opacity_init is not None:

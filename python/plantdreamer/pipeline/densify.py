@@ -46,8 +46,18 @@ def densify_and_prune(
     prune_opacity: float,
     max_gaussians: int,
     generator: torch.Generator,
+    cap_rule: str = "strongest",
+    split_std: float = 1.0,
 ) -> dict[str, int]:
-    """One densify-and-prune round; returns how many were cloned, split and pruned."""
+    """One densify-and-prune round; returns how many were cloned, split, pruned and capped.
+
+    ``cap_rule`` keeps the count at ``max_gaussians``: "strongest" densifies only the
+    strongest gradients that fit; "random" (the released code) densifies every selected
+    Gaussian, then prunes a random subset back down to the cap. ``split_std`` is the std of
+    the split samples as a fraction of the scale (the released code: 0.5).
+    """
+    if cap_rule not in ("strongest", "random"):
+        raise ValueError(f"unknown cap rule {cap_rule!r}")
     p = model.params
     n = len(model)
     grads = stats.mean()
@@ -55,7 +65,7 @@ def densify_and_prune(
         max_scale = torch.exp(p["log_scales"]).amax(dim=1)
         selected = grads >= grad_threshold
         budget = max(0, max_gaussians - n)
-        if int(selected.sum()) > budget:
+        if cap_rule == "strongest" and int(selected.sum()) > budget:
             # Keep the strongest gradients; stable order makes ties deterministic.
             order = torch.argsort(grads.masked_fill(~selected, -1.0), descending=True, stable=True)
             selected = torch.zeros_like(selected)
@@ -64,7 +74,7 @@ def densify_and_prune(
         split = selected & (max_scale > split_scale)
 
         new = {k: v.detach()[clone] for k, v in p.items()}
-        split_new = _split(p, split, generator)
+        split_new = _split(p, split, generator, split_std)
         for k in new:
             new[k] = torch.cat([new[k], split_new[k]])
         model.append(new)
@@ -75,11 +85,32 @@ def densify_and_prune(
         opacity = torch.sigmoid(model.params["opacity_logits"])
         pruned = opacity < prune_opacity
         model.remove(pruned)
-    return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(pruned.sum())}
+        capped = 0
+        if cap_rule == "random" and len(model) > max_gaussians:
+            over = random_cap_mask(len(model), max_gaussians, generator)
+            model.remove(over)
+            capped = int(over.sum())
+    return {
+        "cloned": int(clone.sum()),
+        "split": int(split.sum()),
+        "pruned": int(pruned.sum()),
+        "capped": capped,
+    }
 
 
-def _split(p: Mapping[str, torch.Tensor], mask: torch.Tensor, generator: torch.Generator):
-    """Two samples from each selected Gaussian, scales divided by 1.6 (3DGS rule)."""
+def random_cap_mask(n: int, cap: int, generator: torch.Generator) -> torch.Tensor:
+    """True for the ``n - cap`` Gaussians a random prune removes to keep ``cap`` of ``n``
+    (a random permutation from the run's generator; the released code's rule)."""
+    if n <= cap:
+        return torch.zeros(n, dtype=torch.bool)
+    return torch.randperm(n, generator=generator) >= cap
+
+
+def _split(
+    p: Mapping[str, torch.Tensor], mask: torch.Tensor, generator: torch.Generator, std: float = 1.0
+):
+    """Two samples from each selected Gaussian with std ``std`` x scale, scales divided by 1.6
+    (3DGS rule)."""
     if not bool(mask.any()):
         return {k: v.detach()[mask] for k, v in p.items()}
     means = p["means"].detach()[mask]
@@ -88,7 +119,7 @@ def _split(p: Mapping[str, torch.Tensor], mask: torch.Tensor, generator: torch.G
     rot = _quat_to_rotmat(quats)
     samples = []
     for _ in range(2):
-        noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * scales
+        noise = torch.randn(means.shape, generator=generator, dtype=means.dtype) * scales * std
         samples.append(means + torch.einsum("nij,nj->ni", rot, noise))
     out = {k: torch.cat([v.detach()[mask]] * 2) for k, v in p.items()}
     out["means"] = torch.cat(samples)

@@ -28,26 +28,41 @@ def initial_colors(
     raise InputError(f"unknown colour init {mode!r}: use original, noise, black or white")
 
 
+def neighbour_spacing(points: np.ndarray, neighbours: int = 3, rule: str = "mean") -> np.ndarray:
+    """Per-point distance scale from the ``neighbours`` nearest other points (float32 [N]):
+    their mean distance, or with ``rule="rms"`` the root mean square distance (the released
+    code's sqrt of the mean squared distance, as in the original 3DGS)."""
+    from plantdreamer.pointcloud import knn, knn_mean_distance
+
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    if rule == "mean":
+        return knn_mean_distance(pts, k=neighbours)
+    if rule == "rms":
+        _, dist = knn(pts, neighbours)
+        return np.sqrt(np.mean(dist.astype(np.float64) ** 2, axis=1)).astype(np.float32)
+    raise InputError(f"unknown initial scale rule {rule!r}: use mean or rms")
+
+
 def init_gaussians(
     points: np.ndarray,
     colors: np.ndarray,
     opacity: float,
     sh_degree: int = 0,
     neighbours: int = 3,
+    scale_rule: str = "mean",
 ) -> Gaussians:
-    """Isotropic Gaussians at the points: scale = mean distance to the 3 nearest neighbours.
+    """Isotropic Gaussians at the points: scale = ``neighbour_spacing`` (mean distance to the
+    3 nearest neighbours by default).
 
     Duplicate points have distance 0; their scale is floored at 1% of the median spacing so
     that log-scales stay finite.
     """
-    from plantdreamer.pointcloud import knn_mean_distance
-
     n = points.shape[0]
     if n <= neighbours:
         raise InputError(f"need more than {neighbours} points to initialise, got {n}")
     if not 0.0 < opacity < 1.0:
         raise InputError(f"initial opacity must be in (0, 1), got {opacity}")
-    dist = knn_mean_distance(np.ascontiguousarray(points, dtype=np.float32), k=neighbours)
+    dist = neighbour_spacing(points, neighbours, scale_rule)
     positive = dist[dist > 0]
     floor = 0.01 * float(np.median(positive)) if positive.size else 1e-4
     scale = np.maximum(dist, floor).astype(np.float32)

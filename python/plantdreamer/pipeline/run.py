@@ -62,10 +62,6 @@ class PhaseTimer:
             self.totals[name] += time.perf_counter() - t0
 
 
-def default_resolution() -> int:
-    return 768 if torch.cuda.is_available() else 512
-
-
 def build_guidance(cfg: GenerateConfig) -> Guidance:
     """The guidance a config asks for; missing weights raise ModelNotFoundError here,
     before anything is written."""
@@ -85,7 +81,33 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         total_steps=cfg.steps,
         seed=cfg.seed,
         resolution=cfg.sds_resolution,
+        negative_prompt=cfg.negative_prompt,
+        prompt_template=cfg.prompt_template or lora_template(cfg.lora),
+        control_resize=cfg.control_resize,
+        dtype=None if cfg.network_dtype == "auto" else cfg.network_dtype,
     )
+
+
+def lora_template(lora: str | None) -> str:
+    """The prompt template a LoRA recorded in its ``lora.json``, else the default."""
+    from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE
+    from plantdreamer.guidance.lora_weights import recorded_template
+
+    recorded = recorded_template(lora) if lora is not None else None
+    return recorded or DEFAULT_PROMPT_TEMPLATE
+
+
+def resolve_runtime(cfg: GenerateConfig) -> None:
+    """Fills the settings decided by the machine or the inputs, so run.json and the
+    checkpoints record the values used: the training resolution, the network precision and
+    the prompt template (a LoRA's recorded template, else the default)."""
+    cuda = torch.cuda.is_available()
+    if cfg.resolution is None:
+        cfg.resolution = 768 if cuda else 512
+    if cfg.network_dtype == "auto":
+        cfg.network_dtype = "float16" if cuda else "float32"
+    if cfg.prompt_template is None:
+        cfg.prompt_template = lora_template(cfg.lora)
 
 
 def generate(
@@ -114,8 +136,7 @@ def generate(
     check_inputs(cfg)
     _check_writable(out_dir)
     cfg = copy.deepcopy(cfg)
-    if cfg.resolution is None:
-        cfg.resolution = default_resolution()
+    resolve_runtime(cfg)
     guidance = guidance if guidance is not None else build_guidance(cfg)
     return _Run(cfg, out_dir, guidance, state, show_progress, on_step).run()
 
@@ -166,11 +187,17 @@ class _Run:
             source = load_source(cfg)
             rng = np.random.default_rng([cfg.seed, 0xC0102])
             colors = initial_colors(source.colors, len(source.points), cfg.color_init, rng)
-            g = init_gaussians(source.points, colors, cfg.initial_opacity(), cfg.sh_degree)
+            g = init_gaussians(
+                source.points,
+                colors,
+                cfg.initial_opacity(),
+                cfg.sh_degree,
+                scale_rule=cfg.init_scale,
+            )
         self.transform, self.source_counts = source.transform, source.counts
         self.initial_gaussians = g
         self.model = GaussianModel(g, cfg.lr)
-        self.sampler = CameraSampler(cfg.cameras, self.resolution, cfg.seed)
+        self.sampler = CameraSampler(cfg.cameras, self.resolution, cfg.seed, cfg.elevation_sampling)
         self.densify = DensifyStats.zeros(len(g))
         self.start_step = 0
         self.log_rows: list[dict[str, Any]] = []
@@ -185,7 +212,9 @@ class _Run:
         self.initial_gaussians = Gaussians(**{k: v.numpy() for k, v in state["initial"].items()})
         self.model = GaussianModel(self.initial_gaussians, self.cfg.lr)
         self.model.load_state_dict(state["model"])
-        self.sampler = CameraSampler(self.cfg.cameras, self.resolution, self.cfg.seed)
+        self.sampler = CameraSampler(
+            self.cfg.cameras, self.resolution, self.cfg.seed, self.cfg.elevation_sampling
+        )
         self.sampler.set_state(state["sampler"])
         self.densify = DensifyStats(**state["densify"])
         self.start_step = state["step"]
@@ -267,6 +296,8 @@ class _Run:
                     dens.prune_opacity,
                     dens.max_gaussians,
                     gen,
+                    dens.cap_rule,
+                    dens.split_std,
                 )
                 self.densify = DensifyStats.zeros(len(self.model))
             self.events.append(
@@ -274,7 +305,9 @@ class _Run:
             )
         if cull.due(step):
             with self.timer("cull"):
-                mask, stats = large_gaussian_mask(self.model.params["log_scales"], cull.threshold)
+                mask, stats = large_gaussian_mask(
+                    self.model.params["log_scales"], cull.threshold, cull.volume
+                )
                 if stats["culled"]:
                     self.model.remove(mask)
                 if stats["culled"] and step < dens.until:
@@ -286,7 +319,7 @@ class _Run:
             )
 
     def _depth_conditioner(self):
-        from plantdreamer.guidance.depth import DepthConditioner
+        from plantdreamer.guidance.depth import DepthCleaning, DepthConditioner
 
         def render_depth(camera):
             with torch.no_grad():
@@ -296,7 +329,8 @@ class _Run:
         size = self.guidance.resolution
         if size is None:
             raise InputError("a guidance that needs depth must say its resolution")
-        return DepthConditioner(render_depth, out_size=size)
+        cleaning = DepthCleaning(rule=self.cfg.depth_rule, resize=self.cfg.control_resize)
+        return DepthConditioner(render_depth, out_size=size, config=cleaning)
 
     # -- persistence -------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -10,18 +11,39 @@ from plantdreamer.cameras import Camera, orbit
 from plantdreamer.pipeline.config import CameraRanges
 
 
+def area_uniform_elevation(rng: np.random.Generator, low: float, high: float) -> float:
+    """threestudio's "uniform on the sphere" elevation (degrees): asin(2p - 1) with p uniform
+    between (low + 90)/180 and (high + 90)/180. Its density is proportional to cos(elevation);
+    like threestudio's, the range maps through p, so (-10, 80) gives about (-6.4, 62.7)."""
+    p = rng.uniform((low + 90.0) / 180.0, (high + 90.0) / 180.0)
+    return math.degrees(math.asin(2.0 * p - 1.0))
+
+
+def mixed_elevation(rng: np.random.Generator, low: float, high: float) -> float:
+    """threestudio's training elevation: uniform in degrees or area-uniform, 50/50."""
+    if rng.random() < 0.5:
+        return float(rng.uniform(low, high))
+    return area_uniform_elevation(rng, low, high)
+
+
 class CameraSampler:
-    def __init__(self, ranges: CameraRanges, resolution: int, seed: int) -> None:
+    def __init__(
+        self, ranges: CameraRanges, resolution: int, seed: int, elevation: str = "uniform"
+    ) -> None:
         self.ranges = ranges
         self.resolution = resolution
+        self.elevation = elevation
         self.rng = np.random.default_rng([seed, 0xCA3E5])
 
     def sample(self) -> Camera:
-        r = self.ranges
-        distance, elevation, azimuth, fovy = (
-            self.rng.uniform(*rng)
-            for rng in (r.distance, r.elevation_deg, r.azimuth_deg, r.fovy_deg)
-        )
+        r, rng = self.ranges, self.rng
+        distance = rng.uniform(*r.distance)
+        if self.elevation == "mixed":
+            elevation = mixed_elevation(rng, *r.elevation_deg)
+        else:
+            elevation = rng.uniform(*r.elevation_deg)
+        azimuth = rng.uniform(*r.azimuth_deg)
+        fovy = rng.uniform(*r.fovy_deg)
         return orbit(distance, elevation, azimuth, fovy, self.resolution, self.resolution)
 
     def state(self) -> dict[str, Any]:

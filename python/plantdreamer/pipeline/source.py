@@ -22,7 +22,8 @@ class Source:
 
 def load_source(cfg: GenerateConfig) -> Source:
     """A captured cloud goes through `prepare_cloud` (finite, SOR, voxel to ~n_points,
-    normalise); an L-System mesh is sampled uniformly by area, then normalised."""
+    normalise); an L-System mesh is sampled uniformly by area (then, with ``mesh_sor``,
+    filtered by SOR as the released code does), then normalised."""
     from plantdreamer.pointcloud import normalize
 
     if cfg.pointcloud is not None:
@@ -35,6 +36,7 @@ def load_source(cfg: GenerateConfig) -> Source:
             sor_neighbors=cfg.sor_neighbors,
             sor_std=cfg.sor_std,
             normalize_size=cfg.scene_size,
+            sor_after_voxel=cfg.sor_after_voxel,
         )
         assert transform is not None
         return Source(
@@ -46,5 +48,13 @@ def load_source(cfg: GenerateConfig) -> Source:
     if cfg.species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
     cloud = sample_points(generate_plant(cfg.species, cfg.seed), n=cfg.n_points, seed=cfg.seed)
+    counts = {"sampled": len(cloud)}
+    if cfg.mesh_sor:
+        from plantdreamer.pointcloud import remove_statistical_outliers
+
+        cloud = cloud.subset(
+            remove_statistical_outliers(cloud.positions, cfg.sor_neighbors, cfg.sor_std)
+        )
+        counts["outliers removed"] = len(cloud)
     points, transform = normalize(cloud.positions, size=cfg.scene_size)
-    return Source(points.astype(np.float32), cloud.colors, transform, {"sampled": len(cloud)})
+    return Source(points.astype(np.float32), cloud.colors, transform, counts)
