@@ -1,4 +1,5 @@
-"""Renders one PNG per L-System species into docs/images/ (the README's pictures).
+"""Renders one PNG per L-System species into docs/images/ (the README's pictures): ours and
+the authors' released structures (``*-released``), which the README shows side by side.
 
     .venv/bin/python scripts/render_species.py [--seed 1] [--out docs/images]
 
@@ -91,7 +92,8 @@ def main() -> None:
     for name in args.species or list_species():
         path = args.out / f"lsystem_{name}.png"
         # Rosettes show best from higher up.
-        render(generate_plant(name, args.seed), path, elevation=38.0 if name == "kale" else 22.0)
+        elevation = 38.0 if name.startswith("kale") else 22.0
+        render(generate_plant(name, args.seed), path, elevation=elevation)
         print(f"wrote {path}")
 
 

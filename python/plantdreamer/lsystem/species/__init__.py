@@ -4,19 +4,20 @@
 from __future__ import annotations
 
 from plantdreamer.errors import InputError
-from plantdreamer.lsystem.species import bean, kale, mint
+from plantdreamer.lsystem.species import bean, kale, mint, released
 from plantdreamer.lsystem.species.base import Species
 
 __all__ = ["Species", "get_species", "list_species", "register"]
 
-_BUILTIN = (bean.SPECIES, kale.SPECIES, mint.SPECIES)
+# Ours, then the authors' released structures (bean-released, mint-released, kale-released).
+_BUILTIN = (bean.SPECIES, kale.SPECIES, mint.SPECIES, *released.SPECIES)
 _REGISTRY: dict[str, Species] = {s.name: s for s in _BUILTIN}
 
 
 def register(species: Species) -> None:
     """Makes ``species`` available to ``generate_plant`` and the CLI under its name."""
-    if not species.name or not species.name.isidentifier():
-        raise InputError(f"species name must be an identifier, got {species.name!r}")
+    if not species.name or not species.name.replace("-", "_").isidentifier():
+        raise InputError(f"species name must be an identifier (or with '-'), got {species.name!r}")
     _REGISTRY[species.name] = species
 
 
