@@ -23,8 +23,8 @@ value (the smallest is the background's 0; the next comes from faint edge pixels
 ``1 - D / D_max``; pixels with ``n >= 0.97`` are dropped (the background, and faint pixels:
 D is alpha times depth, so with depths near 4 this drops alpha below about 4%); then
 ``min((n + 0.1) * 1.75, 1)``, dropping values <= 0.175 (the farthest pixel); erosion only.
-Because a plant spans a small part of D_max, this map is bright and flat: near leaves
-differ by a few grey levels. ``rule="stretch-lift"`` is this project's earlier rule: step 3
+A plant spans a small part of D_max, so its values fill a narrow band, and the lift still
+saturates part of it. ``rule="stretch-lift"`` is this project's earlier rule: step 3
 as ``min((n + 0.1) * 1.75, 1)`` on the stretched n, which sets the nearest ~half of the depth
 range to 1.0 (docs/fidelity.md measures all three).
 
