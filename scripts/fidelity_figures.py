@@ -129,7 +129,7 @@ def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> 
 
 
 def cull_figures(log_scales: torch.Tensor, cfg: GenerateConfig) -> dict[str, float]:
-    steps = [s for s in range(cfg.steps) if s > cfg.cull_after and s % cfg.cull_every == 0]
+    steps = [s for s in range(cfg.steps) if cfg.cull.due(s)]
     out = {}
     for c, volume in ((3.0, "log"), (7.0, "log"), (3.0, "double-exp"), (7.0, "double-exp")):
         kept = log_scales

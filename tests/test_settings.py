@@ -86,9 +86,10 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     """Checkpoints hold plain data only, so they load with weights_only=True."""
     from plantdreamer.guidance.base import PhotometricGuidance
 
+    # Every value a run decides itself when left open is given (resolution, precision, prompt).
     cfg = GenerateConfig(
         species="mint", n_points=1500, resolution=32, eval_views=1, turntable_frames=1,
-        steps=3, checkpoint_every=2,
+        steps=3, checkpoint_every=2, network_dtype="float32", prompt_template="{species}",
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     generate(cfg, tmp_path, guidance=guidance, show_progress=False)

@@ -42,7 +42,8 @@ def build_command() -> click.Command:
             else:
                 preset = options.pop("preset")
                 given = options_tree(GenerateConfig, given_on_command_line(options))
-                cfg = resolve_config(preset, given)
+                defaults = options_tree(GenerateConfig, options)
+                cfg = resolve_config(preset, given, base=defaults)
                 result = run_generate(cfg, out_dir, show_progress=not quiet)
         except RunInterrupted as stop:
             click.secho(

@@ -62,13 +62,17 @@ def merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
 
 
 def resolve_config(
-    preset: str = "plantdreamer", options: dict[str, Any] | None = None
+    preset: str = "plantdreamer",
+    options: dict[str, Any] | None = None,
+    base: dict[str, Any] | None = None,
 ) -> GenerateConfig:
     """The config of ``preset`` with ``options`` (the user's explicit settings, nested like
-    ``GenerateConfig.to_dict()``) on top."""
+    ``GenerateConfig.to_dict()``) on top; ``base`` (values under the preset, e.g. the CLI's
+    defaults) fills the rest, else the dataclass defaults do."""
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r}: use one of {', '.join(PRESETS)}")
     options = dict(options or {})
     if options.pop("preset", preset) != preset:
         raise InputError("two different presets given")
-    return GenerateConfig.from_dict({**merge(PRESETS[preset], options), "preset": preset})
+    values = merge(merge(base or {}, PRESETS[preset]), options)
+    return GenerateConfig.from_dict({**values, "preset": preset})
