@@ -18,7 +18,8 @@ def run(*args):
 def test_list_names_every_species():
     result = run("--list")
     assert result.exit_code == 0
-    assert [line.split()[0] for line in result.output.splitlines()] == ["bean", "kale", "mint"]
+    names = [line.split()[0] for line in result.output.splitlines()]
+    assert names == ["bean", "bean-released", "kale", "kale-released", "mint", "mint-released"]
 
 
 def test_mesh_is_written_and_reads_back(tmp_path):

@@ -42,7 +42,7 @@ def lsystem(
 
     if list_only:
         for name in list_species():
-            click.echo(f"{name:<8} {get_species(name).summary}")
+            click.echo(f"{name:<14} {get_species(name).summary}")
         return
     if species is None:
         raise click.UsageError("name a SPECIES (see --list)")

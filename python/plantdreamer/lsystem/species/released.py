@@ -5,8 +5,10 @@ facts, in metres, with our organ shapes (their leaves were hand-made Blender mod
 
 - ``bean-released``: 6 nodes up a main stem that turns up by 30 degrees after each node
   and rolls rand(100, 160) degrees between nodes; each node is a petiole leaving at 70 degrees
-  and ending in a leaf pair (a per-plant 10-50 degree upturn, the two leaves rolled 50 degrees
-  apart); 3 small leaves at the apex. 15 leaves: 12 in pairs, 3 small.
+  and ending in a leaf pair (a per-plant 10-50 degree upturn; the authors roll the two leaves
+  50 degrees apart, here they are turned 25 degrees either way so both blades can be levelled
+  face up, as every species' leaves are); 3 small leaves at the apex. 15 leaves: 12 in pairs,
+  3 small.
 - ``mint-released``: 3 stems plus 4 more with p = 0.75 each (3-7), each a zig-zag of 9
   nodes (roll 130, pitch up rand(17, 22), pitch back rand(10, 15)) with one alternate leaf per
   node on a short stalk: 9 leaves per stem.
@@ -30,9 +32,13 @@ MINT_NODES = 9  # per stem
 KALE_LEAVES = 5
 
 _BEAN_UNIT = 0.011  # metres per unit of the authors' grammar
-_BEAN_PETIOLE = "[ &(70) !(0.0012) F(2*u) F(2*u) ^(30 + w) L(0.075, 0.3) /(50) L(0.075, 0.3) ]"
+_BEAN_PETIOLE = (
+    "[ &(70) !(0.0012) F(2*u) F(2*u) ^(30 + w)"
+    " [ +(25) $ L(0.075, 0.3) ] [ -(25) $ L(0.075, 0.3) ] ]"
+)
 _BEAN_APEX = (
-    "&(rand(10,50)) S(0.03, 1) ^(w) /(rand(10,50)) \\(10) S(0.03, 1) ^(30) /(20) \\(40) S(0.03, 1)"
+    "&(rand(10,50)) [ $ S(0.03, 1) ] ^(w) /(rand(10,50)) \\(10) [ $ S(0.03, 1) ]"
+    " ^(30) /(20) \\(40) $ S(0.03, 1)"
 )
 
 BEAN = Species(
@@ -79,7 +85,7 @@ MINT = Species(
         Rule(
             "M(i)",
             "F(0.5*u) /(130) ^(rand(17,22)) [ F(0.5*u) &(rand(10,15)) M(i+1) ]"
-            " [ F(0.1*u) L(0.035, 0.3) ]",
+            " [ F(0.1*u) $ L(0.035, 0.3) ]",
             "i < N",
         ),
     ),
