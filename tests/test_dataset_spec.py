@@ -33,6 +33,21 @@ def test_groups_expand_to_plants_with_settings_passed_through(tmp_path):
     assert plants[2].source == scan.pointcloud and plants[0].source == "lsystem"
 
 
+def test_a_preset_in_the_spec_applies_under_the_spec_settings(tmp_path):
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(
+        '[defaults]\npreset = "released"\n\n'
+        '[[group]]\nspecies = "bean"\nseeds = [0]\nn_points = 5000\n'
+    )
+    (plant,) = expand(load_spec(spec_file))
+    cfg = plant.config
+    assert cfg.preset == "released"
+    # The preset's values, except where the spec sets its own.
+    assert (cfg.cull.threshold, cfg.depth_rule, cfg.guidance_scale) == (7.0, "released", 101.0)
+    assert cfg.n_points == 5000
+    assert plant.config_hash != config_hash(GenerateConfig(species="bean", seed=0, n_points=5000))
+
+
 @pytest.mark.parametrize(
     ("group", "message"),
     [

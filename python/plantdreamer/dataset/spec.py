@@ -16,8 +16,9 @@ A spec is a TOML file::
     species = "bean"              # names the plant in the prompts
     n_points = 50000
 
-Every plant becomes one ``GenerateConfig`` built with ``GenerateConfig.from_dict``, so any
-setting `generate` knows is accepted and an unknown one is a clear error.
+Every plant becomes one ``GenerateConfig`` built like `generate`'s (``preset = "released"``
+applies that preset under the spec's own settings), so any setting `generate` knows is
+accepted and an unknown one is a clear error.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import Any
 
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.presets import resolve_config
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -137,7 +139,9 @@ def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Pa
         for seed in seeds:
             data = {**settings, "species": species, "pointcloud": pointcloud, "seed": seed}
             try:
-                cfg = GenerateConfig.from_dict(data)
+                # A preset applies as on the command line: its values, then the spec's own.
+                preset = data.pop("preset", GenerateConfig.preset)
+                cfg = resolve_config(str(preset), data)
                 cfg.validate()
             except (InputError, TypeError, ValueError) as exc:
                 raise InputError(f"spec: {where}: {exc}") from None
