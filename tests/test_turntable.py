@@ -90,18 +90,24 @@ def test_unknown_format_is_an_input_error(tmp_path):
         write_turntables(tmp_path, frames(), 4, "webm")
 
 
-def test_generate_and_render_turntable_options(tmp_path):
+def test_generate_turntable_both_and_view(tmp_path, monkeypatch):
+    # --view hands the finished plant to the viewer (replaced here: it would serve forever).
+    viewed = []
+    monkeypatch.setattr(
+        "plantdreamer.viewer.server.view_file", lambda path, **kw: viewed.append(path)
+    )
     out = tmp_path / "run"
     result = CliRunner().invoke(
         main,
         ["generate", "--species", "kale", "--guidance", "none", "--steps", "0", "--points",
          "800", "--resolution", "32", "--eval-views", "3", "--turntable", "both", "--quiet",
-         "--out", str(out)],
+         "--view", "--out", str(out)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     _, images = read_mp4(out / "turntable.mp4")
     assert len(images) == 3 and len(iio.imread(out / "turntable.gif", index=None)) == 3
     assert json.loads((out / "run.json").read_text())["config"]["turntable"] == "both"
+    assert viewed == [str(out / "plant.ply")]
     rendered = CliRunner().invoke(
         main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--views", "2",
                "--resolution", "24", "--turntable", "mp4"],
