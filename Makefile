@@ -30,6 +30,9 @@ $(STAMP): pyproject.toml | $(PY)
 setup: $(STAMP) ## Create .venv with plantdreamer (editable), its dev and viewer extras
 
 build: $(STAMP) ## Rebuild the native module in place (release profile)
+	@# The module is _core.abi3.so; a version-specific one left by an older build would
+	@# shadow it (Python tries _core.cpython-3XY-*.so first).
+	rm -f python/plantdreamer/_core.cpython-*.so
 	$(VENV)/bin/maturin develop --release --skip-install
 
 test-rust: ## Run the Rust tests (no Python needed)
@@ -89,3 +92,4 @@ format: $(STAMP) ## Format Rust and Python sources
 clean: ## Remove build outputs (keeps .venv)
 	cargo clean
 	rm -f python/plantdreamer/_core*.so
+	rm -rf dist
