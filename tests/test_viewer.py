@@ -24,6 +24,7 @@ from plantdreamer.viewer.scene import (
     load_scene,
     scene_from_gaussians,
 )
+from plantdreamer.viewer.server import check_port_free
 from viewer_plants import shows_plant, write_labelled_plant_ply
 
 
@@ -163,8 +164,7 @@ def test_server_serves_the_page_and_gui(tmp_path):
         assert handles["Colour by"].value == "organ labels" and not handles["Colour by"].disabled
     finally:
         viewer.stop()
-    with socket.socket() as s:  # stopped: the port is free again
-        s.bind(("127.0.0.1", port))
+    check_port_free(port)  # stopped: nothing listens there any more
 
 
 def test_ctrl_c_stops_the_viewer_cleanly(tmp_path):

@@ -16,6 +16,7 @@ import pytest
 from PIL import Image
 
 from headless_browser import HeadlessChromium, find_chromium
+from plantdreamer.viewer.server import check_port_free
 from viewer_plants import shows_plant, write_labelled_plant_ply
 
 pytest.importorskip("viser", reason="the viewer extra is not installed (pip install viser)")
@@ -92,5 +93,4 @@ def test_browser_shows_the_plant(tmp_path):
         assert "viewer stopped" in out and "Traceback" not in out
     finally:
         viewer.kill()
-    with socket.socket() as s:  # the port is free again: the server really stopped
-        s.bind(("127.0.0.1", port))
+    check_port_free(port)  # the server really stopped: nothing listens there any more

@@ -42,24 +42,23 @@ def write_labelled_plant_ply(path: Path, n: int = 5000, seed: int = 1) -> np.nda
 def plant_pixels(image: np.ndarray, plant_rgbs: np.ndarray, tolerance: float = 0.1) -> np.ndarray:
     """bool [H, W]: pixels within ``tolerance`` (RGB distance, 0-1 units) of a colour of the
     plant and unlike the picture's most common colour (the background)."""
-    pixels = image.reshape(-1, 3).astype(np.float32) / 255.0
-    quantised = (image.reshape(-1, 3) // 8).astype(np.int64)
-    codes = quantised[:, 0] * 1024 + quantised[:, 1] * 32 + quantised[:, 2]
-    values, counts = np.unique(codes, return_counts=True)
-    background = pixels[np.flatnonzero(codes == values[np.argmax(counts)])[0]]
+    flat = image.reshape(-1, 3).astype(np.int64)
+    codes = (flat[:, 0] << 16) | (flat[:, 1] << 8) | flat[:, 2]
+    colours, inverse, counts = np.unique(codes, return_inverse=True, return_counts=True)
+    rgb = np.stack([colours >> 16, (colours >> 8) & 255, colours & 255], 1) / 255.0
+    background = rgb[np.argmax(counts)]
     rng = np.random.default_rng(0)
     palette = plant_rgbs[rng.choice(len(plant_rgbs), size=min(256, len(plant_rgbs)), replace=False)]
-    near = np.zeros(len(pixels), dtype=bool)
-    for start in range(0, len(pixels), 65536):
-        chunk = pixels[start : start + 65536]
-        d2 = ((chunk[:, None, :] - palette[None, :, :]) ** 2).sum(-1).min(axis=1)
-        near[start : start + 65536] = d2 < tolerance**2
-    unlike_background = ((pixels - background) ** 2).sum(-1) > tolerance**2
-    return (near & unlike_background).reshape(image.shape[:2])
+    # Squared distances of each distinct colour to the palette, as |a|^2 - 2ab + |b|^2.
+    d2 = (rgb**2).sum(1)[:, None] - 2.0 * rgb @ palette.T.astype(np.float64)
+    d2 += (palette.astype(np.float64) ** 2).sum(1)[None, :]
+    plant_like = d2.min(axis=1) < tolerance**2
+    plant_like &= ((rgb - background) ** 2).sum(1) > tolerance**2
+    return plant_like[inverse.reshape(-1)].reshape(image.shape[:2])
 
 
 def shows_plant(
-    image: np.ndarray, plant_rgbs: np.ndarray, min_fraction: float = 0.02
+    image: np.ndarray, plant_rgbs: np.ndarray, min_fraction: float = 0.05
 ) -> str | None:
     """None when the picture shows the plant in the middle, else why not.
 
