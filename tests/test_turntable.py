@@ -74,7 +74,7 @@ def test_mp4_bytes_are_deterministic(tmp_path):
 def test_failed_encode_leaves_the_old_file(tmp_path, monkeypatch):
     (tmp_path / "turntable.mp4").write_bytes(b"old")
 
-    def broken(path, images):
+    def broken(path, frames):
         path.write_bytes(b"partial")
         raise RuntimeError("encoder died")
 

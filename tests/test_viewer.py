@@ -34,19 +34,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def random_gaussians(n: int, seed: int = 0) -> Gaussians:
-    rng = np.random.default_rng(seed)
-    return Gaussians(
-        means=rng.normal(size=(n, 3)).astype(np.float32),
-        quats=rng.normal(size=(n, 4)).astype(np.float32),
-        log_scales=rng.normal(-3, 1, size=(n, 3)).astype(np.float32),
-        opacity_logits=rng.normal(size=n).astype(np.float32),
-        sh=rng.normal(size=(n, 4, 3)).astype(np.float32),
-    )
-
-
-def test_covariances_are_rotated_squared_scales():
-    g = random_gaussians(64)
+def test_covariances_are_rotated_squared_scales(random_gaussians):
+    g = random_gaussians(64, degree=1)
     cov = covariances(g).astype(np.float64)
     np.testing.assert_allclose(cov, cov.transpose(0, 2, 1), atol=1e-12)
     # Eigenvalues are the squared scales, whatever the rotation.
@@ -82,7 +71,7 @@ def test_scene_colours_opacities_and_labels(tmp_path):
         )
 
 
-def test_unknown_and_missing_labels_get_the_unlabelled_colour(tmp_path):
+def test_unknown_and_missing_labels_get_the_unlabelled_colour(tmp_path, random_gaussians):
     g = random_gaussians(4)
     scene = scene_from_gaussians(g, "x.ply", np.array([-1, 0, 2, 9], np.int32))
     colours = scene.label_rgbs()
@@ -122,7 +111,7 @@ def test_non_splat_ply_is_one_error_line(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("error:") and "not a 3DGS PLY" in lines[0]
 
 
-def test_missing_viser_says_what_to_install(tmp_path, monkeypatch):
+def test_missing_viser_says_what_to_install(tmp_path, monkeypatch, random_gaussians):
     write_splat_ply(tmp_path / "g.ply", random_gaussians(5))
     monkeypatch.setitem(sys.modules, "viser", None)  # import viser -> ImportError
     result = CliRunner().invoke(main, ["view", str(tmp_path / "g.ply")])
@@ -134,7 +123,7 @@ def test_missing_viser_says_what_to_install(tmp_path, monkeypatch):
 viser = pytest.importorskip("viser", reason="the viewer extra is not installed")
 
 
-def test_port_in_use_is_refused(tmp_path):
+def test_port_in_use_is_refused(tmp_path, random_gaussians):
     write_splat_ply(tmp_path / "g.ply", random_gaussians(5))
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
@@ -167,7 +156,7 @@ def test_server_serves_the_page_and_gui(tmp_path):
     check_port_free(port)  # stopped: nothing listens there any more
 
 
-def test_ctrl_c_stops_the_viewer_cleanly(tmp_path):
+def test_ctrl_c_stops_the_viewer_cleanly(tmp_path, random_gaussians):
     write_splat_ply(tmp_path / "g.ply", random_gaussians(50))
     port = free_port()
     proc = subprocess.Popen(

@@ -7,6 +7,10 @@ The MP4 uses the ffmpeg binary that the imageio-ffmpeg wheel ships.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 TURNTABLE_FORMATS = ("gif", "mp4", "both", "none")
 TURNTABLE_FPS = 12.5  # 80 ms a frame
@@ -20,7 +24,7 @@ def suffixes(fmt: str) -> tuple[str, ...]:
     return {"gif": ("gif",), "mp4": ("mp4",), "both": ("gif", "mp4"), "none": ()}[fmt]
 
 
-def write_gif(path: Path, frames: list) -> None:
+def write_gif(path: Path, frames: list[np.ndarray]) -> None:
     """A looping GIF of uint8 [H, W, 3] frames."""
     import imageio.v3 as iio
     import numpy as np
@@ -29,7 +33,7 @@ def write_gif(path: Path, frames: list) -> None:
     iio.imwrite(path, np.stack(frames), extension=".gif", duration=duration_ms, loop=0)
 
 
-def write_mp4(path: Path, frames: list) -> None:
+def write_mp4(path: Path, frames: list[np.ndarray]) -> None:
     """An H.264 MP4 (yuv420p, plays everywhere) of uint8 [H, W, 3] frames.
 
     ``-f mp4`` because the temporary file of an atomic write has another suffix.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
@@ -86,7 +87,7 @@ def write_turntables(
     paths = []
     for suffix in turntable.suffixes(fmt):
         path = out_dir / f"turntable.{suffix}"
-        atomic_write(path, lambda tmp, write=writers[suffix]: write(tmp, chosen))
+        atomic_write(path, functools.partial(writers[suffix], frames=chosen))
         paths.append(path)
     return paths
 
