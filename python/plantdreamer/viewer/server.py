@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import math
 import socket
 import time
@@ -53,6 +54,12 @@ def check_port_free(port: int, host: str = HOST) -> None:
             ) from None
 
 
+def _not_a_failed_handshake(record: logging.LogRecord) -> bool:
+    # Browsers open speculative connections and close them unused; the websocket library
+    # logs each as an error with a traceback. Nothing failed for the user: drop them.
+    return not record.getMessage().startswith("opening handshake failed")
+
+
 @dataclass
 class RunningViewer:
     """A started viewer: its viser server and its GUI controls by label."""
@@ -75,6 +82,9 @@ def start_viewer(
     """Starts a viser server showing ``scene`` on HOST:port; ``.stop()`` ends it."""
     viser = import_viser()
     check_port_free(port)
+    handshake_log = logging.getLogger("websockets.server")
+    if _not_a_failed_handshake not in handshake_log.filters:
+        handshake_log.addFilter(_not_a_failed_handshake)
     with contextlib.redirect_stdout(io.StringIO()):  # viser's banner; we print the URL
         server = viser.ViserServer(host=HOST, port=port, label="plantdreamer", verbose=False)
     viewer = RunningViewer(server, {})
