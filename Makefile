@@ -11,7 +11,7 @@ STAMP := $(VENV)/.installed-dev
 BENCH_STAMP := $(VENV)/.installed-bench
 PYTEST_ARGS ?=
 
-.PHONY: help setup build test test-rust test-python demo bench lint format clean
+.PHONY: help setup build test test-rust test-python test-wheel wheel browser demo bench lint format clean
 
 help: ## List the developer commands
 	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | \
@@ -21,23 +21,44 @@ $(PY):
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 
-# pip builds the native module once (release) and installs every runtime + dev dependency.
+# pip builds the native module once (release) and installs every runtime + dev dependency,
+# and the viewer extra (viser), which the viewer's tests use.
 $(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install --progress-bar off -e '.[dev]'
+	$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
 	touch $@
 
-setup: $(STAMP) ## Create .venv with plantdreamer (editable) and its dev dependencies
+setup: $(STAMP) ## Create .venv with plantdreamer (editable), its dev and viewer extras
 
 build: $(STAMP) ## Rebuild the native module in place (release profile)
+	@# The module is _core.abi3.so; a version-specific one left by an older build would
+	@# shadow it (Python tries _core.cpython-3XY-*.so first).
+	rm -f python/plantdreamer/_core.cpython-*.so
 	$(VENV)/bin/maturin develop --release --skip-install
 
 test-rust: ## Run the Rust tests (no Python needed)
 	cargo test --workspace
 
-test-python: build ## Run the Python tests
+test-python: build browser ## Run the Python tests
 	$(PY) -m pytest $(PYTEST_ARGS)
 
-test: test-rust test-python ## Set up everything, then run all Rust and Python tests
+browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
+	@# The browser test skips, saying why, when no Chromium can be found.
+	@if ! command -v chromium >/dev/null; then \
+		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
+		else echo "note: install Debian's chromium for the viewer's browser test"; fi; fi
+
+WHEEL_FLAGS ?= --release --zig --compatibility manylinux2014
+
+wheel: $(STAMP) ## Build the abi3 wheel (manylinux2014, via zig) and the sdist into dist/
+	rm -f dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz
+	$(VENV)/bin/maturin build $(WHEEL_FLAGS) --out dist
+	$(VENV)/bin/maturin sdist --out dist
+
+test-wheel: wheel ## Install the wheel in a fresh venv without Rust on PATH and run it
+	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
+	$(PY) scripts/check_sdist.py dist/plantdreamer-*.tar.gz
+
+test: test-rust test-python test-wheel ## Set up everything, then run all Rust and Python tests and the wheel check
 
 DEMO_OUT ?= out/demo
 
@@ -71,3 +92,4 @@ format: $(STAMP) ## Format Rust and Python sources
 clean: ## Remove build outputs (keeps .venv)
 	cargo clean
 	rm -f python/plantdreamer/_core*.so
+	rm -rf dist

@@ -235,10 +235,11 @@ def test_render_command_orbit_and_transforms(tmp_path):
     runner = CliRunner()
     orbit = runner.invoke(
         main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--views", "3",
-               "--resolution", "32", "--no-turntable"],
+               "--resolution", "32", "--turntable", "none"],
     )  # fmt: skip
     assert orbit.exit_code == 0, orbit.output
     assert len(list((tmp_path / "r").glob("view_*.png"))) == 3
+    assert not list((tmp_path / "r").glob("turntable.*"))
     # transforms.json cameras in the model's own frame (kale is ~0.2 m tall, in metres).
     from plantdreamer.cameras import orbit as orbit_camera
 

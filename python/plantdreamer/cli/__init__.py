@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
     "prepare": "plantdreamer.cli.prepare:prepare",
     "render": "plantdreamer.cli.render:render",
+    "view": "plantdreamer.cli.view:view",
 }
 
 

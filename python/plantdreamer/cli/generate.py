@@ -1,9 +1,9 @@
 """``plantdreamer generate``: a species or a point cloud in, a 3DGS plant out.
 
 The run's options are the settings of ``GenerateConfig`` (defaults, choices and help come
-from the dataclass); this module only adds the output folder, ``--resume`` and ``--quiet``.
-``--preset`` picks the base values (``pipeline/presets.py``); only the options given on the
-command line override them.
+from the dataclass); this module only adds the output folder, ``--resume``, ``--quiet`` and
+``--view`` (not settings of the run). ``--preset`` picks the base values
+(``pipeline/presets.py``); only the options given on the command line override them.
 """
 
 from __future__ import annotations
@@ -31,7 +31,10 @@ def build_command() -> click.Command:
         help="Continue the run in this folder.",
     )
     @click.option("--quiet", is_flag=True, help="No progress output.")
-    def generate(resume_dir: str | None, out_dir: str, quiet: bool, **options) -> None:
+    @click.option(
+        "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
+    )
+    def generate(resume_dir: str | None, out_dir: str, quiet: bool, view: bool, **options) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv."""
         from plantdreamer.pipeline import RunInterrupted, resolve_config
         from plantdreamer.pipeline import generate as run_generate
@@ -57,6 +60,10 @@ def build_command() -> click.Command:
             f"wrote {result.ply_path} ({result.gaussians} Gaussians) "
             f"and renders in {Path(result.out_dir)}"
         )
+        if view:
+            from plantdreamer.viewer.server import view_file
+
+            view_file(str(result.ply_path), echo=click.echo)
 
     return generate
 

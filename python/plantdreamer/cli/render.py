@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+
 
 @click.command()
 @click.argument("ply", type=click.Path(dir_okay=False))
@@ -20,7 +22,13 @@ import click
 )
 @click.option("--fovy", default=70.0, show_default=True)
 @click.option("--background", default=0.75, show_default=True, help="Grey level behind the plant.")
-@click.option("--turntable/--no-turntable", default=True, show_default=True)
+@click.option(
+    "--turntable",
+    type=click.Choice(TURNTABLE_FORMATS),
+    default="gif",
+    show_default=True,
+    help="turntable.gif, turntable.mp4, both or none (orbit only).",
+)
 @click.option(
     "--transforms",
     type=click.Path(),
@@ -36,10 +44,10 @@ def render(
     elevation: float,
     fovy: float,
     background: float,
-    turntable: bool,
+    turntable: str,
     transforms: str | None,
 ) -> None:
-    """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
+    """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF and/or MP4.
 
     On the orbit, the model is framed as generate frames it: centred on its bounding box,
     longest side 4. With --transforms, each view is named after its frame.
@@ -65,8 +73,7 @@ def render(
             resolution,
         )
     outputs.write_renders(out, frames)
-    if turntable:
-        outputs.write_turntable(out / "turntable.gif", frames, 40)
+    outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
     click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")
 
 

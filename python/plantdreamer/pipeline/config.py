@@ -15,6 +15,7 @@ from typing import Any
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES, SCHEDULES, SDS_DEFAULTS
 from plantdreamer.settings import check_choices, option_prefix, setting
+from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
 COLOR_INITS = ("original", "noise", "black", "white")
 GUIDANCES = ("sds", "none")
@@ -178,7 +179,12 @@ class GenerateConfig:
     eval_distance: float = 4.0
     eval_elevation_deg: float = 15.0
     eval_fovy_deg: float = 70.0
-    turntable_frames: int = 40
+    turntable_frames: int = TURNTABLE_FRAMES
+    turntable: str = setting(
+        "gif",
+        "Turntable of the evaluation orbit: turntable.gif, turntable.mp4, both or none.",
+        choices=TURNTABLE_FORMATS,
+    )
     sh_degree_export: int | None = setting(
         None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
     )

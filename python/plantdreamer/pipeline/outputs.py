@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
@@ -11,10 +12,13 @@ from typing import Any
 
 import numpy as np
 
+from plantdreamer import turntable
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import orbit_ring
+from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
+from plantdreamer.turntable import TURNTABLE_FORMATS
 
 
 def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
@@ -68,19 +72,24 @@ def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
         iio.imwrite(out_dir / f"view_{i:03d}.png", frame)
 
 
-def write_turntable(path: Path, frames: list[np.ndarray], count: int) -> None:
-    """An animated GIF of ``count`` frames evenly picked from the orbit renders."""
-    import imageio.v3 as iio
-
+def write_turntables(
+    out_dir: Path, frames: list[np.ndarray], count: int, fmt: str = "gif"
+) -> list[Path]:
+    """``turntable.gif`` and/or ``turntable.mp4`` (``fmt``: one of TURNTABLE_FORMATS) of
+    ``count`` frames evenly picked from the orbit renders; returns the files written."""
+    if fmt not in TURNTABLE_FORMATS:
+        raise InputError(f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}")
     if not frames or count <= 0:
-        return
+        return []
     picks = np.linspace(0, len(frames), num=min(count, len(frames)), endpoint=False).astype(int)
-    atomic_write(
-        path,
-        lambda tmp: iio.imwrite(
-            tmp, np.stack([frames[i] for i in picks]), extension=".gif", duration=80, loop=0
-        ),
-    )
+    chosen = [frames[i] for i in picks]
+    writers = {"gif": turntable.write_gif, "mp4": turntable.write_mp4}
+    paths = []
+    for suffix in turntable.suffixes(fmt):
+        path = out_dir / f"turntable.{suffix}"
+        atomic_write(path, functools.partial(writers[suffix], frames=chosen))
+        paths.append(path)
+    return paths
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:

@@ -379,7 +379,7 @@ class _Run:
                 self.resolution,
             )
             outputs.write_renders(out / "renders", frames)
-            outputs.write_turntable(out / "turntable.gif", frames, cfg.turntable_frames)
+            outputs.write_turntables(out, frames, cfg.turntable_frames, cfg.turntable)
         outputs.write_log_csv(out / "log.csv", self.log_rows)
         outputs.write_json(out / "run.json", self._summary(final))
         return RunResult(out, ply_path, cfg.steps, len(final), dict(self.timer.totals))

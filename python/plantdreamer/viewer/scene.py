@@ -1,0 +1,97 @@
+"""A splat PLY as the viewer draws it: centres, covariances, colours, opacities, labels."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from plantdreamer.gaussians import Gaussians, sh_dc_to_rgb
+from plantdreamer.io import read_ply_columns, read_splat_ply
+
+# Organ label -> colour (0-1). The classes are plantdreamer.lsystem.OrganClass, with 0 for
+# background; -1 (no label) and unknown classes are drawn in UNLABELLED_COLOR.
+LABEL_COLORS: dict[int, tuple[float, float, float]] = {
+    0: (0.55, 0.55, 0.55),  # background
+    1: (0.20, 0.75, 0.25),  # leaf
+    2: (0.60, 0.35, 0.10),  # stem
+    3: (0.85, 0.45, 0.30),  # pot
+    4: (0.35, 0.22, 0.12),  # soil
+}
+LABEL_NAMES = {0: "background", 1: "leaf", 2: "stem", 3: "pot", 4: "soil"}
+UNLABELLED_COLOR = (0.85, 0.20, 0.85)
+
+
+@dataclass
+class SplatScene:
+    """What the browser draws for one PLY; arrays are float32, N Gaussians."""
+
+    name: str
+    centers: np.ndarray  # [N, 3]
+    covariances: np.ndarray  # [N, 3, 3]
+    rgbs: np.ndarray  # [N, 3] in [0, 1], from the SH DC term (view-independent)
+    opacities: np.ndarray  # [N, 1] in [0, 1]
+    labels: np.ndarray | None  # [N] int32 organ classes, or None when the file has none
+
+    def __len__(self) -> int:
+        return int(self.centers.shape[0])
+
+    def label_rgbs(self) -> np.ndarray:
+        """[N, 3] colours of the organ labels; needs labels."""
+        if self.labels is None:
+            raise ValueError("this scene has no labels")
+        palette = np.array([UNLABELLED_COLOR, *LABEL_COLORS.values()], dtype=np.float32)
+        codes = np.array(list(LABEL_COLORS), dtype=np.int64)
+        index = np.searchsorted(codes, self.labels)
+        known = (index < len(codes)) & (codes[np.minimum(index, len(codes) - 1)] == self.labels)
+        return palette[np.where(known, index + 1, 0)]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Min and max corners of the centres (zeros for an empty scene)."""
+        if len(self) == 0:
+            return np.zeros(3, np.float32), np.zeros(3, np.float32)
+        return self.centers.min(axis=0), self.centers.max(axis=0)
+
+
+def covariances(g: Gaussians) -> np.ndarray:
+    """[N, 3, 3] world covariances R diag(s^2) R^T of the Gaussians (quaternions normalised)."""
+    q = g.quats.astype(np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
+    w, x, y, z = q.T
+    rot = np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+    scaled = rot * np.exp(g.log_scales.astype(np.float64))[:, None, :]
+    return (scaled @ scaled.transpose(0, 2, 1)).astype(np.float32)
+
+
+def scene_from_gaussians(g: Gaussians, name: str, labels: np.ndarray | None) -> SplatScene:
+    opacity = 1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64)))
+    return SplatScene(
+        name=name,
+        centers=np.ascontiguousarray(g.means, dtype=np.float32),
+        covariances=covariances(g),
+        rgbs=np.clip(sh_dc_to_rgb(g.sh[:, 0, :]), 0.0, 1.0),
+        opacities=opacity.astype(np.float32)[:, None],
+        labels=labels,
+    )
+
+
+def load_scene(path: str | os.PathLike[str]) -> SplatScene:
+    """Reads a splat PLY (INRIA layout) and its integer ``label`` property when it has one.
+
+    Raises PlyError for a file that is not a 3DGS PLY (for example a plain point cloud).
+    """
+    g = read_splat_ply(path)
+    label_column = read_ply_columns(path).get("label")
+    labels = None
+    if label_column is not None and label_column.dtype.kind in "iu":
+        labels = label_column.astype(np.int32)
+    return scene_from_gaussians(g, Path(path).name, labels)
