@@ -7,19 +7,21 @@ centring on the bounding-box midpoint with the longest side scaled to 4 units.
 Order: outliers are removed first, on the raw density, as the paper describes; the
 released code downsamples first. Removing them first keeps stray points from inflating the
 bounding box that the voxel search and normalisation use, and the final count then lands
-within the target band. Voxel averaging cannot keep normals or integer attributes (labels),
-so the prepared cloud has positions and colours only.
+within the target band. Voxel averaging cannot keep normals; integer attributes named in
+``label_fields`` (class and instance ids) are kept, each voxel taking the majority value of
+its points (``plantdreamer.labels.voxel_majority``); other attributes are dropped.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
+from plantdreamer.labels import voxel_keys, voxel_majority
 from plantdreamer.pointcloud import (
     NormalizeTransform,
     downsample_to_count,
@@ -44,9 +46,11 @@ def prepare_cloud(
     normalize_size: float | None = None,
     tolerance: float = 0.05,
     log: Callable[[str, int], None] | None = None,
+    label_fields: Sequence[str] = (),
 ) -> tuple[PointCloud, NormalizeTransform | None, PrepareReport]:
     """Runs the preparation steps; ``target=None`` skips downsampling, ``sor_neighbors=0``
-    skips outlier removal, ``normalize_size=None`` skips normalisation."""
+    skips outlier removal, ``normalize_size=None`` skips normalisation. The attributes named
+    in ``label_fields`` survive every step (majority vote per voxel)."""
     report = PrepareReport()
 
     def step(name: str, c: PointCloud) -> PointCloud:
@@ -71,14 +75,18 @@ def prepare_cloud(
         cloud = step("outliers removed", cloud.subset(kept))
         if len(cloud) == 0:
             raise InputError("outlier removal kept no points (are all points duplicates?)")
+    labels = {name: cloud.attributes[name] for name in label_fields}
     points, colors = cloud.positions, cloud.colors
     if target is not None:
         points, colors, report.voxel_size = downsample_to_count(
             points, target, colors, tolerance=tolerance
         )
-        cloud = step("downsampled", PointCloud(positions=points, colors=colors))
+        if report.voxel_size > 0.0 and labels:
+            voxel = voxel_keys(cloud.positions, report.voxel_size)
+            labels = {name: voxel_majority(voxel, v) for name, v in labels.items()}
+        cloud = step("downsampled", PointCloud(points, colors, attributes=labels))
     transform = None
     if normalize_size is not None:
         points, transform = normalize(cloud.positions, normalize_size)
-        cloud = PointCloud(positions=points, colors=cloud.colors)
+        cloud = PointCloud(points, cloud.colors, attributes=labels)
     return cloud, transform, report

@@ -27,6 +27,13 @@ import click
     help="Render at the cameras of this transforms.json (model kept in its own frame) "
     "instead of the orbit.",
 )
+@click.option(
+    "--labels",
+    "ground_truth",
+    is_flag=True,
+    help="Also write the ground truth of each orbit view (labels/, instances/ from the PLY's "
+    "label and instance properties; depth/, transforms.json), laid out as generate does.",
+)
 def render(
     ply: str,
     out_dir: str,
@@ -38,6 +45,7 @@ def render(
     background: float,
     turntable: bool,
     transforms: str | None,
+    ground_truth: bool,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
 
@@ -46,15 +54,22 @@ def render(
     """
     import torch
 
+    from plantdreamer.errors import InputError
     from plantdreamer.io import read_splat_ply
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
     out = Path(out_dir)
     if transforms is not None:
+        if ground_truth:
+            raise InputError("--labels renders the orbit; it cannot be combined with --transforms")
         _render_dataset_views(read_splat_ply(ply), transforms, out, background)
         return
-    model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
+    gaussians = read_splat_ply(ply)
+    if ground_truth and gaussians.labels is None:
+        raise InputError(f"{ply} has no label or instance property to render masks from")
+    scene, transform = outputs.to_scene_frame(gaussians)
+    model = GaussianModel(scene)
     with torch.no_grad():
         frames = outputs.render_orbit(
             lambda cam: model.render([cam], background)[0][0].numpy(),
@@ -64,7 +79,15 @@ def render(
             fovy,
             resolution,
         )
-    outputs.write_renders(out, frames)
+    if ground_truth:  # the dataset layout: images in renders/, masks beside them
+        from plantdreamer.cameras import orbit_ring
+        from plantdreamer.pipeline.dataset_export import write_ground_truth
+
+        outputs.write_renders(out / "renders", frames)
+        cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+        write_ground_truth(out, model, cameras, transform)
+    else:
+        outputs.write_renders(out, frames)
     if turntable:
         outputs.write_turntable(out / "turntable.gif", frames, 40)
     click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")

@@ -89,6 +89,16 @@ class GenerateConfig:
     sor_neighbors: int = 20
     sor_std: float = 3.0
     scene_size: float = 4.0  # longest side of the normalised scene
+    label_field: str | None = setting(
+        None,
+        "Point-cloud property with class ids.",
+        default_text="label, class, scalar_Classification, semantic, ... if present",
+    )
+    instance_field: str | None = setting(
+        None,
+        "Point-cloud property with instance ids.",
+        default_text="instance, instance_id, leaf_id, ... if present",
+    )
 
     # Initialisation.
     sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
@@ -131,6 +141,9 @@ class GenerateConfig:
     turntable_frames: int = 40
     sh_degree_export: int | None = setting(
         None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
+    )
+    labels: bool = setting(
+        True, "Write label/instance into plant.ply and the class and instance masks."
     )
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
 
