@@ -43,7 +43,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     g = read_splat_ply(result.ply_path)
     assert len(g) == result.gaussians > 100
     props = [p.name for p in plyfile.PlyData.read(result.ply_path)["vertex"].properties]
-    assert props == INRIA_SH0
+    assert props == [*INRIA_SH0, "label", "instance"]  # INRIA order first, labels after
     assert sorted(p.name for p in (tmp_path / "renders").iterdir()) == [
         f"view_{i:03d}.png" for i in range(4)
     ]
@@ -103,6 +103,9 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
         None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
     )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
+    for folder in ("labels", "instances", "depth"):  # masks too are bit-identical
+        for png in sorted((tmp_path / "full" / folder).glob("*.png")):
+            assert png.read_bytes() == (tmp_path / "cut" / folder / png.name).read_bytes()
     again = generate(
         small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
     )

@@ -80,7 +80,7 @@ def as_int_labels(name: str, values: np.ndarray) -> np.ndarray:
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
         raise InputError(
-            f"label field {name!r} holds non-integer value {v[first]!r} (point {first}); "
+            f"label field {name!r} holds non-integer value {float(v[first])!r} (point {first}); "
             "labels must be whole numbers"
         )
     return v.astype(np.int32)
