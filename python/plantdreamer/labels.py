@@ -48,7 +48,7 @@ def find_label_fields(
 ) -> tuple[str | None, str | None]:
     """The attribute names holding labels and instances: the given ones (which must exist),
     else the first well-known name present, else None."""
-    names = []
+    names: list[str | None] = []
     for given, known, what in (
         (label_field, LABEL_FIELD_NAMES, "label"),
         (instance_field, INSTANCE_FIELD_NAMES, "instance"),

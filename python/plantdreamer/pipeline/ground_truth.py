@@ -16,7 +16,7 @@ depth) gives every Gaussian's footprint box, hence the tiles each instance can t
 instances whose tile sets are disjoint never both weigh on one pixel, so they can share a
 channel (greedy colouring, in id order), and a pixel's channel names its instance through
 the tile it lies in. The arg-max is the same as with one channel per instance (ties between
-exactly equal weights go to the lower channel). A bean's ~40 leaflets need about ten
+exactly equal weights go to the lower channel). A bean's ~40 leaflets need about a dozen
 channels; at most ``CHANNELS_PER_PASS`` are blended per pass, keeping the running arg-max.
 """
 
@@ -82,6 +82,11 @@ def render_ground_truth(
         model, camera, _one_hot(label_set.class_channel + 1, 0, n_cls), with_depth=True
     )
     label = _arg_max(weights)[1] - 1
+    background = alpha < ALPHA_THRESHOLD
+    label = np.where(background, -1, label)
+    if not len(label_set.instances):
+        no_instance = np.full(shape, -1, dtype=np.int64)
+        return GroundTruth(label, no_instance, _masked_depth(depth, alpha), alpha)
     channel, owner = _share_channels(label_set, meta, camera)
     n_inst = int(channel.max()) + 1
     best_w = np.full(shape, -1.0, dtype=np.float32)
@@ -96,10 +101,7 @@ def render_ground_truth(
     # The channel's instance at each pixel: its owner in the pixel's tile.
     ty = np.arange(camera.height) // TILE
     tx = np.arange(camera.width) // TILE
-    instance = owner[best, ty[:, None], tx[None, :]]
-    background = alpha < ALPHA_THRESHOLD
-    label = np.where(background, -1, label)
-    instance = np.where(background, -1, instance)
+    instance = np.where(background, -1, owner[best, ty[:, None], tx[None, :]])
     return GroundTruth(label, instance, _masked_depth(depth, alpha), alpha)
 
 
@@ -138,7 +140,7 @@ def _share_channels(
         used[k] |= touched[i]
         owner[k + 1][touched[i]] = i
         colour[i] = k + 1
-    channel = np.where(which >= 0, colour[np.maximum(which, 0)] if n_inst else 0, 0)
+    channel = np.where(which >= 0, colour[np.maximum(which, 0)], 0)
     return channel, np.stack(owner)
 
 
