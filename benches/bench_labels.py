@@ -1,10 +1,11 @@
 """Cost of the ground truth per view (class + instance + depth maps) against the RGB render.
 
 L-System bean and mint (seed 0, 100k points, as initialised), 512x512, 8 views of the
-evaluation orbit. Per view: the RGB render as the evaluation renders make it, the ground
-truth as `generate` writes it (`render_ground_truth`: classes + depth in one pass, then the
-instance channels shared between leaves whose tiles do not meet), and, for reference, one
-one-hot channel per instance in a single pass (what the channel sharing avoids).
+evaluation orbit. Per view: the RGB render as the evaluation renders make it, and the ground
+truth as `generate` then makes it (`render_ground_truth` given the render's footprints:
+classes, instance channels shared between leaves whose tiles do not meet, and depth, in one
+pass), and, for reference, one one-hot channel per instance in a single pass (what the
+channel sharing avoids).
 
     python benches/bench_labels.py
 """
@@ -57,9 +58,9 @@ def measure(species: str) -> dict[str, float]:
     with torch.no_grad():
         for cam in orbit_ring(VIEWS, 4.0, 15.0, 70.0, 512, 512):
             rgb.append(best_of(lambda cam=cam: model.render([cam], 0.75)))
-            gt.append(best_of(lambda cam=cam: render_ground_truth(model, cam, ls)))
+            meta = model.render([cam], 0.75)[2]
+            gt.append(best_of(lambda cam=cam, meta=meta: render_ground_truth(model, cam, ls, meta)))
             naive.append(best_of(lambda cam=cam: _blend(model, cam, all_instances, False)))
-            meta = _blend(model, cam, _one_hot(ls.class_channel + 1, 0, 2), True)[3]
             channels.append(int(_share_channels(ls, meta, cam)[0].max()) + 1)
     return {
         "instances": len(ls.instances),
@@ -80,7 +81,7 @@ def main() -> int:
         f"as initialised, 512x512, {VIEWS} views of the evaluation orbit, best of {REPEATS} per",
         "view, median over views, milliseconds, CPU, "
         f"{torch.get_num_threads()} torch threads. *ground truth* is classes + instances +",
-        "depth as `generate` writes them (before PNG encoding); *one channel per instance* is",
+        "depth as `generate` makes them after each render (before PNG encoding); *one channel per instance* is",
         "a single pass with one one-hot channel per leaf, the cost that the shared channels",
         "avoid. Measured on a shared, loaded 2-core machine: ratios are noisy.\n",
         "| plant | leaves | instance channels (median) | RGB render | ground truth | ratio "

@@ -71,23 +71,28 @@ def render(
     scene, transform = outputs.to_scene_frame(gaussians)
     model = GaussianModel(scene)
     with torch.no_grad():
-        frames = outputs.render_orbit(
-            lambda cam: model.render([cam], background)[0][0].numpy(),
-            views,
-            distance,
-            elevation,
-            fovy,
-            resolution,
-        )
-    if ground_truth:  # the dataset layout: images in renders/, masks beside them
-        from plantdreamer.cameras import orbit_ring
-        from plantdreamer.pipeline.dataset_export import write_ground_truth
+        if ground_truth:  # the dataset layout: images in renders/, masks beside them
+            from plantdreamer.cameras import orbit_ring
+            from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 
-        outputs.write_renders(out / "renders", frames)
-        cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
-        write_ground_truth(out, model, cameras, transform)
-    else:
-        outputs.write_renders(out, frames)
+            def render_view(camera):
+                image, _, meta = model.render([camera], background)
+                return outputs.to_uint8(image[0].numpy()), meta
+
+            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+            writer = ground_truth_writer(out, model, transform)
+            frames = render_views(model, writer, cameras, render_view)
+            outputs.write_renders(out / "renders", frames)
+        else:
+            frames = outputs.render_orbit(
+                lambda cam: model.render([cam], background)[0][0].numpy(),
+                views,
+                distance,
+                elevation,
+                fovy,
+                resolution,
+            )
+            outputs.write_renders(out, frames)
     if turntable:
         outputs.write_turntable(out / "turntable.gif", frames, 40)
     click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")

@@ -152,27 +152,33 @@ def _write_png(path: Path, image: np.ndarray) -> None:
     atomic_write(path, lambda tmp: iio.imwrite(tmp, image, extension=".png"))
 
 
-def write_ground_truth(
+def ground_truth_writer(
     out_dir: Path,
     model,
-    cameras: list[Camera],
     transform: NormalizeTransform,
     labels: bool = True,
     class_names: dict[int, str] | None = None,
-) -> None:
-    """Ground truth of ``model`` (a ``GaussianModel`` in the scene frame) for the views
-    ``renders/view_XXX.png`` taken by ``cameras``, and transforms.json. With
-    ``labels=False`` or an unlabelled model: depth and transforms.json only."""
-    from plantdreamer.pipeline.ground_truth import render_ground_truth
-
+) -> GroundTruthWriter:
+    """A writer for ``model`` (a ``GaussianModel`` in the scene frame); with ``labels=False``
+    or an unlabelled model it writes depth and transforms.json only."""
     label_set = None
     if labels and model.labels is not None:
         label_set = LabelSet.of(model.labels.numpy())
-    writer = GroundTruthWriter(out_dir, label_set, transform, class_names)
+    return GroundTruthWriter(out_dir, label_set, transform, class_names)
+
+
+def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
+    """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
+    whose instance channels reuse the render's footprints; returns the images."""
+    from plantdreamer.pipeline.ground_truth import render_ground_truth
+
+    images = []
     for i, camera in enumerate(cameras):
+        image, meta = render(camera)
         name = f"view_{i:03d}"
-        writer.add(
-            name, f"renders/{name}.png", camera, render_ground_truth(model, camera, label_set)
-        )
+        gt = render_ground_truth(model, camera, writer.label_set, meta)
+        writer.add(name, f"renders/{name}.png", camera, gt)
+        images.append(image)
     if cameras:
         writer.finish(cameras[0])
+    return images

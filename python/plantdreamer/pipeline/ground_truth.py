@@ -11,8 +11,8 @@ turns to whatever contributes most, as in the RGB image.
 
 Instances use the same rule over one-hot instance features, plus one channel for Gaussians of
 no instance (a stem in front of a leaf is "no instance", not the leaf). One channel per leaf
-would cost hundreds of channels, so instances share channels: a first pass (classes and
-depth) gives every Gaussian's footprint box, hence the tiles each instance can touch; two
+would cost hundreds of channels, so instances share channels: the view's RGB render (or a
+depth-only pass) gives every Gaussian's footprint box, hence the tiles each instance can touch; two
 instances whose tile sets are disjoint never both weigh on one pixel, so they can share a
 channel (greedy colouring, in id order), and a pixel's channel names its instance through
 the tile it lies in. The arg-max is the same as with one channel per instance (ties between
@@ -68,30 +68,47 @@ class LabelSet:
 
 
 def render_ground_truth(
-    model: GaussianModel, camera: Camera, label_set: LabelSet | None
+    model: GaussianModel,
+    camera: Camera,
+    label_set: LabelSet | None,
+    footprints: dict | None = None,
 ) -> GroundTruth:
-    """Class, instance and depth maps of ``model`` seen by ``camera`` (no labels: depth only)."""
+    """Class, instance and depth maps of ``model`` seen by ``camera`` (no labels: depth only).
+
+    ``footprints``: the ``meta`` of a render of the same model and camera (the RGB view),
+    whose projected footprints decide which instances share a channel; without it, a
+    depth-only pass provides them.
+    """
     shape = (camera.height, camera.width)
+    depth = alpha = None
+    if label_set is None or footprints is None:
+        _, depth, alpha, footprints = _blend(
+            model, camera, torch.zeros((len(model), 1)), with_depth=True
+        )
     if label_set is None:
-        _, depth, alpha, _ = _blend(model, camera, torch.zeros((len(model), 1)), with_depth=True)
         empty = np.full(shape, -1, dtype=np.int64)
         return GroundTruth(empty, empty.copy(), _masked_depth(depth, alpha), alpha)
 
     n_cls = len(label_set.classes) + 1  # channel 0: unlabelled (occludes, names no class)
-    weights, depth, alpha, meta = _blend(
-        model, camera, _one_hot(label_set.class_channel + 1, 0, n_cls), with_depth=True
+    channel = np.zeros(len(model), dtype=np.int64)
+    owner = np.full((1, 1, 1), -1, dtype=np.int64)
+    if len(label_set.instances):
+        channel, owner = _share_channels(label_set, footprints, camera)
+    n_inst = int(channel.max()) + 1 if len(label_set.instances) else 0
+    first = min(n_inst, CHANNELS_PER_PASS)
+    features = torch.cat(
+        [_one_hot(label_set.class_channel + 1, 0, n_cls), _one_hot(channel, 0, first)], dim=1
     )
-    label = _arg_max(weights)[1] - 1
+    weights, d, a, _ = _blend(model, camera, features, with_depth=depth is None)
+    if depth is None:
+        depth, alpha = d, a
+    assert depth is not None and alpha is not None
     background = alpha < ALPHA_THRESHOLD
-    label = np.where(background, -1, label)
-    if not len(label_set.instances):
-        no_instance = np.full(shape, -1, dtype=np.int64)
-        return GroundTruth(label, no_instance, _masked_depth(depth, alpha), alpha)
-    channel, owner = _share_channels(label_set, meta, camera)
-    n_inst = int(channel.max()) + 1
-    best_w = np.full(shape, -1.0, dtype=np.float32)
-    best = np.zeros(shape, dtype=np.int64)
-    for start in range(0, n_inst, CHANNELS_PER_PASS):
+    label = np.where(background, -1, _arg_max(weights[..., :n_cls])[1] - 1)
+    if not n_inst:
+        return GroundTruth(label, np.full(shape, -1), _masked_depth(depth, alpha), alpha)
+    best_w, best = _arg_max(weights[..., n_cls:])
+    for start in range(first, n_inst, CHANNELS_PER_PASS):
         stop = min(start + CHANNELS_PER_PASS, n_inst)
         w, _, _, _ = _blend(model, camera, _one_hot(channel, start, stop), with_depth=False)
         chunk_w, chunk_c = _arg_max(w)
@@ -147,10 +164,11 @@ def _share_channels(
 def _arg_max(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Max and arg-max over the last axis (first of equal maxima), one plane at a time
     (several times faster than ``np.argmax`` over a short last axis)."""
-    best_w = w[..., 0].copy()
+    planes = np.ascontiguousarray(np.moveaxis(w, -1, 0))
+    best_w = planes[0].copy()
     best = np.zeros(best_w.shape, dtype=np.int64)
-    for c in range(1, w.shape[-1]):
-        plane = w[..., c]
+    for c in range(1, len(planes)):
+        plane = planes[c]
         better = plane > best_w
         best[better] = c
         np.maximum(best_w, plane, out=best_w)

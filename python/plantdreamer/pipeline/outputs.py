@@ -58,11 +58,14 @@ def render_orbit(
     render, n: int, distance: float, elevation_deg: float, fovy_deg: float, resolution: int
 ) -> list[np.ndarray]:
     """uint8 [H, W, 3] images of the evaluation orbit; ``render(camera) -> [H, W, 3] float``."""
-    frames = []
-    for cam in orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution):
-        image = np.asarray(render(cam), dtype=np.float32)
-        frames.append((np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
-    return frames
+    cameras = orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution)
+    return [to_uint8(render(cam)) for cam in cameras]
+
+
+def to_uint8(image) -> np.ndarray:
+    """A float [H, W, 3] image in [0, 1] as uint8 (clipped, rounded)."""
+    image = np.asarray(image, dtype=np.float32)
+    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:

@@ -27,7 +27,7 @@ from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.dataset_export import write_ground_truth
+from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
@@ -385,32 +385,26 @@ class _Run:
                 cfg.labels,
             )
         with self.timer("renders"), torch.no_grad():
-            frames = outputs.render_orbit(
-                lambda cam: self.model.render([cam], cfg.background)[0][0].numpy(),
+            # Each view's render, then its ground truth (which reuses the render's footprints).
+            cameras = orbit_ring(
                 cfg.eval_views,
                 cfg.eval_distance,
                 cfg.eval_elevation_deg,
                 cfg.eval_fovy_deg,
                 self.resolution,
+                self.resolution,
             )
+            writer = ground_truth_writer(
+                out, self.model, self.transform, cfg.labels, self._class_names()
+            )
+
+            def render(camera):
+                image, _, meta = self.model.render([camera], cfg.background)
+                return outputs.to_uint8(image[0].numpy()), meta
+
+            frames = render_views(self.model, writer, cameras, render)
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntable(out / "turntable.gif", frames, cfg.turntable_frames)
-        with self.timer("ground truth"):
-            write_ground_truth(
-                out,
-                self.model,
-                orbit_ring(
-                    cfg.eval_views,
-                    cfg.eval_distance,
-                    cfg.eval_elevation_deg,
-                    cfg.eval_fovy_deg,
-                    self.resolution,
-                    self.resolution,
-                ),
-                self.transform,
-                cfg.labels,
-                self._class_names(),
-            )
         outputs.write_log_csv(out / "log.csv", self.log_rows)
         outputs.write_json(out / "run.json", self._summary(final))
         return RunResult(out, ply_path, cfg.steps, len(final), dict(self.timer.totals))
