@@ -86,6 +86,7 @@ def render_ground_truth(
             model, camera, torch.zeros((len(model), 1)), with_depth=True
         )
     if label_set is None:
+        assert depth is not None and alpha is not None
         empty = np.full(shape, -1, dtype=np.int64)
         return GroundTruth(empty, empty.copy(), _masked_depth(depth, alpha), alpha)
 
