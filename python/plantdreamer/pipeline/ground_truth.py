@@ -163,17 +163,9 @@ def _share_channels(
 
 
 def _arg_max(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Max and arg-max over the last axis (first of equal maxima), one plane at a time
-    (several times faster than ``np.argmax`` over a short last axis)."""
-    planes = np.ascontiguousarray(np.moveaxis(w, -1, 0))
-    best_w = planes[0].copy()
-    best = np.zeros(best_w.shape, dtype=np.int64)
-    for c in range(1, len(planes)):
-        plane = planes[c]
-        better = plane > best_w
-        best[better] = c
-        np.maximum(best_w, plane, out=best_w)
-    return best_w, best
+    """Max and arg-max over the last axis; equal maxima go to the first (torch.max's rule)."""
+    values, indices = torch.from_numpy(w).max(dim=-1)
+    return values.numpy(), indices.numpy()
 
 
 def _one_hot(channel: np.ndarray, start: int, stop: int) -> torch.Tensor:
@@ -201,12 +193,13 @@ def _blend(model: GaussianModel, camera: Camera, features: torch.Tensor, with_de
             torch.from_numpy(ks),
             camera.width,
             camera.height,
-            render_mode="RGB+ED" if with_depth else "RGB",
+            render_mode="RGB+D" if with_depth else "RGB",
             tile_size=TILE,
         )
     out_np, alpha_np = out[0].numpy(), alpha[0, ..., 0].numpy()
-    if with_depth:
-        return out_np[..., :-1], out_np[..., -1], alpha_np, meta
+    if with_depth:  # expected depth, as "ED" makes it, on the depth plane alone
+        depth = out_np[..., -1] / np.maximum(alpha_np, np.float32(1e-10))
+        return out_np[..., :-1], depth, alpha_np, meta
     return out_np, None, alpha_np, meta
 
 
