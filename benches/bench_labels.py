@@ -83,7 +83,8 @@ def main() -> int:
         f"{torch.get_num_threads()} torch threads. *ground truth* is classes + instances +",
         "depth as `generate` makes them after each render (before PNG encoding); *one channel per instance* is",
         "a single pass with one one-hot channel per leaf, the cost that the shared channels",
-        "avoid. Measured on a shared, loaded 2-core machine: ratios are noisy.\n",
+        "avoid. The aim is a ground truth at most 1.5x the RGB render. Measured on a shared,",
+        "loaded 2-core machine: ratios are noisy.\n",
         "| plant | leaves | instance channels (median) | RGB render | ground truth | ratio "
         "| one channel per instance (instances only) |",
         "|---|---|---|---|---|---|---|",

@@ -103,13 +103,21 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
         None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
     )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
-    for folder in ("labels", "instances", "depth"):  # masks too are bit-identical
-        for png in sorted((tmp_path / "full" / folder).glob("*.png")):
-            assert png.read_bytes() == (tmp_path / "cut" / folder / png.name).read_bytes()
+    masks = sorted((tmp_path / "full").glob("[lid]*/view_*.png"))  # labels, instances, depth
+    assert len(masks) == 12
+    for png in masks:  # the masks too are bit-identical
+        assert (
+            png.read_bytes() == (tmp_path / "cut" / png.relative_to(tmp_path / "full")).read_bytes()
+        )
     again = generate(
         small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
     )
     assert again.ply_path.read_bytes() == full.ply_path.read_bytes()
+    for png in sorted((tmp_path / "full").glob("[lid]*/view_*.png")):  # labels, instances, depth
+        assert (
+            png.read_bytes()
+            == (tmp_path / "again" / png.relative_to(tmp_path / "full")).read_bytes()
+        )
     # And the optimisation really changed the model.
     from plantdreamer.io import read_splat_ply
 
