@@ -131,14 +131,16 @@ def _share_channels(
     tiles_y, tiles_x = -(-camera.height // TILE), -(-camera.width // TILE)
     n_inst = len(label_set.instances)
     which = label_set.instance_channel - 1  # instance index per Gaussian, -1: none
-    xy = meta["means2d"][0].detach().numpy().astype(np.float64)
-    radii = meta["radii"][0].numpy().astype(np.float64)
+    xy = meta["means2d"][0].detach().numpy()
+    radii = meta["radii"][0].numpy().astype(np.float32)  # whole numbers (ceiled), exact
     seen = (radii.max(axis=1) > 0) & (which >= 0)
-    # Tiles each footprint box can reach (the rasterizer bins a splat to tiles of its box),
-    # one tile wider on each side against rounding; painted per instance with a 2-D
-    # difference array.
-    lo = np.floor((xy[seen] - radii[seen]) / TILE).astype(np.int64) - 1
-    hi = np.floor((xy[seen] + radii[seen]) / TILE).astype(np.int64) + 2
+    # The tiles of each footprint box, computed as the rasterizer's binning does (float32,
+    # same operations; it bins a splat to no tile outside them); painted per instance with
+    # a 2-D difference array.
+    inv = np.float32(1.0 / TILE)
+    lo = np.trunc(np.maximum((xy[seen] - radii[seen]) * inv, 0)).astype(np.int64)
+    up = np.maximum((xy[seen] + radii[seen]) * inv, 0)
+    hi = np.ceil(up).astype(np.int64)
     x0, x1 = np.clip(lo[:, 0], 0, tiles_x), np.clip(hi[:, 0], 0, tiles_x)
     y0, y1 = np.clip(lo[:, 1], 0, tiles_y), np.clip(hi[:, 1], 0, tiles_y)
     diff = np.zeros((n_inst, tiles_y + 1, tiles_x + 1), dtype=np.int64)
