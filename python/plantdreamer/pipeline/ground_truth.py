@@ -16,7 +16,7 @@ depth-only pass) gives every Gaussian's footprint box, hence the tiles each inst
 instances whose tile sets are disjoint never both weigh on one pixel, so they can share a
 channel (greedy colouring, in id order), and a pixel's channel names its instance through
 the tile it lies in. The arg-max is the same as with one channel per instance (ties between
-exactly equal weights go to the lower channel). A bean's ~40 leaflets need about a dozen
+exactly equal weights go to the lower channel). A bean's 36 leaflets need 7-10
 channels; at most ``CHANNELS_PER_PASS`` are blended per pass, keeping the running arg-max.
 """
 
