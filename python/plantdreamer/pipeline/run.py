@@ -197,9 +197,8 @@ class _Run:
         self.transform = NormalizeTransform.from_dict(state["transform"])
         self.source_counts = state["source_counts"]
         self.label_fields = state.get("label_fields")
-        self.initial_gaussians = Gaussians(
-            **{k: None if v is None else v.numpy() for k, v in state["initial"].items()}
-        )
+        initial = {k: v.numpy() for k, v in state["initial"].items() if v is not None}
+        self.initial_gaussians = Gaussians(**initial)
         self.model = GaussianModel(self.initial_gaussians, self.cfg.lr)
         self.model.load_state_dict(state["model"])
         self.sampler = CameraSampler(self.cfg.cameras, self.resolution, self.cfg.seed)
