@@ -30,7 +30,8 @@ def build_command() -> click.Command:
     )
     @click.option("--quiet", is_flag=True, help="No progress output.")
     def generate(resume_dir: str | None, out_dir: str, quiet: bool, **options) -> None:
-        """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv."""
+        """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
+        and ground truth per view: labels/, instances/, depth/, transforms.json."""
         from plantdreamer.pipeline import RunInterrupted
         from plantdreamer.pipeline import generate as run_generate
 
