@@ -43,7 +43,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     g = read_splat_ply(result.ply_path)
     assert len(g) == result.gaussians > 100
     props = [p.name for p in plyfile.PlyData.read(result.ply_path)["vertex"].properties]
-    assert props == INRIA_SH0
+    assert props == [*INRIA_SH0, "label", "instance"]  # INRIA order first, labels after
     assert sorted(p.name for p in (tmp_path / "renders").iterdir()) == [
         f"view_{i:03d}.png" for i in range(4)
     ]
@@ -103,10 +103,21 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
         None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
     )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
+    masks = sorted((tmp_path / "full").glob("[lid]*/view_*.png"))  # labels, instances, depth
+    assert len(masks) == 12
+    for png in masks:  # the masks too are bit-identical
+        assert (
+            png.read_bytes() == (tmp_path / "cut" / png.relative_to(tmp_path / "full")).read_bytes()
+        )
     again = generate(
         small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
     )
     assert again.ply_path.read_bytes() == full.ply_path.read_bytes()
+    for png in sorted((tmp_path / "full").glob("[lid]*/view_*.png")):  # labels, instances, depth
+        assert (
+            png.read_bytes()
+            == (tmp_path / "again" / png.relative_to(tmp_path / "full")).read_bytes()
+        )
     # And the optimisation really changed the model.
     from plantdreamer.io import read_splat_ply
 

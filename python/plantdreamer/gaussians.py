@@ -39,6 +39,8 @@ class Gaussians:
     log_scales: [N, 3] natural logs of the per-axis standard deviations.
     opacity_logits: [N] logits of the opacities.
     sh: [N, K, 3] SH coefficients, K = (d + 1)^2; ``sh[:, 0]`` is the PLY's f_dc.
+    labels: None, or int32 [N, 2]: each Gaussian's class (``label``) and object id
+        (``instance``), -1 where none; inherited from the point it was initialised from.
     """
 
     means: np.ndarray
@@ -46,6 +48,7 @@ class Gaussians:
     log_scales: np.ndarray
     opacity_logits: np.ndarray
     sh: np.ndarray
+    labels: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.validate()
@@ -87,6 +90,13 @@ class Gaussians:
             raise InputError(
                 f"sh must have shape [{n}, (d+1)^2, 3] with d in 0..3, got {list(self.sh.shape)}"
             )
+        if self.labels is not None and (
+            not isinstance(self.labels, np.ndarray)
+            or self.labels.shape != (n, 2)
+            or self.labels.dtype != np.int32
+        ):
+            got = getattr(self.labels, "shape", type(self.labels).__name__)
+            raise InputError(f"labels must be an int32 [{n}, 2] array (label, instance), got {got}")
 
     def scales(self) -> np.ndarray:
         return np.exp(self.log_scales)
@@ -112,6 +122,7 @@ class Gaussians:
             self.log_scales.copy(),
             self.opacity_logits.copy(),
             sh,
+            None if self.labels is None else self.labels.copy(),
         )
 
     def subset(self, index: np.ndarray) -> Gaussians:
@@ -121,4 +132,5 @@ class Gaussians:
             self.log_scales[index],
             self.opacity_logits[index],
             self.sh[index],
+            None if self.labels is None else self.labels[index],
         )

@@ -32,7 +32,11 @@ names and comments must be ASCII, as other readers require.
 (binary little endian float32: x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2
 rot_0..3, f_rest channel-major). It is a naming convention over float32 columns, so it is
 done here on top of the generic reader and writer: no conversion touches the values, and a
-round trip is bit-exact. Normals are optional on read and written as zeros.
+round trip is bit-exact. Normals are optional on read and written as zeros. A labelled
+model has two more properties after the INRIA ones, ``int label`` (class) and
+``int instance`` (object id, -1 where none); viewers that ignore extra properties still
+open the file. On read, either one alone is accepted (the other becomes -1), as integers
+or as integer-valued floats.
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from plantdreamer import _core
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians, sh_coeff_count
+from plantdreamer.labels import NO_INSTANCE, as_int_labels
 
 __all__ = ["read_ply", "read_ply_columns", "read_splat_ply", "write_ply", "write_splat_ply"]
 
@@ -252,14 +257,31 @@ def read_splat_ply(path: PathLike, *, strict: bool = False) -> Gaussians:
         log_scales=f32("scale_0", "scale_1", "scale_2"),
         opacity_logits=cols["opacity"].astype(np.float32, copy=False),
         sh=sh,
+        labels=_splat_labels(cols, n, where),
     )
 
 
-def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None = None) -> None:
+def _splat_labels(cols: dict[str, np.ndarray], n: int, where: str) -> np.ndarray | None:
+    if "label" not in cols and "instance" not in cols:
+        return None
+    labels = np.full((n, 2), NO_INSTANCE, dtype=np.int32)
+    for i, name in enumerate(("label", "instance")):
+        if name in cols:
+            try:
+                labels[:, i] = as_int_labels(name, cols[name])
+            except InputError as exc:
+                raise PlyError(f"{where}: {exc}") from None
+    return labels
+
+
+def write_splat_ply(
+    path: PathLike, gaussians: Gaussians, sh_degree: int | None = None, labels: bool = True
+) -> None:
     """Writes a 3DGS model in the INRIA layout (binary little endian, float32).
 
     ``sh_degree`` pads (with zeros) or truncates the SH first; ``sh_degree=3`` makes files
-    that strict viewers (which expect 45 f_rest properties) accept.
+    that strict viewers (which expect 45 f_rest properties) accept. A labelled model gets
+    ``label`` and ``instance`` (int32) after the INRIA properties unless ``labels=False``.
     """
     g = gaussians if sh_degree is None else gaussians.with_sh_degree(sh_degree)
     g.validate()
@@ -281,4 +303,6 @@ def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None 
         (["scale_0", "scale_1", "scale_2"], block(g.log_scales)),
         (["rot_0", "rot_1", "rot_2", "rot_3"], block(g.quats)),
     ]
+    if labels and g.labels is not None:
+        fields.append((["label", "instance"], np.ascontiguousarray(g.labels, dtype=np.int32)))
     _core.write_ply_vertex(os.fspath(path), fields, True, [])

@@ -7,19 +7,22 @@ centring on the bounding-box midpoint with the longest side scaled to 4 units.
 Order: outliers are removed first, on the raw density, as the paper describes; the
 released code downsamples first (``sor_after_voxel=True``). Removing them first keeps stray
 points from inflating the bounding box that the voxel search and normalisation use, and the
-final count then lands within the target band. Voxel averaging cannot keep normals or integer attributes (labels),
-so the prepared cloud has positions and colours only.
+final count then lands within the target band. Voxel averaging cannot keep normals; integer
+attributes named in ``label_fields`` (class and instance ids) are kept, each voxel taking the
+majority value of its points (``plantdreamer.labels.voxel_majority``); other attributes are
+dropped.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
+from plantdreamer.labels import voxel_keys, voxel_majority
 from plantdreamer.pointcloud import (
     NormalizeTransform,
     downsample_to_count,
@@ -45,10 +48,12 @@ def prepare_cloud(
     tolerance: float = 0.05,
     log: Callable[[str, int], None] | None = None,
     sor_after_voxel: bool = False,
+    label_fields: Sequence[str] = (),
 ) -> tuple[PointCloud, NormalizeTransform | None, PrepareReport]:
     """Runs the preparation steps; ``target=None`` skips downsampling, ``sor_neighbors=0``
     skips outlier removal, ``normalize_size=None`` skips normalisation,
-    ``sor_after_voxel`` swaps the two middle steps (the released code's order)."""
+    ``sor_after_voxel`` swaps the two middle steps (the released code's order). The attributes
+    named in ``label_fields`` survive every step (majority vote per voxel)."""
     report = PrepareReport()
 
     def step(name: str, c: PointCloud) -> PointCloud:
@@ -85,7 +90,11 @@ def prepare_cloud(
         points, colors, report.voxel_size = downsample_to_count(
             c.positions, target, c.colors, tolerance=tolerance
         )
-        return step("downsampled", PointCloud(positions=points, colors=colors))
+        labels = {name: c.attributes[name] for name in label_fields}
+        if report.voxel_size > 0.0 and labels:
+            voxel = voxel_keys(c.positions, report.voxel_size)
+            labels = {name: voxel_majority(voxel, v) for name, v in labels.items()}
+        return step("downsampled", PointCloud(points, colors, attributes=labels))
 
     if sor_after_voxel:
         cloud = remove_outliers(downsample(cloud))
@@ -94,5 +103,6 @@ def prepare_cloud(
     transform = None
     if normalize_size is not None:
         points, transform = normalize(cloud.positions, normalize_size)
-        cloud = PointCloud(positions=points, colors=cloud.colors)
+        labels = {name: cloud.attributes[name] for name in label_fields}
+        cloud = PointCloud(points, cloud.colors, attributes=labels)
     return cloud, transform, report

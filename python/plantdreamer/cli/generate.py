@@ -35,7 +35,8 @@ def build_command() -> click.Command:
         "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
     )
     def generate(resume_dir: str | None, out_dir: str, quiet: bool, view: bool, **options) -> None:
-        """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv."""
+        """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
+        and ground truth per view: labels/, instances/, depth/, transforms.json."""
         from plantdreamer.pipeline import RunInterrupted, resolve_config
         from plantdreamer.pipeline import generate as run_generate
 

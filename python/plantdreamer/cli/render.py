@@ -35,6 +35,13 @@ from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
     help="Render at the cameras of this transforms.json (model kept in its own frame) "
     "instead of the orbit.",
 )
+@click.option(
+    "--labels",
+    "ground_truth",
+    is_flag=True,
+    help="Also write the ground truth of each orbit view (labels/, instances/ from the PLY's "
+    "label and instance properties; depth/, transforms.json), laid out as generate does.",
+)
 def render(
     ply: str,
     out_dir: str,
@@ -46,6 +53,7 @@ def render(
     background: float,
     turntable: str,
     transforms: str | None,
+    ground_truth: bool,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF and/or MP4.
 
@@ -54,25 +62,45 @@ def render(
     """
     import torch
 
+    from plantdreamer.errors import InputError
     from plantdreamer.io import read_splat_ply
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
     out = Path(out_dir)
     if transforms is not None:
+        if ground_truth:
+            raise InputError("--labels renders the orbit; it cannot be combined with --transforms")
         _render_dataset_views(read_splat_ply(ply), transforms, out, background)
         return
-    model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
+    gaussians = read_splat_ply(ply)
+    if ground_truth and gaussians.labels is None:
+        raise InputError(f"{ply} has no label or instance property to render masks from")
+    scene, transform = outputs.to_scene_frame(gaussians)
+    model = GaussianModel(scene)
     with torch.no_grad():
-        frames = outputs.render_orbit(
-            lambda cam: model.render([cam], background)[0][0].numpy(),
-            views,
-            distance,
-            elevation,
-            fovy,
-            resolution,
-        )
-    outputs.write_renders(out, frames)
+        if ground_truth:  # the dataset layout: images in renders/, masks beside them
+            from plantdreamer.cameras import orbit_ring
+            from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+
+            def render_view(camera):
+                image, _, meta = model.render([camera], background)
+                return outputs.to_uint8(image[0].numpy()), meta
+
+            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+            writer = ground_truth_writer(out, model, transform)
+            frames = render_views(model, writer, cameras, render_view)
+            outputs.write_renders(out / "renders", frames)
+        else:
+            frames = outputs.render_orbit(
+                lambda cam: model.render([cam], background)[0][0].numpy(),
+                views,
+                distance,
+                elevation,
+                fovy,
+                resolution,
+            )
+            outputs.write_renders(out, frames)
     outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
     click.echo(f"wrote {len(frames)} views of {len(model)} Gaussians to {out}")
 

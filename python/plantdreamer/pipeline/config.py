@@ -113,6 +113,16 @@ class GenerateConfig:
     scene_size: float = 4.0  # longest side of the normalised scene
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
     mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
+    label_field: str | None = setting(
+        None,
+        "Point-cloud property with class ids.",
+        default_text="label, class, scalar_Classification, semantic, ... if present",
+    )
+    instance_field: str | None = setting(
+        None,
+        "Point-cloud property with instance ids.",
+        default_text="instance, instance_id, leaf_id, ... if present",
+    )
 
     # Initialisation.
     sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
@@ -187,6 +197,9 @@ class GenerateConfig:
     )
     sh_degree_export: int | None = setting(
         None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
+    )
+    labels: bool = setting(
+        True, "Write label/instance into plant.ply and the class and instance masks."
     )
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
 

@@ -1,5 +1,6 @@
 """3DGS adaptive density control: clone small and split large Gaussians with large 2D-mean
-gradients, prune transparent ones. Deterministic for a given seed and step."""
+gradients, prune transparent ones. Deterministic for a given seed and step. Clones and split
+samples inherit their parent's label and instance."""
 
 from __future__ import annotations
 
@@ -77,6 +78,9 @@ def densify_and_prune(
         split_new = _split(p, split, generator, split_std)
         for k in new:
             new[k] = torch.cat([new[k], split_new[k]])
+        if model.labels is not None:  # the clones, then both samples of each split
+            parents = model.labels[split]
+            new["labels"] = torch.cat([model.labels[clone], parents, parents])
         model.append(new)
         # Remove the split originals (they are replaced by two smaller samples).
         split_full = torch.cat([split, torch.zeros(len(model) - n, dtype=torch.bool)])

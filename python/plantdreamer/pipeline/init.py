@@ -50,12 +50,13 @@ def init_gaussians(
     sh_degree: int = 0,
     neighbours: int = 3,
     scale_rule: str = "mean",
+    labels: np.ndarray | None = None,
 ) -> Gaussians:
     """Isotropic Gaussians at the points: scale = ``neighbour_spacing`` (mean distance to the
     3 nearest neighbours by default).
 
     Duplicate points have distance 0; their scale is floored at 1% of the median spacing so
-    that log-scales stay finite.
+    that log-scales stay finite. ``labels`` ([N, 2] int32, per point) become the Gaussians'.
     """
     n = points.shape[0]
     if n <= neighbours:
@@ -77,4 +78,5 @@ def init_gaussians(
         log_scales=np.repeat(np.log(scale)[:, None], 3, axis=1).astype(np.float32),
         opacity_logits=np.full(n, logit, dtype=np.float32),
         sh=sh,
+        labels=None if labels is None else np.ascontiguousarray(labels, dtype=np.int32),
     )

@@ -1,7 +1,8 @@
 """The trainable 3DGS model: parameters, their Adam optimiser, and rendering.
 
 Densification and culling change the number of Gaussians; ``remove`` and ``append`` keep the
-optimiser state (exp_avg, exp_avg_sq) aligned with the parameters, as the 3DGS reference does.
+optimiser state (exp_avg, exp_avg_sq) aligned with the parameters, as the 3DGS reference does,
+and the labels (not trained) aligned with both.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ class GaussianModel:
             "sh_rest": sh[:, 1:].clone(),
         }
         self.params = {k: torch.nn.Parameter(v.contiguous()) for k, v in tensors.items()}
+        # [N, 2] int32 (label, instance) or None; follows the Gaussians through every change.
+        self.labels = (
+            None if gaussians.labels is None else torch.from_numpy(gaussians.labels.copy())
+        )
         self.sh_degree = gaussians.sh_degree
         self.optimizer: torch.optim.Adam | None = None
         if lr is not None:
@@ -57,6 +62,7 @@ class GaussianModel:
             p["log_scales"].copy(),
             p["opacity_logits"].copy(),
             np.concatenate([p["sh_dc"], p["sh_rest"]], axis=1),
+            None if self.labels is None else self.labels.numpy().copy(),
         )
 
     def render(
@@ -95,13 +101,18 @@ class GaussianModel:
         """Drops the Gaussians where ``mask`` is True (and their optimiser state)."""
         keep = ~mask
         self._replace(lambda name, t: t[keep], lambda name, s: s[keep])
+        if self.labels is not None:
+            self.labels = self.labels[keep]
 
     def append(self, new: dict[str, torch.Tensor]) -> None:
-        """Adds Gaussians (one tensor per parameter name); their optimiser state starts at 0."""
+        """Adds Gaussians (one tensor per parameter name, and "labels" when the model has
+        labels); their optimiser state starts at 0."""
         self._replace(
             lambda name, t: torch.cat([t, new[name].to(t.dtype)]),
             lambda name, s: torch.cat([s, torch.zeros_like(new[name], dtype=s.dtype)]),
         )
+        if self.labels is not None:
+            self.labels = torch.cat([self.labels, new["labels"]])
 
     def _replace(self, edit_param, edit_state) -> None:
         for name in PARAM_NAMES:
@@ -124,12 +135,15 @@ class GaussianModel:
             "params": {k: v.detach().clone() for k, v in self.params.items()},
             "sh_degree": self.sh_degree,
             "optimizer": None if self.optimizer is None else self.optimizer.state_dict(),
+            "labels": None if self.labels is None else self.labels.clone(),
         }
 
     def load_state_dict(self, state: dict) -> None:
         for name in PARAM_NAMES:
             self.params[name] = torch.nn.Parameter(state["params"][name].clone())
         self.sh_degree = int(state["sh_degree"])
+        labels = state.get("labels")
+        self.labels = None if labels is None else labels.clone()
         if self.optimizer is not None:
             for group in self.optimizer.param_groups:
                 group["params"][0] = self.params[group["name"]]

@@ -29,39 +29,47 @@ def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
         np.asarray(transform.invert_log_scales(g.log_scales), dtype=np.float32),
         g.opacity_logits.copy(),
         g.sh.copy(),
+        None if g.labels is None else g.labels.copy(),
     )
 
 
-def to_scene_frame(g: Gaussians, size: float = 4.0) -> Gaussians:
-    """Centres a model on its bounding box and scales its longest side to ``size``."""
+def to_scene_frame(g: Gaussians, size: float = 4.0) -> tuple[Gaussians, NormalizeTransform]:
+    """Centres a model on its bounding box and scales its longest side to ``size``; returns
+    it and the transform from the model's frame."""
     from plantdreamer.pointcloud import normalize
 
     means, transform = normalize(g.means, size=size)
-    return Gaussians(
+    scene = Gaussians(
         np.asarray(means, dtype=np.float32),
         g.quats.copy(),
         (g.log_scales + np.float32(math.log(float(transform.scale)))).astype(np.float32),
         g.opacity_logits.copy(),
         g.sh.copy(),
+        None if g.labels is None else g.labels.copy(),
     )
+    return scene, transform
 
 
-def export_ply(path: Path, g: Gaussians, sh_degree: int | None) -> None:
-    """Writes the INRIA-layout PLY atomically (no partial file on failure)."""
+def export_ply(path: Path, g: Gaussians, sh_degree: int | None, labels: bool = True) -> None:
+    """Writes the INRIA-layout PLY atomically (no partial file on failure); with
+    ``labels``, the Gaussians' labels follow as ``label`` and ``instance``."""
     from plantdreamer.io import write_splat_ply
 
-    atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree))
+    atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree, labels=labels))
 
 
 def render_orbit(
     render, n: int, distance: float, elevation_deg: float, fovy_deg: float, resolution: int
 ) -> list[np.ndarray]:
     """uint8 [H, W, 3] images of the evaluation orbit; ``render(camera) -> [H, W, 3] float``."""
-    frames = []
-    for cam in orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution):
-        image = np.asarray(render(cam), dtype=np.float32)
-        frames.append((np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
-    return frames
+    cameras = orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution)
+    return [to_uint8(render(cam)) for cam in cameras]
+
+
+def to_uint8(image) -> np.ndarray:
+    """A float [H, W, 3] image in [0, 1] as uint8 (clipped, rounded)."""
+    image = np.asarray(image, dtype=np.float32)
+    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:

@@ -6,6 +6,7 @@ import copy
 import math
 import os
 import signal
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
@@ -17,13 +18,16 @@ from typing import Any
 import numpy as np
 import torch
 
+from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
+from plantdreamer.labels import class_counts
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
+from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
@@ -193,8 +197,17 @@ class _Run:
                 cfg.initial_opacity(),
                 cfg.sh_degree,
                 scale_rule=cfg.init_scale,
+                labels=source.labels,
             )
         self.transform, self.source_counts = source.transform, source.counts
+        self.label_fields = source.label_fields if source.labels is not None else None
+        if self.show_progress and cfg.pointcloud is not None:
+            found = source.label_fields or {}
+            print(
+                f"labels: class from {found.get('label') or 'none'}, "
+                f"instance from {found.get('instance') or 'none'}",
+                file=sys.stderr,
+            )
         self.initial_gaussians = g
         self.model = GaussianModel(g, cfg.lr)
         self.sampler = CameraSampler(cfg.cameras, self.resolution, cfg.seed, cfg.elevation_sampling)
@@ -209,7 +222,9 @@ class _Run:
 
         self.transform = NormalizeTransform.from_dict(state["transform"])
         self.source_counts = state["source_counts"]
-        self.initial_gaussians = Gaussians(**{k: v.numpy() for k, v in state["initial"].items()})
+        self.label_fields = state.get("label_fields")
+        initial = {k: v.numpy() for k, v in state["initial"].items() if v is not None}
+        self.initial_gaussians = Gaussians(**initial)
         self.model = GaussianModel(self.initial_gaussians, self.cfg.lr)
         self.model.load_state_dict(state["model"])
         self.sampler = CameraSampler(
@@ -288,6 +303,7 @@ class _Run:
         if dens.due(step):
             with self.timer("densify"):
                 gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step)
+                before = self._class_counts()
                 counts = densify_and_prune(
                     self.model,
                     self.densify,
@@ -300,9 +316,10 @@ class _Run:
                     dens.split_std,
                 )
                 self.densify = DensifyStats.zeros(len(self.model))
-            self.events.append(
-                {"step": step, "event": "densify", **counts, "gaussians": len(self.model)}
-            )
+            event = {"step": step, "event": "densify", **counts, "gaussians": len(self.model)}
+            if self.model.labels is not None:
+                event["classes_before"], event["classes_after"] = before, self._class_counts()
+            self.events.append(event)
         if cull.due(step):
             with self.timer("cull"):
                 mask, stats = large_gaussian_mask(
@@ -317,6 +334,32 @@ class _Run:
             self.events.append(
                 {"step": step, "event": "cull", **stats, "gaussians": len(self.model)}
             )
+
+    def _class_names(self) -> dict[int, str] | None:
+        if self.cfg.pointcloud is not None:
+            return None
+        from plantdreamer.lsystem import OrganClass
+
+        return {int(c): c.name.lower() for c in OrganClass}
+
+    def _label_summary(self, final: Gaussians) -> dict[str, Any] | None:
+        """Where the labels came from and the Gaussians per class / instance count."""
+        first, last = self.initial_gaussians.labels, final.labels
+        if first is None or last is None:
+            return None
+        return {
+            "fields": self.label_fields,
+            "classes": {"initial": class_counts(first[:, 0]), "final": class_counts(last[:, 0])},
+            "instances": {
+                "initial": int(np.unique(first[first[:, 1] >= 0, 1]).size),
+                "final": int(np.unique(last[last[:, 1] >= 0, 1]).size),
+            },
+            "exported": self.cfg.labels,
+        }
+
+    def _class_counts(self) -> dict[str, int]:
+        labels = self.model.labels
+        return {} if labels is None else class_counts(labels[:, 0].numpy())
 
     def _depth_conditioner(self):
         from plantdreamer.guidance.depth import DepthCleaning, DepthConditioner
@@ -344,11 +387,12 @@ class _Run:
                     "config": self.cfg.to_dict(),
                     "model": self.model.state_dict(),
                     "initial": {
-                        k: torch.from_numpy(getattr(g, k).copy())
-                        for k in ("means", "quats", "log_scales", "opacity_logits", "sh")
+                        k: None if getattr(g, k) is None else torch.from_numpy(getattr(g, k).copy())
+                        for k in ("means", "quats", "log_scales", "opacity_logits", "sh", "labels")
                     },
                     "transform": self.transform.to_dict(),
                     "source_counts": self.source_counts,
+                    "label_fields": self.label_fields,
                     "sampler": self.sampler.state(),
                     "densify": {"grad_sum": self.densify.grad_sum, "count": self.densify.count},
                     "torch_rng": torch.get_rng_state(),
@@ -367,17 +411,30 @@ class _Run:
         with self.timer("export"):
             ply_path = out / "plant.ply"
             outputs.export_ply(
-                ply_path, outputs.to_input_frame(final, self.transform), cfg.sh_degree_export
+                ply_path,
+                outputs.to_input_frame(final, self.transform),
+                cfg.sh_degree_export,
+                cfg.labels,
             )
         with self.timer("renders"), torch.no_grad():
-            frames = outputs.render_orbit(
-                lambda cam: self.model.render([cam], cfg.background)[0][0].numpy(),
+            # Each view's render, then its ground truth (which reuses the render's footprints).
+            cameras = orbit_ring(
                 cfg.eval_views,
                 cfg.eval_distance,
                 cfg.eval_elevation_deg,
                 cfg.eval_fovy_deg,
                 self.resolution,
+                self.resolution,
             )
+            writer = ground_truth_writer(
+                out, self.model, self.transform, cfg.labels, self._class_names()
+            )
+
+            def render(camera):
+                image, _, meta = self.model.render([camera], cfg.background)
+                return outputs.to_uint8(image[0].numpy()), meta
+
+            frames = render_views(self.model, writer, cameras, render)
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntables(out, frames, cfg.turntable_frames, cfg.turntable)
         outputs.write_log_csv(out / "log.csv", self.log_rows)
@@ -400,6 +457,7 @@ class _Run:
             "device": "cuda" if torch.cuda.is_available() else "cpu",
             "source_points": self.source_counts,
             "gaussians": {"initial": len(self.initial_gaussians), "final": len(final)},
+            "labels": self._label_summary(final),
             "timings_s": dict(self.timer.totals),
             "per_step_s": per_step,
             "events": self.events,

@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
+from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pointcloud import NormalizeTransform
 
@@ -18,29 +20,43 @@ class Source:
     colors: np.ndarray | None  # [N, 3] float32 in [0, 1]
     transform: NormalizeTransform  # restores the input frame at export
     counts: dict[str, int]  # points after each preparation step, for run.json
+    labels: np.ndarray | None = None  # [N, 2] int32 (label, instance), -1 where none
+    label_fields: dict[str, str | None] | None = None  # the input properties they came from
 
 
 def load_source(cfg: GenerateConfig) -> Source:
     """A captured cloud goes through `prepare_cloud` (finite, SOR, voxel to ~n_points,
     normalise); an L-System mesh is sampled uniformly by area (then, with ``mesh_sor``,
-    filtered by SOR as the released code does), then normalised."""
+    filtered by SOR as the released code does), then normalised. Labels come with the points:
+    the L-System's organ and leaf ids, or a cloud's label properties."""
     from plantdreamer.pointcloud import normalize
 
     if cfg.pointcloud is not None:
         from plantdreamer.io import read_ply
         from plantdreamer.prepare import prepare_cloud
 
+        raw = read_ply(Path(cfg.pointcloud))
+        fields = find_label_fields(raw.attributes, cfg.label_field, cfg.instance_field)
+        for name in fields:
+            if name is not None:  # check the values before the slow steps
+                raw.attributes[name] = as_int_labels(name, raw.attributes[name])
         cloud, transform, report = prepare_cloud(
-            read_ply(Path(cfg.pointcloud)),
+            raw,
             target=cfg.n_points,
             sor_neighbors=cfg.sor_neighbors,
             sor_std=cfg.sor_std,
             normalize_size=cfg.scene_size,
             sor_after_voxel=cfg.sor_after_voxel,
+            label_fields=[n for n in fields if n is not None],
         )
         assert transform is not None
         return Source(
-            cloud.positions.astype(np.float32), cloud.colors, transform, dict(report.counts)
+            cloud.positions.astype(np.float32),
+            cloud.colors,
+            transform,
+            dict(report.counts),
+            _labels(cloud, *fields),
+            {"label": fields[0], "instance": fields[1]},
         )
 
     from plantdreamer.lsystem import generate_plant, sample_points
@@ -57,4 +73,21 @@ def load_source(cfg: GenerateConfig) -> Source:
         )
         counts["outliers removed"] = len(cloud)
     points, transform = normalize(cloud.positions, size=cfg.scene_size)
-    return Source(points.astype(np.float32), cloud.colors, transform, counts)
+    return Source(
+        points.astype(np.float32),
+        cloud.colors,
+        transform,
+        counts,
+        _labels(cloud, "label", "instance"),
+        {"label": "OrganClass", "instance": "leaf"},
+    )
+
+
+def _labels(cloud: PointCloud, label: str | None, instance: str | None) -> np.ndarray | None:
+    if label is None and instance is None:
+        return None
+    out = np.full((len(cloud), 2), NO_INSTANCE, dtype=np.int32)
+    for i, name in enumerate((label, instance)):
+        if name is not None:
+            out[:, i] = as_int_labels(name, cloud.attributes[name])
+    return out

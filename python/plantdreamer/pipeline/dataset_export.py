@@ -1,0 +1,184 @@
+"""Ground-truth files beside the renders, laid out as a nerfstudio/NeRF dataset.
+
+``labels/view_XXX.png``: 8-bit class ids, 0 = background (and unlabelled Gaussians).
+Class ids 1..255 are written as they are; a model with other ids (0, negative, > 255) gets
+pixel values 1..K in ascending class order, and ``transforms.json`` lists the mapping in
+``semantic_classes`` either way. ``labels/preview/view_XXX.png``: the same in colour with a
+legend. ``instances/view_XXX.png``: 16-bit, 0 = background or no instance, else instance
+id + 1. ``depth/view_XXX.png``: 16-bit z-depth (along the optical axis, not along the ray)
+in millimetres of the input's units (metres for L-System plants), 0 where there is no plant;
+``depth_unit_scale_factor`` 0.001 turns it back into input units. ``transforms.json``: pinhole
+intrinsics and OpenGL camera-to-world poses in the frame of ``plant.ply``, with the image,
+mask (the class map: non-zero is plant), depth and instance paths of every frame.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from plantdreamer.atomic import atomic_write
+from plantdreamer.cameras import Camera
+from plantdreamer.errors import InputError
+from plantdreamer.pipeline.ground_truth import GroundTruth, LabelSet
+from plantdreamer.pointcloud import NormalizeTransform
+
+DEPTH_UNIT_SCALE = 0.001  # depth PNG value * this = depth in input units
+MAX_INSTANCE_ID = 65534  # 16-bit PNG, value = id + 1
+
+# Colours of the preview (tab10-like, then repeating); background is black.
+_PALETTE = np.array(
+    [
+        [31, 119, 180], [44, 160, 44], [140, 86, 75], [214, 39, 40], [148, 103, 189],
+        [255, 127, 14], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207],
+    ],
+    dtype=np.uint8,
+)  # fmt: skip
+
+
+class GroundTruthWriter:
+    """Writes the ground truth of each view of a run and, at the end, ``transforms.json``."""
+
+    def __init__(
+        self,
+        out_dir: Path,
+        label_set: LabelSet | None,
+        transform: NormalizeTransform,
+        class_names: dict[int, str] | None = None,
+    ) -> None:
+        self.out_dir, self.label_set, self.transform = out_dir, label_set, transform
+        self.class_names = class_names or {}
+        self.frames: list[dict[str, object]] = []
+        self.pixel_values = None if label_set is None else class_pixel_values(label_set.classes)
+        if label_set is not None and label_set.instances.size:
+            if label_set.instances.max() > MAX_INSTANCE_ID:
+                raise InputError(
+                    f"instance ids above {MAX_INSTANCE_ID} do not fit a 16-bit mask, "
+                    f"got {int(label_set.instances.max())}"
+                )
+
+    def add(self, name: str, image_path: str, camera: Camera, gt: GroundTruth) -> None:
+        """Writes one view's maps; ``image_path`` is the render, relative to ``out_dir``."""
+        frame: dict[str, object] = {
+            "file_path": image_path,
+            "transform_matrix": self._c2w(camera).tolist(),
+        }
+        depth_mm = gt.depth.astype(np.float64) / self.transform.scale / DEPTH_UNIT_SCALE
+        _write_png(self.out_dir / "depth" / f"{name}.png", _to_uint16(depth_mm))
+        frame["depth_file_path"] = f"depth/{name}.png"
+        if self.label_set is not None:
+            assert self.pixel_values is not None
+            table = np.r_[self.pixel_values, 0].astype(np.uint8)  # index -1: background
+            semantic = table[gt.label]
+            _write_png(self.out_dir / "labels" / f"{name}.png", semantic)
+            _write_png(self.out_dir / "labels" / "preview" / f"{name}.png", self._preview(semantic))
+            inst_ids = np.r_[self.label_set.instances + 1, 0].astype(np.uint16)
+            _write_png(self.out_dir / "instances" / f"{name}.png", inst_ids[gt.instance])
+            frame["mask_path"] = f"labels/{name}.png"
+            frame["semantic_path"] = f"labels/{name}.png"
+            frame["instance_path"] = f"instances/{name}.png"
+        self.frames.append(frame)
+
+    def finish(self, camera: Camera) -> None:
+        """Writes transforms.json (``camera``: any view, for the shared intrinsics)."""
+        k = camera.K
+        meta: dict[str, object] = {
+            "camera_model": "OPENCV",
+            "fl_x": float(k[0, 0]),
+            "fl_y": float(k[1, 1]),
+            "cx": float(k[0, 2]),
+            "cy": float(k[1, 2]),
+            "w": camera.width,
+            "h": camera.height,
+            "depth_unit_scale_factor": DEPTH_UNIT_SCALE,
+        }
+        if self.label_set is not None:
+            assert self.pixel_values is not None
+            meta["semantic_classes"] = [
+                {"value": int(v), "class": int(c), "name": self._name(int(c))}
+                for v, c in zip(self.pixel_values, self.label_set.classes, strict=True)
+            ]
+            meta["instance_count"] = int(self.label_set.instances.size)
+        meta["frames"] = self.frames
+        text = json.dumps(meta, indent=2)
+        atomic_write(self.out_dir / "transforms.json", lambda tmp: tmp.write_text(text + "\n"))
+
+    def _c2w(self, camera: Camera) -> np.ndarray:
+        """OpenGL camera-to-world in the input frame (the normalisation is a uniform scale
+        and a shift, so only the camera centre moves)."""
+        c2w = camera.to_opengl_c2w().copy()
+        c2w[:3, 3] = self.transform.invert(c2w[:3, 3][None, :].astype(np.float64))[0]
+        return c2w
+
+    def _name(self, cls: int) -> str:
+        return self.class_names.get(cls, f"class {cls}")
+
+    def _preview(self, semantic: np.ndarray) -> np.ndarray:
+        from PIL import Image, ImageDraw
+
+        colours = np.zeros((256, 3), dtype=np.uint8)
+        assert self.label_set is not None and self.pixel_values is not None
+        for i, v in enumerate(self.pixel_values):
+            colours[v] = _PALETTE[i % len(_PALETTE)]
+        image = Image.fromarray(colours[semantic])
+        draw = ImageDraw.Draw(image)
+        for i, (v, c) in enumerate(zip(self.pixel_values, self.label_set.classes, strict=True)):
+            y = 4 + 14 * i
+            draw.rectangle([4, y, 14, y + 10], fill=tuple(int(x) for x in colours[v]))
+            draw.text((18, y - 1), f"{int(v)}: {self._name(int(c))}", fill=(255, 255, 255))
+        return np.asarray(image)
+
+
+def class_pixel_values(classes: np.ndarray) -> np.ndarray:
+    """The 8-bit value of each class: the id itself when all ids are in 1..255, else 1..K."""
+    classes = np.asarray(classes)
+    if classes.size > 255:
+        raise InputError(f"{classes.size} classes do not fit an 8-bit mask (at most 255)")
+    if classes.size == 0 or (classes.min() >= 1 and classes.max() <= 255):
+        return classes.astype(np.uint8)
+    return np.arange(1, classes.size + 1, dtype=np.uint8)
+
+
+def _to_uint16(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(values), 0, 65535).astype(np.uint16)
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import imageio.v3 as iio
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda tmp: iio.imwrite(tmp, image, extension=".png"))
+
+
+def ground_truth_writer(
+    out_dir: Path,
+    model,
+    transform: NormalizeTransform,
+    labels: bool = True,
+    class_names: dict[int, str] | None = None,
+) -> GroundTruthWriter:
+    """A writer for ``model`` (a ``GaussianModel`` in the scene frame); with ``labels=False``
+    or an unlabelled model it writes depth and transforms.json only."""
+    label_set = None
+    if labels and model.labels is not None:
+        label_set = LabelSet.of(model.labels.numpy())
+    return GroundTruthWriter(out_dir, label_set, transform, class_names)
+
+
+def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
+    """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
+    whose instance channels reuse the render's footprints; returns the images."""
+    from plantdreamer.pipeline.ground_truth import render_ground_truth
+
+    images = []
+    for i, camera in enumerate(cameras):
+        image, meta = render(camera)
+        name = f"view_{i:03d}"
+        gt = render_ground_truth(model, camera, writer.label_set, meta)
+        writer.add(name, f"renders/{name}.png", camera, gt)
+        images.append(image)
+    if cameras:
+        writer.finish(cameras[0])
+    return images
