@@ -45,6 +45,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from plantdreamer import _core
+from plantdreamer.atomic import atomic_path
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians, sh_coeff_count
@@ -194,7 +195,8 @@ def write_ply(
         if name in taken:
             raise InputError(f"attribute {name!r} clashes with a standard vertex property")
         fields.append(([name], _ply_column(name, values)))
-    _core.write_ply_vertex(os.fspath(path), fields, binary, list(comments))
+    with atomic_path(path) as tmp:
+        _core.write_ply_vertex(os.fspath(tmp), fields, binary, list(comments))
 
 
 _F_REST = re.compile(r"f_rest_(\d+)$")
@@ -255,7 +257,13 @@ def read_splat_ply(path: PathLike, *, strict: bool = False) -> Gaussians:
     )
 
 
-def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None = None) -> None:
+def write_splat_ply(
+    path: PathLike,
+    gaussians: Gaussians,
+    sh_degree: int | None = None,
+    *,
+    comments: Iterable[str] = (),
+) -> None:
     """Writes a 3DGS model in the INRIA layout (binary little endian, float32).
 
     ``sh_degree`` pads (with zeros) or truncates the SH first; ``sh_degree=3`` makes files
@@ -281,4 +289,5 @@ def write_splat_ply(path: PathLike, gaussians: Gaussians, sh_degree: int | None 
         (["scale_0", "scale_1", "scale_2"], block(g.log_scales)),
         (["rot_0", "rot_1", "rot_2", "rot_3"], block(g.quats)),
     ]
-    _core.write_ply_vertex(os.fspath(path), fields, True, [])
+    with atomic_path(path) as tmp:
+        _core.write_ply_vertex(os.fspath(tmp), fields, True, list(comments))

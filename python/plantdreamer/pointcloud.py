@@ -155,8 +155,9 @@ class NormalizeTransform:
         return cls(center=center, scale=scale)  # type: ignore[arg-type]
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        with open(path, "w") as f:
-            json.dump(self.to_dict(), f, indent=2)
+        from plantdreamer.atomic import write_json
+
+        write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> NormalizeTransform:

@@ -71,10 +71,10 @@ def render(
 
 
 def _render_dataset_views(gaussians, transforms: str, out: Path, background: float) -> None:
-    import imageio.v3 as iio
     import numpy as np
     import torch
 
+    from plantdreamer.atomic import write_image
     from plantdreamer.eval.datasets import scan_transforms_json
     from plantdreamer.pipeline.model import GaussianModel
 
@@ -85,5 +85,5 @@ def _render_dataset_views(gaussians, transforms: str, out: Path, background: flo
         with torch.no_grad():
             rgb = model.render([view.camera], background)[0][0].numpy()
         image = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        iio.imwrite(out / f"{Path(view.name).name}.png", image)
+        write_image(out / f"{Path(view.name).name}.png", image)
     click.echo(f"wrote {len(views)} views of {len(model)} Gaussians to {out}")

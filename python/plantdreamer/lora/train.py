@@ -15,7 +15,6 @@ Outputs in ``out``: ``pytorch_lora_weights.safetensors`` (diffusers format), ``l
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -25,6 +24,7 @@ from typing import Any
 
 import torch
 
+from plantdreamer.atomic import write_json
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.models import (
     DEFAULT_BASE_MODEL,
@@ -259,8 +259,9 @@ def train_lora(
             device,
         )
     metadata = out / "lora.json"
-    metadata.write_text(
-        json.dumps(
+    write_json(
+        metadata,
+        (
             {
                 "format": "diffusers LoRA (unet.<module>.lora.down/up.weight), alpha folded in",
                 "target_modules": list(TARGET_MODULES),
@@ -276,8 +277,7 @@ def train_lora(
                 "device": str(device),
                 "versions": package_versions(),
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            },
-            indent=2,
-        )
+            }
+        ),
     )
     return LoraTrainResult(weights, metadata, losses, eval_before, eval_after, start, samples)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from plantdreamer.atomic import atomic_write
+from plantdreamer import atomic
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
@@ -46,7 +45,7 @@ def export_ply(path: Path, g: Gaussians, sh_degree: int | None) -> None:
     """Writes the INRIA-layout PLY atomically (no partial file on failure)."""
     from plantdreamer.io import write_splat_ply
 
-    atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree))
+    atomic.atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree))
 
 
 def render_orbit(
@@ -61,11 +60,9 @@ def render_orbit(
 
 
 def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
-    import imageio.v3 as iio
-
     out_dir.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(frames):
-        iio.imwrite(out_dir / f"view_{i:03d}.png", frame)
+        atomic.write_image(out_dir / f"view_{i:03d}.png", frame)
 
 
 def write_turntable(path: Path, frames: list[np.ndarray], count: int) -> None:
@@ -75,7 +72,7 @@ def write_turntable(path: Path, frames: list[np.ndarray], count: int) -> None:
     if not frames or count <= 0:
         return
     picks = np.linspace(0, len(frames), num=min(count, len(frames)), endpoint=False).astype(int)
-    atomic_write(
+    atomic.atomic_write(
         path,
         lambda tmp: iio.imwrite(
             tmp, np.stack([frames[i] for i in picks]), extension=".gif", duration=80, loop=0
@@ -84,8 +81,7 @@ def write_turntable(path: Path, frames: list[np.ndarray], count: int) -> None:
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    text = json.dumps(data, indent=2, sort_keys=False, default=_jsonable)
-    atomic_write(path, lambda tmp: tmp.write_text(text + "\n"))
+    atomic.write_json(path, data, default=_jsonable)
 
 
 def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -97,7 +93,7 @@ def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     writer = csv.DictWriter(buf, fieldnames=list(fields))
     writer.writeheader()
     writer.writerows(rows)
-    atomic_write(path, lambda tmp: tmp.write_text(buf.getvalue()))
+    atomic.write_text(path, buf.getvalue())
 
 
 def _jsonable(value: Any) -> Any:
