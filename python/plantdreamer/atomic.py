@@ -34,9 +34,11 @@ PathLike = str | os.PathLike[str]
 
 @contextmanager
 def atomic_path(path: PathLike) -> Iterator[Path]:
-    """Yields a temporary path beside ``path``; on a clean exit it replaces ``path``."""
+    """Yields a temporary path beside ``path``; on a clean exit it replaces ``path``.
+
+    The folder must exist (a missing folder is a FileNotFoundError, as with ``open``).
+    """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(
         prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=target.parent
     )

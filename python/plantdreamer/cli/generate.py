@@ -1,7 +1,8 @@
 """``plantdreamer generate``: a species or a point cloud in, a 3DGS plant out.
 
 The run's options are the settings of ``GenerateConfig`` (defaults, choices and help come
-from the dataclass); this module only adds the output folder, ``--resume`` and ``--quiet``.
+from the dataclass); this module only adds the output folder, ``--resume``, ``--overwrite``
+and ``--quiet``.
 """
 
 from __future__ import annotations
@@ -28,18 +29,40 @@ def build_command() -> click.Command:
         type=click.Path(file_okay=False),
         help="Continue the run in this folder.",
     )
+    @click.option(
+        "--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out."
+    )
     @click.option("--quiet", is_flag=True, help="No progress output.")
-    def generate(resume_dir: str | None, out_dir: str, quiet: bool, **options) -> None:
+    @click.pass_context
+    def generate(
+        ctx: click.Context,
+        resume_dir: str | None,
+        out_dir: str,
+        overwrite: bool,
+        quiet: bool,
+        **options,
+    ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv."""
         from plantdreamer.pipeline import RunInterrupted
         from plantdreamer.pipeline import generate as run_generate
 
+        given = _given(ctx)
         try:
             if resume_dir is not None:
-                result = run_generate(None, resume_dir, resume=True, show_progress=not quiet)
+                if overwrite:
+                    raise click.UsageError("--overwrite starts afresh; it cannot go with --resume")
+                if "out_dir" in given and Path(out_dir) != Path(resume_dir):
+                    raise click.UsageError(
+                        "--resume continues the run in its own folder; drop --out"
+                    )
+                # Settings typed again on resume: checked against the checkpoint, never ignored.
+                changes = {k.replace("__", "."): v for k, v in options.items() if k in given}
+                result = run_generate(
+                    None, resume_dir, resume=True, changes=changes, show_progress=not quiet
+                )
             else:
                 cfg = config_from_options(GenerateConfig, options)
-                result = run_generate(cfg, out_dir, show_progress=not quiet)
+                result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
         except RunInterrupted as stop:
             click.secho(
                 f"interrupted at step {stop.step}; checkpoint written. "
@@ -54,6 +77,14 @@ def build_command() -> click.Command:
         )
 
     return generate
+
+
+def _given(ctx: click.Context) -> set[str]:
+    """The options typed on the command line (not defaults): a resume must not ignore them."""
+    from click.core import ParameterSource
+
+    typed = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
 
 
 generate = build_command()

@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+# What render writes into --out; --overwrite deletes these first.
+RENDER_OUTPUTS = ("turntable.gif", "*.png")
+
 
 @click.command()
 @click.argument("ply", type=click.Path(dir_okay=False))
@@ -27,6 +30,7 @@ import click
     help="Render at the cameras of this transforms.json (model kept in its own frame) "
     "instead of the orbit.",
 )
+@click.option("--overwrite", is_flag=True, help="Replace the images of an earlier render in --out.")
 def render(
     ply: str,
     out_dir: str,
@@ -38,22 +42,35 @@ def render(
     background: float,
     turntable: bool,
     transforms: str | None,
+    overwrite: bool,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
 
     On the orbit, the model is framed as generate frames it: centred on its bounding box,
     longest side 4. With --transforms, each view is named after its frame.
     """
+    from plantdreamer.io import read_splat_ply
+    from plantdreamer.output_folder import claim_folder
+
+    out = Path(out_dir)
+    with claim_folder(out, overwrite=overwrite, owned=RENDER_OUTPUTS):
+        if transforms is not None:
+            _render_dataset_views(read_splat_ply(ply), transforms, out, background)
+        else:
+            _render_orbit(
+                ply, out, views, resolution, distance, elevation, fovy, background, turntable
+            )
+
+
+def _render_orbit(
+    ply, out, views, resolution, distance, elevation, fovy, background, turntable
+) -> None:
     import torch
 
     from plantdreamer.io import read_splat_ply
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
-    out = Path(out_dir)
-    if transforms is not None:
-        _render_dataset_views(read_splat_ply(ply), transforms, out, background)
-        return
     model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
     with torch.no_grad():
         frames = outputs.render_orbit(

@@ -257,5 +257,6 @@ def save_depth_png(cond: torch.Tensor, path: str | Path) -> Path:
     image = cond.detach().float().reshape(cond.shape[-2], cond.shape[-1]).clamp(0, 1)
     array = (image.cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     write_image(path, Image.fromarray(array))
     return path

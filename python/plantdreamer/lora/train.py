@@ -26,6 +26,7 @@ import torch
 
 from plantdreamer.atomic import write_json
 from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
 from plantdreamer.guidance.models import (
     DEFAULT_BASE_MODEL,
     DiffusionComponents,
@@ -34,6 +35,7 @@ from plantdreamer.guidance.models import (
     resolve_device,
 )
 from plantdreamer.lora.checkpoint import (
+    CHECKPOINT_DIR,
     check_fingerprint,
     list_checkpoints,
     load_checkpoint,
@@ -42,6 +44,7 @@ from plantdreamer.lora.checkpoint import (
 from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
+from plantdreamer.output_folder import claim_folder
 from plantdreamer.versions import package_versions
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
@@ -67,6 +70,7 @@ class LoraTrainConfig:
     caption_template: str = DEFAULT_CAPTION
     checkpoint_every: int = 500
     resume: bool = False
+    overwrite: bool = False  # delete an earlier run's outputs in ``out`` first
     mixed_precision: bool | None = None  # None: on for CUDA
     device: str | None = None
     validate: int = 0
@@ -165,8 +169,35 @@ def train_lora(
     components: DiffusionComponents | Mapping[str, Any] | None = None,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> LoraTrainResult:
-    """Run (or resume) a training; ``progress(step, steps, loss)`` is called after each step."""
+    """Run (or resume) a training; ``progress(step, steps, loss)`` is called after each step.
+
+    ``out`` is locked for the run; a new run needs it empty (or ``overwrite``), a resumed
+    one needs a checkpoint there.
+    """
     config.check()
+    out = Path(config.out)
+    if config.resume and config.overwrite:
+        raise InputError("overwrite starts afresh; it cannot go with resume")
+    if config.resume and not list_checkpoints(out):
+        raise CheckpointError(
+            f"nothing to resume: {out / CHECKPOINT_DIR} holds no checkpoint; "
+            "run without --resume to start a new training"
+        )
+    if not config.resume and not config.overwrite and list_checkpoints(out):
+        raise CheckpointError(
+            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
+            "--overwrite to start afresh, or choose another --out folder"
+        )
+    owned = ("lora.json", LORA_WEIGHT_NAME, "validation", CHECKPOINT_DIR)
+    with claim_folder(out, overwrite=config.overwrite, owned=owned, allow_existing=config.resume):
+        return _train(config, components, progress)
+
+
+def _train(
+    config: LoraTrainConfig,
+    components: DiffusionComponents | Mapping[str, Any] | None,
+    progress: Callable[[int, int, float], None] | None,
+) -> LoraTrainResult:
     device = resolve_device(config.device)
     mixed = config.mixed_precision if config.mixed_precision is not None else device.type == "cuda"
     if mixed and device.type != "cuda":
@@ -185,12 +216,7 @@ def train_lora(
     generator = torch.Generator().manual_seed(config.seed)
 
     start, losses, eval_before = 0, [], math.nan
-    if not config.resume and list_checkpoints(out):
-        raise CheckpointError(
-            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
-            "or choose another --out folder"
-        )
-    if config.resume and list_checkpoints(out):
+    if config.resume:
         from peft.utils import set_peft_model_state_dict
 
         path = list_checkpoints(out)[-1]

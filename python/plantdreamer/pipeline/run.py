@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import shutil
 import signal
 import time
 from collections import defaultdict
@@ -17,11 +18,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
+from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
@@ -88,46 +90,112 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
     )
 
 
+# What a run writes, the file that marks a finished run first (deleted first by --overwrite).
+RUN_OUTPUTS = ("run.json", "plant.ply", "turntable.gif", "renders", "log.csv", CHECKPOINT_NAME)
+# Settings a resumed run may change: more steps continue the same run further.
+RESUME_CHANGEABLE = ("steps",)
+
+
 def generate(
     cfg: GenerateConfig | None,
     out_dir: str | Path,
     *,
     guidance: Guidance | None = None,
     resume: bool = False,
+    changes: dict[str, Any] | None = None,
+    overwrite: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
 ) -> RunResult:
     """Runs (or resumes) a generation and writes every output into ``out_dir``.
 
-    With ``resume=True`` the config is the checkpoint's and ``cfg`` must be None.
+    The folder is locked for the run. A new run needs an empty folder, or ``overwrite``,
+    which deletes the previous run's outputs first (never a mix of two runs).
+    With ``resume=True`` the config is the checkpoint's and ``cfg`` must be None;
+    ``changes`` are settings given again on resume: equal ones are fine, more ``steps``
+    continue the run further, any other difference is a CheckpointError.
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
     The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
     ``RunInterrupted`` is raised.
     """
     out_dir = Path(out_dir)
-    state = load_checkpoint(out_dir) if resume else None
-    if state is not None:
-        cfg = GenerateConfig.from_dict(state["config"])
-    if cfg is None:
+    if cfg is None and not resume:
         raise InputError("a config is needed unless resuming")
-    check_inputs(cfg)
-    _check_writable(out_dir)
-    cfg = copy.deepcopy(cfg)
-    if cfg.resolution is None:
-        cfg.resolution = default_resolution()
-    guidance = guidance if guidance is not None else build_guidance(cfg)
-    return _Run(cfg, out_dir, guidance, state, show_progress, on_step).run()
+    if cfg is not None:
+        check_inputs(cfg)
+    if not resume and not overwrite and (out_dir / CHECKPOINT_NAME).is_file():
+        raise InputError(
+            f"{out_dir} holds a checkpoint of an earlier run; continue it with --resume "
+            f"{out_dir}, pass --overwrite to start afresh, or choose another folder"
+        )
+    with claim_folder(
+        out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS, allow_existing=resume
+    ):
+        state = note = None
+        if resume:
+            state = load_checkpoint(out_dir)
+            cfg, note = _resumed_config(state, changes or {}, out_dir)
+            check_inputs(cfg)
+            for name in RUN_OUTPUTS[:4]:  # a finished run's outputs are made anew
+                path = out_dir / name
+                if path.is_dir():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink(missing_ok=True)
+        assert cfg is not None
+        cfg = copy.deepcopy(cfg)  # the caller's config is not changed
+        if cfg.resolution is None:
+            cfg.resolution = default_resolution()
+        guidance = guidance if guidance is not None else build_guidance(cfg)
+        run = _Run(cfg, out_dir, guidance, state, show_progress, on_step)
+        if note is not None:
+            run.events.append(note)
+        return run.run()
 
 
-def _check_writable(out_dir: Path) -> None:
+def _resumed_config(
+    state: dict[str, Any], changes: dict[str, Any], out_dir: Path
+) -> tuple[GenerateConfig, dict[str, Any] | None]:
+    """The checkpoint's config with the allowed ``changes``, and an event recording them."""
+    where = out_dir / CHECKPOINT_NAME
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / ".write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise PermissionError(f"output folder {out_dir} is not writable: {exc}") from exc
+        cfg = GenerateConfig.from_dict(state["config"])
+        step = int(state["step"])
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise CheckpointError(f"{where}: damaged checkpoint, bad config ({exc})") from exc
+    saved = {k: _setting(cfg, k) for k in changes}  # keys: "seed", "densify.start", ...
+    differ = {k: v for k, v in changes.items() if saved[k] != v}
+    refused = [
+        f"{k}: checkpoint {saved[k]!r}, given {v!r}"
+        for k, v in differ.items()
+        if k not in RESUME_CHANGEABLE
+    ]
+    if refused:
+        raise CheckpointError(
+            f"--resume continues {out_dir} with the settings it started with, and these "
+            f"differ: {'; '.join(refused)}. Only --steps may change (to continue further); "
+            "start a new run (another --out, or --overwrite) to change the others"
+        )
+    if "steps" not in differ:
+        return cfg, None
+    if differ["steps"] < step:
+        raise CheckpointError(
+            f"--steps {differ['steps']} is below the checkpoint's step {step}; "
+            "a resumed run can only go further"
+        )
+    note = {"step": step, "event": "steps changed", "from": cfg.steps, "to": differ["steps"]}
+    cfg.steps = differ["steps"]
+    return cfg, note
+
+
+def _setting(cfg: GenerateConfig, key: str) -> Any:
+    value: Any = cfg
+    for name in key.split("."):
+        if not hasattr(value, name):
+            raise InputError(f"unknown setting {key!r}")
+        value = getattr(value, name)
+    return value
 
 
 class _Run:
@@ -150,7 +218,13 @@ class _Run:
         if state is None:
             self._start_fresh()
         else:
-            self._restore(state)
+            try:
+                self._restore(state)
+            except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+                raise CheckpointError(
+                    f"{out_dir / CHECKPOINT_NAME}: damaged or incompatible checkpoint "
+                    f"({type(exc).__name__}: {exc})"
+                ) from exc
         self.initial = GaussianModel(self.initial_gaussians)
         self._stop_requested = False
 
