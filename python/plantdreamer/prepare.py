@@ -13,6 +13,7 @@ so the prepared cloud has positions and colours only.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -61,6 +62,17 @@ def prepare_cloud(
         cloud = step("finite", cloud.subset(np.flatnonzero(finite)))
     if len(cloud) == 0:
         raise InputError("the cloud has no points with finite coordinates")
+    if cloud.colors is not None:
+        bad = ~np.isfinite(cloud.colors).all(axis=1)
+        if bad.any():
+            warnings.warn(
+                f"{int(bad.sum())} of {len(cloud)} points have NaN or Inf colours; "
+                "those points were dropped",
+                stacklevel=2,
+            )
+            cloud = step("finite colours", cloud.subset(np.flatnonzero(~bad)))
+            if len(cloud) == 0:
+                raise InputError("no point of the cloud has a finite colour")
     colors = cloud.colors
     if sor_neighbors > 0:
         if len(cloud) < sor_neighbors:
@@ -73,6 +85,7 @@ def prepare_cloud(
             raise InputError("outlier removal kept no points (are all points duplicates?)")
     points, colors = cloud.positions, cloud.colors
     if target is not None:
+        target = min(target, len(cloud))  # a larger target keeps every point
         points, colors, report.voxel_size = downsample_to_count(
             points, target, colors, tolerance=tolerance
         )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -49,9 +50,18 @@ def render(
     On the orbit, the model is framed as generate frames it: centred on its bounding box,
     longest side 4. With --transforms, each view is named after its frame.
     """
+    from plantdreamer.errors import InputError
+    from plantdreamer.eval.images import check_image_size
     from plantdreamer.io import read_splat_ply
     from plantdreamer.output_folder import claim_folder
 
+    if not 0.0 <= background <= 1.0:  # also refuses NaN
+        raise InputError(f"--background must be a grey level in [0, 1], got {background}")
+    if views < 1:
+        raise InputError(f"--views must be at least 1, got {views}")
+    check_image_size(resolution, resolution, "--resolution")
+    if not (math.isfinite(distance) and distance > 0 and 0 < fovy < 180):
+        raise InputError("--distance must be positive and --fovy in (0, 180) degrees")
     out = Path(out_dir)
     with claim_folder(out, overwrite=overwrite, owned=RENDER_OUTPUTS):
         if transforms is not None:

@@ -77,6 +77,15 @@ class LoraTrainConfig:
     validation_steps: int = 25
 
     def check(self) -> None:
+        for name in ("rank", "alpha", "steps", "resolution", "batch_size", "grad_accum", "seed",
+                     "checkpoint_every", "validate", "validation_steps"):  # fmt: skip
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+                raise InputError(f"{name} must be an integer, got {value!r}")
+        if not 0 <= self.seed < 2**32:
+            raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
+        if not (isinstance(self.learning_rate, (int, float)) and math.isfinite(self.learning_rate)):
+            raise InputError(f"learning rate must be a finite number, got {self.learning_rate!r}")
         positive = {
             "rank": self.rank,
             "steps": self.steps,

@@ -15,11 +15,39 @@ from plantdreamer.cameras import orbit_ring
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
 
+# float32 positions must resolve the plant at least this finely (relative to its size);
+# georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
+EXPORT_PRECISION = 1e-5
 
-def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
-    """Undo the normalisation: positions and scales back in the input's units and place."""
+
+def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:
+    """The offset to subtract before writing float32 positions, or None when the input
+    frame itself is precise enough (a plant near its origin)."""
+    center = np.asarray(transform.center, dtype=np.float64)
+    extent = scene_size / transform.scale
+    far = float(np.abs(center).max()) + extent
+    if np.spacing(np.float32(far)) <= extent * EXPORT_PRECISION:
+        return None
+    return np.round(center)
+
+
+def offset_comment(offset: np.ndarray) -> str:
+    """The PLY comment that records an export offset in plant.ply itself."""
+    return "plantdreamer offset {:.17g} {:.17g} {:.17g} (add to x y z for the input frame)".format(
+        *offset
+    )
+
+
+def to_input_frame(
+    g: Gaussians, transform: NormalizeTransform, offset: np.ndarray | None = None
+) -> Gaussians:
+    """Undo the normalisation: positions and scales back in the input's units and place,
+    minus ``offset`` (computed in float64, so no precision is lost before the subtraction)."""
+    means = transform.invert(g.means.astype(np.float64))
+    if offset is not None:
+        means = means - offset
     return Gaussians(
-        np.asarray(transform.invert(g.means), dtype=np.float32),
+        np.asarray(means, dtype=np.float32),
         g.quats.copy(),
         np.asarray(transform.invert_log_scales(g.log_scales), dtype=np.float32),
         g.opacity_logits.copy(),
@@ -41,11 +69,13 @@ def to_scene_frame(g: Gaussians, size: float = 4.0) -> Gaussians:
     )
 
 
-def export_ply(path: Path, g: Gaussians, sh_degree: int | None) -> None:
-    """Writes the INRIA-layout PLY atomically (no partial file on failure)."""
+def export_ply(
+    path: Path, g: Gaussians, sh_degree: int | None, comments: tuple[str, ...] = ()
+) -> None:
+    """Writes the INRIA-layout PLY (atomically: no partial file on failure)."""
     from plantdreamer.io import write_splat_ply
 
-    atomic.atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree))
+    write_splat_ply(path, g, sh_degree=sh_degree, comments=comments)
 
 
 def render_orbit(

@@ -161,6 +161,7 @@ def _resumed_config(
     where = out_dir / CHECKPOINT_NAME
     try:
         cfg = GenerateConfig.from_dict(state["config"])
+        cfg.validate()
         step = int(state["step"])
     except (KeyError, TypeError, ValueError, InputError) as exc:
         raise CheckpointError(f"{where}: damaged checkpoint, bad config ({exc})") from exc
@@ -406,8 +407,14 @@ class _Run:
         final = self.model.to_gaussians()
         with self.timer("export"):
             ply_path = out / "plant.ply"
+            offset = outputs.export_offset(self.transform, cfg.scene_size)
+            self.export_offset = None if offset is None else [float(v) for v in offset]
+            comments = () if offset is None else (outputs.offset_comment(offset),)
             outputs.export_ply(
-                ply_path, outputs.to_input_frame(final, self.transform), cfg.sh_degree_export
+                ply_path,
+                outputs.to_input_frame(final, self.transform, offset),
+                cfg.sh_degree_export,
+                comments,
             )
         with self.timer("renders"), torch.no_grad():
             frames = outputs.render_orbit(
@@ -444,6 +451,8 @@ class _Run:
             "per_step_s": per_step,
             "events": self.events,
             "transform": self.transform.to_dict(),
+            # plant.ply holds positions minus this offset (None: the input frame itself).
+            "export_offset": self.export_offset,
         }
 
 
