@@ -1,0 +1,114 @@
+"""Inputs that used to give wrong output with exit 0: each is now an error or a repair that
+says what it did."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.cloud import PointCloud
+from plantdreamer.errors import InputError
+from plantdreamer.io import read_ply, read_ply_columns, read_splat_ply, write_ply
+from plantdreamer.pointcloud import normalize
+
+
+def cloud(n=600, seed=0, offset=(0.0, 0.0, 0.0), dtype=np.float32):
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(n, 3)) * [0.1, 0.1, 0.3] + np.asarray(offset)
+    return PointCloud(pts.astype(dtype), colors=rng.random((n, 3), dtype=np.float32))
+
+
+def test_nan_colours_are_dropped_with_a_warning(tmp_path):
+    c = cloud()
+    c.colors[[3, 30, 300]] = np.nan
+    write_ply(tmp_path / "in.ply", c, color_dtype="float")
+    result = CliRunner().invoke(
+        main, ["prepare", str(tmp_path / "in.ply"), "-o", str(tmp_path / "out.ply"),
+               "--target", "0", "--sor-neighbors", "0"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "warning: 3 of 600 points have NaN or Inf colours; those points were dropped" in (
+        result.output
+    )
+    out = read_ply(tmp_path / "out.ply")
+    assert len(out) == 597 and np.isfinite(out.colors).all()
+
+
+@pytest.mark.parametrize(
+    ("dtype", "span"), [(np.float32, 3.0e38), (np.float64, 1.5e308)], ids=["float32", "float64"]
+)
+def test_normalize_a_cloud_whose_extent_overflows(dtype, span):
+    pts = np.array([[-span, 0, 0], [span, 1, 0], [0, -span, span]], dtype=dtype)
+    moved, t = normalize(pts, size=4.0)
+    assert np.isfinite(moved).all() and t.scale > 0
+    np.testing.assert_allclose(np.abs(moved).max(), 2.0, rtol=1e-6)
+    np.testing.assert_allclose(t.invert(moved.astype(np.float64)), pts, atol=span * 1e-6)
+
+
+def test_normalize_refuses_an_extent_too_small_to_scale():
+    pts = np.array([[0.0, 0.0, 0.0], [1e-310, 0.0, 0.0]])
+    with pytest.raises(InputError, match="cannot be scaled"):
+        normalize(pts)
+
+
+def test_georeferenced_plant_keeps_its_precision(tmp_path):
+    """A plant 20 cm tall at UTM-like coordinates: float32 in the input frame would keep
+    only a few distinct values; the export is relative to an offset recorded in run.json
+    and in the PLY header."""
+    from plantdreamer.pipeline import GenerateConfig, generate
+
+    utm = (500_000.0, 5_000_000.0, 200.0)
+    write_ply(tmp_path / "scan.ply", cloud(3000, offset=utm, dtype=np.float64))
+    cfg = GenerateConfig(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
+                         n_points=5000, sor_std=100.0, resolution=32, eval_views=1,
+                         turntable_frames=1)  # fmt: skip
+    result = generate(cfg, tmp_path / "o", show_progress=False)
+    run = json.loads((tmp_path / "o" / "run.json").read_text())
+    offset = np.asarray(run["export_offset"])
+    np.testing.assert_allclose(offset, utm, atol=1.0)
+    header = (tmp_path / "o" / "plant.ply").read_bytes().split(b"end_header")[0].decode()
+    assert "comment plantdreamer offset 500000 5000000 200" in header
+    g = read_splat_ply(result.ply_path)
+    source = read_ply(tmp_path / "scan.ply").positions
+    restored = g.means.astype(np.float64) + offset
+    assert len(np.unique(g.means[:, 1])) > 1000  # not quantised to a handful of values
+    np.testing.assert_allclose(restored.min(0), source.min(0), atol=1e-4)
+    np.testing.assert_allclose(restored.max(0), source.max(0), atol=1e-4)
+
+
+def test_plant_near_the_origin_has_no_offset(tmp_path):
+    from plantdreamer.pipeline import GenerateConfig, generate
+
+    cfg = GenerateConfig(species="kale", guidance="none", steps=0, n_points=500, resolution=32,
+                         eval_views=1, turntable_frames=1)  # fmt: skip
+    generate(cfg, tmp_path / "o", show_progress=False)
+    assert json.loads((tmp_path / "o" / "run.json").read_text())["export_offset"] is None
+    assert b"offset" not in (tmp_path / "o" / "plant.ply").read_bytes()[:2000]
+
+
+def test_prepare_target_above_the_point_count_keeps_every_point(tmp_path):
+    write_ply(tmp_path / "in.ply", cloud(300))
+    result = CliRunner().invoke(
+        main, ["prepare", str(tmp_path / "in.ply"), "-o", str(tmp_path / "o.ply"),
+               "--target", str(10**20), "--sor-neighbors", "0"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert len(read_ply_columns(tmp_path / "o.ply")["x"]) == 300
+
+
+def test_lsystem_huge_point_count_is_one_error_line(tmp_path):
+    result = CliRunner().invoke(
+        main, ["lsystem", "bean", "--points", str(10**11), "-o", str(tmp_path / "x.ply")]
+    )
+    assert result.exit_code == 1 and "above the limit" in result.output
+    assert "Traceback" not in result.output
+
+
+@pytest.mark.parametrize("n", [3.7, 2.0, True, "5"])
+def test_sample_points_refuses_non_integer_counts(n):
+    from plantdreamer.lsystem import generate_plant, sample_points
+
+    with pytest.raises(InputError, match="positive integer"):
+        sample_points(generate_plant("kale", 0), n=n)
