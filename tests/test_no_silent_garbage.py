@@ -112,3 +112,85 @@ def test_sample_points_refuses_non_integer_counts(n):
 
     with pytest.raises(InputError, match="positive integer"):
         sample_points(generate_plant("kale", 0), n=n)
+
+
+def test_guidance_none_progress_says_what_the_run_does(tmp_path):
+    result = CliRunner().invoke(
+        main, ["generate", "--species", "kale", "--guidance", "none", "--steps", "4",
+               "--points", "500", "--resolution", "32", "--eval-views", "1",
+               "--out", str(tmp_path / "o")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "no training: density control and culling only" in result.output
+    assert "initialised" in result.output and "exporting" in result.output
+    assert "loss 0" not in result.output and "it/s" not in result.output
+
+
+# --- render framing -------------------------------------------------------------------------
+
+
+def _scene_with_floaters(up_axis=2):
+    """A dense unit blob at (10, 10, 10) plus two far, opaque floaters."""
+    from plantdreamer.pipeline.init import init_gaussians
+
+    rng = np.random.default_rng(0)
+    blob = rng.normal(size=(2000, 3)) * 0.2
+    blob[:, up_axis] *= 3.0  # tall along the up axis
+    pts = np.concatenate([blob + 10.0, [[1e4, 0, 0], [-1e4, 5e3, 0]]]).astype(np.float32)
+    colors = np.tile(np.float32([0.2, 0.6, 0.2]), (len(pts), 1))
+    return init_gaussians(pts, colors, 0.9)
+
+
+def test_robust_frame_ignores_floaters():
+    from plantdreamer.pipeline.outputs import to_scene_frame
+
+    framed = to_scene_frame(_scene_with_floaters())
+    core = framed.means[:-2]
+    assert np.abs(np.median(core, axis=0)).max() < 0.05  # centred on the blob
+    assert 2.0 < np.ptp(core, axis=0).max() < 8.0  # the blob fills the frame, not 1e-4 of it
+
+
+@pytest.mark.parametrize(("up", "axis", "sign"), [("y", 1, 1), ("-y", 1, -1), ("x", 0, 1),
+                                                  ("-x", 0, -1), ("-z", 2, -1)])  # fmt: skip
+def test_up_axis_becomes_z(up, axis, sign):
+    from plantdreamer.framing import UP_AXES, rotate_up
+    from plantdreamer.gaussians import Gaussians
+
+    rotation, _ = UP_AXES[up]
+    assert np.allclose(rotation @ rotation.T, np.eye(3)) and np.isclose(np.linalg.det(rotation), 1)
+    v = np.zeros(3)
+    v[axis] = sign
+    assert np.allclose(rotation @ v, [0, 0, 1])
+    # The quaternion is the same rotation: rotating an axis-aligned Gaussian's quaternion.
+    g = Gaussians(
+        np.array([v], np.float32), np.array([[1, 0, 0, 0]], np.float32),
+        np.zeros((1, 3), np.float32), np.zeros(1, np.float32), np.zeros((1, 1, 3), np.float32),
+    )  # fmt: skip
+    turned = rotate_up(g, up)
+    assert np.allclose(turned.means, [[0, 0, 1]], atol=1e-6)
+    w, x, y, z = turned.quats[0].astype(np.float64)
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+    assert np.allclose(r, rotation, atol=1e-6)
+
+
+def test_render_with_up_center_and_old_views_name(tmp_path):
+    from plantdreamer.io import write_splat_ply
+
+    write_splat_ply(tmp_path / "m.ply", _scene_with_floaters(up_axis=1))
+    args = ["render", str(tmp_path / "m.ply"), "--resolution", "32", "--no-turntable",
+            "--up", "y", "--center", "10,10,10"]  # fmt: skip
+    new = CliRunner().invoke(main, [*args, "--eval-views", "2", "--out", str(tmp_path / "a")])
+    old = CliRunner().invoke(main, [*args, "--views", "2", "--out", str(tmp_path / "b")])
+    assert new.exit_code == 0 and old.exit_code == 0, new.output + old.output
+    import imageio.v3 as iio
+
+    for name in ("view_000.png", "view_001.png"):
+        a = iio.imread(tmp_path / "a" / name)
+        assert np.array_equal(a, iio.imread(tmp_path / "b" / name))
+        assert (np.abs(a.astype(int) - 191).max(axis=-1) > 20).mean() > 0.05  # subject visible
+    bad = CliRunner().invoke(main, [*args[:-2], "--center", "1,2", "--out", str(tmp_path / "c")])
+    assert bad.exit_code == 1 and "--center" in bad.output

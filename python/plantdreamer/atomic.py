@@ -87,7 +87,7 @@ def write_image(path: PathLike, image: Any, **options: Any) -> None:
     import imageio.v3 as iio
 
     with atomic_path(path) as tmp:
-        iio.imwrite(tmp, image, extension=Path(path).suffix or None, **options)
+        iio.imwrite(tmp, image, extension=Path(path).suffix or ".png", **options)
 
 
 def _umask() -> int:

@@ -16,9 +16,24 @@ RENDER_OUTPUTS = ("turntable.gif", "*.png")
 @click.option(
     "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
 )
-@click.option("--views", default=120, show_default=True)
+@click.option("--eval-views", "views", default=120, show_default=True, help="Views on the orbit.")
+@click.option("--views", "views_alias", type=int, hidden=True)  # the name before --eval-views
 @click.option("--resolution", default=512, show_default=True)
-@click.option("--distance", default=4.0, show_default=True)
+@click.option(
+    "--distance", default=4.0, show_default=True, help="Orbit radius; the model's size is 4."
+)
+@click.option(
+    "--up",
+    type=click.Choice(["z", "y", "x", "-z", "-y", "-x"]),
+    default="z",
+    show_default=True,
+    help="The model's up axis (captured scenes are often -y).",
+)
+@click.option(
+    "--center",
+    help="X,Y,Z in the model's own frame to orbit around [default: the opacity-weighted "
+    "median of the Gaussians].",
+)
 @click.option(
     "--elevation", default=15.0, show_default=True, help="Degrees above the ground plane."
 )
@@ -44,17 +59,23 @@ def render(
     turntable: bool,
     transforms: str | None,
     overwrite: bool,
+    views_alias: int | None,
+    up: str,
+    center: str | None,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF.
 
-    On the orbit, the model is framed as generate frames it: centred on its bounding box,
-    longest side 4. With --transforms, each view is named after its frame.
+    On the orbit, the model is turned so --up points up, centred on the opacity-weighted
+    median of its Gaussians and scaled so the central 96% of them span 4 units: stray far
+    Gaussians do not shrink the subject. With --transforms, each view is named after its frame.
     """
     from plantdreamer.errors import InputError
     from plantdreamer.eval.images import check_image_size
     from plantdreamer.io import read_splat_ply
     from plantdreamer.output_folder import claim_folder
 
+    views = views_alias if views_alias is not None else views
+    target = None if center is None else parse_center(center)
     if not 0.0 <= background <= 1.0:  # also refuses NaN
         raise InputError(f"--background must be a grey level in [0, 1], got {background}")
     if views < 1:
@@ -68,12 +89,25 @@ def render(
             _render_dataset_views(read_splat_ply(ply), transforms, out, background)
         else:
             _render_orbit(
-                ply, out, views, resolution, distance, elevation, fovy, background, turntable
-            )
+                ply, out, views, resolution, distance, elevation, fovy, background, turntable,
+                up, target,
+            )  # fmt: skip
+
+
+def parse_center(value: str) -> tuple[float, float, float]:
+    from plantdreamer.errors import InputError
+
+    try:
+        xyz = tuple(float(p) for p in value.split(","))
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not all(math.isfinite(c) for c in xyz):
+        raise InputError(f"--center must be X,Y,Z (three finite numbers), got {value!r}")
+    return (xyz[0], xyz[1], xyz[2])
 
 
 def _render_orbit(
-    ply, out, views, resolution, distance, elevation, fovy, background, turntable
+    ply, out, views, resolution, distance, elevation, fovy, background, turntable, up, center
 ) -> None:
     import torch
 
@@ -81,7 +115,7 @@ def _render_orbit(
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
-    model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply)))
+    model = GaussianModel(outputs.to_scene_frame(read_splat_ply(ply), up=up, center=center))
     with torch.no_grad():
         frames = outputs.render_orbit(
             lambda cam: model.render([cam], background)[0][0].numpy(),

@@ -55,15 +55,27 @@ def to_input_frame(
     )
 
 
-def to_scene_frame(g: Gaussians, size: float = 4.0) -> Gaussians:
-    """Centres a model on its bounding box and scales its longest side to ``size``."""
-    from plantdreamer.pointcloud import normalize
+def to_scene_frame(
+    g: Gaussians,
+    size: float = 4.0,
+    *,
+    up: str = "z",
+    center: tuple[float, float, float] | None = None,
+) -> Gaussians:
+    """Frames any model for the orbit: axis ``up`` turned onto +z, centred on its robust
+    centre (or ``center``, in the model's own frame), the longest side of its robust box
+    scaled to ``size`` (see ``plantdreamer.framing``)."""
+    from plantdreamer.framing import UP_AXES, robust_center_extent, rotate_up
 
-    means, transform = normalize(g.means, size=size)
+    g = rotate_up(g, up)
+    mid, extent = robust_center_extent(g)
+    if center is not None:
+        mid = UP_AXES[up][0] @ np.asarray(center, dtype=np.float64)
+    scale = size / extent
     return Gaussians(
-        np.asarray(means, dtype=np.float32),
+        ((g.means.astype(np.float64) - mid) * scale).astype(np.float32),
         g.quats.copy(),
-        (g.log_scales + np.float32(math.log(float(transform.scale)))).astype(np.float32),
+        (g.log_scales + np.float32(math.log(scale))).astype(np.float32),
         g.opacity_logits.copy(),
         g.sh.copy(),
     )

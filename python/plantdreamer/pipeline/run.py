@@ -277,6 +277,14 @@ class _Run:
         cfg = self.cfg
         conditioner = self._depth_conditioner() if self.guidance.needs_depth else None
         progress = Progress(cfg.steps, self.start_step, self.show_progress)
+        progress.note(
+            f"initialised {len(self.initial_gaussians)} Gaussians"
+            + (
+                ""
+                if self.trains
+                else "; no guidance: the steps only run density control and culling"
+            )
+        )
         previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, self._request_stop)
         try:
@@ -284,13 +292,14 @@ class _Run:
                 if self._stop_requested:
                     self._checkpoint(step)
                     raise RunInterrupted(step, self.out_dir)
-                loss = self._train_step(step, conditioner) if self.trains else 0.0
+                loss = self._train_step(step, conditioner) if self.trains else None
                 self._adapt_density(step)
                 progress.update(step, loss, len(self.model))
                 if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
                     self._checkpoint(step + 1)
                 if self.on_step is not None:
                     self.on_step(step)
+            progress.note(f"exporting {len(self.model)} Gaussians, {cfg.eval_views} renders")
         finally:
             signal.signal(signal.SIGINT, previous)
             progress.close()
