@@ -383,3 +383,19 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
         assert json.loads(stale.read_text())["mean"]
     else:
         assert not stale.exists()  # the stale companion is gone, not left beside new output
+
+
+@pytest.mark.parametrize("command", ["ablate", "lora"])
+def test_folders_of_earlier_runs_are_refused(files, tmp_path, command):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "lora.json" if command == "lora" else out / "ablation.md").write_text("earlier run")
+    if command == "lora":
+        args = ["lora", "train", files, "--out", out, "--base-model", tmp_path / "no-model"]
+    else:
+        args = ["ablate", "--pointcloud", files / "cloud.ply", "--dataset",
+                transforms(tmp_path / "ds"), "--guidance", "none", "--out", out]  # fmt: skip
+    assert_one_error(run(*args), "not empty")
+    assert (
+        out / ("lora.json" if command == "lora" else "ablation.md")
+    ).read_text() == "earlier run"
