@@ -194,3 +194,57 @@ def test_render_with_up_center_and_old_views_name(tmp_path):
         assert (np.abs(a.astype(int) - 191).max(axis=-1) > 20).mean() > 0.05  # subject visible
     bad = CliRunner().invoke(main, [*args[:-2], "--center", "1,2", "--out", str(tmp_path / "c")])
     assert bad.exit_code == 1 and "--center" in bad.output
+
+
+def _api_calls():
+    import torch
+
+    from plantdreamer import pointcloud, rasterization
+    from plantdreamer.cameras import Camera
+    from plantdreamer.io import write_splat_ply
+    from plantdreamer.pipeline.init import init_gaussians
+
+    pts = np.random.default_rng(0).random((50, 3), dtype=np.float32)
+    g = init_gaussians(pts, np.full((50, 3), 0.5, np.float32), 0.5)
+    t = torch.from_numpy
+    return {
+        "knn k": lambda: pointcloud.knn(pts, 2.5),
+        "knn_mean_distance k": lambda: pointcloud.knn_mean_distance(pts, 2.5),
+        "sor neighbours": lambda: pointcloud.remove_statistical_outliers(pts, 4.5),
+        "downsample target": lambda: pointcloud.downsample_to_count(pts, 10.5),
+        "sh degree": lambda: g.with_sh_degree(2.5),
+        "export sh degree": lambda: write_splat_ply("/nonexistent/x.ply", g, sh_degree=2.5),
+        "camera width": lambda: Camera.from_opengl_c2w(np.eye(4), 10, 10, 5, 5, 3.7, 10),
+        "raster width": lambda: rasterization(
+            t(g.means),
+            t(g.quats),
+            t(np.exp(g.log_scales)),
+            t(g.opacity_logits),
+            t(g.sh[:, 0]),
+            torch.eye(4)[None],
+            torch.eye(3)[None],
+            3.7,
+            8,
+        ),
+        "raster sh degree": lambda: rasterization(
+            t(g.means),
+            t(g.quats),
+            t(np.exp(g.log_scales)),
+            t(g.opacity_logits),
+            t(g.sh),
+            torch.eye(4)[None],
+            torch.eye(3)[None],
+            8,
+            8,
+            sh_degree=0.5,
+        ),
+    }
+
+
+@pytest.mark.parametrize(
+    "call", ["knn k", "knn_mean_distance k", "sor neighbours", "downsample target", "sh degree",
+             "export sh degree", "camera width", "raster width", "raster sh degree"],
+)  # fmt: skip
+def test_python_apis_refuse_non_integer_values(call):
+    with pytest.raises(InputError, match="must be an integer"):
+        _api_calls()[call]()
