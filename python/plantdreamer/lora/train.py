@@ -230,14 +230,21 @@ def _train(
 
         path = list_checkpoints(out)[-1]
         state = load_checkpoint(path)
+        if not isinstance(state["fingerprint"], dict):
+            raise CheckpointError(f"checkpoint {str(path)!r}: damaged fingerprint")
         check_fingerprint(path, state["fingerprint"], fingerprint)
-        set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
-        optimizer.load_state_dict(state["optimizer"])
-        if "scaler" in state:
-            scaler.load_state_dict(state["scaler"])
-        generator.set_state(state["generator"])
-        start, losses = int(state["step"]), list(state["losses"])
-        eval_before = float(state.get("eval_loss_before", math.nan))
+        try:
+            set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
+            optimizer.load_state_dict(state["optimizer"])
+            if "scaler" in state:
+                scaler.load_state_dict(state["scaler"])
+            generator.set_state(state["generator"])
+            start, losses = int(state["step"]), [float(v) for v in state["losses"]]
+            eval_before = float(state.get("eval_loss_before", math.nan))
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+            raise CheckpointError(
+                f"checkpoint {str(path)!r} is damaged or incompatible ({type(exc).__name__}: {exc})"
+            ) from exc
     if math.isnan(eval_before):
         eval_before = objective.evaluate(examples, config.resolution, config.seed)
 
