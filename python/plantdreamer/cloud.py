@@ -16,12 +16,14 @@ MAX_POINTS = 20_000_000
 def check_point_count(n: object, what: str = "number of points") -> int:
     """``n`` as an int in 1..MAX_POINTS, else InputError (floats and bools are refused)."""
     import numbers
+    import operator
 
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or operator.index(n) < 1:
         raise InputError(f"{what} must be a positive integer, got {n!r}")
-    if n > MAX_POINTS:
-        raise InputError(f"{what} {n:,} is above the limit of {MAX_POINTS:,}")
-    return int(n)
+    count = operator.index(n)
+    if count > MAX_POINTS:
+        raise InputError(f"{what} {count:,} is above the limit of {MAX_POINTS:,}")
+    return count
 
 
 @dataclass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numbers
+import operator
 
 from plantdreamer.errors import InputError
 
@@ -15,7 +16,7 @@ def as_int(name: str, value: object) -> int:
     if isinstance(value, bool):
         raise InputError(f"{name} must be an integer, got {value!r}")
     if isinstance(value, numbers.Integral):
-        return int(value)
+        return operator.index(value)
     if isinstance(value, numbers.Real) and float(value).is_integer():
-        return int(value)
+        return int(float(value))
     raise InputError(f"{name} must be an integer, got {value!r}")
