@@ -123,7 +123,8 @@ def test_eval_with_malformed_colmap(files, tmp_path, case):
         (["--guidance-scale", -5], "guidance scale"),
         (["--points", 10**11], "points"),
         (["--resolution", 100000], "resolution"),
-        (["--sh-degree", 7], "SH degree"),
+        (["--background", "nan"], "background must be finite"),
+        (["--background", 1.5], "background must be a grey level"),
     ],
 )
 def test_generate_bad_numbers(tmp_path, args, message):
