@@ -83,8 +83,8 @@ def check_image_size(width: int, height: int, where: object) -> tuple[int, int]:
         raise InputError(f"{where}: image size must be positive, got {width}x{height}")
     if width * height > MAX_IMAGE_PIXELS:
         raise InputError(
-            f"{where}: image size {width}x{height} is above the limit of {MAX_IMAGE_PIXELS:,} "
-            f"pixels (a float RGBA copy would need {width * height * 16 / 2**30:.1f} GiB)"
+            f"{where}: {width} x {height} pixels is above the limit of {MAX_IMAGE_PIXELS:,} "
+            f"pixels (one float RGBA copy alone needs {width * height * 16 / 2**30:.1f} GiB)"
         )
     return width, height
 
