@@ -1,35 +1,103 @@
-"""Atomic file writes: a crash or Ctrl-C mid-write never leaves a broken or partial file."""
+"""Atomic file writes: a file is either its old self or complete, never truncated.
+
+Every file plantdreamer writes goes through :func:`atomic_path`: the writer fills a temporary
+file in the same folder (same file system, so the rename is atomic), the data is flushed to
+disk (fsync), the temporary file is renamed over the target (``os.replace``) and the folder
+entry is flushed too. If anything fails (a full disk, a file-size limit, Ctrl-C) the
+temporary file is removed and the previous file is left as it was.
+
+The temporary name keeps the target's suffix (``.plant.ply.k3j9.tmp.ply``), so writers that
+pick a format from the suffix (imageio, Pillow, matplotlib, trimesh) work unchanged.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "atomic_path",
+    "atomic_write",
+    "write_bytes",
+    "write_image",
+    "write_json",
+    "write_text",
+]
+
+PathLike = str | os.PathLike[str]
 
 
-def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """Calls ``write(tmp_path)`` on a temporary file in ``path``'s folder, flushes it to disk,
-    renames it over ``path`` and flushes the folder, so ``path`` is the old file or the new
-    one, whole, even after a power cut."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+@contextmanager
+def atomic_path(path: PathLike) -> Iterator[Path]:
+    """Yields a temporary path beside ``path``; on a clean exit it replaces ``path``.
+
+    The folder must exist (a missing folder is a FileNotFoundError, as with ``open``).
+    """
+    target = Path(path)
+    fd, name = tempfile.mkstemp(
+        prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=target.parent
+    )
     os.close(fd)
+    tmp = Path(name)
     try:
-        write(Path(tmp))
+        yield tmp
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; outputs are shared
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    _fsync_dir(target.parent)
+
+
+def atomic_write(path: PathLike, write: Callable[[Path], object]) -> None:
+    """Calls ``write(tmp_path)`` on a temporary file beside ``path`` (creating its folder),
+    then renames it over ``path``."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        write(tmp)
+
+
+def write_bytes(path: PathLike, data: bytes) -> None:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+
+
+def write_text(path: PathLike, text: str) -> None:
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: PathLike, data: Any, **dumps: Any) -> None:
+    """``json.dumps(data, indent=2, **dumps)`` plus a final newline."""
+    write_text(path, json.dumps(data, **{"indent": 2, **dumps}) + "\n")
+
+
+def write_image(path: PathLike, image: Any, **options: Any) -> None:
+    """An array (imageio) or a PIL image; the format follows ``path``'s suffix."""
+    if hasattr(image, "save") and not hasattr(image, "shape"):  # PIL.Image.Image
+        with atomic_path(path) as tmp:
+            image.save(tmp, **options)
+        return
+    import imageio.v3 as iio
+
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, image, extension=Path(path).suffix or ".png", **options)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _fsync_dir(folder: Path) -> None:
-    """Makes a rename in ``folder`` durable (POSIX; a no-op where folders cannot be opened)."""
+    """Flushes the rename itself; some file systems cannot open a folder, which is fine."""
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:
@@ -37,12 +105,6 @@ def _fsync_dir(folder: Path) -> None:
     try:
         os.fsync(fd)
     except OSError:
-        pass  # some file systems do not support fsync on a folder
+        pass
     finally:
         os.close(fd)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

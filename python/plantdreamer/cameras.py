@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plantdreamer.errors import InputError
+from plantdreamer.integers import as_int
 
 # OpenGL camera axes -> OpenCV camera axes (flip y and z).
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -71,7 +72,9 @@ class Camera:
         if c2w.shape != (4, 4):
             raise InputError(f"transform_matrix must be 4x4 or 3x4, got {list(c2w.shape)}")
         viewmat = np.linalg.inv(c2w @ _GL_TO_CV)
-        return cls(viewmat, intrinsics(fx, fy, cx, cy), int(width), int(height))
+        return cls(
+            viewmat, intrinsics(fx, fy, cx, cy), as_int("width", width), as_int("height", height)
+        )
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates (pixel centres at +0.5) and camera-space depth of world points."""

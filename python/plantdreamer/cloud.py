@@ -8,6 +8,23 @@ import numpy as np
 
 from plantdreamer.errors import InputError
 
+# Most points plantdreamer samples or keeps for a run (about 2 GB of float64 working arrays);
+# larger counts are refused before numpy allocates them.
+MAX_POINTS = 20_000_000
+
+
+def check_point_count(n: object, what: str = "number of points") -> int:
+    """``n`` as an int in 1..MAX_POINTS, else InputError (floats and bools are refused)."""
+    import numbers
+    import operator
+
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or operator.index(n) < 1:
+        raise InputError(f"{what} must be a positive integer, got {n!r}")
+    count = operator.index(n)
+    if count > MAX_POINTS:
+        raise InputError(f"{what} {count:,} is above the limit of {MAX_POINTS:,}")
+    return count
+
 
 @dataclass
 class PointCloud:

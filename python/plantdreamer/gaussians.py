@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plantdreamer.errors import InputError
+from plantdreamer.integers import as_int
 
 SH_C0 = 0.28209479177387814
 
@@ -110,6 +111,7 @@ class Gaussians:
 
     def with_sh_degree(self, degree: int) -> Gaussians:
         """A copy whose SH has exactly ``degree``: pads with zeros or truncates."""
+        degree = as_int("SH degree", degree)
         if not 0 <= degree <= 3:
             raise InputError(f"SH degree must be in 0..3, got {degree}")
         k = sh_coeff_count(degree)

@@ -49,6 +49,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from plantdreamer import _core
+from plantdreamer.atomic import atomic_path
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians, sh_coeff_count
@@ -199,7 +200,8 @@ def write_ply(
         if name in taken:
             raise InputError(f"attribute {name!r} clashes with a standard vertex property")
         fields.append(([name], _ply_column(name, values)))
-    _core.write_ply_vertex(os.fspath(path), fields, binary, list(comments))
+    with atomic_path(path) as tmp:
+        _core.write_ply_vertex(os.fspath(tmp), fields, binary, list(comments))
 
 
 _F_REST = re.compile(r"f_rest_(\d+)$")
@@ -275,7 +277,12 @@ def _splat_labels(cols: dict[str, np.ndarray], n: int, where: str) -> np.ndarray
 
 
 def write_splat_ply(
-    path: PathLike, gaussians: Gaussians, sh_degree: int | None = None, labels: bool = True
+    path: PathLike,
+    gaussians: Gaussians,
+    sh_degree: int | None = None,
+    labels: bool = True,
+    *,
+    comments: Iterable[str] = (),
 ) -> None:
     """Writes a 3DGS model in the INRIA layout (binary little endian, float32).
 
@@ -305,4 +312,5 @@ def write_splat_ply(
     ]
     if labels and g.labels is not None:
         fields.append((["label", "instance"], np.ascontiguousarray(g.labels, dtype=np.int32)))
-    _core.write_ply_vertex(os.fspath(path), fields, True, [])
+    with atomic_path(path) as tmp:
+        _core.write_ply_vertex(os.fspath(tmp), fields, True, list(comments))

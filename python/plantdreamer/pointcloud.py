@@ -155,8 +155,9 @@ class NormalizeTransform:
         return cls(center=center, scale=scale)  # type: ignore[arg-type]
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        with open(path, "w") as f:
-            json.dump(self.to_dict(), f, indent=2)
+        from plantdreamer.atomic import write_json
+
+        write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> NormalizeTransform:
@@ -178,9 +179,16 @@ def normalize(points: np.ndarray, size: float = 4.0) -> tuple[np.ndarray, Normal
         raise InputError(f"size must be positive, got {size}")
     lo = p.min(axis=0).astype(np.float64)
     hi = p.max(axis=0).astype(np.float64)
-    longest = float((hi - lo).max())
-    if longest == 0.0:
+    # Half-extents: hi - lo overflows float64 for clouds spanning more than 1.8e308.
+    half = float((hi / 2.0 - lo / 2.0).max())
+    if half == 0.0:
         raise InputError("all points are identical: the cloud has no extent to normalise")
-    center = (lo + hi) / 2.0
-    t = NormalizeTransform(center=tuple(float(c) for c in center), scale=size / longest)  # type: ignore[arg-type]
-    return t.apply(p), t
+    center = lo / 2.0 + hi / 2.0
+    scale = (size / 2.0) / half
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise InputError(f"the cloud's extent ({2.0 * half:.3g}) cannot be scaled to {size}")
+    t = NormalizeTransform(center=tuple(float(c) for c in center), scale=scale)  # type: ignore[arg-type]
+    moved = t.apply(p)
+    if not np.isfinite(moved).all():
+        raise InputError("the cloud's coordinates overflow when centred; rescale it first")
+    return moved, t

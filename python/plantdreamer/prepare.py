@@ -15,6 +15,7 @@ dropped.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -68,6 +69,17 @@ def prepare_cloud(
         cloud = step("finite", cloud.subset(np.flatnonzero(finite)))
     if len(cloud) == 0:
         raise InputError("the cloud has no points with finite coordinates")
+    if cloud.colors is not None:
+        bad = ~np.isfinite(cloud.colors).all(axis=1)
+        if bad.any():
+            warnings.warn(
+                f"{int(bad.sum())} of {len(cloud)} points have NaN or Inf colours; "
+                "those points were dropped",
+                stacklevel=2,
+            )
+            cloud = step("finite colours", cloud.subset(np.flatnonzero(~bad)))
+            if len(cloud) == 0:
+                raise InputError("no point of the cloud has a finite colour")
 
     def remove_outliers(c: PointCloud) -> PointCloud:
         if sor_neighbors <= 0:
@@ -88,7 +100,10 @@ def prepare_cloud(
         if target is None:
             return c
         points, colors, report.voxel_size = downsample_to_count(
-            c.positions, target, c.colors, tolerance=tolerance
+            c.positions,
+            min(target, len(c)),
+            c.colors,
+            tolerance=tolerance,  # more keeps all
         )
         labels = {name: c.attributes[name] for name in label_fields}
         if report.voxel_size > 0.0 and labels:

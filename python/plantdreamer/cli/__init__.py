@@ -8,7 +8,9 @@ To add a command: write ``cli/<name>.py`` exposing a click command and list it b
 from __future__ import annotations
 
 import importlib
+import os
 import sys
+import warnings
 
 import click
 
@@ -44,15 +46,39 @@ class _LazyGroup(click.Group):
         return getattr(importlib.import_module(module_name), attr)
 
     def invoke(self, ctx: click.Context) -> object:
-        try:
-            return super().invoke(ctx)
-        except (PlantDreamerError, OSError) as exc:
-            # Expected failures (bad input, missing files or models): one line, exit 1.
-            click.secho(f"error: {exc}", err=True, fg="red")
-            ctx.exit(1)
-        except KeyboardInterrupt:
-            click.secho("interrupted", err=True, fg="yellow")
-            ctx.exit(130)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            try:
+                return super().invoke(ctx)
+            except (PlantDreamerError, OSError) as exc:
+                # Expected failures (bad input, missing files or models): one line, exit 1.
+                _fail(ctx, str(exc))
+            except MemoryError as exc:
+                _fail(ctx, f"out of memory{f' ({exc})' if str(exc) else ''}; use smaller sizes")
+            except KeyboardInterrupt:
+                click.secho("interrupted", err=True, fg="yellow")
+                ctx.exit(130)
+            except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+                raise
+            except Exception as exc:
+                # A bug: still one line for the user, the traceback on request.
+                if os.environ.get("PLANTDREAMER_TRACEBACK"):
+                    raise
+                _fail(
+                    ctx,
+                    f"internal error ({type(exc).__name__}: {exc}); please report it, with the "
+                    "traceback that PLANTDREAMER_TRACEBACK=1 shows",
+                )
+        return None
+
+
+def _fail(ctx: click.Context, message: str) -> None:
+    click.secho(f"error: {' '.join(message.split())}", err=True, fg="red")
+    ctx.exit(1)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    click.secho(f"warning: {' '.join(str(message).split())}", err=True, fg="yellow")
 
 
 @click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -27,25 +27,36 @@ SETTINGS = (
     "--out", "out_dir", type=click.Path(file_okay=False), default="ablation", show_default=True
 )
 @config_options(GenerateConfig, only=SETTINGS)
+@click.option("--overwrite", is_flag=True, help="Replace the results of an earlier ablation.")
 @click.option("--quiet", is_flag=True)
-def ablate(pointcloud, dataset, colors, out_dir, quiet, **options) -> None:
+def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) -> None:
     """Generate once per colour initialisation, score each against the dataset (masked PSNR),
     and write the paper-style table and bar plot."""
     from plantdreamer.errors import InputError
-    from plantdreamer.eval import evaluate, scan_dataset
-    from plantdreamer.eval.report import write_ablation_table, write_json
-    from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import generate
+    from plantdreamer.eval import scan_dataset
+    from plantdreamer.output_folder import claim_folder
     from plantdreamer.pipeline.config import COLOR_INITS
 
     base = config_from_options(GenerateConfig, options)
-    background = base.background
     settings = [c.strip() for c in colors.split(",") if c.strip()]
     unknown = sorted(set(settings) - set(COLOR_INITS))
     if not settings or unknown:
         raise InputError(f"--colors takes a list of {', '.join(COLOR_INITS)}; got {colors!r}")
     frames = scan_dataset(dataset)  # fail on a bad dataset before hours of generation
     out = Path(out_dir)
+    owned = ("ablation.md", "ablation.png", *COLOR_INITS)
+    with claim_folder(out, overwrite=overwrite, owned=owned):
+        _ablate(base, pointcloud, frames, settings, out, quiet)
+
+
+def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
+    from plantdreamer.errors import InputError
+    from plantdreamer.eval import evaluate
+    from plantdreamer.eval.report import write_ablation_table, write_json
+    from plantdreamer.io import read_splat_ply
+    from plantdreamer.pipeline import generate
+
+    background = base.background
     results: dict[str, float] = {}
     for color in settings:
         click.echo(f"== colour init: {color}")

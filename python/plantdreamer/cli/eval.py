@@ -43,14 +43,25 @@ def parse_background(value: str) -> tuple[float, float, float]:
     help="Render background R,G,B in [0, 1]; RGBA images are composited over it too.",
 )
 @click.option("--strip-views", default=4, show_default=True, help="Views shown in the image strip.")
-def eval_command(ply: Path, dataset: Path, out: Path, background: str, strip_views: int) -> None:
+@click.option("--overwrite", is_flag=True, help="Replace an earlier report at --out.")
+def eval_command(
+    ply: Path, dataset: Path, out: Path, background: str, strip_views: int, overwrite: bool
+) -> None:
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
-    from plantdreamer.eval import FrameMetrics, evaluate, scan_dataset
-    from plantdreamer.eval.report import write_image_strip, write_json, write_markdown
+    from plantdreamer.output_folder import claim_files
 
     bg = parse_background(background)
     if not ply.is_file():
         raise FileNotFoundError(f"model not found: {ply}")
+    strip_path = out.with_name(out.stem + "_strip.png")
+    with claim_files([out, out.with_suffix(".json"), strip_path], overwrite=overwrite):
+        _evaluate(ply, dataset, out, bg, strip_views, strip_path)
+
+
+def _evaluate(ply: Path, dataset: Path, out: Path, bg, strip_views: int, strip_path: Path) -> None:
+    from plantdreamer.eval import FrameMetrics, evaluate, scan_dataset
+    from plantdreamer.eval.report import write_image_strip, write_json, write_markdown
+
     frames = scan_dataset(dataset)  # images are read one at a time during evaluation
     try:
         from plantdreamer.io import read_splat_ply
@@ -68,7 +79,7 @@ def eval_command(ply: Path, dataset: Path, out: Path, background: str, strip_vie
     result = evaluate(gaussians, frames, bg, keep_views=strip_views, on_frame=progress)
     strip = None
     if result.views:
-        strip = write_image_strip(result.views, out.with_name(out.stem + "_strip.png"))
+        strip = write_image_strip(result.views, strip_path)
     details = {"model": str(ply), "dataset": str(dataset)}
     write_markdown(result, out, title=f"Evaluation of {ply.name}", strip=strip, details=details)
     json_path = write_json(result, out.with_suffix(".json"), model=str(ply), dataset=str(dataset))

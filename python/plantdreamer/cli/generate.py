@@ -1,8 +1,8 @@
 """``plantdreamer generate``: a species or a point cloud in, a 3DGS plant out.
 
 The run's options are the settings of ``GenerateConfig`` (defaults, choices and help come
-from the dataclass); this module only adds the output folder, ``--resume``, ``--quiet`` and
-``--view`` (not settings of the run). ``--preset`` picks the base values
+from the dataclass); this module only adds the output folder, ``--resume``, ``--overwrite``,
+``--quiet`` and ``--view`` (not settings of the run). ``--preset`` picks the base values
 (``pipeline/presets.py``); only the options given on the command line override them.
 """
 
@@ -30,25 +30,48 @@ def build_command() -> click.Command:
         type=click.Path(file_okay=False),
         help="Continue the run in this folder.",
     )
+    @click.option(
+        "--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out."
+    )
     @click.option("--quiet", is_flag=True, help="No progress output.")
     @click.option(
         "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
     )
-    def generate(resume_dir: str | None, out_dir: str, quiet: bool, view: bool, **options) -> None:
+    @click.pass_context
+    def generate(
+        ctx: click.Context,
+        resume_dir: str | None,
+        out_dir: str,
+        overwrite: bool,
+        quiet: bool,
+        view: bool,
+        **options,
+    ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
         and ground truth per view: labels/, instances/, depth/, transforms.json."""
         from plantdreamer.pipeline import RunInterrupted, resolve_config
         from plantdreamer.pipeline import generate as run_generate
 
+        given = _given(ctx)
         try:
             if resume_dir is not None:
-                result = run_generate(None, resume_dir, resume=True, show_progress=not quiet)
+                if overwrite:
+                    raise click.UsageError("--overwrite starts afresh; it cannot go with --resume")
+                if "out_dir" in given and Path(out_dir) != Path(resume_dir):
+                    raise click.UsageError(
+                        "--resume continues the run in its own folder; drop --out"
+                    )
+                # Settings typed again on resume: checked against the checkpoint, never ignored.
+                changes = {k.replace("__", "."): v for k, v in options.items() if k in given}
+                result = run_generate(
+                    None, resume_dir, resume=True, changes=changes, show_progress=not quiet
+                )
             else:
                 preset = options.pop("preset")
-                given = options_tree(GenerateConfig, given_on_command_line(options))
+                typed = options_tree(GenerateConfig, given_on_command_line(options))
                 defaults = options_tree(GenerateConfig, options)
-                cfg = resolve_config(preset, given, base=defaults)
-                result = run_generate(cfg, out_dir, show_progress=not quiet)
+                cfg = resolve_config(preset, typed, base=defaults)
+                result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
         except RunInterrupted as stop:
             click.secho(
                 f"interrupted at step {stop.step}; checkpoint written. "
@@ -67,6 +90,14 @@ def build_command() -> click.Command:
             view_file(str(result.ply_path), echo=click.echo)
 
     return generate
+
+
+def _given(ctx: click.Context) -> set[str]:
+    """The options typed on the command line (not defaults): a resume must not ignore them."""
+    from click.core import ParameterSource
+
+    typed = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
 
 
 generate = build_command()

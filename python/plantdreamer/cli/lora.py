@@ -37,6 +37,7 @@ def lora() -> None:
     "--checkpoint-every", default=500, show_default=True, help="Steps between checkpoints."
 )
 @click.option("--resume", is_flag=True, help="Continue from the latest checkpoint in --out.")
+@click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out.")
 @click.option(
     "--mixed-precision/--no-mixed-precision",
     default=None,

@@ -74,7 +74,10 @@ def lsystem(
         f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces"
     )
     if mesh_path is not None:
-        mesh.to_trimesh().export(mesh_path)
+        from plantdreamer.atomic import atomic_path
+
+        with atomic_path(mesh_path) as tmp:
+            mesh.to_trimesh().export(tmp, file_type=mesh_path.suffix.lower().lstrip("."))
         click.echo(f"wrote {mesh_path}")
     if output is not None:
         write_ply(output, sample_points(mesh, n=points, seed=seed), binary=True)

@@ -39,6 +39,7 @@ def transform_path(output: Path) -> Path:
 )
 @click.option("--size", type=float, default=4.0, show_default=True, help="Longest side.")
 @click.option("--ascii", is_flag=True, help="Write an ascii PLY instead of binary.")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT (and its transform) if they exist.")
 def prepare(
     input_ply: Path,
     output: Path,
@@ -48,12 +49,21 @@ def prepare(
     do_normalize: bool,
     size: float,
     ascii: bool,
+    overwrite: bool,
 ) -> None:
     """Remove outliers, downsample and (optionally) normalise INPUT.ply.
 
     Steps: drop non-finite points, statistical outlier removal (Open3D semantics),
     voxel grid to --target points, normalisation. Prints the count after each step.
     """
+    from plantdreamer.output_folder import claim_files
+
+    # The transform is claimed too: a stale one beside a new, unnormalised output would lie.
+    with claim_files([output, transform_path(output)], overwrite=overwrite):
+        _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, size, ascii)
+
+
+def _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, size, ascii) -> None:
     from plantdreamer.io import read_ply, write_ply
     from plantdreamer.prepare import prepare_cloud
 

@@ -5,6 +5,7 @@ COLMAP poses are world-to-camera in OpenCV axes: exactly ``Camera.viewmat``.
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from plantdreamer.cameras import intrinsics
 from plantdreamer.errors import InputError
+from plantdreamer.eval.images import check_image_size
 
 __all__ = ["find_model_dir", "quat_to_rotation", "read_cameras_text", "read_images_text"]
 
@@ -28,7 +30,11 @@ MODELS = {
 
 def _data_lines(path: Path) -> list[str]:
     """Lines of a COLMAP text file without comments (blank lines kept: images.txt needs them)."""
-    return [line.rstrip("\n") for line in path.read_text().splitlines() if not line.startswith("#")]
+    return [
+        line.rstrip("\n")
+        for line in path.read_text(encoding="utf-8").splitlines()
+        if not line.startswith("#")
+    ]
 
 
 def find_model_dir(root: Path) -> Path | None:
@@ -60,6 +66,8 @@ def read_cameras_text(path: Path) -> dict[int, tuple[np.ndarray, int, int]]:
             params = [float(x) for x in parts[4:]]
         except ValueError as exc:
             raise InputError(f"{where}: {exc}") from exc
+        if not all(math.isfinite(x) for x in params):
+            raise InputError(f"{where}: parameters must be finite numbers, got {parts[4:]}")
         if len(params) != MODELS[model]:
             raise InputError(
                 f"{where}: {model} needs {MODELS[model]} parameters, got {len(params)}"
@@ -69,6 +77,9 @@ def read_cameras_text(path: Path) -> dict[int, tuple[np.ndarray, int, int]]:
             k = intrinsics(f, f, cx, cy)
         else:  # fx, fy, cx, cy, [distortion]
             k = intrinsics(*params[:4])
+        if not (k[0, 0] > 0 and k[1, 1] > 0):
+            raise InputError(f"{where}: focal lengths must be positive, got {parts[4:]}")
+        check_image_size(width, height, where)
         distortion = params[3:] if model in ("SIMPLE_RADIAL", "RADIAL") else params[4:]
         if any(d != 0.0 for d in distortion):
             warnings.warn(

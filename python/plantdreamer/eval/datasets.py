@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +24,7 @@ from plantdreamer.cameras import Camera, intrinsics
 from plantdreamer.errors import InputError
 from plantdreamer.eval.colmap import find_model_dir, read_cameras_text, read_images_text
 from plantdreamer.eval.frames import Frame, FrameSource
-from plantdreamer.eval.images import image_size, resolve_image_path
+from plantdreamer.eval.images import check_image_size, image_size, resolve_image_path
 
 __all__ = [
     "Frame",
@@ -74,9 +76,9 @@ def _intrinsics(meta: dict[str, Any], width: int, height: int, where: str) -> np
         fx = float(meta["fl_x"])
         fy = float(meta.get("fl_y", fx))
     elif "camera_angle_x" in meta:
-        fx = 0.5 * width / math.tan(0.5 * float(meta["camera_angle_x"]))
+        fx = 0.5 * width / math.tan(0.5 * _angle(meta, "camera_angle_x", where))
         if "camera_angle_y" in meta:
-            fy = 0.5 * height / math.tan(0.5 * float(meta["camera_angle_y"]))
+            fy = 0.5 * height / math.tan(0.5 * _angle(meta, "camera_angle_y", where))
         else:
             fy = fx
     else:
@@ -86,6 +88,13 @@ def _intrinsics(meta: dict[str, Any], width: int, height: int, where: str) -> np
     if not (fx > 0.0 and fy > 0.0 and math.isfinite(fx) and math.isfinite(fy)):
         raise InputError(f"{where}: focal lengths must be positive, got fx={fx}, fy={fy}")
     return intrinsics(fx, fy, cx, cy)
+
+
+def _angle(meta: dict[str, Any], key: str, where: str) -> float:
+    value = float(meta[key])
+    if not 0.0 < value < math.pi:
+        raise InputError(f"{where}: {key} must be a field of view in (0, pi) radians, got {value}")
+    return value
 
 
 def _check_size(meta: dict[str, Any], width: int, height: int, where: str) -> None:
@@ -109,11 +118,26 @@ def scan_transforms_json(path: str | Path, images_required: bool = True) -> list
     and may omit the extension.
     """
     json_path = _transforms_file(Path(path))
-    root = json_path.parent
+    with _malformed(json_path):
+        return _scan_transforms_json(json_path, images_required)
+
+
+@contextmanager
+def _malformed(path: Path) -> Iterator[None]:
+    """Wrong types or values anywhere in a dataset's metadata: one InputError naming the file."""
     try:
-        meta = json.loads(json_path.read_text())
+        yield
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
     except json.JSONDecodeError as exc:
-        raise InputError(f"{json_path} is not valid JSON: {exc}") from exc
+        raise InputError(f"{path} is not valid JSON: {exc}") from exc
+    except (ValueError, TypeError, KeyError, IndexError, ArithmeticError) as exc:
+        raise InputError(f"{path}: malformed value ({type(exc).__name__}: {exc})") from exc
+
+
+def _scan_transforms_json(json_path: Path, images_required: bool) -> list[FrameSource]:
+    root = json_path.parent
+    meta = json.loads(json_path.read_text(encoding="utf-8"))
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
         raise InputError(f"{json_path} has no 'frames' list")
     if not meta["frames"]:
@@ -137,7 +161,7 @@ def scan_transforms_json(path: str | Path, images_required: bool = True) -> list
             if images_required or "w" not in frame_meta or "h" not in frame_meta:
                 raise
             image_path = root / entry["file_path"]
-            width, height = int(frame_meta["w"]), int(frame_meta["h"])
+            width, height = check_image_size(int(frame_meta["w"]), int(frame_meta["h"]), where)
         _check_size(frame_meta, width, height, where)
         k = _intrinsics(frame_meta, width, height, where)
         c2w = np.asarray(entry["transform_matrix"], dtype=np.float64)
@@ -174,6 +198,11 @@ def scan_colmap_text(path: str | Path) -> list[FrameSource]:
     model_dir = find_model_dir(root)
     if model_dir is None:
         raise FileNotFoundError(f"no COLMAP cameras.txt + images.txt in {root} or {root}/sparse/0")
+    with _malformed(model_dir):
+        return _scan_colmap_text(root, model_dir)
+
+
+def _scan_colmap_text(root: Path, model_dir: Path) -> list[FrameSource]:
     cameras = read_cameras_text(model_dir / "cameras.txt")
     image_dir = root / "images" if (root / "images").is_dir() else root
     sources = []

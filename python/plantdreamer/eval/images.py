@@ -72,13 +72,30 @@ def read_mask(path: Path) -> np.ndarray:
     return np.asarray(gray) != 0
 
 
+# Largest image read or rendered for evaluation: 8192 x 8192. A header claiming more is refused
+# before any pixel buffer is allocated.
+MAX_IMAGE_PIXELS = 8192 * 8192
+
+
+def check_image_size(width: int, height: int, where: object) -> tuple[int, int]:
+    """``(width, height)`` if positive and within MAX_IMAGE_PIXELS, else InputError."""
+    if not (width > 0 and height > 0):
+        raise InputError(f"{where}: image size must be positive, got {width}x{height}")
+    if width * height > MAX_IMAGE_PIXELS:
+        raise InputError(
+            f"{where}: {width} x {height} pixels is above the limit of {MAX_IMAGE_PIXELS:,} "
+            f"pixels (one float RGBA copy alone needs {width * height * 16 / 2**30:.1f} GiB)"
+        )
+    return width, height
+
+
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) from the file header, without decoding the pixels."""
     from PIL import Image
 
     try:
         with Image.open(path) as im:
-            return int(im.size[0]), int(im.size[1])
+            return check_image_size(int(im.size[0]), int(im.size[1]), path)
     except OSError as exc:
         if isinstance(exc, FileNotFoundError):
             raise

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.eval.evaluate import EvalResult, View
 from plantdreamer.eval.metrics import PSNR_MAX_DB
@@ -46,7 +46,7 @@ def write_json(result: EvalResult, path: str | Path, **extra: object) -> Path:
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     data = {**extra, **result.to_dict()}
-    out.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+    atomic.write_json(out, data, allow_nan=False)
     return out
 
 
@@ -88,7 +88,7 @@ def write_markdown(
     for f in result.frames:
         cells = [_fmt(getattr(f, name), _digits(name)) for name in _LABELS]
         lines.append(f"| {f.name} | " + " | ".join(cells) + " |")
-    out.write_text("\n".join(lines) + "\n")
+    atomic.write_text(out, "\n".join(lines) + "\n")
     return out
 
 
@@ -130,7 +130,7 @@ def write_image_strip(views: Sequence[View], path: str | Path) -> Path:
             ax.set_axis_off()
     assert image is not None
     fig.colorbar(image, ax=axes[:, 2].tolist(), fraction=0.05, shrink=0.8, label="RMS error")
-    fig.savefig(out)
+    atomic.atomic_write(out, fig.savefig)
     return out
 
 
@@ -159,7 +159,7 @@ def write_ablation_table(
         cell = f"**{value:.2f}**" if value == best else f"{value:.2f}"
         lines.append(f"| {name.capitalize()} | {cell} |")
     md = out / "ablation.md"
-    md.write_text("\n".join(lines) + "\n")
+    atomic.write_text(md, "\n".join(lines) + "\n")
 
     fig = Figure(figsize=(1.2 * len(results) + 2.0, 3.2), dpi=100)
     FigureCanvasAgg(fig)
@@ -172,5 +172,5 @@ def write_ablation_table(
     ax.margins(y=0.15)
     fig.tight_layout()
     png = out / "ablation.png"
-    fig.savefig(png)
+    atomic.atomic_write(png, fig.savefig)
     return md, png

@@ -48,6 +48,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from plantdreamer.atomic import write_image
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES
@@ -315,5 +316,5 @@ def save_depth_png(cond: torch.Tensor, path: str | Path) -> Path:
     array = (image.cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(array).save(path)
+    write_image(path, Image.fromarray(array))
     return path

@@ -18,7 +18,7 @@ from typing import Any
 
 import torch
 
-from plantdreamer.errors import ModelNotFoundError
+from plantdreamer.errors import InputError, ModelNotFoundError
 from plantdreamer.guidance.config import SDS_DEFAULTS
 
 DEFAULT_BASE_MODEL = SDS_DEFAULTS.base_model
@@ -62,9 +62,21 @@ class DiffusionComponents:
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
+    """The torch device named (default: cuda if available), checked to be usable here."""
     if device is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
+    try:
+        resolved = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise InputError(f"unknown device {device!r}: use cpu, cuda or cuda:N") from exc
+    if resolved.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError(f"device {device!r}: no usable CUDA GPU on this machine; use cpu")
+        if resolved.index is not None and resolved.index >= torch.cuda.device_count():
+            raise InputError(f"device {device!r}: only {torch.cuda.device_count()} CUDA GPU(s)")
+    elif resolved.type != "cpu":
+        raise InputError(f"device {device!r} is not supported: use cpu, cuda or cuda:N")
+    return resolved
 
 
 def resolve_dtype(dtype: torch.dtype | str | None, device: torch.device) -> torch.dtype:

@@ -14,6 +14,7 @@ from typing import Any
 
 import torch
 
+from plantdreamer.atomic import atomic_path, write_image
 from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
 
 
@@ -36,13 +37,15 @@ def save_lora_file(out: Path, unet: Any, rank: int, alpha: float) -> Path:
 
     out.mkdir(parents=True, exist_ok=True)
     layers: dict[str, torch.nn.Module | torch.Tensor] = dict(lora_state_dict(unet, rank, alpha))
-    StableDiffusionLoraLoaderMixin.save_lora_weights(
-        save_directory=str(out),
-        unet_lora_layers=layers,
-        weight_name=LORA_WEIGHT_NAME,
-        safe_serialization=True,
-    )
-    return out / LORA_WEIGHT_NAME
+    path = out / LORA_WEIGHT_NAME
+    with atomic_path(path) as tmp:
+        StableDiffusionLoraLoaderMixin.save_lora_weights(
+            save_directory=str(tmp.parent),
+            unet_lora_layers=layers,
+            weight_name=tmp.name,
+            safe_serialization=True,
+        )
+    return path
 
 
 @torch.no_grad()
@@ -85,7 +88,7 @@ def render_validation(
             generator=generator,
         ).images[0]
         path = folder / f"sample-{i:02d}.png"
-        image.save(path)
+        write_image(path, image)
         paths.append(path)
     parts.unet.train(unet_mode)
     return paths

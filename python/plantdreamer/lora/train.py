@@ -15,7 +15,6 @@ Outputs in ``out``: ``pytorch_lora_weights.safetensors`` (diffusers format), ``l
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -25,7 +24,9 @@ from typing import Any
 
 import torch
 
+from plantdreamer.atomic import write_json
 from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
 from plantdreamer.guidance.models import (
     DEFAULT_BASE_MODEL,
     DiffusionComponents,
@@ -34,6 +35,7 @@ from plantdreamer.guidance.models import (
     resolve_device,
 )
 from plantdreamer.lora.checkpoint import (
+    CHECKPOINT_DIR,
     check_fingerprint,
     list_checkpoints,
     load_checkpoint,
@@ -42,6 +44,7 @@ from plantdreamer.lora.checkpoint import (
 from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
+from plantdreamer.output_folder import claim_folder
 from plantdreamer.versions import package_versions
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
@@ -67,12 +70,22 @@ class LoraTrainConfig:
     caption_template: str = DEFAULT_CAPTION
     checkpoint_every: int = 500
     resume: bool = False
+    overwrite: bool = False  # delete an earlier run's outputs in ``out`` first
     mixed_precision: bool | None = None  # None: on for CUDA
     device: str | None = None
     validate: int = 0
     validation_steps: int = 25
 
     def check(self) -> None:
+        for name in ("rank", "alpha", "steps", "resolution", "batch_size", "grad_accum", "seed",
+                     "checkpoint_every", "validate", "validation_steps"):  # fmt: skip
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+                raise InputError(f"{name} must be an integer, got {value!r}")
+        if not 0 <= self.seed < 2**32:
+            raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
+        if not (isinstance(self.learning_rate, (int, float)) and math.isfinite(self.learning_rate)):
+            raise InputError(f"learning rate must be a finite number, got {self.learning_rate!r}")
         positive = {
             "rank": self.rank,
             "steps": self.steps,
@@ -165,8 +178,35 @@ def train_lora(
     components: DiffusionComponents | Mapping[str, Any] | None = None,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> LoraTrainResult:
-    """Run (or resume) a training; ``progress(step, steps, loss)`` is called after each step."""
+    """Run (or resume) a training; ``progress(step, steps, loss)`` is called after each step.
+
+    ``out`` is locked for the run; a new run needs it empty (or ``overwrite``), a resumed
+    one needs a checkpoint there.
+    """
     config.check()
+    out = Path(config.out)
+    if config.resume and config.overwrite:
+        raise InputError("overwrite starts afresh; it cannot go with resume")
+    if config.resume and not list_checkpoints(out):
+        raise CheckpointError(
+            f"nothing to resume: {out / CHECKPOINT_DIR} holds no checkpoint; "
+            "run without --resume to start a new training"
+        )
+    if not config.resume and not config.overwrite and list_checkpoints(out):
+        raise CheckpointError(
+            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
+            "--overwrite to start afresh, or choose another --out folder"
+        )
+    owned = ("lora.json", LORA_WEIGHT_NAME, "validation", CHECKPOINT_DIR)
+    with claim_folder(out, overwrite=config.overwrite, owned=owned, allow_existing=config.resume):
+        return _train(config, components, progress)
+
+
+def _train(
+    config: LoraTrainConfig,
+    components: DiffusionComponents | Mapping[str, Any] | None,
+    progress: Callable[[int, int, float], None] | None,
+) -> LoraTrainResult:
     device = resolve_device(config.device)
     mixed = config.mixed_precision if config.mixed_precision is not None else device.type == "cuda"
     if mixed and device.type != "cuda":
@@ -185,24 +225,26 @@ def train_lora(
     generator = torch.Generator().manual_seed(config.seed)
 
     start, losses, eval_before = 0, [], math.nan
-    if not config.resume and list_checkpoints(out):
-        raise CheckpointError(
-            f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
-            "or choose another --out folder"
-        )
-    if config.resume and list_checkpoints(out):
+    if config.resume:
         from peft.utils import set_peft_model_state_dict
 
         path = list_checkpoints(out)[-1]
         state = load_checkpoint(path)
+        if not isinstance(state["fingerprint"], dict):
+            raise CheckpointError(f"checkpoint {str(path)!r}: damaged fingerprint")
         check_fingerprint(path, state["fingerprint"], fingerprint)
-        set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
-        optimizer.load_state_dict(state["optimizer"])
-        if "scaler" in state:
-            scaler.load_state_dict(state["scaler"])
-        generator.set_state(state["generator"])
-        start, losses = int(state["step"]), list(state["losses"])
-        eval_before = float(state.get("eval_loss_before", math.nan))
+        try:
+            set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
+            optimizer.load_state_dict(state["optimizer"])
+            if "scaler" in state:
+                scaler.load_state_dict(state["scaler"])
+            generator.set_state(state["generator"])
+            start, losses = int(state["step"]), [float(v) for v in state["losses"]]
+            eval_before = float(state.get("eval_loss_before", math.nan))
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+            raise CheckpointError(
+                f"checkpoint {str(path)!r} is damaged or incompatible ({type(exc).__name__}: {exc})"
+            ) from exc
     if math.isnan(eval_before):
         eval_before = objective.evaluate(examples, config.resolution, config.seed)
 
@@ -259,8 +301,9 @@ def train_lora(
             device,
         )
     metadata = out / "lora.json"
-    metadata.write_text(
-        json.dumps(
+    write_json(
+        metadata,
+        (
             {
                 "format": "diffusers LoRA (unet.<module>.lora.down/up.weight), alpha folded in",
                 "target_modules": list(TARGET_MODULES),
@@ -276,8 +319,7 @@ def train_lora(
                 "device": str(device),
                 "versions": package_versions(),
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            },
-            indent=2,
-        )
+            }
+        ),
     )
     return LoraTrainResult(weights, metadata, losses, eval_before, eval_after, start, samples)

@@ -6,7 +6,7 @@ import numbers
 
 import numpy as np
 
-from plantdreamer.cloud import PointCloud
+from plantdreamer.cloud import PointCloud, check_point_count
 from plantdreamer.errors import InputError
 from plantdreamer.lsystem.mesh import PlantMesh
 
@@ -19,8 +19,7 @@ def sample_points(mesh: PlantMesh, n: int = 100_000, seed: int = 0) -> PointClou
     normals are the face normals (from the winding); attributes ``label`` (OrganClass) and
     ``instance`` (leaf id or -1) come from the face's vertices.
     """
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
-        raise InputError(f"number of points must be a positive integer, got {n!r}")
+    check_point_count(n)
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
         raise InputError(f"seed must be a non-negative integer, got {seed!r}")
     areas, normals = mesh.face_areas_normals()

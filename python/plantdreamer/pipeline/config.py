@@ -9,6 +9,8 @@ with ``from_dict`` so it continues with exactly the settings it started with.
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +20,7 @@ from plantdreamer.settings import check_choices, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
 COLOR_INITS = ("original", "noise", "black", "white")
+MAX_RESOLUTION = 8192  # largest training / evaluation render side
 GUIDANCES = ("sds", "none")
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
 # pipeline/presets.py holds each preset's values.
@@ -204,6 +207,7 @@ class GenerateConfig:
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
 
     def validate(self) -> None:
+        self._check_numbers()
         if self.species is None and self.pointcloud is None:
             raise InputError("give an input: a species (L-System) or a point cloud")
         try:
@@ -224,6 +228,33 @@ class GenerateConfig:
             from plantdreamer.guidance.prompts import check_template
 
             check_template(self.prompt_template)
+
+    def _check_numbers(self) -> None:
+        """Integers are integers (3.7 points is an error, not 3), numbers are finite and
+        in range, counts fit in memory: no run starts on values it would silently garble."""
+        from plantdreamer.cloud import check_point_count
+
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("int", "int | None") and value is not None:
+                if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                    raise InputError(f"{f.name} must be an integer, got {value!r}")
+            if f.type in ("float", "float | None") and value is not None:
+                if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                    raise InputError(f"{f.name} must be a number, got {value!r}")
+                if not math.isfinite(value):
+                    raise InputError(f"{f.name} must be finite, got {value}")
+        if not 0 <= self.seed < 2**32:
+            raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
+        check_point_count(self.n_points, "points")
+        if self.guidance_scale < 0:
+            raise InputError(f"guidance scale must be >= 0, got {self.guidance_scale}")
+        if not 0.0 <= self.background <= 1.0:
+            raise InputError(f"background must be a grey level in [0, 1], got {self.background}")
+        for name in ("resolution", "sds_resolution"):
+            size = getattr(self, name)
+            if size is not None and not 8 <= size <= MAX_RESOLUTION:
+                raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
 
     def initial_opacity(self) -> float:
         if self.opacity_init is not None:

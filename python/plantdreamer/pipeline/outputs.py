@@ -5,14 +5,13 @@ from __future__ import annotations
 import csv
 import functools
 import io
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from plantdreamer import turntable
+from plantdreamer import atomic, turntable
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError
@@ -20,11 +19,39 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.turntable import TURNTABLE_FORMATS
 
+# float32 positions must resolve the plant at least this finely (relative to its size);
+# georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
+EXPORT_PRECISION = 1e-5
 
-def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
-    """Undo the normalisation: positions and scales back in the input's units and place."""
+
+def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:
+    """The offset to subtract before writing float32 positions, or None when the input
+    frame itself is precise enough (a plant near its origin)."""
+    center = np.asarray(transform.center, dtype=np.float64)
+    extent = scene_size / transform.scale
+    far = float(np.abs(center).max()) + extent
+    if np.spacing(np.float32(far)) <= extent * EXPORT_PRECISION:
+        return None
+    return np.round(center)
+
+
+def offset_comment(offset: np.ndarray) -> str:
+    """The PLY comment that records an export offset in plant.ply itself."""
+    return "plantdreamer offset {:.17g} {:.17g} {:.17g} (add to x y z for the input frame)".format(
+        *offset
+    )
+
+
+def to_input_frame(
+    g: Gaussians, transform: NormalizeTransform, offset: np.ndarray | None = None
+) -> Gaussians:
+    """Undo the normalisation: positions and scales back in the input's units and place,
+    minus ``offset`` (computed in float64, so no precision is lost before the subtraction)."""
+    means = transform.invert(g.means.astype(np.float64))
+    if offset is not None:
+        means = means - offset
     return Gaussians(
-        np.asarray(transform.invert(g.means), dtype=np.float32),
+        np.asarray(means, dtype=np.float32),
         g.quats.copy(),
         np.asarray(transform.invert_log_scales(g.log_scales), dtype=np.float32),
         g.opacity_logits.copy(),
@@ -33,16 +60,31 @@ def to_input_frame(g: Gaussians, transform: NormalizeTransform) -> Gaussians:
     )
 
 
-def to_scene_frame(g: Gaussians, size: float = 4.0) -> tuple[Gaussians, NormalizeTransform]:
-    """Centres a model on its bounding box and scales its longest side to ``size``; returns
-    it and the transform from the model's frame."""
-    from plantdreamer.pointcloud import normalize
+def to_scene_frame(
+    g: Gaussians,
+    size: float = 4.0,
+    *,
+    up: str = "z",
+    center: tuple[float, float, float] | None = None,
+) -> tuple[Gaussians, NormalizeTransform]:
+    """Frames any model for the orbit: axis ``up`` turned onto +z, centred on its robust
+    centre (or ``center``, in the model's own frame), the longest side of its robust box
+    scaled to ``size`` (see ``plantdreamer.framing``). Returns it and the transform from the
+    (turned) model's frame, exact for ``up="z"``, where nothing is turned."""
+    from plantdreamer.framing import UP_AXES, robust_center_extent, rotate_up
 
-    means, transform = normalize(g.means, size=size)
+    g = rotate_up(g, up)
+    mid, extent = robust_center_extent(g)
+    if center is not None:
+        mid = UP_AXES[up][0] @ np.asarray(center, dtype=np.float64)
+    scale = size / extent
+    transform = NormalizeTransform(
+        center=(float(mid[0]), float(mid[1]), float(mid[2])), scale=float(scale)
+    )
     scene = Gaussians(
-        np.asarray(means, dtype=np.float32),
+        ((g.means.astype(np.float64) - mid) * scale).astype(np.float32),
         g.quats.copy(),
-        (g.log_scales + np.float32(math.log(float(transform.scale)))).astype(np.float32),
+        (g.log_scales + np.float32(math.log(scale))).astype(np.float32),
         g.opacity_logits.copy(),
         g.sh.copy(),
         None if g.labels is None else g.labels.copy(),
@@ -50,12 +92,18 @@ def to_scene_frame(g: Gaussians, size: float = 4.0) -> tuple[Gaussians, Normaliz
     return scene, transform
 
 
-def export_ply(path: Path, g: Gaussians, sh_degree: int | None, labels: bool = True) -> None:
-    """Writes the INRIA-layout PLY atomically (no partial file on failure); with
+def export_ply(
+    path: Path,
+    g: Gaussians,
+    sh_degree: int | None,
+    labels: bool = True,
+    comments: tuple[str, ...] = (),
+) -> None:
+    """Writes the INRIA-layout PLY (atomically: no partial file on failure); with
     ``labels``, the Gaussians' labels follow as ``label`` and ``instance``."""
     from plantdreamer.io import write_splat_ply
 
-    atomic_write(path, lambda tmp: write_splat_ply(tmp, g, sh_degree=sh_degree, labels=labels))
+    write_splat_ply(path, g, sh_degree=sh_degree, labels=labels, comments=comments)
 
 
 def render_orbit(
@@ -73,11 +121,9 @@ def to_uint8(image) -> np.ndarray:
 
 
 def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
-    import imageio.v3 as iio
-
     out_dir.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(frames):
-        iio.imwrite(out_dir / f"view_{i:03d}.png", frame)
+        atomic.write_image(out_dir / f"view_{i:03d}.png", frame)
 
 
 def write_turntables(
@@ -101,8 +147,7 @@ def write_turntables(
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    text = json.dumps(data, indent=2, sort_keys=False, default=_jsonable)
-    atomic_write(path, lambda tmp: tmp.write_text(text + "\n"))
+    atomic.write_json(path, data, default=_jsonable)
 
 
 def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -114,7 +159,7 @@ def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     writer = csv.DictWriter(buf, fieldnames=list(fields))
     writer.writeheader()
     writer.writerows(rows)
-    atomic_write(path, lambda tmp: tmp.write_text(buf.getvalue()))
+    atomic.write_text(path, buf.getvalue())
 
 
 def _jsonable(value: Any) -> Any:

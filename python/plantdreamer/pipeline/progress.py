@@ -34,17 +34,33 @@ class Progress:
             self._task = self._bar.add_task("", total=total, completed=start, info="")
             self._bar.start()
 
-    def update(self, step: int, loss: float, gaussians: int) -> None:
+    def update(self, step: int, loss: float | None, gaussians: int) -> None:
+        """``loss=None``: nothing is trained (no guidance); the line says what the step did
+        instead of a zero loss and a meaningless rate."""
         if not self.enabled:
             return
         done = step + 1
         rate = (done - self.start) / max(time.perf_counter() - self.t0, 1e-9)
-        info = f"loss {loss:.4g}  gaussians {gaussians}  {rate:.1f} it/s"
+        if loss is None:
+            info = f"no training: density control and culling only  gaussians {gaussians}"
+        else:
+            info = f"loss {loss:.4g}  gaussians {gaussians}  {rate:.1f} it/s"
         if self._bar is not None:
             self._bar.update(self._task, completed=done, info=info)
         elif done % self.every == 0 or done == self.total:
-            eta = (self.total - done) / rate if rate > 0 else float("inf")
-            print(f"step {done}/{self.total}  {info}  eta {eta:.0f}s", file=sys.stderr, flush=True)
+            eta = (
+                f"  eta {(self.total - done) / rate:.0f}s" if loss is not None and rate > 0 else ""
+            )
+            print(f"step {done}/{self.total}  {info}{eta}", file=sys.stderr, flush=True)
+
+    def note(self, message: str) -> None:
+        """One line about a phase of the run (initialisation, export)."""
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.console.print(message)
+        else:
+            print(message, file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self._bar is not None:

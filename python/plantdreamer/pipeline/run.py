@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import shutil
 import signal
 import sys
 import time
@@ -19,12 +20,13 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import orbit_ring
-from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.labels import class_counts
+from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
@@ -114,45 +116,125 @@ def resolve_runtime(cfg: GenerateConfig) -> None:
         cfg.prompt_template = lora_template(cfg.lora)
 
 
+# What a finished run writes at its end, the file that marks it finished first (deleted
+# first by --overwrite; made anew by a resumed run).
+FINAL_OUTPUTS = (
+    "run.json",
+    "plant.ply",
+    "turntable.gif",
+    "turntable.mp4",
+    "renders",
+    "labels",
+    "instances",
+    "depth",
+    "transforms.json",
+)
+# Everything a run writes.
+RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", CHECKPOINT_NAME)
+# Settings a resumed run may change: more steps continue the same run further.
+RESUME_CHANGEABLE = ("steps",)
+
+
 def generate(
     cfg: GenerateConfig | None,
     out_dir: str | Path,
     *,
     guidance: Guidance | None = None,
     resume: bool = False,
+    changes: dict[str, Any] | None = None,
+    overwrite: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
 ) -> RunResult:
     """Runs (or resumes) a generation and writes every output into ``out_dir``.
 
-    With ``resume=True`` the config is the checkpoint's and ``cfg`` must be None.
+    The folder is locked for the run. A new run needs an empty folder, or ``overwrite``,
+    which deletes the previous run's outputs first (never a mix of two runs).
+    With ``resume=True`` the config is the checkpoint's and ``cfg`` must be None;
+    ``changes`` are settings given again on resume: equal ones are fine, more ``steps``
+    continue the run further, any other difference is a CheckpointError.
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
     The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
     ``RunInterrupted`` is raised.
     """
     out_dir = Path(out_dir)
-    state = load_checkpoint(out_dir) if resume else None
-    if state is not None:
-        cfg = GenerateConfig.from_dict(state["config"])
-    if cfg is None:
+    if cfg is None and not resume:
         raise InputError("a config is needed unless resuming")
-    check_inputs(cfg)
-    _check_writable(out_dir)
-    cfg = copy.deepcopy(cfg)
-    resolve_runtime(cfg)
-    guidance = guidance if guidance is not None else build_guidance(cfg)
-    return _Run(cfg, out_dir, guidance, state, show_progress, on_step).run()
+    if cfg is not None:
+        check_inputs(cfg)
+    if not resume and not overwrite and (out_dir / CHECKPOINT_NAME).is_file():
+        raise InputError(
+            f"{out_dir} holds a checkpoint of an earlier run; continue it with --resume "
+            f"{out_dir}, pass --overwrite to start afresh, or choose another folder"
+        )
+    with claim_folder(
+        out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS, allow_existing=resume
+    ):
+        state = note = None
+        if resume:
+            state = load_checkpoint(out_dir)
+            cfg, note = _resumed_config(state, changes or {}, out_dir)
+            check_inputs(cfg)
+            for name in FINAL_OUTPUTS:  # a finished run's outputs are made anew
+                path = out_dir / name
+                if path.is_dir():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink(missing_ok=True)
+        assert cfg is not None
+        cfg = copy.deepcopy(cfg)  # the caller's config is not changed
+        resolve_runtime(cfg)
+        guidance = guidance if guidance is not None else build_guidance(cfg)
+        run = _Run(cfg, out_dir, guidance, state, show_progress, on_step)
+        if note is not None:
+            run.events.append(note)
+        return run.run()
 
 
-def _check_writable(out_dir: Path) -> None:
+def _resumed_config(
+    state: dict[str, Any], changes: dict[str, Any], out_dir: Path
+) -> tuple[GenerateConfig, dict[str, Any] | None]:
+    """The checkpoint's config with the allowed ``changes``, and an event recording them."""
+    where = out_dir / CHECKPOINT_NAME
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / ".write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise PermissionError(f"output folder {out_dir} is not writable: {exc}") from exc
+        cfg = GenerateConfig.from_dict(state["config"])
+        cfg.validate()
+        step = int(state["step"])
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise CheckpointError(f"{where}: damaged checkpoint, bad config ({exc})") from exc
+    saved = {k: _setting(cfg, k) for k in changes}  # keys: "seed", "densify.start", ...
+    differ = {k: v for k, v in changes.items() if saved[k] != v}
+    refused = [
+        f"{k}: checkpoint {saved[k]!r}, given {v!r}"
+        for k, v in differ.items()
+        if k not in RESUME_CHANGEABLE
+    ]
+    if refused:
+        raise CheckpointError(
+            f"--resume continues {out_dir} with the settings it started with, and these "
+            f"differ: {'; '.join(refused)}. Only --steps may change (to continue further); "
+            "start a new run (another --out, or --overwrite) to change the others"
+        )
+    if "steps" not in differ:
+        return cfg, None
+    if differ["steps"] < step:
+        raise CheckpointError(
+            f"--steps {differ['steps']} is below the checkpoint's step {step}; "
+            "a resumed run can only go further"
+        )
+    note = {"step": step, "event": "steps changed", "from": cfg.steps, "to": differ["steps"]}
+    cfg.steps = differ["steps"]
+    return cfg, note
+
+
+def _setting(cfg: GenerateConfig, key: str) -> Any:
+    value: Any = cfg
+    for name in key.split("."):
+        if not hasattr(value, name):
+            raise InputError(f"unknown setting {key!r}")
+        value = getattr(value, name)
+    return value
 
 
 class _Run:
@@ -175,7 +257,13 @@ class _Run:
         if state is None:
             self._start_fresh()
         else:
-            self._restore(state)
+            try:
+                self._restore(state)
+            except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+                raise CheckpointError(
+                    f"{out_dir / CHECKPOINT_NAME}: damaged or incompatible checkpoint "
+                    f"({type(exc).__name__}: {exc})"
+                ) from exc
         self.initial = GaussianModel(self.initial_gaussians)
         self._stop_requested = False
 
@@ -246,6 +334,14 @@ class _Run:
         cfg = self.cfg
         conditioner = self._depth_conditioner() if self.guidance.needs_depth else None
         progress = Progress(cfg.steps, self.start_step, self.show_progress)
+        progress.note(
+            f"initialised {len(self.initial_gaussians)} Gaussians"
+            + (
+                ""
+                if self.trains
+                else "; no guidance: the steps only run density control and culling"
+            )
+        )
         previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, self._request_stop)
         try:
@@ -253,13 +349,14 @@ class _Run:
                 if self._stop_requested:
                     self._checkpoint(step)
                     raise RunInterrupted(step, self.out_dir)
-                loss = self._train_step(step, conditioner) if self.trains else 0.0
+                loss = self._train_step(step, conditioner) if self.trains else None
                 self._adapt_density(step)
                 progress.update(step, loss, len(self.model))
                 if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
                     self._checkpoint(step + 1)
                 if self.on_step is not None:
                     self.on_step(step)
+            progress.note(f"exporting {len(self.model)} Gaussians, {cfg.eval_views} renders")
         finally:
             signal.signal(signal.SIGINT, previous)
             progress.close()
@@ -410,11 +507,15 @@ class _Run:
         final = self.model.to_gaussians()
         with self.timer("export"):
             ply_path = out / "plant.ply"
+            offset = outputs.export_offset(self.transform, cfg.scene_size)
+            self.export_offset = None if offset is None else [float(v) for v in offset]
+            comments = () if offset is None else (outputs.offset_comment(offset),)
             outputs.export_ply(
                 ply_path,
-                outputs.to_input_frame(final, self.transform),
+                outputs.to_input_frame(final, self.transform, offset),
                 cfg.sh_degree_export,
                 cfg.labels,
+                comments,
             )
         with self.timer("renders"), torch.no_grad():
             # Each view's render, then its ground truth (which reuses the render's footprints).
@@ -462,6 +563,8 @@ class _Run:
             "per_step_s": per_step,
             "events": self.events,
             "transform": self.transform.to_dict(),
+            # plant.ply holds positions minus this offset (None: the input frame itself).
+            "export_offset": self.export_offset,
         }
 
 
