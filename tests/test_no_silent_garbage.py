@@ -144,7 +144,7 @@ def _scene_with_floaters(up_axis=2):
 def test_robust_frame_ignores_floaters():
     from plantdreamer.pipeline.outputs import to_scene_frame
 
-    framed = to_scene_frame(_scene_with_floaters())
+    framed, _ = to_scene_frame(_scene_with_floaters())
     core = framed.means[:-2]
     assert np.abs(np.median(core, axis=0)).max() < 0.05  # centred on the blob
     assert 2.0 < np.ptp(core, axis=0).max() < 8.0  # the blob fills the frame, not 1e-4 of it
@@ -181,7 +181,7 @@ def test_render_with_up_center_and_old_views_name(tmp_path):
     from plantdreamer.io import write_splat_ply
 
     write_splat_ply(tmp_path / "m.ply", _scene_with_floaters(up_axis=1))
-    args = ["render", str(tmp_path / "m.ply"), "--resolution", "32", "--no-turntable",
+    args = ["render", str(tmp_path / "m.ply"), "--resolution", "32", "--turntable", "none",
             "--up", "y", "--center", "10,10,10"]  # fmt: skip
     new = CliRunner().invoke(main, [*args, "--eval-views", "2", "--out", str(tmp_path / "a")])
     old = CliRunner().invoke(main, [*args, "--views", "2", "--out", str(tmp_path / "b")])

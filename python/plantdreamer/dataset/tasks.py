@@ -86,7 +86,16 @@ def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
         on_step = _hold_hook(plant_id, plant_dir, log)
         try:
             cfg = None if resume else GenerateConfig.from_dict(request["config"])
-            result = generate(cfg, plant_dir, resume=resume, show_progress=True, on_step=on_step)
+            # The plant folder is the dataset's (it holds this log): a fresh start replaces
+            # whatever an earlier, incomplete attempt left there.
+            result = generate(
+                cfg,
+                plant_dir,
+                resume=resume,
+                overwrite=not resume,
+                show_progress=True,
+                on_step=on_step,
+            )
         except RunInterrupted as stop:
             return {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
         except Exception as exc:  # the plant's own failure: record it, keep the others going
