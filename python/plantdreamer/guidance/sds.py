@@ -33,6 +33,7 @@ from plantdreamer.guidance.base import GuidanceOutput, check_images
 from plantdreamer.guidance.config import SDS_DEFAULTS
 from plantdreamer.guidance.lora_weights import load_lora
 from plantdreamer.guidance.models import (
+    DEFAULT_VAE_DTYPE,
     DiffusionComponents,
     load_components,
     resolve_device,
@@ -41,6 +42,7 @@ from plantdreamer.guidance.models import (
 from plantdreamer.guidance.prompts import camera_prompt
 from plantdreamer.guidance.schedules import REFERENCE_STEPS, TimestepSchedule, make_schedule, ramp
 from plantdreamer.guidance.text import PromptEmbeddings
+from plantdreamer.guidance.transfer import to_device
 
 # threestudio's grad_clip [start_step, start_value, end_value, end_step] of the released config.
 DEFAULT_GRAD_CLIP = (0, 1.5, 2.0, 1000)
@@ -80,7 +82,7 @@ class StableDiffusionDepthGuidance:
         resolution: int = SDS_DEFAULTS.resolution,
         grad_clip: tuple[int, float, float, int] | None = DEFAULT_GRAD_CLIP,
         lora_scale: float = 1.0,
-        vae_dtype: torch.dtype | str | None = torch.float32,
+        vae_dtype: torch.dtype | str | None = DEFAULT_VAE_DTYPE,
     ):
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype, self.device)
@@ -144,7 +146,7 @@ class StableDiffusionDepthGuidance:
         """[B, 1, h, w] depth in [0, 1] -> [B, 3, R, R] ControlNet input."""
         if depth_cond.dim() != 4 or depth_cond.shape[1] != 1:
             raise InputError(f"depth_cond must be [B, 1, h, w], got {list(depth_cond.shape)}")
-        control = depth_cond.detach().float().to(self.device)
+        control = to_device(depth_cond.detach().float(), self.device)
         if control.shape[-2:] != (self.resolution, self.resolution):
             control = F.interpolate(
                 control, (self.resolution, self.resolution), mode="bilinear", align_corners=False
@@ -226,7 +228,7 @@ class StableDiffusionDepthGuidance:
             raise InputError(f"got {depth_cond.shape[0]} depth maps for {batch} images")
         control = self.control_image(depth_cond)
 
-        rgb = images.permute(0, 3, 1, 2).to(self.device)
+        rgb = to_device(images.permute(0, 3, 1, 2), self.device)
         if rgb.shape[-2:] != (self.resolution, self.resolution):
             rgb = F.interpolate(
                 rgb, (self.resolution, self.resolution), mode="bilinear", align_corners=False

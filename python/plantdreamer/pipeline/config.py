@@ -122,6 +122,9 @@ class GenerateConfig:
         f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
     )
     sds_resolution: int = setting(SDS_DEFAULTS.resolution, "Image size given to the VAE.")
+    device: str | None = setting(
+        None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."
+    )
 
     # Outputs.
     eval_views: int = setting(120, "Renders on the evaluation orbit.")

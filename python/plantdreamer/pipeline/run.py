@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from plantdreamer import _core
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
@@ -25,6 +26,7 @@ from plantdreamer.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.depth_ahead import DepthAhead
 from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
@@ -85,6 +87,7 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         total_steps=cfg.steps,
         seed=cfg.seed,
         resolution=cfg.sds_resolution,
+        device=cfg.device,
     )
 
 
@@ -96,6 +99,7 @@ def generate(
     resume: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
+    depth_ahead: bool = True,
 ) -> RunResult:
     """Runs (or resumes) a generation and writes every output into ``out_dir``.
 
@@ -103,7 +107,8 @@ def generate(
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
     The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
-    ``RunInterrupted`` is raised.
+    ``RunInterrupted`` is raised. ``depth_ahead`` computes the next step's depth
+    conditioning on a worker thread (same bits; False computes it in line).
     """
     out_dir = Path(out_dir)
     state = load_checkpoint(out_dir) if resume else None
@@ -117,7 +122,7 @@ def generate(
     if cfg.resolution is None:
         cfg.resolution = default_resolution()
     guidance = guidance if guidance is not None else build_guidance(cfg)
-    return _Run(cfg, out_dir, guidance, state, show_progress, on_step).run()
+    return _Run(cfg, out_dir, guidance, state, show_progress, on_step, depth_ahead).run()
 
 
 def _check_writable(out_dir: Path) -> None:
@@ -139,6 +144,7 @@ class _Run:
         state: dict[str, Any] | None,
         show_progress: bool,
         on_step: Callable[[int], None] | None,
+        depth_ahead: bool = True,
     ) -> None:
         from plantdreamer.guidance.base import NoGuidance
 
@@ -153,6 +159,7 @@ class _Run:
             self._restore(state)
         self.initial = GaussianModel(self.initial_gaussians)
         self._stop_requested = False
+        self.depth_ahead = depth_ahead
 
     # -- setup -----------------------------------------------------------------------
 
@@ -201,6 +208,9 @@ class _Run:
     def run(self) -> RunResult:
         cfg = self.cfg
         conditioner = self._depth_conditioner() if self.guidance.needs_depth else None
+        depth = None
+        if conditioner is not None:
+            depth = DepthAhead(conditioner, self.sampler.peek, self.depth_ahead)
         progress = Progress(cfg.steps, self.start_step, self.show_progress)
         previous = signal.getsignal(signal.SIGINT)
         signal.signal(signal.SIGINT, self._request_stop)
@@ -209,7 +219,7 @@ class _Run:
                 if self._stop_requested:
                     self._checkpoint(step)
                     raise RunInterrupted(step, self.out_dir)
-                loss = self._train_step(step, conditioner) if self.trains else 0.0
+                loss = self._train_step(step, depth) if self.trains else 0.0
                 self._adapt_density(step)
                 progress.update(step, loss, len(self.model))
                 if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
@@ -219,6 +229,8 @@ class _Run:
         finally:
             signal.signal(signal.SIGINT, previous)
             progress.close()
+            if depth is not None:
+                depth.close()
         return self._finish()
 
     def _request_stop(self, signum, frame) -> None:
@@ -226,7 +238,7 @@ class _Run:
             raise KeyboardInterrupt
         self._stop_requested = True
 
-    def _train_step(self, step: int, conditioner) -> float:
+    def _train_step(self, step: int, conditioner: DepthAhead | None) -> float:
         cfg, model, timer = self.cfg, self.model, self.timer
         camera = self.sampler.sample()
         with timer("render"):
@@ -234,7 +246,7 @@ class _Run:
         depth = None
         if conditioner is not None:
             with timer("depth"):
-                depth = conditioner([camera])
+                depth = conditioner.get(camera, more=step + 1 < cfg.steps)
         with timer("guidance"):
             out = self.guidance(image, depth, [camera], step)
         optimizer = model.optimizer
@@ -242,6 +254,7 @@ class _Run:
         with timer("backward"):
             optimizer.zero_grad(set_to_none=True)
             out.loss.backward()
+        _check_finite_gradients(model, step)
         if step < cfg.densify.until and meta["means2d"].grad is not None:
             self.densify.update(meta["means2d"].grad, meta["radii"], camera.width, camera.height)
         with timer("optimizer"):
@@ -363,7 +376,8 @@ class _Run:
             "versions": package_versions(),
             "threads": torch.get_num_threads(),
             "cpu_count": os.cpu_count(),
-            "device": "cuda" if torch.cuda.is_available() else "cpu",
+            "device": str(getattr(self.guidance, "device", "cpu")),
+            "raster_threads": _core.info()["threads"],
             "source_points": self.source_counts,
             "gaussians": {"initial": len(self.initial_gaussians), "final": len(final)},
             "timings_s": dict(self.timer.totals),
@@ -371,6 +385,18 @@ class _Run:
             "events": self.events,
             "transform": self.transform.to_dict(),
         }
+
+
+def _check_finite_gradients(model: GaussianModel, step: int) -> None:
+    """Stops before a NaN or Inf gradient reaches the Gaussians through Adam (whose moments
+    it would poison for every later step)."""
+    for name, p in model.params.items():
+        if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
+            bad = int((~torch.isfinite(p.grad)).sum())
+            raise PlantDreamerError(
+                f"non-finite gradient on the Gaussians' {name} ({bad} values) at step {step}; "
+                "stopping (no output written)"
+            )
 
 
 def _generator_state(guidance: Guidance) -> torch.Tensor | None:
@@ -381,6 +407,10 @@ def _generator_state(guidance: Guidance) -> torch.Tensor | None:
 def check_inputs(cfg: GenerateConfig) -> None:
     """Fails fast on inputs that cannot work, before any model is loaded."""
     cfg.validate()
+    if cfg.guidance != "none":
+        from plantdreamer.guidance.models import resolve_device
+
+        resolve_device(cfg.device)
     if cfg.pointcloud is not None and not Path(cfg.pointcloud).is_file():
         raise FileNotFoundError(f"point cloud not found: {cfg.pointcloud}")
     if cfg.pointcloud is None:
