@@ -192,7 +192,17 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     report = json.loads(out.read_text())
     assert report["steps"] == 3 and report["models"] == "tiny"
-    for phase in ("render", "depth", "transfer", "unet+controlnet", "vae encode", "backward"):
+    for phase in (
+        "render",
+        "depth",
+        "transfer",
+        "text",
+        "unet+controlnet",
+        "vae encode",
+        "raster backward",
+        "vae backward",
+        "optimizer",
+    ):
         assert phase in report["per_step_ms"], phase
     assert report["projected_3600_steps_s"] > 0
     assert (tmp_path / "gpu.md").read_text().startswith("## SDS loop per phase")
