@@ -33,6 +33,8 @@ import torch
 from plantdreamer import _core
 from plantdreamer.errors import InputError
 
+# The core's `RasterOptions::default()`, the one place the rasterizer's defaults are written.
+RASTER_DEFAULTS: dict[str, Any] = _core.raster_defaults()
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
 RASTERIZE_MODES = ("classic", "antialiased")
 
@@ -175,14 +177,14 @@ def rasterization(
     Ks: torch.Tensor,
     width: int,
     height: int,
-    near_plane: float = 0.01,
-    far_plane: float = 1e10,
-    eps2d: float = 0.3,
+    near_plane: float = RASTER_DEFAULTS["near_plane"],
+    far_plane: float = RASTER_DEFAULTS["far_plane"],
+    eps2d: float = RASTER_DEFAULTS["eps2d"],
     sh_degree: int | None = None,
     backgrounds: torch.Tensor | None = None,
     render_mode: str = "RGB",
-    rasterize_mode: str = "classic",
-    tile_size: int = 16,
+    rasterize_mode: str = "antialiased" if RASTER_DEFAULTS["antialiased"] else "classic",
+    tile_size: int = RASTER_DEFAULTS["tile_size"],
     *,
     threads: int | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:

@@ -95,14 +95,18 @@ fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult
 /// ignored when `render_color` is false. Returns a dict: render [C, H, W, ch] (no
 /// background), alpha [C, H, W], radii [C, N, 2] int32, means2d [C, N, 2], depths [C, N],
 /// n_visible [C], n_intersections [C], profile (seconds per stage), state. Integer
-/// arguments are checked in `ints.rs`; `tile_size=None` is the core default (16).
+/// arguments are checked in `ints.rs`.
+///
+/// A setting left at None takes `RasterOptions::default()`'s value (`raster_defaults`).
 #[pyfunction]
 #[pyo3(signature = (
     means, quats, scales, opacities, colors, viewmats, ks, width, height, *,
-    sh_degree=None, near_plane=0.01, far_plane=1e10, eps2d=0.3, antialiased=false,
-    render_color=true, render_depth=false, tile_size=None, footprint_sigma=None,
-    tile_ellipse=true, t_min=1e-4, simd=true, threads=None
+    sh_degree=None, near_plane=None, far_plane=None, eps2d=None, antialiased=None,
+    render_color=true, render_depth=None, tile_size=None, footprint_sigma=None,
+    tile_ellipse=None, t_min=None, simd=None, threads=None
 ))]
+// One keyword per setting, as Python callers pass them.
+#[allow(clippy::too_many_arguments)]
 fn rasterize_forward<'py>(
     py: Python<'py>,
     means: &Bound<'py, PyAny>,
@@ -115,17 +119,17 @@ fn rasterize_forward<'py>(
     width: &Bound<'py, PyAny>,
     height: &Bound<'py, PyAny>,
     sh_degree: Option<&Bound<'py, PyAny>>,
-    near_plane: f32,
-    far_plane: f32,
-    eps2d: f32,
-    antialiased: bool,
+    near_plane: Option<f32>,
+    far_plane: Option<f32>,
+    eps2d: Option<f32>,
+    antialiased: Option<bool>,
     render_color: bool,
-    render_depth: bool,
+    render_depth: Option<bool>,
     tile_size: Option<&Bound<'py, PyAny>>,
     footprint_sigma: Option<f32>,
-    tile_ellipse: bool,
-    t_min: f32,
-    simd: bool,
+    tile_ellipse: Option<bool>,
+    t_min: Option<f32>,
+    simd: Option<bool>,
     threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let width = u32_from(width, "width", 1)?;
@@ -171,17 +175,18 @@ fn rasterize_forward<'py>(
     let (kshape, k) = f32_array("Ks", ks, 3)?;
     expect_shape("Ks", &kshape, &[Some(c), Some(3), Some(3)])?;
 
+    let def = RasterOptions::default();
     let opts = RasterOptions {
-        near_plane,
-        far_plane,
-        eps2d,
-        antialiased,
+        near_plane: near_plane.unwrap_or(def.near_plane),
+        far_plane: far_plane.unwrap_or(def.far_plane),
+        eps2d: eps2d.unwrap_or(def.eps2d),
+        antialiased: antialiased.unwrap_or(def.antialiased),
         tile_size,
-        footprint: footprint_sigma.map_or(Footprint::OpacityAware, Footprint::Sigma),
-        tile_ellipse,
-        t_min,
-        with_depth: render_depth,
-        simd,
+        footprint: footprint_sigma.map_or(def.footprint, Footprint::Sigma),
+        tile_ellipse: tile_ellipse.unwrap_or(def.tile_ellipse),
+        t_min: t_min.unwrap_or(def.t_min),
+        with_depth: render_depth.unwrap_or(def.with_depth),
+        simd: simd.unwrap_or(def.simd),
     };
     let (out, state) = run_native(py, || {
         let scene = Scene::from_vecs(m, q, s, o, col, mode)?;
@@ -217,6 +222,36 @@ fn rasterize_forward<'py>(
     Ok(d)
 }
 
+/// `RasterOptions::default()` under the keyword names of `rasterize_forward`: the one place
+/// the rasterizer's defaults are written (the Python wrapper reads them from here).
+/// `footprint_sigma` None is the opacity-aware footprint.
+#[pyfunction]
+fn raster_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let def = RasterOptions::default();
+    let d = PyDict::new(py);
+    d.set_item("near_plane", decimal(def.near_plane))?;
+    d.set_item("far_plane", decimal(def.far_plane))?;
+    d.set_item("eps2d", decimal(def.eps2d))?;
+    d.set_item("antialiased", def.antialiased)?;
+    d.set_item("render_depth", def.with_depth)?;
+    d.set_item("tile_size", def.tile_size)?;
+    let sigma = match def.footprint {
+        Footprint::OpacityAware => None,
+        Footprint::Sigma(k) => Some(decimal(k)),
+    };
+    d.set_item("footprint_sigma", sigma)?;
+    d.set_item("tile_ellipse", def.tile_ellipse)?;
+    d.set_item("t_min", decimal(def.t_min))?;
+    d.set_item("simd", def.simd)?;
+    Ok(d)
+}
+
+/// The shortest decimal that reads back as `v` (0.01, not 0.009999999776482582): Python
+/// shows it in signatures, and it converts back to the same f32 bits.
+fn decimal(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(v as f64)
+}
+
 /// Gradients of the forward call's inputs from dL/d(render) [C, H, W, ch] and
 /// dL/d(alpha) [C, H, W]. Groups switched off come back as None; means2d ([C, N, 2],
 /// pixels) is always returned.
@@ -225,6 +260,8 @@ fn rasterize_forward<'py>(
     state, v_render, v_alpha, *, means=true, quats=true, scales=true, opacities=true,
     colors=true, threads=None
 ))]
+// One keyword per gradient group, as Python callers pass them.
+#[allow(clippy::too_many_arguments)]
 fn rasterize_backward<'py>(
     py: Python<'py>,
     state: &Bound<'py, RasterState>,
@@ -318,6 +355,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<RasterState>()?;
     m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
     m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(raster_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(eval_sh, m)?)?;
     Ok(())
 }

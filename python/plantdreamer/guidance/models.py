@@ -62,21 +62,38 @@ class DiffusionComponents:
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
-    """The torch device named (default: cuda if available), checked to be usable here."""
+    """The device the networks run on: CUDA when usable, else the CPU, unless given.
+
+    A device that cannot work (a typo, ``cuda`` without a usable GPU, ``cuda:3`` on a
+    one-GPU machine) raises InputError naming it, before any model is built.
+    """
     if device is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
         resolved = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise InputError(f"unknown device {device!r}: use cpu, cuda or cuda:N") from exc
-    if resolved.type == "cuda":
-        if not torch.cuda.is_available():
-            raise InputError(f"device {device!r}: no usable CUDA GPU on this machine; use cpu")
-        if resolved.index is not None and resolved.index >= torch.cuda.device_count():
-            raise InputError(f"device {device!r}: only {torch.cuda.device_count()} CUDA GPU(s)")
-    elif resolved.type != "cpu":
-        raise InputError(f"device {device!r} is not supported: use cpu, cuda or cuda:N")
+    except (RuntimeError, TypeError, ValueError):
+        raise InputError(f"unknown device {device!r}; use cpu, cuda or cuda:N") from None
+    if resolved.type == "cpu":
+        return resolved
+    if resolved.type != "cuda":
+        raise InputError(f"device {device!r} is not supported; use cpu, cuda or cuda:N")
+    if not torch.cuda.is_available():
+        raise InputError(f"device {device!r}: no usable CUDA GPU on this machine")
+    count = torch.cuda.device_count()
+    if resolved.index is not None and resolved.index >= count:
+        raise InputError(f"device {device!r}: this machine has {count} CUDA device(s)")
     return resolved
+
+
+# The VAE encoder is the one network SDS backpropagates through; its backward pass in fp16
+# can overflow into the render gradients (tests/test_half_precision.py shows a case).
+DEFAULT_VAE_DTYPE = torch.float32
+
+
+def network_dtypes(device: torch.device) -> dict[str, torch.dtype]:
+    """The dtype each SDS network runs in on ``device`` with the default settings."""
+    dtype = resolve_dtype(None, device)
+    return {"unet": dtype, "controlnet": dtype, "text_encoder": dtype, "vae": DEFAULT_VAE_DTYPE}
 
 
 def resolve_dtype(dtype: torch.dtype | str | None, device: torch.device) -> torch.dtype:

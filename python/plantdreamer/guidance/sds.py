@@ -36,6 +36,7 @@ from plantdreamer.guidance.config import RESIZE_MODES, SDS_DEFAULTS
 from plantdreamer.guidance.depth import resize_control
 from plantdreamer.guidance.lora_weights import load_lora
 from plantdreamer.guidance.models import (
+    DEFAULT_VAE_DTYPE,
     DiffusionComponents,
     load_components,
     resolve_device,
@@ -44,6 +45,7 @@ from plantdreamer.guidance.models import (
 from plantdreamer.guidance.prompts import camera_prompt, check_template
 from plantdreamer.guidance.schedules import REFERENCE_STEPS, TimestepSchedule, make_schedule, ramp
 from plantdreamer.guidance.text import PromptEmbeddings
+from plantdreamer.guidance.transfer import to_device
 
 # threestudio's grad_clip [start_step, start_value, end_value, end_step] of the released config.
 DEFAULT_GRAD_CLIP = (0, 1.5, 2.0, 1000)
@@ -87,7 +89,7 @@ class StableDiffusionDepthGuidance:
         resolution: int = SDS_DEFAULTS.resolution,
         grad_clip: tuple[int, float, float, int] | None = DEFAULT_GRAD_CLIP,
         lora_scale: float = 1.0,
-        vae_dtype: torch.dtype | str | None = torch.float32,
+        vae_dtype: torch.dtype | str | None = DEFAULT_VAE_DTYPE,
     ):
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype, self.device)
@@ -155,7 +157,7 @@ class StableDiffusionDepthGuidance:
         """[B, 1, h, w] depth in [0, 1] -> [B, 3, R, R] ControlNet input."""
         if depth_cond.dim() != 4 or depth_cond.shape[1] != 1:
             raise InputError(f"depth_cond must be [B, 1, h, w], got {list(depth_cond.shape)}")
-        control = depth_cond.detach().float().to(self.device)
+        control = to_device(depth_cond.detach().float(), self.device)
         if control.shape[-2:] != (self.resolution, self.resolution):
             control = resize_control(control, self.resolution, self.control_resize)
         return control.clamp(0.0, 1.0).repeat(1, 3, 1, 1).to(self.dtype)
@@ -235,7 +237,7 @@ class StableDiffusionDepthGuidance:
             raise InputError(f"got {depth_cond.shape[0]} depth maps for {batch} images")
         control = self.control_image(depth_cond)
 
-        rgb = images.clamp(0.0, 1.0).permute(0, 3, 1, 2).to(self.device)
+        rgb = to_device(images.clamp(0.0, 1.0).permute(0, 3, 1, 2), self.device)
         if rgb.shape[-2:] != (self.resolution, self.resolution):
             rgb = F.interpolate(
                 rgb, (self.resolution, self.resolution), mode="bilinear", align_corners=False

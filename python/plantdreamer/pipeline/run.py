@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from plantdreamer import _core
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
@@ -31,6 +32,7 @@ from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.depth_ahead import DepthAhead
 from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
@@ -91,6 +93,7 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         prompt_template=cfg.prompt_template or lora_template(cfg.lora),
         control_resize=cfg.control_resize,
         dtype=None if cfg.network_dtype == "auto" else cfg.network_dtype,
+        device=cfg.device,
     )
 
 
@@ -107,7 +110,8 @@ def resolve_runtime(cfg: GenerateConfig) -> None:
     """Fills the settings decided by the machine or the inputs, so run.json and the
     checkpoints record the values used: the training resolution, the network precision and
     the prompt template (a LoRA's recorded template, else the default)."""
-    cuda = torch.cuda.is_available()
+    # The networks' device (checked by check_inputs): CUDA when usable unless one is named.
+    cuda = torch.cuda.is_available() if cfg.device is None else cfg.device.startswith("cuda")
     if cfg.resolution is None:
         cfg.resolution = 768 if cuda else 512
     if cfg.network_dtype == "auto":
@@ -145,6 +149,7 @@ def generate(
     overwrite: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
+    depth_ahead: bool = True,
 ) -> RunResult:
     """Runs (or resumes) a generation and writes every output into ``out_dir``.
 
@@ -156,7 +161,8 @@ def generate(
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
     The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
-    ``RunInterrupted`` is raised.
+    ``RunInterrupted`` is raised. ``depth_ahead`` computes the next step's depth
+    conditioning on a worker thread (same bits; False computes it in line).
     """
     out_dir = Path(out_dir)
     if cfg is None and not resume:
@@ -186,7 +192,7 @@ def generate(
         cfg = copy.deepcopy(cfg)  # the caller's config is not changed
         resolve_runtime(cfg)
         guidance = guidance if guidance is not None else build_guidance(cfg)
-        run = _Run(cfg, out_dir, guidance, state, show_progress, on_step)
+        run = _Run(cfg, out_dir, guidance, state, show_progress, on_step, depth_ahead)
         if note is not None:
             run.events.append(note)
         return run.run()
@@ -246,6 +252,7 @@ class _Run:
         state: dict[str, Any] | None,
         show_progress: bool,
         on_step: Callable[[int], None] | None,
+        depth_ahead: bool = True,
     ) -> None:
         from plantdreamer.guidance.base import NoGuidance
 
@@ -266,6 +273,7 @@ class _Run:
                 ) from exc
         self.initial = GaussianModel(self.initial_gaussians)
         self._stop_requested = False
+        self.depth_ahead = depth_ahead
 
     # -- setup -----------------------------------------------------------------------
 
@@ -333,6 +341,9 @@ class _Run:
     def run(self) -> RunResult:
         cfg = self.cfg
         conditioner = self._depth_conditioner() if self.guidance.needs_depth else None
+        depth = None
+        if conditioner is not None:
+            depth = DepthAhead(conditioner, self.sampler.peek, self.depth_ahead)
         progress = Progress(cfg.steps, self.start_step, self.show_progress)
         progress.note(
             f"initialised {len(self.initial_gaussians)} Gaussians"
@@ -349,7 +360,7 @@ class _Run:
                 if self._stop_requested:
                     self._checkpoint(step)
                     raise RunInterrupted(step, self.out_dir)
-                loss = self._train_step(step, conditioner) if self.trains else None
+                loss = self._train_step(step, depth) if self.trains else None
                 self._adapt_density(step)
                 progress.update(step, loss, len(self.model))
                 if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
@@ -360,6 +371,8 @@ class _Run:
         finally:
             signal.signal(signal.SIGINT, previous)
             progress.close()
+            if depth is not None:
+                depth.close()
         return self._finish()
 
     def _request_stop(self, signum, frame) -> None:
@@ -367,7 +380,7 @@ class _Run:
             raise KeyboardInterrupt
         self._stop_requested = True
 
-    def _train_step(self, step: int, conditioner) -> float:
+    def _train_step(self, step: int, conditioner: DepthAhead | None) -> float:
         cfg, model, timer = self.cfg, self.model, self.timer
         camera = self.sampler.sample()
         with timer("render"):
@@ -375,7 +388,7 @@ class _Run:
         depth = None
         if conditioner is not None:
             with timer("depth"):
-                depth = conditioner([camera])
+                depth = conditioner.get(camera, more=step + 1 < cfg.steps)
         with timer("guidance"):
             out = self.guidance(image, depth, [camera], step)
         optimizer = model.optimizer
@@ -383,6 +396,7 @@ class _Run:
         with timer("backward"):
             optimizer.zero_grad(set_to_none=True)
             out.loss.backward()
+        _check_finite_gradients(model, step)
         if step < cfg.densify.until and meta["means2d"].grad is not None:
             self.densify.update(meta["means2d"].grad, meta["radii"], camera.width, camera.height)
         with timer("optimizer"):
@@ -555,7 +569,8 @@ class _Run:
             "versions": package_versions(),
             "threads": torch.get_num_threads(),
             "cpu_count": os.cpu_count(),
-            "device": "cuda" if torch.cuda.is_available() else "cpu",
+            "device": str(getattr(self.guidance, "device", "cpu")),
+            "raster_threads": _core.info()["threads"],
             "source_points": self.source_counts,
             "gaussians": {"initial": len(self.initial_gaussians), "final": len(final)},
             "labels": self._label_summary(final),
@@ -568,6 +583,18 @@ class _Run:
         }
 
 
+def _check_finite_gradients(model: GaussianModel, step: int) -> None:
+    """Stops before a NaN or Inf gradient reaches the Gaussians through Adam (whose moments
+    it would poison for every later step)."""
+    for name, p in model.params.items():
+        if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
+            bad = int((~torch.isfinite(p.grad)).sum())
+            raise PlantDreamerError(
+                f"non-finite gradient on the Gaussians' {name} ({bad} values) at step {step}; "
+                "stopping (no output written)"
+            )
+
+
 def _generator_state(guidance: Guidance) -> torch.Tensor | None:
     generator = guidance.generator
     return None if generator is None else generator.get_state()
@@ -576,6 +603,10 @@ def _generator_state(guidance: Guidance) -> torch.Tensor | None:
 def check_inputs(cfg: GenerateConfig) -> None:
     """Fails fast on inputs that cannot work, before any model is loaded."""
     cfg.validate()
+    if cfg.guidance != "none":
+        from plantdreamer.guidance.models import resolve_device
+
+        resolve_device(cfg.device)
     if cfg.pointcloud is not None and not Path(cfg.pointcloud).is_file():
         raise FileNotFoundError(f"point cloud not found: {cfg.pointcloud}")
     if cfg.pointcloud is None:

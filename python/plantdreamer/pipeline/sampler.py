@@ -46,6 +46,13 @@ class CameraSampler:
         fovy = rng.uniform(*r.fovy_deg)
         return orbit(distance, elevation, azimuth, fovy, self.resolution, self.resolution)
 
+    def peek(self) -> Camera:
+        """The camera the next ``sample()`` returns, without drawing it."""
+        state = self.rng.bit_generator.state
+        camera = self.sample()
+        self.rng.bit_generator.state = state
+        return camera
+
     def state(self) -> dict[str, Any]:
         return dict(self.rng.bit_generator.state)
 

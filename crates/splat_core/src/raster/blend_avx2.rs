@@ -1,8 +1,8 @@
 //! The blending kernels, forward and backward, with AVX2 intrinsics: eight pixels per
 //! instruction.
 //!
-//! Every operation mirrors `forward::blend_tile_scalar`, `backward::backward_tile_scalar`
-//! and `forward::exp_neg` one to one (same operands, same order, no fused multiply-add;
+//! Every operation mirrors `forward_blend::blend_tile_scalar`, `backward_blend::backward_tile_scalar`
+//! and `lanes::exp_neg` one to one (same operands, same order, no fused multiply-add;
 //! `max`/`min` with the constant second so NaN lanes take the constant like the scalar
 //! comparisons), so this path and the scalar one produce the same bits (`kernel_tests`).
 //! Lanes the scalar code skips are computed here and masked out (+0 added, state kept).
@@ -13,16 +13,18 @@
 
 use std::arch::x86_64::*;
 
-use super::backward::{for_each_splat_back, BackScratch, BackSplat, BackTile, ISECT_FIXED};
-use super::forward::{
-    for_each_splat, LaneFootprint, SplatInTile, TileInput, TileScratch, EXP_COEFFS, LANES,
+use super::lanes::{EXP_COEFFS, LANES};
+use super::options::{ALPHA_MAX, ALPHA_MIN};
+use super::tile_geometry::LaneFootprint;
+use super::tile_walk::{
+    for_each_splat, for_each_splat_back, BackScratch, BackSplat, BackTile, SplatInTile, TileInput,
+    TileScratch, ISECT_FIXED,
 };
-use super::{ALPHA_MAX, ALPHA_MIN};
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
 pub(super) fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
     debug_assert!(std::arch::is_x86_feature_detected!("avx2"));
-    // SAFETY: `forward::blend_tile` calls this only after detecting AVX2.
+    // SAFETY: `forward_blend::blend_tile` calls this only after detecting AVX2.
     unsafe { blend_tile_avx2(tile, ch, scratch) }
 }
 
@@ -54,7 +56,7 @@ fn store_u32(v: &mut [u32], x: __m256i) {
     unsafe { _mm256_storeu_si256(v.as_mut_ptr().cast(), x) }
 }
 
-/// `forward::exp_neg` on eight lanes.
+/// `lanes::exp_neg` on eight lanes.
 #[inline(always)]
 fn exp_neg(x: __m256) -> __m256 {
     // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
@@ -178,11 +180,11 @@ pub(super) fn backward_tile(
     out: &mut [f32],
 ) {
     debug_assert!(ch <= MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2"));
-    // SAFETY: `backward::backward_tile` calls this only after detecting AVX2.
+    // SAFETY: `backward_blend::backward_tile` calls this only after detecting AVX2.
     unsafe { backward_tile_avx2(tile, ch, scratch, out) }
 }
 
-/// `backward::lane_sum` on a register.
+/// `lanes::lane_sum` on a register.
 #[inline(always)]
 fn lane_sum(v: __m256) -> f32 {
     // SAFETY (whole body): only called from `backward_tile_avx2`, which has AVX2 enabled.

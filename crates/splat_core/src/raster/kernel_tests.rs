@@ -1,9 +1,11 @@
 //! The AVX2 and scalar blending kernels, forward and backward, give the same bits.
 
-use super::backward::{backward_tile_scalar, BackScratch, BackTile, ISECT_FIXED};
+use super::backward_blend::backward_tile_scalar;
 use super::blend_avx2;
-use super::forward::{blend_tile_scalar, BlendSplat, TileInput, TileRect, TileScratch};
-use super::ALPHA_MIN;
+use super::forward_blend::blend_tile_scalar;
+use super::options::ALPHA_MIN;
+use super::tile_geometry::{BlendSplat, TileRect};
+use super::tile_walk::{BackScratch, BackTile, TileInput, TileScratch, ISECT_FIXED};
 use crate::test_rng::Lcg;
 
 /// A random tile list: overlapping anisotropic splats, some fully opaque.

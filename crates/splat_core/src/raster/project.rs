@@ -11,7 +11,7 @@
 use glam::{Mat3, Vec3};
 
 use super::camera::Camera;
-use super::{Footprint, RasterOptions, ALPHA_MIN};
+use super::options::{Footprint, RasterOptions, ALPHA_MIN};
 
 /// Squared quaternion norms below this cull the Gaussian: its rotation is undefined and the
 /// normalisation gradient (1/|q|) would overflow.

@@ -16,9 +16,9 @@ use std::ops::{Add, Div, Mul, Neg, Sub};
 use rayon::prelude::*;
 
 use super::camera::Camera;
+use super::options::{RasterOptions, ALPHA_MIN};
 use super::project::{ceil_nonneg, extent_for_contour, Splat, QUAT_NORM2_MIN};
 use super::scene::Scene;
-use super::{RasterOptions, ALPHA_MIN};
 
 const N: usize = 8;
 
@@ -258,9 +258,9 @@ fn project_lanes(
 
 #[cfg(test)]
 mod tests {
+    use super::super::options::Footprint;
     use super::super::project::{project, Gaussian3};
     use super::super::scene::ColorMode;
-    use super::super::Footprint;
     use super::*;
     use crate::test_rng::Lcg;
 

@@ -19,17 +19,14 @@
 
 use rayon::prelude::*;
 
-use super::forward::{
-    exp_neg, sigma_at, BlendSplat, LaneFootprint, TileGeometry, TileList, TileRect, LANES,
-};
-use super::CameraState;
-use super::{ALPHA_MAX, ALPHA_MIN};
-
-/// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
-pub const ISECT_FIXED: usize = 6;
+use super::forward_pass::CameraState;
+use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
+use super::options::{ALPHA_MAX, ALPHA_MIN};
+use super::tile_geometry::{TileList, TileRect};
+use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, ISECT_FIXED};
 
 /// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`.
-pub fn blend_backward(
+pub fn intersection_gradients(
     ch: usize,
     cs: &CameraState,
     width: u32,
@@ -87,117 +84,6 @@ pub fn blend_backward(
             },
         );
     grads
-}
-
-/// What one tile's backward reads: its list (front to back) and its pixels.
-pub(super) struct BackTile<'a> {
-    pub splats: &'a [BlendSplat],
-    pub features: &'a [f32],
-    pub rect: TileRect,
-    /// Use the SIMD kernel when the CPU has one.
-    pub simd: bool,
-}
-
-/// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
-/// lane groups (padding pixels have `last` 0, so no splat touches them).
-pub(super) struct BackScratch {
-    pub geo: TileGeometry,
-    /// Transmittance after the splat being processed (starts at the final T).
-    pub trans: Vec<f32>,
-    pub last: Vec<u32>,
-    /// dL/d(alpha image) times the final T.
-    pub va_tf: Vec<f32>,
-    /// Planar dL/d(render) and features blended behind the current splat.
-    pub v_out: Vec<f32>,
-    pub buf: Vec<f32>,
-}
-
-impl BackScratch {
-    pub(super) fn new(ts: usize, ch: usize) -> Self {
-        let geo = TileGeometry::new(ts);
-        let plane = geo.plane();
-        Self {
-            geo,
-            trans: vec![0.0; plane],
-            last: vec![0; plane],
-            va_tf: vec![0.0; plane],
-            v_out: vec![0.0; plane * ch],
-            buf: vec![0.0; plane * ch],
-        }
-    }
-
-    /// Loads the tile's pixels (tile-major `t_final` / `last`, row-major gradients).
-    pub(super) fn reset(
-        &mut self,
-        rect: &TileRect,
-        ch: usize,
-        width: usize,
-        t_final: &[f32],
-        last: &[u32],
-        v_render: &[f32],
-        v_alpha: &[f32],
-    ) {
-        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-        let (plane, ts, stride) = (self.geo.plane(), self.geo.ts, self.geo.stride);
-        self.last.fill(0);
-        self.buf.fill(0.0);
-        for ly in 0..th {
-            let (src, dst) = (ly * ts, ly * stride);
-            let pix = (rect.y0 as usize + ly) * width + rect.x0 as usize;
-            self.trans[dst..dst + tw].copy_from_slice(&t_final[src..src + tw]);
-            self.last[dst..dst + tw].copy_from_slice(&last[src..src + tw]);
-            for lx in 0..tw {
-                self.va_tf[dst + lx] = v_alpha[pix + lx] * t_final[src + lx];
-                for c in 0..ch {
-                    self.v_out[c * plane + dst + lx] = v_render[(pix + lx) * ch + c];
-                }
-            }
-        }
-        self.geo.set_tile(rect);
-    }
-}
-
-/// One splat of a tile's list as the backward kernels see it.
-pub(super) struct BackSplat<'a> {
-    pub s: &'a BlendSplat,
-    pub f: &'a [f32],
-    /// Its position in the tile list: pixels with `last > k` saw it.
-    pub k: u32,
-    pub fp: LaneFootprint,
-}
-
-/// Walks the tile's list back to front from the last splat any pixel used, and calls
-/// `kernel(splat, scratch, out)` with the splat's slice of the gradient array.
-#[inline(always)]
-pub(super) fn for_each_splat_back(
-    tile: &BackTile,
-    ch: usize,
-    scratch: &mut BackScratch,
-    out: &mut [f32],
-    mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]),
-) {
-    let stride = ISECT_FIXED + ch;
-    let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
-    for k in (0..k_end).rev() {
-        let s = &tile.splats[k];
-        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
-            continue;
-        };
-        let splat = BackSplat {
-            s,
-            f: &tile.features[k * ch..(k + 1) * ch],
-            k: k as u32,
-            fp,
-        };
-        kernel(&splat, scratch, &mut out[k * stride..(k + 1) * stride]);
-    }
-}
-
-/// Sum of eight lanes in the tree the AVX2 kernel uses: (l0+l4 + l2+l6) + (l1+l5 + l3+l7).
-#[inline(always)]
-pub(super) fn lane_sum(v: &[f32; LANES]) -> f32 {
-    let s = [v[0] + v[4], v[1] + v[5], v[2] + v[6], v[3] + v[7]];
-    (s[0] + s[2]) + (s[1] + s[3])
 }
 
 fn backward_tile(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {

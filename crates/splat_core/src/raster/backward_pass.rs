@@ -11,10 +11,12 @@
 
 use rayon::prelude::*;
 
-use super::backward::{blend_backward, ISECT_FIXED};
+use super::backward_blend::intersection_gradients;
+use super::forward_pass::ForwardState;
 use super::project::{project_backward, SplatGrad};
 use super::scene::ColorMode;
-use super::{sh, ForwardState};
+use super::sh;
+use super::tile_walk::ISECT_FIXED;
 use crate::error::check_len;
 use crate::CoreResult;
 
@@ -70,7 +72,7 @@ pub fn backward(
     let stride = ISECT_FIXED + ch;
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
-        let isect = blend_backward(
+        let isect = intersection_gradients(
             ch,
             cs,
             state.width,

@@ -1,0 +1,200 @@
+//! Front-to-back alpha blending of the depth-sorted tile lists (rayon over tiles).
+//!
+//! Per pixel, exactly gsplat's classic rules: sigma = 0.5 (a dx^2 + c dy^2) + b dx dy,
+//! alpha = min(0.99, opacity exp(-sigma)), skip sigma < 0 or alpha < 1/255, stop before the
+//! splat that would bring T to <= t_min. Within a tile the loop runs splat-major and visits
+//! only the pixels of the splat's footprint box; each pixel still sees its splats in depth
+//! order, so the result equals the pixel-major loop bit for bit.
+//!
+//! The footprint is walked in lane groups of `LANES` adjacent pixels of a row, with
+//! branch-free lane rules (masks instead of `continue`). `blend_avx2` runs them with AVX2
+//! intrinsics when the CPU has AVX2 (checked at run time), `blend_tile_scalar` otherwise.
+//! Both perform the same operations in the same order, without fused multiply-adds, so
+//! every path gives the same bits (`kernel_tests`), and the backward pass, built the same
+//! way, recomputes the same alphas.
+
+use rayon::prelude::*;
+
+use super::lanes::{exp_neg, sigma_at, LANES};
+use super::options::{ALPHA_MAX, ALPHA_MIN};
+use super::project::Splat;
+use super::tile_binning::TileBins;
+use super::tile_geometry::{TileList, TileRect};
+use super::tile_walk::{for_each_splat, TileInput, TileScratch};
+
+/// Blend results of one camera that the backward pass needs.
+#[derive(Debug, Clone, Default)]
+pub struct Blended {
+    /// Final transmittance per pixel, [tile][pixel in tile]; 1 for padding pixels.
+    pub t_final: Vec<f32>,
+    /// Number of entries of the tile list the pixel went through up to its last
+    /// contributing splat (0 = none).
+    pub last: Vec<u32>,
+}
+
+/// Blends every tile of one camera into the row-major image `render` [H, W, ch] and
+/// `alpha` [H, W] (both zero on entry).
+// Structure-of-arrays inputs and outputs, as the kernels read them; a struct would only
+// rename them.
+#[allow(clippy::too_many_arguments)]
+pub fn blend(
+    splats: &[Splat],
+    features: &[f32],
+    ch: usize,
+    bins: &TileBins,
+    width: u32,
+    height: u32,
+    t_min: f32,
+    simd: bool,
+    render: &mut [f32],
+    alpha: &mut [f32],
+) -> Blended {
+    let ts = bins.tile_size as usize;
+    let tp = ts * ts;
+    let mut out = Blended {
+        t_final: vec![1.0; bins.n_tiles() * tp],
+        last: vec![0; bins.n_tiles() * tp],
+    };
+    // Tiles are the unit of parallel work (rows of tiles balance badly: a plant fills the
+    // middle of the image), handed out a few at a time so that no thread idles while the
+    // other finishes a long run of heavy tiles. Each tile writes its own slices;
+    // `to_image` assembles the image.
+    let mut tile_feat = vec![0.0f32; bins.n_tiles() * tp * ch];
+    tile_feat
+        .par_chunks_mut(tp * ch)
+        .zip(out.t_final.par_chunks_mut(tp))
+        .zip(out.last.par_chunks_mut(tp))
+        .enumerate()
+        .with_max_len(4)
+        .for_each_init(
+            || (TileScratch::new(ts, ch), TileList::default()),
+            |(scratch, list), (t, ((feat, t_final), last))| {
+                let range = bins.tile_range(t);
+                if range.is_empty() {
+                    return;
+                }
+                list.gather(&bins.isect_gid[range], splats, features, ch);
+                let rect = TileRect::new(t, bins, width, height);
+                let tile = TileInput {
+                    splats: &list.splats,
+                    features: &list.features,
+                    rect,
+                    t_min,
+                    simd,
+                };
+                scratch.reset(&rect);
+                blend_tile(&tile, ch, scratch);
+                scratch.write(&rect, ch, feat, t_final, last);
+            },
+        );
+    to_image(
+        &tile_feat,
+        &out.t_final,
+        ch,
+        bins,
+        width,
+        height,
+        render,
+        alpha,
+    );
+    out
+}
+
+/// Row-major image [H, W, ch] and alpha [H, W] from the tile-major buffers.
+#[allow(clippy::too_many_arguments)]
+fn to_image(
+    tile_feat: &[f32],
+    t_final: &[f32],
+    ch: usize,
+    bins: &TileBins,
+    width: u32,
+    height: u32,
+    render: &mut [f32],
+    alpha: &mut [f32],
+) {
+    let ts = bins.tile_size as usize;
+    let tp = ts * ts;
+    let w = width as usize;
+    render
+        .par_chunks_mut((w * ch).max(1))
+        .zip(alpha.par_chunks_mut(w.max(1)))
+        .take(height as usize)
+        .enumerate()
+        .for_each(|(y, (rrow, arow))| {
+            let tile_row = (y / ts) * bins.tiles_x as usize;
+            let ly = (y % ts) * ts;
+            // Each tile's part of an image row is contiguous in the tile-major buffers: one
+            // copy per tile, not a call per pixel.
+            for x0 in (0..w).step_by(ts) {
+                let n = ts.min(w - x0);
+                let i = (tile_row + x0 / ts) * tp + ly;
+                rrow[x0 * ch..(x0 + n) * ch].copy_from_slice(&tile_feat[i * ch..(i + n) * ch]);
+                for (a, t) in arow[x0..x0 + n].iter_mut().zip(&t_final[i..i + n]) {
+                    *a = 1.0 - t;
+                }
+            }
+        });
+}
+
+fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    #[cfg(target_arch = "x86_64")]
+    if tile.simd && std::arch::is_x86_feature_detected!("avx2") {
+        super::blend_avx2::blend_tile(tile, ch, scratch);
+        return;
+    }
+    blend_tile_scalar(tile, ch, scratch);
+}
+
+/// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
+pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
+    let t_min = tile.t_min;
+    for_each_splat(tile, ch, scratch, |sp, sc| {
+        let [a, _, _] = sp.s.conic;
+        let mut stopped = 0;
+        for gi in sp.fp.groups.clone() {
+            for ly in sp.fp.rows.clone() {
+                let base = ly * stride + gi * LANES;
+                // Pixels that already stopped cost nothing more.
+                if sc.live[base..base + LANES].iter().all(|&l| l == 0) {
+                    continue;
+                }
+                for i in 0..LANES {
+                    let l = base + i;
+                    let x = sc.geo.xs[gi * LANES + i];
+                    let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[l] != 0);
+                    let dx = sp.s.xy[0] - x;
+                    let sigma = sigma_at(a, dx, sc.geo.row_c[ly], sc.geo.row_b[ly]);
+                    let alpha = (sp.s.opacity * exp_neg(-sigma)).min(ALPHA_MAX);
+                    let ok = inside & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
+                    let t = sc.trans[l];
+                    let next_t = t * (1.0 - alpha);
+                    let stop = ok & (next_t <= t_min);
+                    let add = ok & !stop;
+                    let weight = if add { alpha * t } else { 0.0 };
+                    for (c, &fc) in sp.f.iter().enumerate() {
+                        sc.feat[c * plane + l] += weight * fc;
+                    }
+                    if add {
+                        sc.trans[l] = next_t;
+                        sc.last[l] = sp.k1;
+                    }
+                    if stop {
+                        sc.live[l] = 0;
+                        stopped += 1;
+                    }
+                }
+            }
+        }
+        stopped
+    });
+}
+
+/// The blending kernel this CPU runs with `simd` on: "avx2" or "scalar".
+pub fn blend_kernel() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        return "avx2";
+    }
+    "scalar"
+}

@@ -1,0 +1,175 @@
+//! The forward pass over every camera: project, features, depth order, tile lists, blend.
+//! Keeps what the backward pass needs (`ForwardState`).
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::camera::{self, Camera};
+use super::forward_blend::{blend, Blended};
+use super::options::RasterOptions;
+use super::project::Splat;
+use super::scene::Scene;
+use super::tile_binning::{self, TileBins};
+use super::{features, project_batch};
+use crate::{CoreError, CoreResult};
+
+/// Seconds spent in each stage, summed over cameras.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Profile {
+    pub project: f64,
+    pub sort: f64,
+    pub bin: f64,
+    pub blend: f64,
+}
+
+/// Per-camera blend state the backward pass needs.
+#[derive(Debug, Clone)]
+pub struct CameraState {
+    pub splats: Vec<Splat>,
+    pub features: Vec<f32>,
+    pub bins: TileBins,
+    pub blended: Blended,
+}
+
+/// Everything `backward` needs from the forward call.
+#[derive(Debug, Clone)]
+pub struct ForwardState {
+    pub scene: Scene,
+    pub cameras: Vec<Camera>,
+    pub opts: RasterOptions,
+    pub width: u32,
+    pub height: u32,
+    pub per_camera: Vec<CameraState>,
+}
+
+impl ForwardState {
+    /// Feature channels per pixel (colour channels, then depth if requested).
+    pub fn channels(&self) -> usize {
+        self.scene.color_channels() + self.opts.with_depth as usize
+    }
+}
+
+/// Images and per-Gaussian facts of a forward call. Arrays are row-major, camera first.
+#[derive(Debug, Clone, Default)]
+pub struct ForwardOutput {
+    /// [C, H, W, ch]: blended features without background.
+    pub render: Vec<f32>,
+    /// [C, H, W]: 1 - final transmittance.
+    pub alpha: Vec<f32>,
+    /// [C, N, 2]: footprint half-sizes in pixels, 0 for culled Gaussians.
+    pub radii: Vec<i32>,
+    /// [C, N, 2]: projected centres in pixels (0 for culled Gaussians).
+    pub means2d: Vec<f32>,
+    /// [C, N]: camera-space depth (0 for culled Gaussians).
+    pub depths: Vec<f32>,
+    /// [C]: Gaussians that survived culling.
+    pub n_visible: Vec<u64>,
+    /// [C]: (tile, Gaussian) pairs blended.
+    pub n_intersections: Vec<u64>,
+    pub profile: Profile,
+}
+
+/// Renders every camera; returns the images and the state for `backward`.
+pub fn forward(
+    scene: Scene,
+    cameras: Vec<Camera>,
+    width: u32,
+    height: u32,
+    opts: RasterOptions,
+) -> CoreResult<(ForwardOutput, ForwardState)> {
+    opts.validate()?;
+    if width == 0 || height == 0 {
+        return Err(CoreError::input(format!(
+            "image size must be positive, got {width}x{height}"
+        )));
+    }
+    for cam in &cameras {
+        if cam.width != width || cam.height != height {
+            return Err(CoreError::Internal(
+                "camera size differs from the image".into(),
+            ));
+        }
+    }
+    let ch = scene.color_channels() + opts.with_depth as usize;
+    if ch == 0 {
+        return Err(CoreError::input(
+            "nothing to render: no colour and no depth channel",
+        ));
+    }
+    camera::check_image_size(cameras.len(), width, height, ch)?;
+    let (n, c) = (scene.n, cameras.len());
+    let pixels = width as usize * height as usize;
+    let mut out = ForwardOutput {
+        render: vec![0.0; c * pixels * ch],
+        alpha: vec![0.0; c * pixels],
+        radii: vec![0; c * n * 2],
+        means2d: vec![0.0; c * n * 2],
+        depths: vec![0.0; c * n],
+        ..Default::default()
+    };
+    let mut per_camera = Vec::with_capacity(c);
+    for (ci, cam) in cameras.iter().enumerate() {
+        let t0 = Instant::now();
+        let splats = project_batch::project_all(&scene, cam, &opts);
+        let feats = features::compute(&scene, cam, &splats, opts.with_depth);
+        let t1 = Instant::now();
+        let order = tile_binning::depth_order(&splats);
+        let t2 = Instant::now();
+        let bins = tile_binning::bin(
+            &splats,
+            order,
+            width,
+            height,
+            opts.tile_size,
+            opts.tile_ellipse,
+        )?;
+        let t3 = Instant::now();
+        let blended = blend(
+            &splats,
+            &feats,
+            ch,
+            &bins,
+            width,
+            height,
+            opts.t_min,
+            opts.simd,
+            &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
+            &mut out.alpha[ci * pixels..(ci + 1) * pixels],
+        );
+        let t4 = Instant::now();
+        out.profile.project += (t1 - t0).as_secs_f64();
+        out.profile.sort += (t2 - t1).as_secs_f64();
+        out.profile.bin += (t3 - t2).as_secs_f64();
+        out.profile.blend += (t4 - t3).as_secs_f64();
+
+        out.radii[2 * ci * n..2 * (ci + 1) * n]
+            .par_chunks_mut(2)
+            .zip(out.means2d[2 * ci * n..2 * (ci + 1) * n].par_chunks_mut(2))
+            .zip(&mut out.depths[ci * n..(ci + 1) * n])
+            .zip(&splats)
+            .filter(|(_, s)| s.visible())
+            .for_each(|(((r, m), d), s)| {
+                r.copy_from_slice(&s.radius.map(|v| v as i32));
+                m.copy_from_slice(&s.xy);
+                *d = s.depth;
+            });
+        out.n_visible.push(bins.depth_order.len() as u64);
+        out.n_intersections.push(bins.n_intersections() as u64);
+        per_camera.push(CameraState {
+            splats,
+            features: feats,
+            bins,
+            blended,
+        });
+    }
+    let state = ForwardState {
+        scene,
+        cameras,
+        opts,
+        width,
+        height,
+        per_camera,
+    };
+    Ok((out, state))
+}

@@ -1,0 +1,270 @@
+//! Where a splat lands in a tile: the tile's pixel rectangle, the splat's footprint box in it
+//! (shared by forward and backward, so both visit the same pixels), the per-tile copy of the
+//! splats and features, and the row geometry the lane kernels read.
+
+use super::lanes::LANES;
+use super::project::Splat;
+use super::tile_binning::TileBins;
+
+/// Slack in pixels around the exact alpha = 1/255 contour; only costs a few evaluations,
+/// the per-pixel alpha test still decides.
+const SPAN_SLACK: f32 = 0.01;
+
+/// The pixels of a tile a splat visits: the tile's part of the bounding box of the ellipse
+/// q(d) <= qmax = 2 ln(255 opacity), outside which alpha < 1/255. The per-pixel alpha test
+/// decides inside the box. Forward and backward share it, so both visit the same pixels.
+///
+/// A box, not the exact row spans of the ellipse: a span costs a square root per row, more
+/// than the SIMD lanes it would save on splats a few pixels wide.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PixelFootprint {
+    pub x0: u32,
+    pub x1: u32,
+    pub y0: u32,
+    pub y1: u32,
+}
+
+impl PixelFootprint {
+    #[inline(always)]
+    pub fn new(s: &BlendSplat, rect: &TileRect) -> Self {
+        let (x0, x1) = pixel_span(s.xy[0] - s.half[0], s.xy[0] + s.half[0], rect.x0, rect.x1);
+        let (y0, y1) = pixel_span(s.xy[1] - s.half[1], s.xy[1] + s.half[1], rect.y0, rect.y1);
+        Self { x0, x1, y0, y1 }
+    }
+}
+
+/// What blending needs of a splat, copied per tile-list entry (32 bytes).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BlendSplat {
+    pub xy: [f32; 2],
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    /// See `Splat::half`.
+    pub half: [f32; 2],
+}
+
+impl From<&Splat> for BlendSplat {
+    fn from(s: &Splat) -> Self {
+        Self {
+            xy: s.xy,
+            conic: s.conic,
+            opacity: s.opacity,
+            half: s.half,
+        }
+    }
+}
+
+/// Pixel indices [i0, i1) whose centres (i + 0.5) lie in [lo, hi] (plus slack), clipped.
+///
+/// Clipping to integers commutes with ceil/floor, so the values are clipped first and
+/// rounded by truncation: on baseline x86-64 `f32::ceil` is a libm call, and this runs
+/// twice per (splat, tile) pair in the forward and again in the backward.
+#[inline(always)]
+fn pixel_span(lo: f32, hi: f32, min: u32, max: u32) -> (u32, u32) {
+    // max/min return the non-NaN operand: NaN bounds clip to `min`, as before.
+    let a = (lo - 0.5 - SPAN_SLACK).max(min as f32).min(max as f32);
+    let a_int = a as u32;
+    let a = a_int + ((a_int as f32) < a) as u32;
+    // floor(v) + 1 clipped to [min, max] == floor(v clipped to [min - 1, max - 1]) + 1.
+    let b = (hi - 0.5 + SPAN_SLACK)
+        .max(min as f32 - 1.0)
+        .min(max as f32 - 1.0);
+    let b_int = b as i32;
+    let b = (b_int - (b < b_int as f32) as i32 + 1) as u32;
+    (a, b.max(a))
+}
+
+/// Geometry of one tile: its pixel rectangle clipped to the image.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TileRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl TileRect {
+    pub fn new(t: usize, bins: &TileBins, width: u32, height: u32) -> Self {
+        let ts = bins.tile_size;
+        let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
+        Self {
+            x0: tx * ts,
+            y0: ty * ts,
+            x1: ((tx + 1) * ts).min(width),
+            y1: ((ty + 1) * ts).min(height),
+        }
+    }
+}
+
+/// One tile's splats and features copied out of the per-splat arrays in list order
+/// (front to back), so that the kernels read them sequentially from L1 instead of chasing
+/// indices. Gathered per tile, right before use, by forward and backward alike: a
+/// tile-major copy of all lists would be written once and read back from memory.
+#[derive(Debug, Default)]
+pub(super) struct TileList {
+    pub splats: Vec<BlendSplat>,
+    /// [list entry][channel].
+    pub features: Vec<f32>,
+}
+
+impl TileList {
+    pub(super) fn gather(&mut self, gids: &[u32], splats: &[Splat], features: &[f32], ch: usize) {
+        self.splats.clear();
+        self.splats
+            .extend(gids.iter().map(|&g| BlendSplat::from(&splats[g as usize])));
+        self.features.clear();
+        self.features.resize(gids.len() * ch, 0.0);
+        // Fixed-width copies for the common widths: a slice copy of a runtime length is a
+        // memcpy call per splat.
+        match ch {
+            3 => gather_rows::<3>(&mut self.features, features, gids),
+            4 => gather_rows::<4>(&mut self.features, features, gids),
+            1 => gather_rows::<1>(&mut self.features, features, gids),
+            _ => {
+                for (dst, &g) in self.features.chunks_exact_mut(ch).zip(gids) {
+                    dst.copy_from_slice(&features[g as usize * ch..][..ch]);
+                }
+            }
+        }
+    }
+}
+
+/// `dst[k] = src[gids[k]]` for rows of `N` values.
+fn gather_rows<const N: usize>(dst: &mut [f32], src: &[f32], gids: &[u32]) {
+    for (d, &g) in dst.chunks_exact_mut(N).zip(gids) {
+        let row: [f32; N] = src[g as usize * N..][..N].try_into().unwrap();
+        d.copy_from_slice(&row);
+    }
+}
+
+/// The geometry every lane kernel (forward and backward) reads: the row stride (rows padded
+/// to whole lane groups), the pixel-centre x of each column of the current tile, and for
+/// each footprint row of the current splat dy, c dy^2 and b dy.
+pub(super) struct TileGeometry {
+    pub stride: usize,
+    pub ts: usize,
+    pub xs: Vec<f32>,
+    pub row_dy: Vec<f32>,
+    pub row_c: Vec<f32>,
+    pub row_b: Vec<f32>,
+}
+
+/// A splat's footprint in a tile: columns (relative to the tile) whose pixel centre lies
+/// strictly between `xlo` and `xhi`, the lane groups covering them, and the rows.
+pub(super) struct LaneFootprint {
+    pub xlo: f32,
+    pub xhi: f32,
+    pub groups: std::ops::Range<usize>,
+    pub rows: std::ops::Range<usize>,
+}
+
+impl TileGeometry {
+    pub(super) fn new(ts: usize) -> Self {
+        let stride = ts.div_ceil(LANES) * LANES;
+        Self {
+            stride,
+            ts,
+            xs: vec![0.0; stride],
+            row_dy: vec![0.0; ts],
+            row_c: vec![0.0; ts],
+            row_b: vec![0.0; ts],
+        }
+    }
+
+    /// Pixels per tile buffer (padded rows).
+    pub fn plane(&self) -> usize {
+        self.stride * self.ts
+    }
+
+    pub(super) fn set_tile(&mut self, rect: &TileRect) {
+        for (i, x) in self.xs.iter_mut().enumerate() {
+            *x = (rect.x0 as usize + i) as f32 + 0.5;
+        }
+    }
+
+    /// The splat's footprint in the tile (None if it has no pixel there), with the row
+    /// terms of its rows filled in.
+    #[inline(always)]
+    pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
+        let fp = PixelFootprint::new(s, rect);
+        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
+            return None;
+        }
+        let [_, b, c] = s.conic;
+        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
+        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
+        for ly in rows.clone() {
+            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
+            self.row_dy[ly] = dy;
+            self.row_c[ly] = c * dy * dy;
+            self.row_b[ly] = b * dy;
+        }
+        Some(LaneFootprint {
+            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
+            xlo: fp.x0 as f32,
+            xhi: fp.x1 as f32,
+            groups: lx0 / LANES..lx1.div_ceil(LANES),
+            rows,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plain form, with libm rounding.
+    fn pixel_span_ref(lo: f32, hi: f32, min: u32, max: u32) -> (u32, u32) {
+        let a = (lo - 0.5 - SPAN_SLACK)
+            .ceil()
+            .max(min as f32)
+            .min(max as f32) as u32;
+        let b = ((hi - 0.5 + SPAN_SLACK).floor() + 1.0)
+            .max(min as f32)
+            .min(max as f32) as u32;
+        (a, b.max(a))
+    }
+
+    #[test]
+    fn pixel_span_matches_ceil_floor_form() {
+        let mut v = -70.0f32;
+        while v < 140.0 {
+            for &(min, max) in &[(0u32, 16u32), (16, 32), (48, 50), (0, 1)] {
+                for &w in &[0.0f32, 0.3, 1.0, 2.51, 7.0, 40.0] {
+                    assert_eq!(
+                        pixel_span(v, v + w, min, max),
+                        pixel_span_ref(v, v + w, min, max),
+                        "{v} {w} {min} {max}"
+                    );
+                }
+            }
+            v += 0.0371;
+        }
+        // Exact integers and their neighbours, where rounding direction matters.
+        for i in -3..40 {
+            for d in [-1e-5f32, 0.0, 1e-5] {
+                let v = i as f32 + 0.5 + SPAN_SLACK + d;
+                let u = i as f32 + 0.5 - SPAN_SLACK + d;
+                assert_eq!(pixel_span(v, u, 0, 32), pixel_span_ref(v, u, 0, 32));
+                assert_eq!(
+                    pixel_span(v, u + 3.0, 16, 32),
+                    pixel_span_ref(v, u + 3.0, 16, 32)
+                );
+            }
+        }
+        for &bad in &[f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            assert_eq!(
+                pixel_span(bad, 3.0, 16, 32),
+                pixel_span_ref(bad, 3.0, 16, 32)
+            );
+            assert_eq!(
+                pixel_span(20.0, bad, 16, 32),
+                pixel_span_ref(20.0, bad, 16, 32)
+            );
+            assert_eq!(
+                pixel_span(bad, bad, 16, 32),
+                pixel_span_ref(bad, bad, 16, 32)
+            );
+        }
+    }
+}

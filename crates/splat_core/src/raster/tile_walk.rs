@@ -1,0 +1,233 @@
+//! The per-tile state and the two splat walkers of the blending kernels: front to back for
+//! the forward (`for_each_splat`), back to front for the backward (`for_each_splat_back`).
+//! The scalar kernels (`forward_blend`, `backward_blend`) and the AVX2 ones (`blend_avx2`)
+//! supply only the per-splat lane arithmetic; the walk itself is written once, here.
+
+use super::tile_geometry::{BlendSplat, LaneFootprint, TileGeometry, TileRect};
+
+/// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
+pub const ISECT_FIXED: usize = 6;
+
+/// What one tile blends.
+pub(super) struct TileInput<'a> {
+    pub splats: &'a [BlendSplat],
+    pub features: &'a [f32],
+    pub rect: TileRect,
+    pub t_min: f32,
+    /// Use the SIMD kernel when the CPU has one.
+    pub simd: bool,
+}
+
+/// Per-tile pixel state, structure of arrays with rows padded to whole lane groups.
+pub(super) struct TileScratch {
+    pub geo: TileGeometry,
+    pub trans: Vec<f32>,
+    pub last: Vec<u32>,
+    /// All ones while the pixel is blending (a SIMD mask), 0 once it stopped or if padding.
+    pub live: Vec<u32>,
+    /// Planar features: channel c of pixel l at `c * geo.plane() + l`.
+    pub feat: Vec<f32>,
+    /// Pixels of the tile still blending.
+    pub active: usize,
+}
+
+impl TileScratch {
+    pub(super) fn new(ts: usize, ch: usize) -> Self {
+        let geo = TileGeometry::new(ts);
+        let plane = geo.plane();
+        Self {
+            geo,
+            trans: vec![1.0; plane],
+            last: vec![0; plane],
+            live: vec![0; plane],
+            feat: vec![0.0; plane * ch],
+            active: 0,
+        }
+    }
+
+    pub(super) fn reset(&mut self, rect: &TileRect) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        self.trans.fill(1.0);
+        self.last.fill(0);
+        self.feat.fill(0.0);
+        self.live.fill(0);
+        for row in self.live.chunks_exact_mut(self.geo.stride).take(th) {
+            row[..tw].fill(u32::MAX);
+        }
+        self.geo.set_tile(rect);
+        self.active = tw * th;
+    }
+
+    /// Copies the tile's pixels into its slices of the tile-major buffers ([pixel][channel]
+    /// for the features).
+    pub(super) fn write(
+        &self,
+        rect: &TileRect,
+        ch: usize,
+        feat: &mut [f32],
+        t_final: &mut [f32],
+        last: &mut [u32],
+    ) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        let plane = self.geo.plane();
+        for ly in 0..th {
+            let (src, dst) = (ly * self.geo.stride, ly * self.geo.ts);
+            t_final[dst..dst + tw].copy_from_slice(&self.trans[src..src + tw]);
+            last[dst..dst + tw].copy_from_slice(&self.last[src..src + tw]);
+            let row = &mut feat[dst * ch..(dst + tw) * ch];
+            for (lx, px) in row.chunks_exact_mut(ch).enumerate() {
+                for (c, v) in px.iter_mut().enumerate() {
+                    *v = self.feat[c * plane + src + lx];
+                }
+            }
+        }
+    }
+}
+
+/// One splat of a tile's list as the lane kernels see it.
+pub(super) struct SplatInTile<'a> {
+    pub s: &'a BlendSplat,
+    /// Its features [ch].
+    pub f: &'a [f32],
+    /// 1 + its position in the tile list (the value `last` takes).
+    pub k1: u32,
+    pub fp: LaneFootprint,
+}
+
+/// Walks the tile's splats front to back and calls `kernel(splat, scratch)` for each splat
+/// with pixels in the tile; the kernel blends the footprint and returns how many pixels
+/// stopped. Ends when every pixel of the tile has stopped.
+#[inline(always)]
+pub(super) fn for_each_splat(
+    tile: &TileInput,
+    ch: usize,
+    scratch: &mut TileScratch,
+    mut kernel: impl FnMut(&SplatInTile, &mut TileScratch) -> u32,
+) {
+    for (k, (s, f)) in tile
+        .splats
+        .iter()
+        .zip(tile.features.chunks_exact(ch))
+        .enumerate()
+    {
+        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
+            continue;
+        };
+        let splat = SplatInTile {
+            s,
+            f,
+            k1: k as u32 + 1,
+            fp,
+        };
+        let stopped = kernel(&splat, scratch);
+        scratch.active -= stopped as usize;
+        if scratch.active == 0 {
+            break;
+        }
+    }
+}
+
+/// What one tile's backward reads: its list (front to back) and its pixels.
+pub(super) struct BackTile<'a> {
+    pub splats: &'a [BlendSplat],
+    pub features: &'a [f32],
+    pub rect: TileRect,
+    /// Use the SIMD kernel when the CPU has one.
+    pub simd: bool,
+}
+
+/// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
+/// lane groups (padding pixels have `last` 0, so no splat touches them).
+pub(super) struct BackScratch {
+    pub geo: TileGeometry,
+    /// Transmittance after the splat being processed (starts at the final T).
+    pub trans: Vec<f32>,
+    pub last: Vec<u32>,
+    /// dL/d(alpha image) times the final T.
+    pub va_tf: Vec<f32>,
+    /// Planar dL/d(render) and features blended behind the current splat.
+    pub v_out: Vec<f32>,
+    pub buf: Vec<f32>,
+}
+
+impl BackScratch {
+    pub(super) fn new(ts: usize, ch: usize) -> Self {
+        let geo = TileGeometry::new(ts);
+        let plane = geo.plane();
+        Self {
+            geo,
+            trans: vec![0.0; plane],
+            last: vec![0; plane],
+            va_tf: vec![0.0; plane],
+            v_out: vec![0.0; plane * ch],
+            buf: vec![0.0; plane * ch],
+        }
+    }
+
+    /// Loads the tile's pixels (tile-major `t_final` / `last`, row-major gradients).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn reset(
+        &mut self,
+        rect: &TileRect,
+        ch: usize,
+        width: usize,
+        t_final: &[f32],
+        last: &[u32],
+        v_render: &[f32],
+        v_alpha: &[f32],
+    ) {
+        let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+        let (plane, ts, stride) = (self.geo.plane(), self.geo.ts, self.geo.stride);
+        self.last.fill(0);
+        self.buf.fill(0.0);
+        for ly in 0..th {
+            let (src, dst) = (ly * ts, ly * stride);
+            let pix = (rect.y0 as usize + ly) * width + rect.x0 as usize;
+            self.trans[dst..dst + tw].copy_from_slice(&t_final[src..src + tw]);
+            self.last[dst..dst + tw].copy_from_slice(&last[src..src + tw]);
+            for lx in 0..tw {
+                self.va_tf[dst + lx] = v_alpha[pix + lx] * t_final[src + lx];
+                for c in 0..ch {
+                    self.v_out[c * plane + dst + lx] = v_render[(pix + lx) * ch + c];
+                }
+            }
+        }
+        self.geo.set_tile(rect);
+    }
+}
+
+/// One splat of a tile's list as the backward kernels see it.
+pub(super) struct BackSplat<'a> {
+    pub s: &'a BlendSplat,
+    pub f: &'a [f32],
+    /// Its position in the tile list: pixels with `last > k` saw it.
+    pub k: u32,
+    pub fp: LaneFootprint,
+}
+
+/// Walks the tile's list back to front from the last splat any pixel used, and calls
+/// `kernel(splat, scratch, out)` with the splat's slice of the gradient array.
+#[inline(always)]
+pub(super) fn for_each_splat_back(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+    mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]),
+) {
+    let stride = ISECT_FIXED + ch;
+    let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
+    for k in (0..k_end).rev() {
+        let s = &tile.splats[k];
+        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
+            continue;
+        };
+        let splat = BackSplat {
+            s,
+            f: &tile.features[k * ch..(k + 1) * ch],
+            k: k as u32,
+            fp,
+        };
+        kernel(&splat, scratch, &mut out[k * stride..(k + 1) * stride]);
+    }
+}

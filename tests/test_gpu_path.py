@@ -1,0 +1,245 @@
+"""What the CUDA path relies on, checked on the CPU: full-size model configs, depth ahead,
+device selection, pinned copies, the non-finite gradient check and the GPU bench's loop."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.pipeline import GenerateConfig, generate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def small_sds(**kw):
+    base = dict(
+        species="mint", seed=3, n_points=1500, resolution=48, eval_views=2,
+        turntable_frames=2, steps=6, guidance="sds",
+    )  # fmt: skip
+    base.update(kw)
+    return GenerateConfig(**base)
+
+
+def tiny_sds(**kw):
+    from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+
+    return StableDiffusionDepthGuidance(
+        species="mint", components=tiny_models(), resolution=64, seed=3, **kw
+    )
+
+
+# -- full-size models ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "count"),
+    # The published sizes of SD 2.1-base's networks (docs/full_size_models.md).
+    [("vae", 83_653_863), ("text_encoder", 340_387_840)],
+)
+def test_full_size_configs_give_the_published_parameter_counts(name, count):
+    from plantdreamer.guidance.full_size import parameter_count
+
+    assert parameter_count(name) == count
+
+
+def test_full_size_controlnet_is_the_unets_encoder():
+    # The ControlNet config must agree with the UNet's: diffusers' from_unet copies it.
+    from diffusers import ControlNetModel
+
+    from plantdreamer.guidance import full_size
+
+    with torch.device("meta"):
+        unet = full_size.build_unet()
+        derived = ControlNetModel.from_unet(
+            unet, conditioning_embedding_out_channels=(16, 32, 96, 256)
+        )
+    assert sum(p.numel() for p in unet.parameters()) == 865_910_724
+    assert sum(p.numel() for p in derived.parameters()) == full_size.parameter_count("controlnet")
+
+
+# -- depth ahead -----------------------------------------------------------------------------
+
+
+def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
+    ahead = generate(small_sds(), tmp_path / "ahead", guidance=tiny_sds(), show_progress=False)
+    inline = generate(
+        small_sds(), tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
+        depth_ahead=False,
+    )  # fmt: skip
+    assert ahead.ply_path.read_bytes() == inline.ply_path.read_bytes()
+    # The run trained (the loss log has every step) and the depth phase was timed.
+    run = json.loads((tmp_path / "ahead" / "run.json").read_text())
+    assert "depth" in run["per_step_s"] and run["raster_threads"] >= 1
+    assert len((tmp_path / "ahead" / "log.csv").read_text().splitlines()) == 7
+
+
+def test_sampler_peek_does_not_draw():
+    from plantdreamer.pipeline.config import CameraRanges
+    from plantdreamer.pipeline.sampler import CameraSampler
+
+    a, b = CameraSampler(CameraRanges(), 32, 5), CameraSampler(CameraRanges(), 32, 5)
+    peeked = a.peek()
+    assert a.peek().viewmat.tobytes() == peeked.viewmat.tobytes()
+    assert a.sample().viewmat.tobytes() == peeked.viewmat.tobytes() == b.sample().viewmat.tobytes()
+    assert a.peek().viewmat.tobytes() != peeked.viewmat.tobytes()
+
+
+# -- devices -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("device", ["banana", "cuda:x", "meta"])
+def test_bad_device_is_a_clear_input_error(device):
+    from plantdreamer.guidance.models import resolve_device
+
+    with pytest.raises(InputError, match="device"):
+        resolve_device(device)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
+def test_cuda_without_a_gpu_is_one_error_line(tmp_path):
+    for device in ("cuda", "cuda:1", "banana"):
+        result = CliRunner().invoke(
+            main,
+            ["generate", "--species", "bean", "--device", device, "--out", str(tmp_path / "o")],
+        )
+        assert result.exit_code == 1, result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error:") and device in lines[0]
+        assert not (tmp_path / "o").exists()
+
+
+def test_info_lists_devices_and_network_dtypes():
+    result = CliRunner().invoke(main, ["info"])
+    assert result.exit_code == 0, result.output
+    for name in ("unet", "controlnet", "text_encoder", "vae"):
+        assert f"{name} dtype" in result.output
+    if not torch.cuda.is_available():
+        assert "cuda" in result.output and "not available" in result.output
+        assert re.search(r"^unet dtype \(cpu\) +float32$", result.output, re.MULTILINE)
+
+
+def test_to_device_is_a_plain_copy_off_cuda():
+    from plantdreamer.guidance.transfer import to_device
+
+    x = torch.rand(2, 3, requires_grad=True)
+    y = to_device(x, torch.device("cpu"))
+    y.sum().backward()
+    assert torch.equal(x.grad, torch.ones(2, 3))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_pinned_copy_round_trips_values_and_gradients():  # pragma: no cover - no GPU on CI
+    from plantdreamer.guidance.transfer import to_device
+
+    x = torch.rand(4, 5, requires_grad=True)
+    y = to_device(x, torch.device("cuda"))
+    assert y.device.type == "cuda" and torch.equal(y.cpu(), x.detach())
+    (2 * y).sum().backward()
+    assert x.grad is not None and torch.equal(x.grad, torch.full((4, 5), 2.0))
+
+
+# -- numerics --------------------------------------------------------------------------------
+
+
+class _NaNGradient(torch.autograd.Function):
+    """The identity whose backward returns NaN: a finite loss with poisoned gradients."""
+
+    @staticmethod
+    def forward(ctx, x):
+        return x.clone()
+
+    @staticmethod
+    def backward(ctx, grad):
+        return grad * float("nan")
+
+
+class _PoisonedGuidance:
+    needs_depth = False
+    resolution = None
+    generator = None
+
+    def __call__(self, images, depth, cameras, step):
+        from plantdreamer.guidance.base import GuidanceOutput
+
+        return GuidanceOutput(loss=_NaNGradient.apply(images).mean(), stats={})
+
+
+def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
+    cfg = small_sds(guidance="none", steps=3)
+    with pytest.raises(PlantDreamerError, match="non-finite gradient on the Gaussians"):
+        generate(cfg, tmp_path / "o", guidance=_PoisonedGuidance(), show_progress=False)
+    assert not (tmp_path / "o" / "plant.ply").exists()
+
+
+# -- the GPU bench's loop --------------------------------------------------------------------
+
+
+def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benches" / "bench_gpu.py"), "--steps", "3",
+         "--tiny", "--points", "1500", "--render", "128", "--sds", "128", "--compare-depth", "0",
+         "--json", str(out), "--md", str(tmp_path / "gpu.md")],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    report = json.loads(out.read_text())
+    assert report["steps"] == 3 and report["models"] == "tiny"
+    for phase in (
+        "render",
+        "depth",
+        "transfer",
+        "text",
+        "unet+controlnet",
+        "vae encode",
+        "raster backward",
+        "vae backward",
+        "optimizer",
+    ):
+        assert phase in report["per_step_ms"], phase
+    assert report["projected_3600_steps_s"] > 0
+    assert (tmp_path / "gpu.md").read_text().startswith("## SDS loop per phase")
+
+
+def _large_posterior_guidance(dtype, vae_dtype):
+    """Tiny models whose VAE posterior has a large log-variance (14, and 30x its spread):
+    the latent sample's derivative is 0.5 std eps with std ~ 1e3, so the render gradients
+    exceed float16's range (65504)."""
+    from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+
+    parts = tiny_models()
+    with torch.no_grad():
+        parts.vae.quant_conv.weight[4:].mul_(30.0)
+        parts.vae.quant_conv.bias[4:] = 14.0
+    return StableDiffusionDepthGuidance(
+        species="bean", components=parts, resolution=64, seed=0, dtype=dtype, vae_dtype=vae_dtype
+    )
+
+
+def _sds_render_gradient(guidance):
+    from plantdreamer.cameras import orbit
+
+    images = torch.full((1, 64, 64, 3), 0.75, requires_grad=True)
+    depth = torch.rand(1, 1, 64, 64, generator=torch.Generator().manual_seed(0))
+    out = guidance(images, depth, [orbit(4.0, 15.0, 0.0, 50.0, 64, 64)], 0)
+    out.loss.backward()
+    return out.loss.detach(), images.grad
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+def test_half_precision_networks_give_finite_render_gradients(dtype):
+    # Networks in half precision, the VAE in float32 (the default): finite, and larger than
+    # float16 can hold, so a float16 VAE backward could not have carried them.
+    loss, grad = _sds_render_gradient(_large_posterior_guidance(dtype, torch.float32))
+    assert torch.isfinite(loss) and bool(torch.isfinite(grad).all())
+    assert grad.abs().max() > 65504
+    # The naive all-float16 path overflows on the same scene.
+    loss16, grad16 = _sds_render_gradient(_large_posterior_guidance(torch.float16, torch.float16))
+    assert not (torch.isfinite(loss16) and bool(torch.isfinite(grad16).all()))
