@@ -185,6 +185,7 @@ class GenerateConfig:
         "auto",
         "UNet and ControlNet precision (auto: float16 on CUDA).",
         choices=("auto", "float32", "float16"),
+    )
     device: str | None = setting(
         None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."
     )
