@@ -25,6 +25,7 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
     "knn": [("k", 1), ("threads", 1)],
     "knn_mean_distance": [("k", 1), ("threads", 1)],
     "large_gaussian_mask": [],
+    "raster_defaults": [],
     "rasterize_backward": [("threads", 1)],
     "rasterize_forward": [
         ("width", 1),
@@ -85,6 +86,7 @@ def _call(name: str, tmp_path, **override):
             "knn": {"points": _PTS, "k": 4, "threads": None},
             "knn_mean_distance": {"points": _PTS, "k": 4, "threads": None},
             "large_gaussian_mask": {"log_scales": np.zeros((4, 3), np.float32)},
+            "raster_defaults": {},
             "rasterize_forward": _scene(),
             "read_ply_vertex": {"path": str(tmp_path / "ok.ply")},
             "remove_statistical_outliers": {
