@@ -51,7 +51,8 @@ WHEEL_FLAGS ?= --release --zig --compatibility manylinux2014
 
 wheel: $(STAMP) ## Build the abi3 wheel (manylinux2014, via zig) and the sdist into dist/
 	rm -f dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz
-	$(VENV)/bin/maturin build $(WHEEL_FLAGS) --out dist
+	@# The venv first on PATH: maturin finds zig as `python -m ziglang` (the dev extra's ziglang).
+	PATH="$(abspath $(VENV))/bin:$$PATH" $(VENV)/bin/maturin build $(WHEEL_FLAGS) --out dist
 	$(VENV)/bin/maturin sdist --out dist
 
 test-wheel: wheel ## Install the wheel in a fresh venv without Rust on PATH and run it
