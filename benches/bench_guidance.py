@@ -29,44 +29,24 @@ import torch
 
 from plantdreamer.cameras import orbit
 from plantdreamer.guidance.depth import clean_depth
+from plantdreamer.guidance.full_size import build_unet, build_vae
 from plantdreamer.guidance.models import DiffusionComponents
 from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 from plantdreamer.guidance.tiny import tiny_models, tiny_tokenizer
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-SD21_UNET = {
-    "sample_size": 64,
-    "in_channels": 4,
-    "out_channels": 4,
-    "layers_per_block": 2,
-    "block_out_channels": (320, 640, 1280, 1280),
-    "down_block_types": ("CrossAttnDownBlock2D",) * 3 + ("DownBlock2D",),
-    "up_block_types": ("UpBlock2D",) + ("CrossAttnUpBlock2D",) * 3,
-    "cross_attention_dim": 1024,
-    "attention_head_dim": (5, 10, 20, 20),
-    "use_linear_projection": True,
-}
-SD_VAE = {
-    "in_channels": 3,
-    "out_channels": 3,
-    "down_block_types": ("DownEncoderBlock2D",) * 4,
-    "up_block_types": ("UpDecoderBlock2D",) * 4,
-    "block_out_channels": (128, 256, 512, 512),
-    "latent_channels": 4,
-    "layers_per_block": 2,
-    "sample_size": 512,
-}
-
 
 def sd21_sized_components() -> DiffusionComponents:
-    from diffusers import AutoencoderKL, ControlNetModel, UNet2DConditionModel
+    """The full-size UNet, ControlNet and VAE with a one-layer text encoder (the encoder
+    runs once per prompt, so its size does not change a step's time)."""
+    from diffusers import ControlNetModel
     from transformers import CLIPTextConfig, CLIPTextModel
 
     torch.manual_seed(0)
-    unet = UNet2DConditionModel(**SD21_UNET)
+    unet = build_unet()
     controlnet = ControlNetModel.from_unet(unet)
-    vae = AutoencoderKL(**SD_VAE)
+    vae = build_vae()
     tokenizer = tiny_tokenizer()
     text_encoder = CLIPTextModel(
         CLIPTextConfig(

@@ -8,7 +8,7 @@ from click.testing import CliRunner
 from plantdreamer.cli import main
 from plantdreamer.dataset import config_hash, expand, load_spec
 from plantdreamer.dataset.engine import RAY_MISSING, plant_demand
-from plantdreamer.dataset.lock import DatasetLock
+from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline import GenerateConfig
 
@@ -94,13 +94,13 @@ def test_resources_follow_guidance_and_overrides():
 
 
 def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
-    with DatasetLock(tmp_path):
+    with dataset_lock(tmp_path):
         result = CliRunner().invoke(
             main, ["dataset", "--species", "bean", "--guidance", "none", "--out", str(tmp_path)]
         )
     assert result.exit_code == 1
     assert "another `plantdreamer dataset`" in result.output and "Traceback" not in result.output
-    with DatasetLock(tmp_path):  # released when the holder is done
+    with dataset_lock(tmp_path):  # released when the holder is done
         pass
 
 

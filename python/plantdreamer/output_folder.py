@@ -30,8 +30,9 @@ LOCK_NAME = ".plantdreamer.lock"
 
 
 @contextmanager
-def locked(lock_path: Path, what: str) -> Iterator[None]:
-    """Holds an exclusive lock on ``lock_path`` (created if missing) for the block."""
+def locked(lock_path: Path, what: str, holder: str = "plantdreamer run") -> Iterator[None]:
+    """Holds an exclusive lock on ``lock_path`` (created if missing) for the block; a second
+    claim fails with "``what`` is in use by another ``holder``"."""
     folder = lock_path.parent
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -47,7 +48,7 @@ def locked(lock_path: Path, what: str) -> Iterator[None]:
         except BlockingIOError:
             os.close(fd)
             raise InputError(
-                f"{what} is in use by another plantdreamer run (lock {lock_path}); "
+                f"{what} is in use by another {holder} (lock {lock_path}); "
                 "wait for it to finish or write elsewhere"
             ) from None
         # The holder before us may have removed the file after we opened it: retry on the

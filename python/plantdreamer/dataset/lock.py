@@ -1,50 +1,20 @@
-"""One ``dataset`` process per output folder: an exclusive ``flock`` on ``DIR/.lock``.
+"""One ``dataset`` process per output folder: the shared output lock
+(``plantdreamer.output_folder.locked``) on ``DIR/.plantdreamer.lock``.
 
-The kernel drops the lock when the process dies, however it dies, so a killed run never
-leaves a stale lock behind.
+``flock`` is dropped by the kernel when the process dies, however it dies, so a killed run
+never leaves a stale lock. The lock file exists while the dataset runs, so a worker also
+uses it to check that it sees the output folder (a cluster needs it on shared storage).
 """
 
 from __future__ import annotations
 
-import fcntl
-import os
+from contextlib import AbstractContextManager
 from pathlib import Path
-from types import TracebackType
 
-from plantdreamer.errors import InputError
+from plantdreamer.output_folder import LOCK_NAME, locked
 
-LOCK_NAME = ".lock"
+__all__ = ["LOCK_NAME", "dataset_lock"]
 
 
-class DatasetLock:
-    def __init__(self, out_dir: Path) -> None:
-        self.path = out_dir / LOCK_NAME
-        self._fd: int | None = None
-
-    def __enter__(self) -> DatasetLock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            raise InputError(
-                f"another `plantdreamer dataset` (pid {holder}) is writing {self.path.parent}; "
-                "wait for it to finish or stop it"
-            ) from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        self._fd = fd
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        if self._fd is not None:
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
-            os.close(self._fd)
-            self._fd = None
+def dataset_lock(out_dir: Path) -> AbstractContextManager[None]:
+    return locked(out_dir / LOCK_NAME, f"dataset folder {out_dir}", "`plantdreamer dataset`")

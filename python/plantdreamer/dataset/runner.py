@@ -17,7 +17,7 @@ from typing import Any
 
 from plantdreamer.dataset import engine
 from plantdreamer.dataset.display import DatasetProgress, print_summary
-from plantdreamer.dataset.lock import DatasetLock
+from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.spec import Plant
 from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
@@ -58,7 +58,7 @@ def run_dataset(
     spec: dict[str, Any], plants: list[Plant], out_dir: str | Path, options: RunOptions
 ) -> DatasetReport:
     out_dir = Path(out_dir).resolve()
-    with DatasetLock(out_dir):
+    with dataset_lock(out_dir):
         return _DatasetRun(spec, plants, out_dir, options).run()
 
 

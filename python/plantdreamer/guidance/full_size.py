@@ -57,27 +57,31 @@ UNET_CONFIG: dict[str, Any] = {
     "num_class_embeds": None,
 }
 
-# thibaud/controlnet-sd21-depth-diffusers, config.json: the UNet's encoder half plus the
-# conditioning embedding (a 3-channel image at 8x the latent size).
+# thibaud/controlnet-sd21-depth-diffusers, config.json: the UNet's encoder half (its values,
+# as diffusers' ControlNetModel.from_unet copies them) plus the conditioning embedding (a
+# 3-channel image at 8x the latent size).
+_CONTROLNET_FROM_UNET = (
+    "in_channels",
+    "flip_sin_to_cos",
+    "freq_shift",
+    "down_block_types",
+    "only_cross_attention",
+    "block_out_channels",
+    "layers_per_block",
+    "downsample_padding",
+    "mid_block_scale_factor",
+    "act_fn",
+    "norm_num_groups",
+    "norm_eps",
+    "cross_attention_dim",
+    "attention_head_dim",
+    "use_linear_projection",
+    "upcast_attention",
+    "num_class_embeds",
+)
 CONTROLNET_CONFIG: dict[str, Any] = {
-    "in_channels": 4,
+    **{key: UNET_CONFIG[key] for key in _CONTROLNET_FROM_UNET},
     "conditioning_channels": 3,
-    "flip_sin_to_cos": True,
-    "freq_shift": 0,
-    "down_block_types": UNET_CONFIG["down_block_types"],
-    "only_cross_attention": False,
-    "block_out_channels": (320, 640, 1280, 1280),
-    "layers_per_block": 2,
-    "downsample_padding": 1,
-    "mid_block_scale_factor": 1,
-    "act_fn": "silu",
-    "norm_num_groups": 32,
-    "norm_eps": 1e-5,
-    "cross_attention_dim": 1024,
-    "attention_head_dim": (5, 10, 20, 20),
-    "use_linear_projection": True,
-    "upcast_attention": False,
-    "num_class_embeds": None,
     "controlnet_conditioning_channel_order": "rgb",
     "conditioning_embedding_out_channels": (16, 32, 96, 256),
     "global_pool_conditions": False,
