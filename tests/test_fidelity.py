@@ -39,6 +39,7 @@ def test_presets_resolve_to_the_documented_values():
         "network_dtype": "float32",
         "control_resize": "nearest",
         "init_scale": "rms",
+        "init_shape": "sphere",
         "schedule": "released",
         "guidance_scale": 101.0,
     }

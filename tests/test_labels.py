@@ -1,7 +1,6 @@
 """Labels: field detection, voxel majority, labels through the model and PLY, and the
 rasterized ground truth (hand-computable scenes and an L-System bean against its mesh)."""
 
-import copy
 import json
 
 import numpy as np
@@ -19,7 +18,13 @@ from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, vo
 from plantdreamer.pipeline import GenerateConfig, generate
 from plantdreamer.pipeline.config import LearningRates
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
-from plantdreamer.pipeline.ground_truth import LabelSet, _blend, _one_hot, render_ground_truth
+from plantdreamer.pipeline.ground_truth import (
+    LabelSet,
+    Splats,
+    _blend,
+    _one_hot,
+    render_ground_truth,
+)
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pointcloud import voxel_downsample
 
@@ -172,7 +177,7 @@ def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
     ls = LabelSet.of(g.labels)
     gt = render_ground_truth(model, cam, ls)
     w, _, alpha, _ = _blend(
-        model, cam, _one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
+        Splats.of(model), cam, _one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
     )
     reference = np.where(alpha < 0.5, -1, np.argmax(w, axis=-1) - 1)
     np.testing.assert_array_equal(gt.instance, reference)
@@ -220,35 +225,35 @@ def _zbuffer_leaf_mask(mesh, camera):
     return leaf
 
 
-def test_bean_leaf_masks_match_the_mesh_leaves(tmp_path):
-    """Where the splats and the mesh both show the plant, the leaf masks agree (IoU >= 0.9;
-    measured 0.92-0.94). Unrestricted, the IoU is lower (measured 0.53-0.62 here, 0.63-0.70
-    at 512 px): as initialised, without optimisation, the splats' silhouette is wider than
-    the mesh by a few Gaussian widths (docs/labels.md), which no labelling rule can undo; so
-    that part is held to "covers the mesh's leaves" instead."""
+def bean_leaf_iou(out_dir, **settings) -> list[float]:
+    """Generates an L-System bean as initialised and returns, per evaluation view, the IoU
+    of its leaf mask with the mesh's leaf faces (z-buffer) over the whole image."""
     import imageio.v3 as iio
 
     from plantdreamer.eval.datasets import scan_transforms_json
     from plantdreamer.lsystem import generate_plant
 
-    cfg = small(species="bean", seed=2, n_points=100_000, resolution=256, eval_views=3)
-    generate(cfg, tmp_path, show_progress=False)
-    meta = json.loads((tmp_path / "transforms.json").read_text())
+    cfg = small(species="bean", seed=2, n_points=100_000, resolution=1024, **settings)
+    generate(cfg, out_dir, show_progress=False)
+    meta = json.loads((out_dir / "transforms.json").read_text())
     leaf_value = next(c["value"] for c in meta["semantic_classes"] if c["name"] == "leaf")
     mesh = generate_plant("bean", 2)
-    every_face = copy.copy(mesh)
-    every_face.labels = np.ones_like(mesh.labels)  # the whole silhouette as "leaf"
-    views = scan_transforms_json(tmp_path)  # the eval loader reads the folder as a dataset
-    assert len(views) == 3 and all(v.mask_path is not None for v in views)
+    views = scan_transforms_json(out_dir)  # the eval loader reads the folder as a dataset
+    assert len(views) == cfg.eval_views and all(v.mask_path is not None for v in views)
+    ious = []
     for view in views:
-        semantic = iio.imread(view.mask_path)
-        ours = semantic == leaf_value
+        ours = iio.imread(view.mask_path) == leaf_value
         mesh_leaf = _zbuffer_leaf_mask(mesh, view.camera)
-        both = (semantic > 0) & _zbuffer_leaf_mask(every_face, view.camera)
-        a, b = ours & both, mesh_leaf & both
-        assert (a & b).sum() / (a | b).sum() >= 0.9, view.name
-        assert (ours & mesh_leaf).sum() / mesh_leaf.sum() >= 0.9, view.name  # leaves covered
-        assert (ours & mesh_leaf).sum() / (ours | mesh_leaf).sum() >= 0.5, view.name
+        ious.append((ours & mesh_leaf).sum() / (ours | mesh_leaf).sum())
+    return ious
+
+
+def test_bean_leaf_masks_match_the_mesh_leaves(tmp_path):
+    """Over the whole 1024 px image, the leaf mask of a bean as initialised (surface-aligned
+    Gaussians, capped at the leaf's outline) matches the mesh's leaves at IoU >= 0.9 (measured
+    0.90-0.93 on 8 views; spheres, the released init, give 0.68-0.74: docs/labels.md)."""
+    ious = bean_leaf_iou(tmp_path)
+    assert min(ious) >= 0.9, ious
 
 
 def test_lsystem_run_reports_classes_and_writes_the_dataset(tmp_path):

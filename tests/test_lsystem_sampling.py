@@ -69,6 +69,20 @@ def test_points_carry_colour_normal_and_labels_of_their_face():
     assert (cloud.attributes["instance"] == -1).all()
 
 
+def test_boundary_distance_of_the_square():
+    mesh = square_mesh()
+    # Corners lie on the outline; the fan's centre (0.9, 0.1) is 0.1 from two sides.
+    np.testing.assert_allclose(mesh.boundary_distance(), [0, 0, 0, 0, 0.1], atol=1e-7)
+    cloud = sample_points(mesh, n=2000, seed=1, boundary_distance=True)
+    d = cloud.attributes["boundary_distance"]
+    assert d.dtype == np.float32 and (0 <= d).all() and (d <= 0.1 + 1e-7).all()
+    x, y = cloud.positions[:, 0], cloud.positions[:, 1]
+    # Interpolated from the corners: 0.1 times the weight of the centre vertex, so 0 on the
+    # square's sides and never above the true distance near the centre's two close sides.
+    assert (d <= np.minimum(1 - x, y) + 1e-6).all()
+    assert "boundary_distance" not in sample_points(mesh, n=10, seed=1).attributes
+
+
 def test_plant_labels_are_sampled_in_proportion_to_area():
     mesh = generate_plant("bean", 4)
     cloud = sample_points(mesh, n=100_000, seed=0)

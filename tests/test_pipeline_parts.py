@@ -10,7 +10,7 @@ from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_check
 from plantdreamer.pipeline.config import GenerateConfig, LearningRates
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
-from plantdreamer.pipeline.init import initial_colors
+from plantdreamer.pipeline.init import SURFACE_THICKNESS, init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler
 
@@ -119,6 +119,42 @@ def test_colour_inits():
     assert noise.shape == (4, 3) and 0 <= noise.min() and noise.max() <= 1 and noise.std() > 0
     with pytest.raises(InputError):
         initial_colors(rgb, 4, "purple", rng)
+
+
+def _rotation(q):
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def test_surface_init_lays_flat_discs_in_the_surface_and_stops_at_its_edge():
+    rng = np.random.default_rng(4)
+    n = 400
+    points = rng.random((n, 3)).astype(np.float32)
+    normals = rng.normal(size=(n, 3))
+    normals[:3] = [[0, 0, 1], [0, 0, -1], [0, 0, 0]]  # along z, opposite z, unusable
+    edge = np.full(n, np.inf, np.float32)
+    edge[5] = 0.01
+    sphere = init_gaussians(points, None, 0.5)
+    g = init_gaussians(points, None, 0.5, normals=normals, boundary_distance=edge)
+    for i in range(3, n):  # the disc's thin (local z) axis is the normal
+        unit = normals[i] / np.linalg.norm(normals[i])
+        np.testing.assert_allclose(_rotation(g.quats[i].astype(np.float64))[:, 2], unit, atol=1e-6)
+    np.testing.assert_allclose(_rotation(g.quats[1].astype(np.float64))[:, 2], [0, 0, -1])
+    np.testing.assert_array_equal(g.quats[[0, 2]], [[1, 0, 0, 0], [1, 0, 0, 0]])
+    # In the surface: the sphere's scale (capped near the edge); along the normal: thin.
+    keep = np.arange(n) != 5
+    np.testing.assert_array_equal(g.log_scales[keep, :2], sphere.log_scales[keep, :2])
+    flat = keep & (np.arange(n) != 2)
+    thin = sphere.log_scales[flat, 2] + np.log(SURFACE_THICKNESS)
+    np.testing.assert_allclose(g.log_scales[flat, 2], thin, atol=1e-6)
+    assert g.log_scales[2, 2] == sphere.log_scales[2, 2]  # no usable normal: a sphere
+    np.testing.assert_allclose(np.exp(g.log_scales[5, :2]), [0.005, 0.005], rtol=1e-6)
 
 
 def test_camera_sampler_is_seeded_and_resumable():

@@ -76,6 +76,32 @@ class PlantMesh:
         normals = cross / np.maximum(double, 1e-300)[:, None]
         return 0.5 * double, normals
 
+    def boundary_distance(self) -> np.ndarray:
+        """Each vertex's distance (float64 [V]) to the nearest boundary edge (an edge of one
+        face only: a leaf's outline, a tube's open end) of its own part (vertices of the same
+        label and instance); inf for a part without boundary (a closed surface)."""
+        edges = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        unique, count = np.unique(edges, axis=0, return_counts=True)
+        boundary = unique[count == 1]
+        vertices = self.vertices.astype(np.float64)
+        part = np.unique(
+            np.stack([self.labels, self.instances], axis=1), axis=0, return_inverse=True
+        )[1]
+        part = part.reshape(-1)
+        out = np.full(len(vertices), np.inf)
+        for k in np.unique(part[boundary[:, 0]]):
+            a = vertices[boundary[part[boundary[:, 0]] == k, 0]]
+            ab = vertices[boundary[part[boundary[:, 0]] == k, 1]] - a
+            ab_len2 = np.maximum((ab * ab).sum(axis=1), 1e-300)
+            for chunk in np.array_split(
+                np.flatnonzero(part == k), max(1, (part == k).sum() // 512)
+            ):
+                ap = vertices[chunk, None, :] - a[None]  # [c, E, 3]
+                t = np.clip((ap * ab[None]).sum(axis=2) / ab_len2, 0.0, 1.0)
+                d = ap - t[..., None] * ab[None]
+                out[chunk] = np.sqrt((d * d).sum(axis=2).min(axis=1))
+        return out
+
     def to_trimesh(self) -> trimesh.Trimesh:
         """A ``trimesh.Trimesh`` with vertex colours (RGBA uint8); nothing is merged or reordered.
 

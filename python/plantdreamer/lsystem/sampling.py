@@ -11,13 +11,17 @@ from plantdreamer.errors import InputError
 from plantdreamer.lsystem.mesh import PlantMesh
 
 
-def sample_points(mesh: PlantMesh, n: int = 100_000, seed: int = 0) -> PointCloud:
+def sample_points(
+    mesh: PlantMesh, n: int = 100_000, seed: int = 0, boundary_distance: bool = False
+) -> PointCloud:
     """``n`` points uniformly distributed over the surface area of ``mesh``.
 
     A face is picked with probability proportional to its area, then a point uniformly
     inside it (``sqrt`` barycentric warp). Colours are interpolated from the vertices;
     normals are the face normals (from the winding); attributes ``label`` (OrganClass) and
-    ``instance`` (leaf id or -1) come from the face's vertices.
+    ``instance`` (leaf id or -1) come from the face's vertices. With ``boundary_distance``,
+    attribute ``boundary_distance`` (float32) is each point's distance to its part's
+    boundary (``PlantMesh.boundary_distance``), interpolated from the face's corners.
     """
     check_point_count(n)
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
@@ -39,12 +43,18 @@ def sample_points(mesh: PlantMesh, n: int = 100_000, seed: int = 0) -> PointClou
     positions = np.einsum("nk,nkd->nd", weights, mesh.vertices[corners].astype(np.float64))
     colors = np.einsum("nk,nkd->nd", weights, mesh.colors[corners].astype(np.float64))
     first = corners[:, 0]
+    attributes = {
+        "label": mesh.labels[first].astype(np.int32),
+        "instance": mesh.instances[first].astype(np.int32),
+    }
+    if boundary_distance:
+        corner_distance = mesh.boundary_distance()[corners]  # [n, 3]; inf: closed part
+        closed = np.isinf(corner_distance).any(axis=1)
+        inside = np.einsum("nk,nk->n", weights, np.where(closed[:, None], 0.0, corner_distance))
+        attributes["boundary_distance"] = np.where(closed, np.inf, inside).astype(np.float32)
     return PointCloud(
         positions=positions.astype(np.float32),
         colors=np.clip(colors, 0.0, 1.0).astype(np.float32),
         normals=normals[face].astype(np.float32),
-        attributes={
-            "label": mesh.labels[first].astype(np.int32),
-            "instance": mesh.instances[first].astype(np.int32),
-        },
+        attributes=attributes,
     )

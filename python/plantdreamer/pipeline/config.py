@@ -20,6 +20,7 @@ from plantdreamer.settings import check_choices, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
 COLOR_INITS = ("original", "noise", "black", "white")
+INIT_SHAPES = ("surface", "sphere")
 MAX_RESOLUTION = 8192  # largest training / evaluation render side
 GUIDANCES = ("sds", "none")
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
@@ -133,6 +134,12 @@ class GenerateConfig:
     opacity_init: float | None = None  # None: 0.7 for L-System meshes, 0.1 for point clouds
     init_scale: str = setting(
         "mean", "Initial scale from the 3 nearest neighbours' distances.", choices=("mean", "rms")
+    )
+    init_shape: str = setting(
+        "surface",
+        "Initial Gaussians on an L-System mesh: flat discs in the surface, or spheres "
+        "(released); point clouds always get spheres.",
+        choices=INIT_SHAPES,
     )
 
     # Optimisation.

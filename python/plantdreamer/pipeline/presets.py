@@ -38,6 +38,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "mesh_sor": True,
         "sor_after_voxel": True,
         "init_scale": "rms",
+        "init_shape": "sphere",
         "elevation_sampling": "mixed",
     },
     "paper": {

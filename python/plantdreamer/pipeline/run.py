@@ -294,6 +294,8 @@ class _Run:
                 cfg.sh_degree,
                 scale_rule=cfg.init_scale,
                 labels=source.labels,
+                normals=source.normals,
+                boundary_distance=source.boundary_distance,
             )
         self.transform, self.source_counts = source.transform, source.counts
         self.label_fields = source.label_fields if source.labels is not None else None

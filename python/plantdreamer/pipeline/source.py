@@ -22,6 +22,8 @@ class Source:
     counts: dict[str, int]  # points after each preparation step, for run.json
     labels: np.ndarray | None = None  # [N, 2] int32 (label, instance), -1 where none
     label_fields: dict[str, str | None] | None = None  # the input properties they came from
+    normals: np.ndarray | None = None  # [N, 3] surface normals (L-System faces), else None
+    boundary_distance: np.ndarray | None = None  # [N] to the surface's edge (L-System), scaled
 
 
 def load_source(cfg: GenerateConfig) -> Source:
@@ -63,7 +65,10 @@ def load_source(cfg: GenerateConfig) -> Source:
 
     if cfg.species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
-    cloud = sample_points(generate_plant(cfg.species, cfg.seed), n=cfg.n_points, seed=cfg.seed)
+    surface = cfg.init_shape == "surface"
+    cloud = sample_points(
+        generate_plant(cfg.species, cfg.seed), cfg.n_points, cfg.seed, boundary_distance=surface
+    )
     counts = {"sampled": len(cloud)}
     if cfg.mesh_sor:
         from plantdreamer.pointcloud import remove_statistical_outliers
@@ -80,6 +85,8 @@ def load_source(cfg: GenerateConfig) -> Source:
         counts,
         _labels(cloud, "label", "instance"),
         {"label": "OrganClass", "instance": "leaf"},
+        cloud.normals if surface else None,  # normalising scales: directions unchanged
+        cloud.attributes["boundary_distance"] * np.float32(transform.scale) if surface else None,
     )
 
 
