@@ -1,17 +1,24 @@
 """Cost of the ground truth per view (class + instance + depth maps) against the RGB render.
 
-L-System bean and mint (seed 0, 100k points, as initialised), 512x512, 8 views of the
-evaluation orbit. Per view: the RGB render as the evaluation renders make it, and the ground
-truth as `generate` then makes it (`render_ground_truth` given the render's footprints:
-classes, instance channels shared between leaves whose tiles do not meet, and depth, in one
-pass), and, for reference, one one-hot channel per instance in a single pass (what the
-channel sharing avoids).
+L-System bean and mint (seed 0, 100k points, as `generate` initialises them), 512x512, 8 views of the
+evaluation orbit. Per view, interleaved ``REPEATS`` times: the RGB render as the evaluation
+renders make it, the ground truth as `generate` then makes it (one `GroundTruthRenderer` for
+all views, given each render's footprints: classes, instance channels shared between leaves
+whose tiles do not meet, and depth, in one pass), and, for reference, one one-hot channel
+per instance in a single pass (what the channel sharing avoids). Minimum and median over
+all views and repeats.
 
     python benches/bench_labels.py
+    python benches/bench_labels.py --baseline OLD.py  # also an older ground_truth.py
+
+``--baseline``: a ground_truth.py of another version (e.g. ``git show
+REV:python/plantdreamer/pipeline/ground_truth.py > OLD.py``), timed interleaved with the
+rest on the same models; its maps must equal this version's.
 """
 
 from __future__ import annotations
 
+import os
 import statistics
 import sys
 import time
@@ -22,78 +29,134 @@ VIEWS = 8
 REPEATS = 3
 
 
-def best_of(fn) -> float:
-    times = []
-    for _ in range(REPEATS):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+def timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
 
-def measure(species: str) -> dict[str, float]:
+def load_baseline(path: str):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("baseline_ground_truth", path)
+    assert spec is not None and spec.loader is not None, path
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float]]:
     import numpy as np
     import torch
 
     from plantdreamer.cameras import orbit_ring
     from plantdreamer.lsystem import generate_plant, sample_points
     from plantdreamer.pipeline.ground_truth import (
+        GroundTruthRenderer,
         LabelSet,
+        Splats,
         _blend,
         _one_hot,
         _share_channels,
-        render_ground_truth,
     )
     from plantdreamer.pipeline.init import init_gaussians
     from plantdreamer.pipeline.model import GaussianModel
     from plantdreamer.pointcloud import normalize
 
-    cloud = sample_points(generate_plant(species, 0), n=100_000, seed=0)
-    points, _ = normalize(cloud.positions, 4.0)
+    cloud = sample_points(generate_plant(species, 0), n=100_000, seed=0, boundary_distance=True)
+    points, transform = normalize(cloud.positions, 4.0)
     labels = np.stack([cloud.attributes["label"], cloud.attributes["instance"]], axis=1)
-    g = init_gaussians(points.astype(np.float32), cloud.colors, 0.7, labels=labels)
+    edge = cloud.attributes["boundary_distance"] * np.float32(transform.scale)
+    g = init_gaussians(  # as generate initialises an L-System plant
+        points.astype(np.float32), cloud.colors, 0.7, labels=labels, normals=cloud.normals,
+        boundary_distance=edge,
+    )  # fmt: skip
     model, ls = GaussianModel(g), LabelSet.of(g.labels)
-    rgb, gt, naive, channels = [], [], [], []
+    times: dict[str, list[float]] = {"rgb": [], "gt": [], "naive": []}
+    if baseline is not None:
+        times["baseline"], old_ls = [], baseline.LabelSet.of(g.labels)
+    channels = []
     all_instances = _one_hot(ls.instance_channel, 0, len(ls.instances) + 1)
     with torch.no_grad():
+        ground_truth, splats = GroundTruthRenderer(model, ls), Splats.of(model)
         for cam in orbit_ring(VIEWS, 4.0, 15.0, 70.0, 512, 512):
-            rgb.append(best_of(lambda cam=cam: model.render([cam], 0.75)))
             meta = model.render([cam], 0.75)[2]
-            gt.append(best_of(lambda cam=cam, meta=meta: render_ground_truth(model, cam, ls, meta)))
-            naive.append(best_of(lambda cam=cam: _blend(model, cam, all_instances, False)))
             channels.append(int(_share_channels(ls, meta, cam)[0].max()) + 1)
+            for _ in range(REPEATS):
+                times["rgb"].append(timed(lambda cam=cam: model.render([cam], 0.75)))
+                times["gt"].append(timed(lambda cam=cam, meta=meta: ground_truth(cam, meta)))
+                times["naive"].append(
+                    timed(lambda cam=cam: _blend(splats, cam, all_instances, False))
+                )
+                if baseline is not None:
+                    times["baseline"].append(
+                        timed(
+                            lambda cam=cam, meta=meta: baseline.render_ground_truth(
+                                model, cam, old_ls, meta
+                            )
+                        )
+                    )
+            if baseline is not None:
+                new, old = (
+                    ground_truth(cam, meta),
+                    baseline.render_ground_truth(model, cam, old_ls, meta),
+                )
+                for field in ("label", "instance", "depth", "alpha"):
+                    assert np.array_equal(getattr(new, field), getattr(old, field)), field
     return {
         "instances": len(ls.instances),
         "channels": statistics.median(channels),
-        "rgb": statistics.median(rgb),
-        "gt": statistics.median(gt),
-        "naive": statistics.median(naive),
+        **{k: (min(v), statistics.median(v)) for k, v in times.items()},
     }
 
 
 def main() -> int:
+    import argparse
+
     import torch
 
-    rows = [(s, measure(s)) for s in ("bean", "mint")]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", help="an older ground_truth.py to time alongside")
+    args = parser.parse_args()
+    baseline = load_baseline(args.baseline) if args.baseline else None
+    load_before = os.getloadavg()[0]
+    rows = [(s, measure(s, baseline)) for s in ("bean", "mint")]
+    load = f"{load_before:.1f} before, {os.getloadavg()[0]:.1f} after"
+    command = "python benches/run_all.py labels"
+    if args.baseline:
+        command = f"python benches/bench_labels.py --baseline {Path(args.baseline).name}"
     lines = [
         "## Ground-truth masks (`benches/bench_labels.py`)\n",
-        "Command: `python benches/run_all.py labels`. L-System plants, seed 0, 100k Gaussians",
-        f"as initialised, 512x512, {VIEWS} views of the evaluation orbit, best of {REPEATS} per",
-        "view, median over views, milliseconds, CPU, "
+        f"Command: `{command}`. L-System plants, seed 0, 100k Gaussians",
+        f"as initialised, 512x512, {VIEWS} views of the evaluation orbit, {REPEATS} interleaved",
+        "repeats per view, min / median over views and repeats, milliseconds, CPU, "
         f"{torch.get_num_threads()} torch threads. *ground truth* is classes + instances +",
         "depth as `generate` makes them after each render (before PNG encoding); *one channel per instance* is",
         "a single pass with one one-hot channel per leaf, the cost that the shared channels",
-        "avoid. The aim is a ground truth at most 1.5x the RGB render. Measured on a shared,",
-        "loaded 2-core machine: ratios are noisy.\n",
-        "| plant | leaves | instance channels (median) | RGB render | ground truth | ratio "
-        "| one channel per instance (instances only) |",
+        "avoid. The aim is a ground truth at most 1.5x the RGB render. Measured on a shared",
+        f"2-core machine, 1-minute load average {load}: the minima are noisy, the medians",
+        "steadier.\n",
+        "| plant | leaves | instance channels (median) | RGB render | ground truth "
+        "| ratio (min / median) | one channel per instance (instances only) |",
         "|---|---|---|---|---|---|---|",
     ]
     for name, r in rows:
+        rgb, gt, naive = r["rgb"], r["gt"], r["naive"]
         lines.append(
-            f"| {name} | {r['instances']} | {r['channels']:.0f} | {1000 * r['rgb']:.0f} "
-            f"| {1000 * r['gt']:.0f} | {r['gt'] / r['rgb']:.2f}x | {1000 * r['naive']:.0f} |"
+            f"| {name} | {r['instances']} | {r['channels']:.0f} "
+            f"| {1000 * rgb[0]:.0f} / {1000 * rgb[1]:.0f} | {1000 * gt[0]:.0f} / {1000 * gt[1]:.0f} "
+            f"| {gt[0] / rgb[0]:.2f}x / {gt[1] / rgb[1]:.2f}x "
+            f"| {1000 * naive[0]:.0f} / {1000 * naive[1]:.0f} |"
         )
+    if baseline is not None:
+        lines += ["", f"Baseline `{Path(args.baseline).name}`, timed interleaved (same maps):", ""]
+        lines += ["| plant | baseline ground truth | ratio (min / median) |", "|---|---|---|"]
+        for name, r in rows:
+            rgb, old = r["rgb"], r["baseline"]
+            lines.append(
+                f"| {name} | {1000 * old[0]:.0f} / {1000 * old[1]:.0f} "
+                f"| {old[0] / rgb[0]:.2f}x / {old[1] / rgb[1]:.2f}x |"
+            )
     lines.append("")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "labels.md").write_text("\n".join(lines) + "\n")

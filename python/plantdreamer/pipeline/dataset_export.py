@@ -170,13 +170,14 @@ def ground_truth_writer(
 def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
     """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
     whose instance channels reuse the render's footprints; returns the images."""
-    from plantdreamer.pipeline.ground_truth import render_ground_truth
+    from plantdreamer.pipeline.ground_truth import GroundTruthRenderer
 
+    ground_truth = GroundTruthRenderer(model, writer.label_set)
     images = []
     for i, camera in enumerate(cameras):
         image, meta = render(camera)
         name = f"view_{i:03d}"
-        gt = render_ground_truth(model, camera, writer.label_set, meta)
+        gt = ground_truth(camera, meta)
         writer.add(name, f"renders/{name}.png", camera, gt)
         images.append(image)
     if cameras:

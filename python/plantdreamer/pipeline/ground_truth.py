@@ -67,60 +67,116 @@ class LabelSet:
         return cls(classes, instances, class_channel, instance_channel)
 
 
+@dataclass(frozen=True)
+class Splats:
+    """A model's activated parameters (scales, opacities), computed once for all its views."""
+
+    means: torch.Tensor
+    quats: torch.Tensor
+    scales: torch.Tensor
+    opacities: torch.Tensor
+
+    @classmethod
+    def of(cls, model: GaussianModel) -> Splats:
+        p = model.params
+        with torch.no_grad():
+            return cls(
+                p["means"].detach(),
+                p["quats"].detach(),
+                torch.exp(p["log_scales"].detach()),
+                torch.sigmoid(p["opacity_logits"].detach()),
+            )
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+
+class GroundTruthRenderer:
+    """Renders the ground truth of one model for any number of views; what does not depend
+    on the view (activated parameters, class channels) is prepared once."""
+
+    def __init__(self, model: GaussianModel, label_set: LabelSet | None) -> None:
+        self.splats = Splats.of(model)
+        self.label_set = label_set
+        if label_set is not None:
+            # Channel 0 is "unlabelled" (it occludes and names no class) only where some
+            # Gaussian has label -1; otherwise channel k is class k.
+            self.unlabelled = int((label_set.class_channel < 0).any())
+            self.class_column = label_set.class_channel + self.unlabelled
+            self.n_cls = len(label_set.classes) + self.unlabelled
+
+    def __call__(self, camera: Camera, footprints: dict | None = None) -> GroundTruth:
+        """Class, instance and depth maps seen by ``camera`` (no labels: depth only).
+
+        ``footprints``: the ``meta`` of a render of the same model and camera (the RGB
+        view), whose projected footprints decide which instances share a channel; without
+        it, a depth-only pass provides them.
+        """
+        shape, n = (camera.height, camera.width), len(self.splats)
+        ls = self.label_set
+        depth = alpha = None
+        if ls is None or footprints is None:
+            _, depth, alpha, footprints = _blend(
+                self.splats, camera, torch.zeros((n, 1)), with_depth=True
+            )
+        if ls is None:
+            assert depth is not None and alpha is not None
+            empty = np.full(shape, -1, dtype=np.int64)
+            return GroundTruth(empty, empty.copy(), _masked_depth(depth, alpha), alpha)
+
+        channel = np.zeros(n, dtype=np.int64)
+        owner = np.full((1, 1, 1), -1, dtype=np.int64)
+        if len(ls.instances):
+            channel, owner = _share_channels(ls, footprints, camera)
+        n_inst = int(channel.max()) + 1 if len(ls.instances) else 0
+        first = min(n_inst, CHANNELS_PER_PASS)
+        # Classes and the first instance channels in one [N, n_cls + first] feature block.
+        features = np.zeros((n, self.n_cls + first), dtype=np.float32)
+        rows = np.arange(n)
+        features[rows, self.class_column] = 1.0
+        inside = channel < first
+        features[rows[inside], self.n_cls + channel[inside]] = 1.0
+        weights, d, a, _ = _blend(
+            self.splats, camera, torch.from_numpy(features), with_depth=depth is None
+        )
+        if depth is None:
+            depth, alpha = d, a
+        assert depth is not None and alpha is not None
+        # Arg-max over the foreground pixels only (usually a small part of the frame).
+        fg = np.flatnonzero(alpha.reshape(-1) >= ALPHA_THRESHOLD)
+        w = weights.reshape(-1, weights.shape[-1])[fg]
+        label = np.full(shape[0] * shape[1], -1, dtype=np.int64)
+        label[fg] = np.argmax(w[:, : self.n_cls], axis=1) - self.unlabelled
+        label = label.reshape(shape)
+        if not n_inst:
+            return GroundTruth(label, np.full(shape, -1), _masked_depth(depth, alpha), alpha)
+        best = np.argmax(w[:, self.n_cls :], axis=1)
+        best_w = w[np.arange(len(fg)), self.n_cls + best]
+        for start in range(first, n_inst, CHANNELS_PER_PASS):
+            stop = min(start + CHANNELS_PER_PASS, n_inst)
+            more, _, _, _ = _blend(
+                self.splats, camera, _one_hot(channel, start, stop), with_depth=False
+            )
+            chunk = more.reshape(-1, stop - start)[fg]
+            chunk_c = np.argmax(chunk, axis=1)
+            chunk_w = chunk[np.arange(len(fg)), chunk_c]
+            better = chunk_w > best_w  # strict: ties keep the lower channel
+            best_w = np.where(better, chunk_w, best_w)
+            best = np.where(better, chunk_c + start, best)
+        # The channel's instance at each pixel: its owner in the pixel's tile.
+        instance = np.full(shape[0] * shape[1], -1, dtype=np.int64)
+        instance[fg] = owner[best, fg // camera.width // TILE, fg % camera.width // TILE]
+        return GroundTruth(label, instance.reshape(shape), _masked_depth(depth, alpha), alpha)
+
+
 def render_ground_truth(
     model: GaussianModel,
     camera: Camera,
     label_set: LabelSet | None,
     footprints: dict | None = None,
 ) -> GroundTruth:
-    """Class, instance and depth maps of ``model`` seen by ``camera`` (no labels: depth only).
-
-    ``footprints``: the ``meta`` of a render of the same model and camera (the RGB view),
-    whose projected footprints decide which instances share a channel; without it, a
-    depth-only pass provides them.
-    """
-    shape = (camera.height, camera.width)
-    depth = alpha = None
-    if label_set is None or footprints is None:
-        _, depth, alpha, footprints = _blend(
-            model, camera, torch.zeros((len(model), 1)), with_depth=True
-        )
-    if label_set is None:
-        assert depth is not None and alpha is not None
-        empty = np.full(shape, -1, dtype=np.int64)
-        return GroundTruth(empty, empty.copy(), _masked_depth(depth, alpha), alpha)
-
-    n_cls = len(label_set.classes) + 1  # channel 0: unlabelled (occludes, names no class)
-    channel = np.zeros(len(model), dtype=np.int64)
-    owner = np.full((1, 1, 1), -1, dtype=np.int64)
-    if len(label_set.instances):
-        channel, owner = _share_channels(label_set, footprints, camera)
-    n_inst = int(channel.max()) + 1 if len(label_set.instances) else 0
-    first = min(n_inst, CHANNELS_PER_PASS)
-    features = torch.cat(
-        [_one_hot(label_set.class_channel + 1, 0, n_cls), _one_hot(channel, 0, first)], dim=1
-    )
-    weights, d, a, _ = _blend(model, camera, features, with_depth=depth is None)
-    if depth is None:
-        depth, alpha = d, a
-    assert depth is not None and alpha is not None
-    background = alpha < ALPHA_THRESHOLD
-    label = np.where(background, -1, _arg_max(weights[..., :n_cls])[1] - 1)
-    if not n_inst:
-        return GroundTruth(label, np.full(shape, -1), _masked_depth(depth, alpha), alpha)
-    best_w, best = _arg_max(weights[..., n_cls:])
-    for start in range(first, n_inst, CHANNELS_PER_PASS):
-        stop = min(start + CHANNELS_PER_PASS, n_inst)
-        w, _, _, _ = _blend(model, camera, _one_hot(channel, start, stop), with_depth=False)
-        chunk_w, chunk_c = _arg_max(w)
-        better = chunk_w > best_w  # strict: ties keep the lower channel
-        best_w = np.where(better, chunk_w, best_w)
-        best = np.where(better, chunk_c + start, best)
-    # The channel's instance at each pixel: its owner in the pixel's tile.
-    ty = np.arange(camera.height) // TILE
-    tx = np.arange(camera.width) // TILE
-    instance = np.where(background, -1, owner[best, ty[:, None], tx[None, :]])
-    return GroundTruth(label, instance, _masked_depth(depth, alpha), alpha)
+    """One view's ground truth (``GroundTruthRenderer``; make one to render many views)."""
+    return GroundTruthRenderer(model, label_set)(camera, footprints)
 
 
 def _share_channels(
@@ -143,10 +199,15 @@ def _share_channels(
     hi = np.ceil(up).astype(np.int64)
     x0, x1 = np.clip(lo[:, 0], 0, tiles_x), np.clip(hi[:, 0], 0, tiles_x)
     y0, y1 = np.clip(lo[:, 1], 0, tiles_y), np.clip(hi[:, 1], 0, tiles_y)
-    diff = np.zeros((n_inst, tiles_y + 1, tiles_x + 1), dtype=np.int64)
-    inst = which[seen]
-    for ys, xs, sign in ((y0, x0, 1), (y0, x1, -1), (y1, x0, -1), (y1, x1, 1)):
-        np.add.at(diff, (inst, ys, xs), sign)
+    inst = which[seen] * (tiles_y + 1)
+    corners = [
+        ((inst + y) * (tiles_x + 1) + x) for y, x in ((y0, x0), (y1, x1), (y0, x1), (y1, x0))
+    ]
+    size = n_inst * (tiles_y + 1) * (tiles_x + 1)
+    diff = np.bincount(np.concatenate(corners[:2]), minlength=size) - np.bincount(
+        np.concatenate(corners[2:]), minlength=size
+    )
+    diff = diff.reshape(n_inst, tiles_y + 1, tiles_x + 1)
     touched = diff.cumsum(axis=1).cumsum(axis=2)[:, :tiles_y, :tiles_x] > 0
     # Greedy colouring in id order: the first channel none of whose instances share a tile.
     colour = np.zeros(n_inst, dtype=np.int64)
@@ -164,12 +225,6 @@ def _share_channels(
     return channel, np.stack(owner)
 
 
-def _arg_max(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Max and arg-max over the last axis; equal maxima go to the first (torch.max's rule)."""
-    values, indices = torch.from_numpy(w).max(dim=-1)
-    return values.numpy(), indices.numpy()
-
-
 def _one_hot(channel: np.ndarray, start: int, stop: int) -> torch.Tensor:
     """[N, stop - start] float32 with a 1 where ``channel`` falls in [start, stop)."""
     out = np.zeros((channel.shape[0], stop - start), dtype=np.float32)
@@ -178,18 +233,17 @@ def _one_hot(channel: np.ndarray, start: int, stop: int) -> torch.Tensor:
     return torch.from_numpy(out)
 
 
-def _blend(model: GaussianModel, camera: Camera, features: torch.Tensor, with_depth: bool):
+def _blend(splats: Splats, camera: Camera, features: torch.Tensor, with_depth: bool):
     """Blended features [H, W, D], expected depth [H, W] (or None), alpha [H, W] and meta."""
     from plantdreamer.rasterizer import rasterization
 
-    p = model.params
     viewmats, ks = stack([camera])
     with torch.no_grad():
         out, alpha, meta = rasterization(
-            p["means"].detach(),
-            p["quats"].detach(),
-            torch.exp(p["log_scales"].detach()),
-            torch.sigmoid(p["opacity_logits"].detach()),
+            splats.means,
+            splats.quats,
+            splats.scales,
+            splats.opacities,
             features,
             torch.from_numpy(viewmats),
             torch.from_numpy(ks),
