@@ -165,6 +165,11 @@ def test_front_opaque_gaussian_wins_and_low_alpha_is_background():
         GaussianModel(g), orbit(4.0, 0.0, 180.0, 40.0, 64, 64), LabelSet.of(g.labels)
     )
     assert classes[back.label[c, c]] == 1
+    # An unlabelled Gaussian (label -1) in front occludes: no class there, not the one behind.
+    g.labels[0] = [-1, -1]
+    ls = LabelSet.of(g.labels)
+    gt = render_ground_truth(GaussianModel(g), cam, ls)
+    assert gt.label[c, c] == -1 and gt.alpha[c, c] > 0.9 and ls.classes[gt.label[c, c + 9]] == 1
 
 
 def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
