@@ -30,7 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 BENCHES = Path(__file__).resolve().parent
@@ -97,7 +96,18 @@ class PeerRasterize(torch.autograd.Function):
             *ctx.size, xys, conics, colors, opacities, background, cov2d, depth, final_t,
             ctx.lists, v_image.contiguous(), v_alpha,
         )  # fmt: skip
-        return None, None, None, v_xy, v_conic, v_colors, v_opacity.view_as(opacities), None, None, None
+        return (
+            None,
+            None,
+            None,
+            v_xy,
+            v_conic,
+            v_colors,
+            v_opacity.view_as(opacities),
+            None,
+            None,
+            None,
+        )
 
 
 def peer_render(peer, params, viewmat, k, size):
