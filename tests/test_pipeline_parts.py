@@ -57,6 +57,13 @@ def test_checkpoint_is_atomic_and_corruption_is_reported(tmp_path):
         load_checkpoint(tmp_path / "nope")
 
 
+def test_checkpoint_of_an_older_format_is_refused_with_the_way_out(tmp_path):
+    # Format 2 runs began from spheres; resuming one under the disc default would mislabel it.
+    torch.save({"format": 2, "step": 3}, tmp_path / "checkpoint.pt")
+    with pytest.raises(CheckpointError, match=r"format 2; .* resumes format 3 only .*--overwrite"):
+        load_checkpoint(tmp_path)
+
+
 def test_remove_and_append_keep_adam_state_aligned(random_gaussians):
     model = GaussianModel(random_gaussians(10, log_scale=-3.0), LearningRates())
     for p in model.params.values():

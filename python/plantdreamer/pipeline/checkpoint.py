@@ -10,7 +10,10 @@ from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError
 
 CHECKPOINT_NAME = "checkpoint.pt"
-FORMAT_VERSION = 2  # 2: nested config sections, plain data only (weights_only loads)
+# 2: nested config sections, plain data only (weights_only loads);
+# 3: the config records init_shape (format 2 runs began from spheres, the default is now discs,
+#    so resuming one would record a shape its model was not made with).
+FORMAT_VERSION = 3
 
 
 def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
@@ -22,6 +25,11 @@ def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
 def load_checkpoint(out_dir: Path) -> dict[str, Any]:
     path = Path(out_dir) / CHECKPOINT_NAME
     state = read_checkpoint(path)
-    if state.get("format") != FORMAT_VERSION:
-        raise CheckpointError(f"{path}: not a plantdreamer checkpoint of format {FORMAT_VERSION}")
+    found = state.get("format")
+    if found != FORMAT_VERSION:
+        what = f"format {found}" if isinstance(found, int) else "not a plantdreamer checkpoint"
+        raise CheckpointError(
+            f"{path}: {what}; this plantdreamer resumes format {FORMAT_VERSION} only "
+            "(start the run again with --overwrite)"
+        )
     return state
