@@ -4,14 +4,22 @@
 //!
 //!     cargo run --release -p splat_core --example raster_timing -- FILE [THREADS] [REPS]
 //!
-//! `TILE=32` sets the tile size; `BACKWARD=1` also times the backward pass.
+//! Prints the min and median of the calls, whole and per stage. `TILE=32` sets the tile size; `BACKWARD=1` also times
+//! the backward pass; `EVALS=1` also counts the blending work (`raster::count_evaluations`,
+//! outside the timed calls; `benches/bench_roofline.py` divides it by the times).
 use std::time::Instant;
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-use splat_core::raster::{self, Camera, ColorMode, RasterOptions, Scene};
+use splat_core::raster::{self, Camera, ColorMode, Profile, RasterOptions, Scene};
 use splat_core::threads::with_threads;
+
+/// Min and median of the calls, in seconds.
+fn min_median(mut v: Vec<f64>) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[0], v[v.len() / 2])
+}
 
 fn main() {
     let mut args = std::env::args().skip(1);
@@ -35,45 +43,49 @@ fn main() {
     let (vm, k) = (take(16), take(9));
     let scene = Scene::new(m, q, s, o, c, ColorMode::Direct { channels: 3 }).unwrap();
     let cam = Camera::from_matrices(vm, k, size, size).unwrap();
-    let (best, profile) = with_threads(Some(threads), || {
-        let mut best = (f64::INFINITY, Default::default());
+    let opts = RasterOptions {
+        tile_size: std::env::var("TILE").map_or(16, |t| t.parse().unwrap()),
+        ..Default::default()
+    };
+    let run_forward = || raster::forward(scene.clone(), vec![cam], size, size, opts);
+    let profiles = with_threads(Some(threads), || {
+        let mut profiles = Vec::with_capacity(reps);
         for _ in 0..reps {
             let t = Instant::now();
-            let (out, _) = raster::forward(
-                scene.clone(),
-                vec![cam],
-                size,
-                size,
-                RasterOptions {
-                    tile_size: std::env::var("TILE").map_or(16, |t| t.parse().unwrap()),
-                    ..Default::default()
-                },
-            )?;
-            let dt = t.elapsed().as_secs_f64();
-            if dt < best.0 {
-                best = (dt, out.profile);
-            }
+            let (out, _) = run_forward()?;
+            profiles.push((t.elapsed().as_secs_f64(), out.profile));
         }
-        Ok(best)
+        Ok(profiles)
     })
     .unwrap();
     let ms = |s: f64| s * 1e3;
+    let print = |name: &str, times: Vec<f64>| {
+        let (lo, med) = min_median(times);
+        println!("{name} ms: min {:.2} median {:.2}", ms(lo), ms(med));
+    };
+    println!("{n} Gaussians @ {size}^2, {threads} thread(s), {reps} calls");
+    print("forward", profiles.iter().map(|p| p.0).collect());
+    let stages: [(&str, fn(&Profile) -> f64); 4] = [
+        ("project", |p| p.project),
+        ("sort", |p| p.sort),
+        ("bin", |p| p.bin),
+        ("blend", |p| p.blend),
+    ];
+    for (name, stage) in stages {
+        print(
+            &format!("  {name}"),
+            profiles.iter().map(|p| stage(&p.1)).collect(),
+        );
+    }
+    let (_, state) = run_forward().unwrap();
     if std::env::var_os("BACKWARD").is_some() {
-        let (_, state) = raster::forward(
-            scene.clone(),
-            vec![cam],
-            size,
-            size,
-            RasterOptions::default(),
-        )
-        .unwrap();
         let pixels = (size * size) as usize;
         let v_render: Vec<f32> = (0..pixels * 3)
             .map(|i| ((i % 7) as f32 - 3.0) * 1e-3)
             .collect();
         let v_alpha: Vec<f32> = (0..pixels).map(|i| ((i % 5) as f32 - 2.0) * 1e-3).collect();
-        let best = with_threads(Some(threads), || {
-            let mut best = f64::INFINITY;
+        let times = with_threads(Some(threads), || {
+            let mut times = Vec::with_capacity(reps);
             for _ in 0..reps {
                 let t = Instant::now();
                 raster::backward(
@@ -88,19 +100,26 @@ fn main() {
                         colors: true,
                     },
                 )?;
-                best = best.min(t.elapsed().as_secs_f64());
+                times.push(t.elapsed().as_secs_f64());
             }
-            Ok(best)
+            Ok(times)
         })
         .unwrap();
-        println!("backward {:.1} ms", ms(best));
+        print("backward", times);
     }
     println!(
-        "{n} @ {size}^2, {threads} thread(s): {:.1} ms (project {:.1}, sort {:.1}, bin {:.1}, blend {:.1})",
-        ms(best),
-        ms(profile.project),
-        ms(profile.sort),
-        ms(profile.bin),
-        ms(profile.blend)
+        "intersections {}",
+        state.per_camera[0].bins.n_intersections()
     );
+    if std::env::var_os("EVALS").is_some() {
+        let e = raster::count_evaluations(&state);
+        println!(
+            "forward evaluations {} blended {}",
+            e.forward_evaluated, e.forward_blended
+        );
+        println!(
+            "backward evaluations {} blended {}",
+            e.backward_evaluated, e.backward_blended
+        );
+    }
 }

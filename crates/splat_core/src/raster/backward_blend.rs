@@ -23,9 +23,11 @@ use super::forward_pass::CameraState;
 use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::tile_geometry::{TileList, TileRect};
-use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, ISECT_FIXED};
+use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, EvalCount, ISECT_FIXED};
 
-/// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`.
+/// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`. With
+/// `count`, runs the kernels' counting instances and returns their work (zero otherwise).
+#[allow(clippy::too_many_arguments)]
 pub fn intersection_gradients(
     ch: usize,
     cs: &CameraState,
@@ -34,7 +36,8 @@ pub fn intersection_gradients(
     v_render: &[f32],
     v_alpha: &[f32],
     simd: bool,
-) -> Vec<f32> {
+    count: bool,
+) -> (Vec<f32>, EvalCount) {
     let (bins, blended) = (&cs.bins, &cs.blended);
     let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
@@ -48,6 +51,7 @@ pub fn intersection_gradients(
         slices.push(head);
         rest = tail;
     }
+    let totals = std::sync::Mutex::new(EvalCount::default());
     slices
         .into_par_iter()
         .enumerate()
@@ -80,26 +84,45 @@ pub fn intersection_gradients(
                     v_render,
                     v_alpha,
                 );
-                backward_tile(&tile, ch, scratch, out);
+                backward_tile(&tile, ch, scratch, out, count);
+                if count {
+                    let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
+                    t.add(std::mem::take(&mut scratch.evals));
+                }
             },
         );
-    grads
+    let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
+    (grads, evals)
 }
 
-fn backward_tile(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
+fn backward_tile(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+    count: bool,
+) {
     #[cfg(target_arch = "x86_64")]
     if tile.simd
         && ch <= super::blend_avx2::MAX_BACKWARD_CHANNELS
         && std::arch::is_x86_feature_detected!("avx2")
     {
-        super::blend_avx2::backward_tile(tile, ch, scratch, out);
+        use super::blend_avx2::backward_tile;
+        match count {
+            false => backward_tile::<false>(tile, ch, scratch, out),
+            true => backward_tile::<true>(tile, ch, scratch, out),
+        }
         return;
     }
-    backward_tile_scalar(tile, ch, scratch, out);
+    match count {
+        false => backward_tile_scalar::<false>(tile, ch, scratch, out),
+        true => backward_tile_scalar::<true>(tile, ch, scratch, out),
+    }
 }
 
-/// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
-pub(super) fn backward_tile_scalar(
+/// The lane rules written out per pixel; the AVX2 kernel performs the same operations and
+/// skips the same lane groups, so both count the same work.
+pub(super) fn backward_tile_scalar<const COUNT: bool>(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
@@ -115,10 +138,17 @@ pub(super) fn backward_tile_scalar(
         for gi in sp.fp.groups.clone() {
             for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
+                let active = |i: usize| {
+                    let x = sc.geo.xs[gi * LANES + i];
+                    (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sp.k < sc.last[base + i])
+                };
+                if COUNT && (0..LANES).any(active) {
+                    sc.evals.groups += 1;
+                }
                 for i in 0..LANES {
                     let l = base + i;
                     let x = sc.geo.xs[gi * LANES + i];
-                    let active = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sp.k < sc.last[l]);
+                    let active = active(i);
                     let dx = sp.s.xy[0] - x;
                     let dy = sc.geo.row_dy[ly];
                     let sigma = sigma_at(ca, dx, sc.geo.row_c[ly], sc.geo.row_b[ly]);
@@ -127,6 +157,9 @@ pub(super) fn backward_tile_scalar(
                     let alpha = raw.min(ALPHA_MAX);
                     if !(active & (sigma >= 0.0) & (alpha >= ALPHA_MIN)) {
                         continue;
+                    }
+                    if COUNT {
+                        sc.evals.blended += 1;
                     }
                     let ra = 1.0 / (1.0 - alpha).max(1e-6);
                     let t_k = sc.trans[l] * ra;

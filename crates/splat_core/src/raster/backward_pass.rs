@@ -48,6 +48,32 @@ const SCALE: usize = 7;
 const OPAC: usize = 10;
 const COLOR: usize = 11;
 
+/// Each splat's intersection gradients summed in tile order: sequential passes over the
+/// tile-major gradients (a splat's tiles come in increasing tile order), so the order, and
+/// the bits, do not depend on the thread count. One pass per thread, each summing the
+/// splats of its own index range: every pass reads all the splat indices but only its
+/// share of the gradient rows.
+fn sum_per_splat(isect: &[f32], gids: &[u32], n: usize, stride: usize) -> Vec<f32> {
+    let mut sums = vec![0.0f32; n * stride];
+    let per_pass = n.div_ceil(rayon::current_num_threads()).max(1);
+    sums.par_chunks_mut(per_pass * stride)
+        .enumerate()
+        .for_each(|(p, own)| {
+            let lo = p * per_pass;
+            let len = own.len() / stride;
+            for (row, &g) in isect.chunks_exact(stride).zip(gids) {
+                // One unsigned comparison: below `lo` wraps around to a large value.
+                let i = (g as usize).wrapping_sub(lo);
+                if i < len {
+                    for (s, v) in own[i * stride..(i + 1) * stride].iter_mut().zip(row) {
+                        *s += v;
+                    }
+                }
+            }
+        });
+    sums
+}
+
 /// Gradients of all parameters given dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W].
 pub fn backward(
     state: &ForwardState,
@@ -72,7 +98,7 @@ pub fn backward(
     let stride = ISECT_FIXED + ch;
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
-        let isect = intersection_gradients(
+        let (isect, _) = intersection_gradients(
             ch,
             cs,
             state.width,
@@ -80,19 +106,11 @@ pub fn backward(
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &v_alpha[ci * pixels..(ci + 1) * pixels],
             state.opts.simd,
+            false,
         );
         let centre = cam.centre();
         let bins = &cs.bins;
-        // Each splat's intersections summed in tile order: one sequential pass over the
-        // tile-major gradients (a splat's tiles come in increasing tile order), so the order,
-        // and the bits, do not depend on the thread count.
-        let mut sums = vec![0.0f32; n * stride];
-        for (row, &g) in isect.chunks_exact(stride).zip(&bins.isect_gid) {
-            let g = g as usize;
-            for (s, v) in sums[g * stride..(g + 1) * stride].iter_mut().zip(row) {
-                *s += v;
-            }
-        }
+        let sums = sum_per_splat(&isect, &bins.isect_gid, n, stride);
         drop(isect);
         acc.par_chunks_mut(gw)
             .zip(means2d[ci * n * 2..(ci + 1) * n * 2].par_chunks_mut(2))
@@ -156,10 +174,13 @@ pub fn backward(
             });
     }
 
+    // Presized and parallel: collecting a flat_map grows the vector step by step.
     let column = |lo: usize, w: usize| -> Vec<f32> {
-        acc.chunks(gw.max(1))
-            .flat_map(|r| r[lo..lo + w].iter().copied())
-            .collect()
+        let mut out = vec![0.0f32; n * w];
+        out.par_chunks_mut(w)
+            .zip(acc.par_chunks(gw))
+            .for_each(|(o, r)| o.copy_from_slice(&r[lo..lo + w]));
+        out
     };
     Ok(Gradients {
         means: want.means.then(|| column(MEAN, 3)),

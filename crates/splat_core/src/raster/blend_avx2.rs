@@ -22,10 +22,15 @@ use super::tile_walk::{
 };
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
-pub(super) fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+/// `COUNT` selects the instance that counts its work in `scratch.evals`.
+pub(super) fn blend_tile<const COUNT: bool>(
+    tile: &TileInput,
+    ch: usize,
+    scratch: &mut TileScratch,
+) {
     debug_assert!(std::arch::is_x86_feature_detected!("avx2"));
     // SAFETY: `forward_blend::blend_tile` calls this only after detecting AVX2.
-    unsafe { blend_tile_avx2(tile, ch, scratch) }
+    unsafe { blend_tile_avx2::<COUNT>(tile, ch, scratch) }
 }
 
 #[inline(always)]
@@ -113,7 +118,7 @@ fn column_group(
 }
 
 #[target_feature(enable = "avx2")]
-fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let t_min = s(tile.t_min);
@@ -146,17 +151,22 @@ fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
                 let next_t = _mm256_mul_ps(t, _mm256_sub_ps(s(1.0), alpha));
                 let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, t_min));
                 let add = _mm256_andnot_ps(stop, ok);
+                if COUNT {
+                    sc.evals.groups += 1;
+                    sc.evals.blended += (_mm256_movemask_ps(add) as u32).count_ones() as u64;
+                }
                 let weight = _mm256_and_ps(add, _mm256_mul_ps(alpha, t));
                 for (c, &fc) in sp.f.iter().enumerate() {
                     let o = &mut sc.feat[c * plane + base..];
                     store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight, s(fc))));
                 }
                 store(&mut sc.trans[base..], _mm256_blendv_ps(t, next_t, add));
-                let last = _mm256_castsi256_ps(load_u32(&sc.last[base..]));
-                store_u32(
-                    &mut sc.last[base..],
-                    _mm256_castps_si256(_mm256_blendv_ps(last, _mm256_castsi256_ps(k1), add)),
-                );
+                // last = k1 where added: k1 exceeds every earlier value, so an unsigned max
+                // with k1 & add sets exactly those lanes. A blend of the loaded value would
+                // compile to a masked store (vmaskmovps), microcoded and slow on AMD cores.
+                let last = load_u32(&sc.last[base..]);
+                let k1_add = _mm256_and_si256(k1, _mm256_castps_si256(add));
+                store_u32(&mut sc.last[base..], _mm256_max_epu32(last, k1_add));
                 store_u32(
                     &mut sc.live[base..],
                     _mm256_castps_si256(_mm256_andnot_ps(stop, live)),
@@ -173,7 +183,8 @@ fn blend_tile_avx2(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
 pub(super) const MAX_BACKWARD_CHANNELS: usize = 4;
 
 /// Backward of one tile; the caller checked AVX2 and `ch <= MAX_BACKWARD_CHANNELS`.
-pub(super) fn backward_tile(
+/// `COUNT` selects the instance that counts its work in `scratch.evals`.
+pub(super) fn backward_tile<const COUNT: bool>(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
@@ -181,7 +192,7 @@ pub(super) fn backward_tile(
 ) {
     debug_assert!(ch <= MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2"));
     // SAFETY: `backward_blend::backward_tile` calls this only after detecting AVX2.
-    unsafe { backward_tile_avx2(tile, ch, scratch, out) }
+    unsafe { backward_tile_avx2::<COUNT>(tile, ch, scratch, out) }
 }
 
 /// `lanes::lane_sum` on a register.
@@ -196,7 +207,12 @@ fn lane_sum(v: __m256) -> f32 {
 }
 
 #[target_feature(enable = "avx2")]
-fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out: &mut [f32]) {
+fn backward_tile_avx2<const COUNT: bool>(
+    tile: &BackTile,
+    ch: usize,
+    scratch: &mut BackScratch,
+    out: &mut [f32],
+) {
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let zero = _mm256_setzero_ps();
@@ -220,6 +236,9 @@ fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out
                 if _mm256_movemask_ps(active) == 0 {
                     continue;
                 }
+                if COUNT {
+                    sc.evals.groups += 1;
+                }
                 let dy = s(sc.geo.row_dy[ly]);
                 let sigma = _mm256_add_ps(
                     _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.geo.row_c[ly]))),
@@ -232,11 +251,21 @@ fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out
                     _mm256_and_ps(active, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero)),
                     _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
                 );
+                if COUNT {
+                    sc.evals.blended += (_mm256_movemask_ps(m) as u32).count_ones() as u64;
+                }
                 if _mm256_movemask_ps(m) == 0 {
                     continue;
                 }
-                let ra =
-                    _mm256_div_ps(s(1.0), _mm256_max_ps(_mm256_sub_ps(s(1.0), alpha), s(1e-6)));
+                // 1 in the lanes outside m, so that t_k is T unchanged there and the stores
+                // below need no blend of the loaded values (which would compile to masked
+                // stores, vmaskmovps, microcoded and slow on AMD cores). Those lanes' other
+                // values are masked out.
+                let ra = _mm256_blendv_ps(
+                    s(1.0),
+                    _mm256_div_ps(s(1.0), _mm256_max_ps(_mm256_sub_ps(s(1.0), alpha), s(1e-6))),
+                    m,
+                );
                 let t_k = _mm256_mul_ps(load(&sc.trans[base..]), ra);
                 let fac = _mm256_mul_ps(alpha, t_k);
                 let mut v_al = _mm256_mul_ps(load(&sc.va_tf[base..]), ra);
@@ -252,13 +281,14 @@ fn backward_tile_avx2(tile: &BackTile, ch: usize, scratch: &mut BackScratch, out
                             vo,
                         ),
                     );
+                    // + 0 outside m keeps buf's bits: buf starts at +0 and a sum is -0 only
+                    // if both terms are, so buf is never -0.
                     store(
                         b,
-                        _mm256_blendv_ps(bv, _mm256_add_ps(bv, _mm256_mul_ps(fc[c], fac)), m),
+                        _mm256_add_ps(bv, _mm256_and_ps(m, _mm256_mul_ps(fc[c], fac))),
                     );
                 }
-                let trans = load(&sc.trans[base..]);
-                store(&mut sc.trans[base..], _mm256_blendv_ps(trans, t_k, m));
+                store(&mut sc.trans[base..], t_k);
                 // Where alpha was clamped it depends on neither opacity nor position.
                 let g = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, s(ALPHA_MAX)));
                 let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, s(-0.0)), v_al);

@@ -20,7 +20,7 @@ use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::tile_geometry::{TileList, TileRect};
-use super::tile_walk::{for_each_splat, TileInput, TileScratch};
+use super::tile_walk::{for_each_splat, EvalCount, TileInput, TileScratch};
 
 /// Blend results of one camera that the backward pass needs.
 #[derive(Debug, Clone, Default)]
@@ -33,7 +33,8 @@ pub struct Blended {
 }
 
 /// Blends every tile of one camera into the row-major image `render` [H, W, ch] and
-/// `alpha` [H, W] (both zero on entry).
+/// `alpha` [H, W] (both zero on entry). With `count`, runs the kernels' counting instances
+/// and returns their work (zero otherwise).
 // Structure-of-arrays inputs and outputs, as the kernels read them; a struct would only
 // rename them.
 #[allow(clippy::too_many_arguments)]
@@ -46,9 +47,10 @@ pub fn blend(
     height: u32,
     t_min: f32,
     simd: bool,
+    count: bool,
     render: &mut [f32],
     alpha: &mut [f32],
-) -> Blended {
+) -> (Blended, EvalCount) {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let mut out = Blended {
@@ -60,6 +62,7 @@ pub fn blend(
     // other finishes a long run of heavy tiles. Each tile writes its own slices;
     // `to_image` assembles the image.
     let mut tile_feat = vec![0.0f32; bins.n_tiles() * tp * ch];
+    let totals = std::sync::Mutex::new(EvalCount::default());
     tile_feat
         .par_chunks_mut(tp * ch)
         .zip(out.t_final.par_chunks_mut(tp))
@@ -83,8 +86,12 @@ pub fn blend(
                     simd,
                 };
                 scratch.reset(&rect);
-                blend_tile(&tile, ch, scratch);
+                blend_tile(&tile, ch, scratch, count);
                 scratch.write(&rect, ch, feat, t_final, last);
+                if count {
+                    let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
+                    t.add(std::mem::take(&mut scratch.evals));
+                }
             },
         );
     to_image(
@@ -97,7 +104,8 @@ pub fn blend(
         render,
         alpha,
     );
-    out
+    let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
+    (out, evals)
 }
 
 /// Row-major image [H, W, ch] and alpha [H, W] from the tile-major buffers.
@@ -136,17 +144,29 @@ fn to_image(
         });
 }
 
-fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch, count: bool) {
     #[cfg(target_arch = "x86_64")]
     if tile.simd && std::arch::is_x86_feature_detected!("avx2") {
-        super::blend_avx2::blend_tile(tile, ch, scratch);
+        use super::blend_avx2::blend_tile;
+        match count {
+            false => blend_tile::<false>(tile, ch, scratch),
+            true => blend_tile::<true>(tile, ch, scratch),
+        }
         return;
     }
-    blend_tile_scalar(tile, ch, scratch);
+    match count {
+        false => blend_tile_scalar::<false>(tile, ch, scratch),
+        true => blend_tile_scalar::<true>(tile, ch, scratch),
+    }
 }
 
-/// The lane rules written out per pixel; the AVX2 kernel performs the same operations.
-pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+/// The lane rules written out per pixel; the AVX2 kernel performs the same operations and
+/// skips the same lane groups, so both count the same work.
+pub(super) fn blend_tile_scalar<const COUNT: bool>(
+    tile: &TileInput,
+    ch: usize,
+    scratch: &mut TileScratch,
+) {
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let t_min = tile.t_min;
     for_each_splat(tile, ch, scratch, |sp, sc| {
@@ -155,9 +175,16 @@ pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileS
         for gi in sp.fp.groups.clone() {
             for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
+                let inside = |i: usize| {
+                    let x = sc.geo.xs[gi * LANES + i];
+                    (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[base + i] != 0)
+                };
                 // Pixels that already stopped cost nothing more.
-                if sc.live[base..base + LANES].iter().all(|&l| l == 0) {
+                if !(0..LANES).any(inside) {
                     continue;
+                }
+                if COUNT {
+                    sc.evals.groups += 1;
                 }
                 for i in 0..LANES {
                     let l = base + i;
@@ -171,6 +198,9 @@ pub(super) fn blend_tile_scalar(tile: &TileInput, ch: usize, scratch: &mut TileS
                     let next_t = t * (1.0 - alpha);
                     let stop = ok & (next_t <= t_min);
                     let add = ok & !stop;
+                    if COUNT {
+                        sc.evals.blended += add as u64;
+                    }
                     let weight = if add { alpha * t } else { 0.0 };
                     for (c, &fc) in sp.f.iter().enumerate() {
                         sc.feat[c * plane + l] += weight * fc;

@@ -125,7 +125,7 @@ pub fn forward(
             opts.tile_ellipse,
         )?;
         let t3 = Instant::now();
-        let blended = blend(
+        let (blended, _) = blend(
             &splats,
             &feats,
             ch,
@@ -134,6 +134,7 @@ pub fn forward(
             height,
             opts.t_min,
             opts.simd,
+            false,
             &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &mut out.alpha[ci * pixels..(ci + 1) * pixels],
         );

@@ -111,9 +111,9 @@ fn forward_scratch(tile: &TileInput, ts: usize, avx: bool) -> TileScratch {
     let mut sc = TileScratch::new(ts, 3);
     sc.reset(&tile.rect);
     if avx {
-        blend_avx2::blend_tile(tile, 3, &mut sc);
+        blend_avx2::blend_tile::<true>(tile, 3, &mut sc);
     } else {
-        blend_tile_scalar(tile, 3, &mut sc);
+        blend_tile_scalar::<true>(tile, 3, &mut sc);
     }
     sc
 }
@@ -142,6 +142,9 @@ fn forward_kernels_agree() {
             assert_eq!(a.last, b.last);
             assert_eq!(a.live, b.live);
             assert_eq!(a.active, b.active);
+            // Both skip the same lane groups, and the counts add up.
+            assert_eq!(a.evals, b.evals, "ts {ts} seed {seed}");
+            assert!(b.evals.blended > 0 && b.evals.blended <= 8 * b.evals.groups);
             // Not trivial: something blended, and with many splats some pixels stopped.
             assert!(b.last.iter().any(|&l| l > 0));
             if n >= 200 {
@@ -191,9 +194,9 @@ fn backward_kernels_agree() {
                 sc.reset(&rect, 3, w, &t_final, &last, &v_render, &v_alpha);
                 let mut out = vec![0.0f32; n * (ISECT_FIXED + 3)];
                 if avx {
-                    blend_avx2::backward_tile(&back, 3, &mut sc, &mut out);
+                    blend_avx2::backward_tile::<true>(&back, 3, &mut sc, &mut out);
                 } else {
-                    backward_tile_scalar(&back, 3, &mut sc, &mut out);
+                    backward_tile_scalar::<true>(&back, 3, &mut sc, &mut out);
                 }
                 (out, sc)
             };
@@ -201,6 +204,9 @@ fn backward_kernels_agree() {
             assert_eq!(bits(&ga), bits(&gb), "ts {ts} seed {seed}");
             assert_eq!(bits(&sa.trans), bits(&sb.trans));
             assert_eq!(bits(&sa.buf), bits(&sb.buf));
+            assert_eq!(sa.evals, sb.evals, "ts {ts} seed {seed}");
+            // The backward differentiates exactly the pairs the forward blended.
+            assert_eq!(sb.evals.blended, fw.evals.blended, "ts {ts} seed {seed}");
             assert!(gb.iter().any(|&g| g != 0.0));
         }
     }

@@ -12,6 +12,7 @@
 //! (tested). Imports run one way, from the drivers down to the shared vocabulary:
 //!
 //! ```text
+//! eval_count                           blending work of a forward state (benchmarks)
 //! forward_pass, backward_pass          whole passes over every camera
 //! forward_blend, backward_blend        per-camera blend drivers + scalar kernels
 //! blend_avx2                           the AVX2 kernels (the only unsafe code)
@@ -33,6 +34,7 @@ mod backward_pass;
 #[cfg(target_arch = "x86_64")]
 mod blend_avx2;
 pub mod camera;
+mod eval_count;
 pub mod features;
 mod forward_blend;
 mod forward_pass;
@@ -50,6 +52,7 @@ mod tile_walk;
 
 pub use backward_pass::{backward, GradRequest, Gradients};
 pub use camera::Camera;
+pub use eval_count::{count_evaluations, Evaluations};
 pub use forward_blend::{blend_kernel, Blended};
 pub use forward_pass::{forward, CameraState, ForwardOutput, ForwardState, Profile};
 pub use options::{Footprint, RasterOptions, ALPHA_MAX, ALPHA_MIN};

@@ -8,6 +8,24 @@ use super::tile_geometry::{BlendSplat, LaneFootprint, TileGeometry, TileRect};
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
 pub const ISECT_FIXED: usize = 6;
 
+/// Work a blending kernel did, counted only by the kernels' counting instances
+/// (`COUNT = true`, run by `eval_count`); the timed instances carry no counter code.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EvalCount {
+    /// Lane groups evaluated: each computes `LANES` pixel-splat alphas.
+    pub groups: u64,
+    /// Pixel-splat pairs that passed every test and were blended (forward) or
+    /// differentiated (backward).
+    pub blended: u64,
+}
+
+impl EvalCount {
+    pub fn add(&mut self, other: EvalCount) {
+        self.groups += other.groups;
+        self.blended += other.blended;
+    }
+}
+
 /// What one tile blends.
 pub(super) struct TileInput<'a> {
     pub splats: &'a [BlendSplat],
@@ -29,6 +47,7 @@ pub(super) struct TileScratch {
     pub feat: Vec<f32>,
     /// Pixels of the tile still blending.
     pub active: usize,
+    pub evals: EvalCount,
 }
 
 impl TileScratch {
@@ -42,6 +61,7 @@ impl TileScratch {
             live: vec![0; plane],
             feat: vec![0.0; plane * ch],
             active: 0,
+            evals: EvalCount::default(),
         }
     }
 
@@ -148,6 +168,7 @@ pub(super) struct BackScratch {
     /// Planar dL/d(render) and features blended behind the current splat.
     pub v_out: Vec<f32>,
     pub buf: Vec<f32>,
+    pub evals: EvalCount,
 }
 
 impl BackScratch {
@@ -161,6 +182,7 @@ impl BackScratch {
             va_tf: vec![0.0; plane],
             v_out: vec![0.0; plane * ch],
             buf: vec![0.0; plane * ch],
+            evals: EvalCount::default(),
         }
     }
 
