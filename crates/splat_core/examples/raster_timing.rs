@@ -5,7 +5,7 @@
 //!     cargo run --release -p splat_core --example raster_timing -- FILE [THREADS] [REPS]
 //!
 //! Prints the min and median of the calls, whole and per stage. `TILE=32` sets the tile size; `BACKWARD=1` also times
-//! the backward pass; `EVALS=1` also counts the blending work (`raster::count_evaluations`,
+//! the backward pass; `HASH=1` prints hashes of the image and gradient bits; `EVALS=1` also counts the blending work (`raster::count_evaluations`,
 //! outside the timed calls; `benches/bench_roofline.py` divides it by the times).
 use std::time::Instant;
 
@@ -14,6 +14,14 @@ static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use splat_core::raster::{self, Camera, ColorMode, Profile, RasterOptions, Scene};
 use splat_core::threads::with_threads;
+
+/// FNV-1a over the bits of the values: equal hashes, equal outputs (to check that a kernel
+/// change keeps images and gradients bit for bit).
+fn bits_hash<'a>(values: impl IntoIterator<Item = &'a f32>) -> u64 {
+    values.into_iter().fold(0xcbf2_9ce4_8422_2325, |h, v| {
+        (h ^ v.to_bits() as u64).wrapping_mul(0x100_0000_01b3)
+    })
+}
 
 /// Min and median of the calls, in seconds.
 fn min_median(mut v: Vec<f64>) -> (f64, f64) {
@@ -65,7 +73,8 @@ fn main() {
     };
     println!("{n} Gaussians @ {size}^2, {threads} thread(s), {reps} calls");
     print("forward", profiles.iter().map(|p| p.0).collect());
-    let stages: [(&str, fn(&Profile) -> f64); 4] = [
+    type Stage = (&'static str, fn(&Profile) -> f64);
+    let stages: [Stage; 4] = [
         ("project", |p| p.project),
         ("sort", |p| p.sort),
         ("bin", |p| p.bin),
@@ -77,7 +86,7 @@ fn main() {
             profiles.iter().map(|p| stage(&p.1)).collect(),
         );
     }
-    let (_, state) = run_forward().unwrap();
+    let (out, state) = run_forward().unwrap();
     if std::env::var_os("BACKWARD").is_some() {
         let pixels = (size * size) as usize;
         let v_render: Vec<f32> = (0..pixels * 3)
@@ -88,7 +97,7 @@ fn main() {
             let mut times = Vec::with_capacity(reps);
             for _ in 0..reps {
                 let t = Instant::now();
-                raster::backward(
+                let grads = raster::backward(
                     &state,
                     &v_render,
                     &v_alpha,
@@ -101,6 +110,11 @@ fn main() {
                     },
                 )?;
                 times.push(t.elapsed().as_secs_f64());
+                if times.len() == 1 && std::env::var_os("HASH").is_some() {
+                    let all = [&grads.means, &grads.quats, &grads.scales, &grads.opacities];
+                    let flat = all.into_iter().flatten().flatten().chain(&grads.means2d);
+                    println!("gradients hash {:016x}", bits_hash(flat));
+                }
             }
             Ok(times)
         })
@@ -111,6 +125,12 @@ fn main() {
         "intersections {}",
         state.per_camera[0].bins.n_intersections()
     );
+    if std::env::var_os("HASH").is_some() {
+        println!(
+            "image hash {:016x}",
+            bits_hash(out.render.iter().chain(&out.alpha))
+        );
+    }
     if std::env::var_os("EVALS").is_some() {
         let e = raster::count_evaluations(&state);
         println!(

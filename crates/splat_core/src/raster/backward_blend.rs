@@ -136,7 +136,7 @@ pub(super) fn backward_tile_scalar<const COUNT: bool>(
         let mut acc = [[0.0f32; LANES]; ISECT_FIXED];
         acc_f.iter_mut().for_each(|a| *a = [0.0; LANES]);
         for gi in sp.fp.groups.clone() {
-            for ly in sp.fp.rows.clone() {
+            for ly in sc.geo.group_rows[gi].clone() {
                 let base = ly * stride + gi * LANES;
                 let active = |i: usize| {
                     let x = sc.geo.xs[gi * LANES + i];

@@ -128,7 +128,7 @@ fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut
         let mut stopped = 0;
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], a);
-            for ly in sp.fp.rows.clone() {
+            for ly in sc.geo.group_rows[gi].clone() {
                 let base = ly * stride + gi * LANES;
                 let live = _mm256_castsi256_ps(load_u32(&sc.live[base..]));
                 let inside = _mm256_and_ps(cols, live);
@@ -228,7 +228,7 @@ fn backward_tile_avx2<const COUNT: bool>(
         let mut acc_f = [zero; MAX_BACKWARD_CHANNELS];
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
-            for ly in sp.fp.rows.clone() {
+            for ly in sc.geo.group_rows[gi].clone() {
                 let base = ly * stride + gi * LANES;
                 // Pixels whose last contributor is in front of this splat never saw it.
                 let seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load_u32(&sc.last[base..]), k));

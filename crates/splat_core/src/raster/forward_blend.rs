@@ -173,7 +173,7 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
         let [a, _, _] = sp.s.conic;
         let mut stopped = 0;
         for gi in sp.fp.groups.clone() {
-            for ly in sp.fp.rows.clone() {
+            for ly in sc.geo.group_rows[gi].clone() {
                 let base = ly * stride + gi * LANES;
                 let inside = |i: usize| {
                     let x = sc.geo.xs[gi * LANES + i];

@@ -10,6 +10,12 @@ use super::tile_binning::TileBins;
 /// the per-pixel alpha test still decides.
 const SPAN_SLACK: f32 = 0.01;
 
+/// Relative widening of the ellipse for the per-group rows (on top of `SPAN_SLACK`): the
+/// conic and the box half-sizes come from separately rounded f32 arithmetic, and the
+/// boundary's square root magnifies their disagreement near the ellipse's tips.
+const SPAN_WIDEN: f32 = 1e-3;
+const WIDEN: f32 = (1.0 + SPAN_WIDEN) * (1.0 + SPAN_WIDEN);
+
 /// The pixels of a tile a splat visits: the tile's part of the bounding box of the ellipse
 /// q(d) <= qmax = 2 ln(255 opacity), outside which alpha < 1/255. The per-pixel alpha test
 /// decides inside the box. Forward and backward share it, so both visit the same pixels.
@@ -138,8 +144,9 @@ fn gather_rows<const N: usize>(dst: &mut [f32], src: &[f32], gids: &[u32]) {
 }
 
 /// The geometry every lane kernel (forward and backward) reads: the row stride (rows padded
-/// to whole lane groups), the pixel-centre x of each column of the current tile, and for
-/// each footprint row of the current splat dy, c dy^2 and b dy.
+/// to whole lane groups), the pixel-centre x of each column of the current tile, for each
+/// footprint row of the current splat dy, c dy^2 and b dy, and for each of its lane groups
+/// the rows where the splat's ellipse meets the group's columns.
 pub(super) struct TileGeometry {
     pub stride: usize,
     pub ts: usize,
@@ -147,15 +154,16 @@ pub(super) struct TileGeometry {
     pub row_dy: Vec<f32>,
     pub row_c: Vec<f32>,
     pub row_b: Vec<f32>,
+    pub group_rows: Vec<std::ops::Range<usize>>,
 }
 
 /// A splat's footprint in a tile: columns (relative to the tile) whose pixel centre lies
-/// strictly between `xlo` and `xhi`, the lane groups covering them, and the rows.
+/// strictly between `xlo` and `xhi`, and the lane groups covering them (each group's rows
+/// are in `TileGeometry::group_rows`).
 pub(super) struct LaneFootprint {
     pub xlo: f32,
     pub xhi: f32,
     pub groups: std::ops::Range<usize>,
-    pub rows: std::ops::Range<usize>,
 }
 
 impl TileGeometry {
@@ -168,6 +176,7 @@ impl TileGeometry {
             row_dy: vec![0.0; ts],
             row_c: vec![0.0; ts],
             row_b: vec![0.0; ts],
+            group_rows: vec![0..0; stride / LANES],
         }
     }
 
@@ -199,13 +208,58 @@ impl TileGeometry {
             self.row_c[ly] = c * dy * dy;
             self.row_b[ly] = b * dy;
         }
+        let groups = lx0 / LANES..lx1.div_ceil(LANES);
+        if groups.len() == 1 {
+            self.group_rows[groups.start] = rows;
+        } else {
+            self.set_group_rows(s, rect, &fp, groups.clone(), rows);
+        }
         Some(LaneFootprint {
             // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
             xlo: fp.x0 as f32,
             xhi: fp.x1 as f32,
-            groups: lx0 / LANES..lx1.div_ceil(LANES),
-            rows,
+            groups,
         })
+    }
+
+    /// For a footprint wider than one lane group: the rows of each group's columns that
+    /// the ellipse of the footprint box meets (with the box's slack), so the kernels skip
+    /// the lane vectors whose pixels all lie outside it, where alpha < 1/255 anyway.
+    ///
+    /// Over a vertical strip of columns, the ellipse's top boundary is concave in x and its
+    /// bottom convex: their extremes over the strip are at the ellipse's topmost and
+    /// bottommost points clamped into the strip (as in `tile_binning`'s bands, transposed).
+    /// With Q the box's contour (half_x^2 = Q c / det), the boundary rows at offset dx are
+    /// (-b dx +- sqrt(det (half_x^2 - dx^2))) / c.
+    fn set_group_rows(
+        &mut self,
+        s: &BlendSplat,
+        rect: &TileRect,
+        fp: &PixelFootprint,
+        groups: std::ops::Range<usize>,
+        rows: std::ops::Range<usize>,
+    ) {
+        let [a, b, c] = s.conic;
+        let (hx, hy) = (s.half[0], s.half[1]);
+        let sqrt_det = (a * c - b * b).max(0.0).sqrt();
+        let dx_top = -hy * b / a;
+        let boundary = |dx: f32, sign: f32| {
+            (-b * dx + sign * sqrt_det * (hx * hx * WIDEN - dx * dx).max(0.0).sqrt()) / c
+        };
+        for gi in groups {
+            // Offsets of the group's footprint columns (pixel centres) from the centre.
+            let x_lo = (rect.x0 as usize + gi * LANES).max(fp.x0 as usize) as f32 + 0.5;
+            let x_hi = (rect.x0 as usize + (gi + 1) * LANES).min(fp.x1 as usize) as f32 - 0.5;
+            let (d0, d1) = (x_lo - s.xy[0], x_hi - s.xy[0]);
+            let top = boundary(dx_top.max(d0).min(d1), 1.0) + SPAN_WIDEN * hy;
+            let bottom = boundary((-dx_top).max(d0).min(d1), -1.0) - SPAN_WIDEN * hy;
+            self.group_rows[gi] = if top.is_finite() && bottom.is_finite() {
+                let (y0, y1) = pixel_span(s.xy[1] + bottom, s.xy[1] + top, fp.y0, fp.y1);
+                (y0 - rect.y0) as usize..(y1 - rect.y0) as usize
+            } else {
+                rows.clone()
+            };
+        }
     }
 }
 
@@ -266,5 +320,81 @@ mod tests {
                 pixel_span_ref(bad, bad, 16, 32)
             );
         }
+    }
+
+    /// Every pixel of the footprint box that a lane group's rows leave out would have been
+    /// skipped by the kernels' own test (sigma < 0 or alpha < 1/255, computed exactly as
+    /// they do), so leaving it out changes no bit. Splats from round to needle-thin (200:1),
+    /// all opacities, centres in and around the tile.
+    #[test]
+    fn group_rows_drop_only_pixels_below_the_alpha_threshold() {
+        use super::super::lanes::{exp_neg, sigma_at};
+        use super::super::options::{ALPHA_MAX, ALPHA_MIN};
+        let mut rng = crate::test_rng::Lcg::new(7);
+        let rect = TileRect {
+            x0: 32,
+            y0: 16,
+            x1: 64,
+            y1: 48,
+        };
+        let mut geo = TileGeometry::new(32);
+        geo.set_tile(&rect);
+        let (mut dropped, mut wide) = (0usize, 0usize);
+        for i in 0..20_000 {
+            let long = 0.3 + 40.0 * rng.uniform().powi(2);
+            let short = 0.3 + (long - 0.3) * rng.uniform().powi(if i % 2 == 0 { 1 } else { 6 });
+            let th = std::f32::consts::PI * rng.uniform();
+            let (cs, sn) = (th.cos(), th.sin());
+            // Covariance R diag(long^2, short^2) R^T plus the 0.3 px blur.
+            let (l2, s2) = (long * long, short * short);
+            let cov = [
+                cs * cs * l2 + sn * sn * s2 + 0.3,
+                cs * sn * (l2 - s2),
+                sn * sn * l2 + cs * cs * s2 + 0.3,
+            ];
+            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            let opacity = ALPHA_MIN + (1.0 - ALPHA_MIN) * rng.uniform();
+            let qmax = 2.0 * (opacity / ALPHA_MIN).ln();
+            let s = BlendSplat {
+                xy: [
+                    rect.x0 as f32 - 20.0 + 72.0 * rng.uniform(),
+                    rect.y0 as f32 - 20.0 + 72.0 * rng.uniform(),
+                ],
+                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                opacity,
+                half: [(qmax * cov[0]).sqrt(), (qmax * cov[2]).sqrt()],
+            };
+            let Some(fp) = geo.footprint(&s, &rect) else {
+                continue;
+            };
+            let box_fp = PixelFootprint::new(&s, &rect);
+            wide += (fp.groups.len() > 1) as usize;
+            let [a, b, c] = s.conic;
+            for gi in fp.groups.clone() {
+                let rows = geo.group_rows[gi].clone();
+                for y in box_fp.y0..box_fp.y1 {
+                    let ly = (y - rect.y0) as usize;
+                    if rows.contains(&ly) {
+                        continue;
+                    }
+                    let dy = s.xy[1] - (y as f32 + 0.5);
+                    for lx in gi * LANES..(gi + 1) * LANES {
+                        let x = geo.xs[lx];
+                        if !(x > fp.xlo && x < fp.xhi) {
+                            continue;
+                        }
+                        dropped += 1;
+                        let sigma = sigma_at(a, s.xy[0] - x, c * dy * dy, b * dy);
+                        let alpha = (s.opacity * exp_neg(-sigma)).min(ALPHA_MAX);
+                        assert!(
+                            !(sigma >= 0.0 && alpha >= ALPHA_MIN),
+                            "splat {i}: pixel ({x}, {y}) dropped with alpha {alpha}"
+                        );
+                    }
+                }
+            }
+        }
+        // Not vacuous: many footprints span several groups and many pixels were dropped.
+        assert!(wide > 2_000 && dropped > 50_000, "{wide} {dropped}");
     }
 }
