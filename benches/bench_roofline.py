@@ -1,7 +1,7 @@
 """Rasterizer roofline: the blending work per call against this CPU's measured vector peak.
 Writes benches/results/roofline.md (+ roofline.json).
 
-    python benches/bench_roofline.py [--reps N] [--threads T]
+    python benches/bench_roofline.py [--reps N] [--threads T] [--baseline BIN [--rounds R]]
 
 Runs two release examples of splat_core, without Python in the timed calls:
 - `fma_peak`: tight loops of independent AVX2 fused multiply-adds (AVX-512 where the CPU
@@ -10,6 +10,10 @@ Runs two release examples of splat_core, without Python in the timed calls:
   dense one (400k, >= 500k tile intersections at 512^2): min and median per stage, and the
   pixel-splat evaluations the blends perform (`raster::count_evaluations`, counted outside
   the timed calls).
+
+With `--baseline BIN` (a `raster_timing` built from an earlier commit), it also times BIN and
+the current build alternately, R rounds each, on both scenes: on a shared machine whose
+speed swings, only calls interleaved in the same run compare.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import argparse
 import json
 import os
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -91,26 +96,58 @@ def timing(scene: Path, threads: int, reps: int) -> dict:
     return res
 
 
+def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int) -> dict:
+    """Per binary: min over all calls and median of the runs' medians, forward and backward."""
+    runs: dict[str, list[dict]] = {"baseline": [], "current": []}
+    current = str(examples_dir() / "raster_timing")
+    for _ in range(rounds):
+        for key, binary in (("baseline", baseline), ("current", current)):
+            out = run([binary, str(path), str(threads), str(reps)], {"BACKWARD": "1"})
+            stages = {
+                m[1]: (float(m[2]), float(m[3]))
+                for m in re.finditer(
+                    r"^(forward|backward) ms: min ([\d.]+) median ([\d.]+)", out, re.M
+                )
+            }
+            runs[key].append(stages)
+    res = {}
+    for key, rs in runs.items():
+        res[key] = {
+            p: (min(r[p][0] for r in rs), statistics.median(r[p][1] for r in rs))
+            for p in ("forward", "backward")
+        }
+    return res
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=20)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--baseline", help="raster_timing built from an earlier commit")
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--baseline-label", help="what the baseline is, for the report")
     args = parser.parse_args()
     build()
     peaks = fma_peak(args.threads)
-    runs = []
+    runs, compare = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for name, n in SCENES:
             path = Path(tmp) / f"{name}.bin"
             dump(str(path), n, SIZE)
             for threads in sorted({1, args.threads}):
                 runs.append({"scene": name, "n": n, **timing(path, threads, args.reps)})
+            if args.baseline:
+                res = interleaved(path, args.baseline, args.threads, args.reps // 2, args.rounds)
+                compare.append({"scene": name, "n": n, **res})
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "roofline.json").write_text(json.dumps({"peaks": peaks, "runs": runs}, indent=1))
-    (RESULTS / "roofline.md").write_text(report(peaks, runs, args))
+    data = {"peaks": peaks, "runs": runs, "compare": compare}
+    (RESULTS / "roofline.json").write_text(json.dumps(data, indent=1))
+    (RESULTS / "roofline.md").write_text(report(peaks, runs, compare, args))
 
 
-def report(peaks: list[dict], runs: list[dict], args: argparse.Namespace) -> str:
+def report(
+    peaks: list[dict], runs: list[dict], compare: list[dict], args: argparse.Namespace
+) -> str:
     cpu_flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
     isa = "AVX-512F" if " avx512f" in cpu_flags else "AVX2 + FMA (no AVX-512)"
     lines = [
@@ -188,6 +225,25 @@ def report(peaks: list[dict], runs: list[dict], args: argparse.Namespace) -> str
                 f"{e['blended']:,} | {100 * e['blended'] / max(e['evaluated'], 1):.0f}% | "
                 f"{rate / 1e9:.2f} | {of_peak} |"
             )
+    if compare:
+        lines += [
+            "",
+            f"### Against a baseline build, interleaved ({args.threads} threads)",
+            "",
+            f"Baseline: {args.baseline_label or args.baseline}. "
+            f"{args.rounds} rounds, each running the baseline `raster_timing` "
+            f"and then the current one for {args.reps // 2} calls; min over all calls / "
+            "median of the rounds' medians, ms.",
+            "",
+            "| scene | Gaussians | build | forward | backward | backward / forward (min) |",
+            "|---|---:|---|---:|---:|---:|",
+        ]
+        for c in compare:
+            for key in ("baseline", "current"):
+                f, b = c[key]["forward"], c[key]["backward"]
+                lines.append(
+                    f"| {c['scene']} | {c['n']:,} | {key} | {mm(f)} | {mm(b)} | {b[0] / f[0]:.2f} |"
+                )
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines += [
         "",
