@@ -23,6 +23,20 @@ fn bits_hash<'a>(values: impl IntoIterator<Item = &'a f32>) -> u64 {
     })
 }
 
+/// CPU time of every thread of the process so far, in seconds (Linux schedstat; 0
+/// elsewhere). On a shared machine it leaves out the time other work holds the cores.
+fn cpu_seconds() -> f64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    let ns: u64 = tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .sum();
+    ns as f64 * 1e-9
+}
+
 /// Min and median of the calls, in seconds.
 fn min_median(mut v: Vec<f64>) -> (f64, f64) {
     v.sort_by(f64::total_cmp);
@@ -59,9 +73,10 @@ fn main() {
     let profiles = with_threads(Some(threads), || {
         let mut profiles = Vec::with_capacity(reps);
         for _ in 0..reps {
-            let t = Instant::now();
+            let (t, cpu) = (Instant::now(), cpu_seconds());
             let (out, _) = run_forward()?;
-            profiles.push((t.elapsed().as_secs_f64(), out.profile));
+            let wall = t.elapsed().as_secs_f64();
+            profiles.push((wall, out.profile, cpu_seconds() - cpu));
         }
         Ok(profiles)
     })
@@ -73,6 +88,7 @@ fn main() {
     };
     println!("{n} Gaussians @ {size}^2, {threads} thread(s), {reps} calls");
     print("forward", profiles.iter().map(|p| p.0).collect());
+    print("forward cpu", profiles.iter().map(|p| p.2).collect());
     type Stage = (&'static str, fn(&Profile) -> f64);
     let stages: [Stage; 4] = [
         ("project", |p| p.project),
@@ -93,10 +109,10 @@ fn main() {
             .map(|i| ((i % 7) as f32 - 3.0) * 1e-3)
             .collect();
         let v_alpha: Vec<f32> = (0..pixels).map(|i| ((i % 5) as f32 - 2.0) * 1e-3).collect();
-        let times = with_threads(Some(threads), || {
-            let mut times = Vec::with_capacity(reps);
+        let (times, cpus) = with_threads(Some(threads), || {
+            let (mut times, mut cpus) = (Vec::with_capacity(reps), Vec::with_capacity(reps));
             for _ in 0..reps {
-                let t = Instant::now();
+                let (t, cpu) = (Instant::now(), cpu_seconds());
                 let grads = raster::backward(
                     &state,
                     &v_render,
@@ -110,16 +126,18 @@ fn main() {
                     },
                 )?;
                 times.push(t.elapsed().as_secs_f64());
+                cpus.push(cpu_seconds() - cpu);
                 if times.len() == 1 && std::env::var_os("HASH").is_some() {
                     let all = [&grads.means, &grads.quats, &grads.scales, &grads.opacities];
                     let flat = all.into_iter().flatten().flatten().chain(&grads.means2d);
                     println!("gradients hash {:016x}", bits_hash(flat));
                 }
             }
-            Ok(times)
+            Ok((times, cpus))
         })
         .unwrap();
         print("backward", times);
+        print("backward cpu", cpus);
     }
     println!(
         "intersections {}",

@@ -241,11 +241,12 @@ impl TileGeometry {
     ) {
         let [a, b, c] = s.conic;
         let (hx, hy) = (s.half[0], s.half[1]);
-        let sqrt_det = (a * c - b * b).max(0.0).sqrt();
-        let dx_top = -hy * b / a;
-        let boundary = |dx: f32, sign: f32| {
-            (-b * dx + sign * sqrt_det * (hx * hx * WIDEN - dx * dx).max(0.0).sqrt()) / c
-        };
+        // Per splat: one division and one square root; per group two square roots.
+        let inv_c = 1.0 / c;
+        let (slope, scale) = (-b * inv_c, (a * c - b * b).max(0.0).sqrt() * inv_c);
+        let (hx2, dx_top) = (hx * hx * WIDEN, -hy * b / a);
+        let boundary =
+            |dx: f32, sign: f32| slope * dx + sign * scale * (hx2 - dx * dx).max(0.0).sqrt();
         for gi in groups {
             // Offsets of the group's footprint columns (pixel centres) from the centre.
             let x_lo = (rect.x0 as usize + gi * LANES).max(fp.x0 as usize) as f32 + 0.5;
