@@ -88,7 +88,7 @@ def timing(scene: Path, threads: int, reps: int) -> dict:
         {"EVALS": "1", "BACKWARD": "1"},
     )
     res: dict = {"threads": threads, "stages": {}}
-    for m in re.finditer(r"^\s*(\w+) ms: min ([\d.]+) median ([\d.]+)", out, re.M):
+    for m in re.finditer(r"^\s*(\w+(?: cpu)?) ms: min ([\d.]+) median ([\d.]+)", out, re.M):
         res["stages"][m[1]] = (float(m[2]), float(m[3]))
     res["intersections"] = int(re.search(r"^intersections (\d+)", out, re.M)[1])
     for m in re.finditer(r"^(forward|backward) evaluations (\d+) blended (\d+)", out, re.M):
@@ -97,7 +97,9 @@ def timing(scene: Path, threads: int, reps: int) -> dict:
 
 
 def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int) -> dict:
-    """Per binary: min over all calls and median of the runs' medians, forward and backward."""
+    """Per binary: min over all calls and median of the runs' medians, forward and backward,
+    wall-clock and CPU time (all threads; it leaves out the time other work holds the cores,
+    so it compares builds more steadily on a loaded machine)."""
     runs: dict[str, list[dict]] = {"baseline": [], "current": []}
     current = str(examples_dir() / "raster_timing")
     for _ in range(rounds):
@@ -106,7 +108,9 @@ def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int)
             stages = {
                 m[1]: (float(m[2]), float(m[3]))
                 for m in re.finditer(
-                    r"^(forward|backward) ms: min ([\d.]+) median ([\d.]+)", out, re.M
+                    r"^(forward|backward|forward cpu|backward cpu) ms: min ([\d.]+) median ([\d.]+)",
+                    out,
+                    re.M,
                 )
             }
             runs[key].append(stages)
@@ -114,7 +118,7 @@ def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int)
     for key, rs in runs.items():
         res[key] = {
             p: (min(r[p][0] for r in rs), statistics.median(r[p][1] for r in rs))
-            for p in ("forward", "backward")
+            for p in ("forward", "backward", "forward cpu", "backward cpu")
         }
     return res
 
@@ -180,11 +184,12 @@ def report(
         "### Stages: min / median ms per call",
         "",
         "Forward stages from the forward's own profile; backward is the whole backward call "
-        "(blend backward plus the chain to the 3D parameters).",
+        "(blend backward plus the chain to the 3D parameters). CPU: the calls' CPU time "
+        "summed over the threads.",
         "",
         "| scene | Gaussians | intersections | threads | forward | project | sort | bin | "
-        "blend | backward | backward / forward (min) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "blend | backward | backward / forward (min) | forward CPU | backward CPU |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def mm(v: tuple[float, float]) -> str:
@@ -196,7 +201,8 @@ def report(
             f"| {r['scene']} | {r['n']:,} | {r['intersections']:,} | {r['threads']} | "
             f"{mm(s['forward'])} | {mm(s['project'])} | {mm(s['sort'])} | {mm(s['bin'])} | "
             f"{mm(s['blend'])} | {mm(s['backward'])} | "
-            f"{s['backward'][0] / s['forward'][0]:.2f} |"
+            f"{s['backward'][0] / s['forward'][0]:.2f} | {mm(s['forward cpu'])} | "
+            f"{mm(s['backward cpu'])} |"
         )
     lines += [
         "",

@@ -117,7 +117,11 @@ pub fn backward(
             .zip(sums.par_chunks(stride))
             .enumerate()
             .for_each(|(i, ((row, m2d), sum))| {
-                if !cs.splats[i].visible() {
+                // A Gaussian no pixel differentiated (hidden behind others, or its pixels
+                // have zero gradients) would add only zeros: its chain is skipped. The
+                // bits are the same, as `row` is never -0 (it starts at +0, and a sum is
+                // -0 only if both terms are), so adding +0 or -0 keeps it.
+                if !cs.splats[i].visible() || sum.iter().all(|&v| v == 0.0) {
                     return;
                 }
                 m2d.copy_from_slice(&sum[..2]);
