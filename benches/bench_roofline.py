@@ -149,6 +149,26 @@ def main() -> None:
     (RESULTS / "roofline.md").write_text(report(peaks, runs, compare, args))
 
 
+def targets(runs: list[dict], threads: int) -> list[str]:
+    """Issue 20's targets against this run's minima."""
+    by = {(r["scene"], r["threads"]): r["stages"] for r in runs}
+    bench, dense = by.get(("bench", threads)), by.get(("dense", threads))
+    if not (bench and dense):
+        return []
+    fw = bench["forward"][0]
+    ratios = [s["backward"][0] / s["forward"][0] for s in (bench, dense)]
+
+    def met(ok: bool) -> str:
+        return "met" if ok else "not met"
+
+    return [
+        f"Targets: forward, 100k at 512^2 on {threads} threads, <= 8 ms (best call): "
+        f"{fw:.1f} ms in this run ({met(fw <= 8.0)}). Backward <= 1.3x forward on both "
+        f"scenes: {ratios[0]:.2f} (bench) and {ratios[1]:.2f} (dense) "
+        f"({met(max(ratios) <= 1.3)}). Both as measured here, under the load below.",
+    ]
+
+
 def report(
     peaks: list[dict], runs: list[dict], compare: list[dict], args: argparse.Namespace
 ) -> str:
@@ -239,17 +259,22 @@ def report(
             f"Baseline: {args.baseline_label or args.baseline}. "
             f"{args.rounds} rounds, each running the baseline `raster_timing` "
             f"and then the current one for {args.reps // 2} calls; min over all calls / "
-            "median of the rounds' medians, ms.",
+            "median of the rounds' medians, ms. CPU: the calls' CPU time summed over the "
+            "threads (Linux schedstat, which leaves out the time other work holds the cores).",
             "",
-            "| scene | Gaussians | build | forward | backward | backward / forward (min) |",
-            "|---|---:|---|---:|---:|---:|",
+            "| scene | Gaussians | build | forward | backward | backward / forward (min) "
+            "| forward CPU | backward CPU |",
+            "|---|---:|---|---:|---:|---:|---:|---:|",
         ]
         for c in compare:
             for key in ("baseline", "current"):
                 f, b = c[key]["forward"], c[key]["backward"]
+                fc, bc = c[key]["forward cpu"], c[key]["backward cpu"]
                 lines.append(
-                    f"| {c['scene']} | {c['n']:,} | {key} | {mm(f)} | {mm(b)} | {b[0] / f[0]:.2f} |"
+                    f"| {c['scene']} | {c['n']:,} | {key} | {mm(f)} | {mm(b)} | "
+                    f"{b[0] / f[0]:.2f} | {mm(fc)} | {mm(bc)} |"
                 )
+    lines += ["", *targets(runs, args.threads)]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines += [
         "",
