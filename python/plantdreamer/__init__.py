@@ -4,8 +4,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from plantdreamer import _core
-from plantdreamer.errors import (
+from plantdreamer import thread_policy
+
+# Before anything imports torch: its OpenMP runtime reads the policy once, when loaded.
+thread_policy.settle()
+
+from plantdreamer import _core  # noqa: E402
+from plantdreamer.errors import (  # noqa: E402
     CheckpointError,
     InputError,
     ModelNotFoundError,

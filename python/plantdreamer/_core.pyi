@@ -88,7 +88,7 @@ def rasterize_forward(
     quats: npt.NDArray[np.float32],
     scales: npt.NDArray[np.float32],
     opacities: npt.NDArray[np.float32],
-    colors: npt.NDArray[np.float32],
+    colors: npt.NDArray[np.float32] | None,  # not read when render_color is False
     viewmats: npt.NDArray[np.float32],
     ks: npt.NDArray[np.float32],
     width: int,

@@ -24,7 +24,6 @@ Conventions and choices (documented behaviour):
 from __future__ import annotations
 
 import operator
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -39,34 +38,20 @@ RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
 RASTERIZE_MODES = ("classic", "antialiased")
 
 
-@dataclass(frozen=True)
-class _Settings:
-    """Everything the native call needs besides the differentiable tensors."""
-
-    viewmats: np.ndarray
-    ks: np.ndarray
-    width: int
-    height: int
-    near_plane: float
-    far_plane: float
-    eps2d: float
-    sh_degree: int | None
-    antialiased: bool
-    render_color: bool
-    render_depth: bool
-    tile_size: int
-    threads: int | None
-
-
 def _numpy(t: torch.Tensor) -> np.ndarray:
-    return t.detach().contiguous().numpy()
+    """The tensor's memory as a numpy array: no copy when it is already contiguous."""
+    t = t.detach()
+    return (t if t.is_contiguous() else t.contiguous()).numpy()
 
 
 class _RasterizeFunction(torch.autograd.Function):
-    """Native forward/backward. Inputs: means, quats, scales, opacities, colors, means2d.
+    """Autograd node of one native forward call. Inputs: means, quats, scales, opacities,
+    colors, means2d, then the native call's output (not differentiated).
 
-    ``means2d`` is a placeholder whose gradient is the gradient w.r.t. the projected 2D
-    means (pixels), the quantity gsplat's densification reads from ``meta["means2d"]``.
+    The native forward runs before ``apply`` (``rasterization``), so that ``means2d`` can be
+    the native array itself, wrapped without a copy. It is a leaf whose gradient is the
+    gradient w.r.t. the projected 2D means (pixels), the quantity gsplat's densification
+    reads from ``meta["means2d"]``.
     """
 
     @staticmethod
@@ -78,35 +63,13 @@ class _RasterizeFunction(torch.autograd.Function):
         opacities: torch.Tensor,
         colors: torch.Tensor,
         means2d: torch.Tensor,
-        settings: _Settings,
-        meta: dict[str, Any],
+        native: dict[str, Any],
+        threads: int | None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        s = settings
-        out = _core.rasterize_forward(
-            _numpy(means),
-            _numpy(quats),
-            _numpy(scales),
-            _numpy(opacities),
-            _numpy(colors),
-            s.viewmats,
-            s.ks,
-            s.width,
-            s.height,
-            sh_degree=s.sh_degree,
-            near_plane=s.near_plane,
-            far_plane=s.far_plane,
-            eps2d=s.eps2d,
-            antialiased=s.antialiased,
-            render_color=s.render_color,
-            render_depth=s.render_depth,
-            tile_size=s.tile_size,
-            threads=s.threads,
-        )
-        ctx.state = out["state"]
-        ctx.threads = s.threads
-        meta["_native"] = out
-        render = torch.from_numpy(out["render"])
-        alpha = torch.from_numpy(out["alpha"]).unsqueeze(-1)
+        ctx.state = native["state"]
+        ctx.threads = threads
+        render = torch.from_numpy(native["render"])
+        alpha = torch.from_numpy(native["alpha"]).unsqueeze(-1)
         return render, alpha
 
     @staticmethod
@@ -256,8 +219,7 @@ def rasterization(
     c = t["viewmats"].shape[0] if t["viewmats"].dim() == 3 else -1
     _check_shape("viewmats", t["viewmats"], (None, 4, 4))
     _check_shape("Ks", t["Ks"], (c, 3, 3))
-    if not (torch.isfinite(t["viewmats"]).all() and torch.isfinite(t["Ks"]).all()):
-        raise InputError("viewmats and Ks must be finite")
+    # Finiteness of viewmats and Ks is checked by the core, which reads them anyway.
     render_color = render_mode in ("RGB", "RGB+D", "RGB+ED")
     render_depth = render_mode != "RGB"
     bg = None
@@ -265,52 +227,57 @@ def rasterization(
         bg = _tensor("backgrounds", backgrounds).to("cpu")
         _check_shape("backgrounds", bg, (c, n_color))
 
-    settings = _Settings(
-        viewmats=_numpy(t["viewmats"].cpu()),
-        ks=_numpy(t["Ks"].cpu()),
-        width=width,
-        height=height,
+    params = [t[k].to("cpu") for k in ("means", "quats", "scales", "opacities")]
+    color_in = t["colors"].to("cpu")
+    if not render_color:
+        color_in = color_in.detach()  # colours do not affect depth renders
+    means_a, quats_a, scales_a, opacities_a = (_numpy(x) for x in params)
+    native = _core.rasterize_forward(
+        means_a,
+        quats_a,
+        scales_a,
+        opacities_a,
+        _numpy(color_in) if render_color else None,  # not read for depth renders
+        _numpy(t["viewmats"].cpu()),
+        _numpy(t["Ks"].cpu()),
+        width,
+        height,
+        sh_degree=sh_degree,
         near_plane=float(near_plane),
         far_plane=float(far_plane),
         eps2d=float(eps2d),
-        sh_degree=sh_degree,
         antialiased=rasterize_mode == "antialiased",
         render_color=render_color,
         render_depth=render_depth,
         tile_size=tile_size,
         threads=threads,
     )
-    params = [t[k].to("cpu").contiguous() for k in ("means", "quats", "scales", "opacities")]
-    color_in = t["colors"].to("cpu").contiguous()
-    if not render_color:
-        color_in = color_in.detach()  # colours do not affect depth renders
     wants_grad = torch.is_grad_enabled() and any(p.requires_grad for p in [*params, color_in])
-    means2d = torch.zeros((c, n, 2), dtype=torch.float32, requires_grad=wants_grad)
-    native_meta: dict[str, Any] = {}
-    render, alpha = _RasterizeFunction.apply(*params, color_in, means2d, settings, native_meta)
-    out = native_meta.pop("_native")
-    with torch.no_grad():
-        means2d.copy_(torch.from_numpy(out["means2d"]))
+    # The native array itself (no copy); a leaf, so its .grad is dL/d(means2d).
+    means2d = torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
+    render, alpha = _RasterizeFunction.apply(*params, color_in, means2d, native, threads)
 
     if bg is not None:
+        # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
         cc = n_color
-        color_part = render[..., :cc] + bg[:, None, None, :] * (1.0 - alpha)
-        render = torch.cat([color_part, render[..., cc:]], dim=-1) if render_depth else color_part
+        color = render[..., :cc] if render_depth else render
+        color = color + bg[:, None, None, :] * (1.0 - alpha)
+        render = torch.cat([color, render[..., cc:]], dim=-1) if render_depth else color
     if render_mode.endswith("ED"):
         depth = render[..., -1:] / alpha.clamp_min(1e-10)
-        render = torch.cat([render[..., :-1], depth], dim=-1)
+        render = torch.cat([render[..., :-1], depth], dim=-1) if render.shape[-1] > 1 else depth
 
     meta: dict[str, Any] = {
-        "radii": torch.from_numpy(out["radii"]).to(device),
+        "radii": torch.from_numpy(native["radii"]).to(device),
         "means2d": means2d,
-        "depths": torch.from_numpy(out["depths"]).to(device),
-        "n_visible": torch.from_numpy(out["n_visible"].astype(np.int64)).to(device),
-        "n_intersections": torch.from_numpy(out["n_intersections"].astype(np.int64)).to(device),
+        "depths": torch.from_numpy(native["depths"]).to(device),
+        "n_visible": torch.from_numpy(native["n_visible"].astype(np.int64)).to(device),
+        "n_intersections": torch.from_numpy(native["n_intersections"].astype(np.int64)).to(device),
         "width": width,
         "height": height,
         "tile_size": tile_size,
         "n_cameras": c,
         "render_mode": render_mode,
-        "profile": dict(out["profile"]),
+        "profile": dict(native["profile"]),
     }
     return render.to(device), alpha.to(device), meta

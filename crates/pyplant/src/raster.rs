@@ -1,6 +1,6 @@
 //! Bindings of the rasterizer: forward (returns images + an opaque state) and backward.
 
-use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use splat_core::raster::{
@@ -47,8 +47,12 @@ impl RasterState {
     }
 }
 
-/// A C-contiguous float32 array with the given number of dimensions, as a flat copy.
-fn f32_array(name: &str, obj: &Bound<'_, PyAny>, ndim: usize) -> PyResult<(Vec<usize>, Vec<f32>)> {
+/// A C-contiguous float32 array with the given number of dimensions, borrowed (no copy).
+fn f32_view<'py>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    ndim: usize,
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
     let arr = obj
         .cast::<PyArrayDyn<f32>>()
         .map_err(|_| InputError::new_err(format!("{name} must be a float32 numpy array")))?;
@@ -62,11 +66,20 @@ fn f32_array(name: &str, obj: &Bound<'_, PyAny>, ndim: usize) -> PyResult<(Vec<u
     if !arr.is_c_contiguous() {
         return Err(InputError::new_err(format!("{name} must be C-contiguous")));
     }
-    let ro = arr.readonly();
-    let data = ro
-        .as_slice()
-        .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))?;
-    Ok((arr.shape().to_vec(), data.to_vec()))
+    Ok(arr.readonly())
+}
+
+/// The flat data of an array from `f32_view`.
+fn flat<'a>(name: &str, view: &'a PyReadonlyArrayDyn<'_, f32>) -> PyResult<&'a [f32]> {
+    view.as_slice()
+        .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))
+}
+
+/// A C-contiguous float32 array with the given number of dimensions, as a flat copy (for
+/// data the forward state keeps: the caller may change its arrays before the backward).
+fn f32_array(name: &str, obj: &Bound<'_, PyAny>, ndim: usize) -> PyResult<(Vec<usize>, Vec<f32>)> {
+    let view = f32_view(name, obj, ndim)?;
+    Ok((view.shape().to_vec(), flat(name, &view)?.to_vec()))
 }
 
 fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult<()> {
@@ -278,14 +291,16 @@ fn rasterize_backward<'py>(
     let st = &state.get().inner;
     let (c, n) = (st.cameras.len(), st.scene.n);
     let (h, w) = (st.height as usize, st.width as usize);
-    let (vrs, vr) = f32_array("v_render", v_render, 4)?;
+    // Read in place: the backward keeps nothing of them.
+    let vr_view = f32_view("v_render", v_render, 4)?;
     expect_shape(
         "v_render",
-        &vrs,
+        vr_view.shape(),
         &[Some(c), Some(h), Some(w), Some(st.channels())],
     )?;
-    let (vas, va) = f32_array("v_alpha", v_alpha, 3)?;
-    expect_shape("v_alpha", &vas, &[Some(c), Some(h), Some(w)])?;
+    let va_view = f32_view("v_alpha", v_alpha, 3)?;
+    expect_shape("v_alpha", va_view.shape(), &[Some(c), Some(h), Some(w)])?;
+    let (vr, va) = (flat("v_render", &vr_view)?, flat("v_alpha", &va_view)?);
     let want = GradRequest {
         means,
         quats,
@@ -294,7 +309,7 @@ fn rasterize_backward<'py>(
         colors,
     };
     let grads = run_native(py, || {
-        with_threads(threads, || raster::backward(st, &vr, &va, want))
+        with_threads(threads, || raster::backward(st, vr, va, want))
     })?;
     let d = PyDict::new(py);
     let put = |name: &str, v: Option<Vec<f32>>, shape: Vec<usize>| -> PyResult<()> {
