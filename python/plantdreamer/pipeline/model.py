@@ -76,10 +76,18 @@ class GaussianModel:
 
         p = self.params
         viewmats, ks = stack(cameras)
-        colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
         bg = None
         if "RGB" in render_mode:
             bg = torch.full((len(cameras), 3), float(background))
+        # Copies only where needed: no concatenation at degree 0 (no sh_rest), and none for
+        # depth renders, which never read the colours (a view of the right shape will do).
+        k = 1 + p["sh_rest"].shape[1]
+        if bg is None:
+            colors = p["sh_dc"].expand(-1, k, -1)
+        elif k == 1:
+            colors = p["sh_dc"]
+        else:
+            colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
         return rasterization(
             p["means"],
             p["quats"],
