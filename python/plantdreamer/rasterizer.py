@@ -11,10 +11,12 @@ Conventions and choices (documented behaviour):
 * Inputs must be float32. CUDA (or other device) tensors are copied to the CPU and the
   outputs are moved back to the device of ``means``; gradients flow back through the copy.
   ``meta["means2d"]`` (the gradient carrier) always lives on the CPU.
-* Non-contiguous inputs are made contiguous (a copy).
-* A Gaussian with NaN/Inf in any parameter (colours included), a quaternion of norm < 1e-12, opacity < 1/255,
-  centre outside [near_plane, far_plane] or footprint entirely off-screen is culled:
-  radii 0, no contribution, zero gradient.
+* Contiguous float32 CPU inputs reach the core without a copy, and the outputs are the
+  core's arrays wrapped without one (docs/rasterizer.md, "The Python call"). Non-contiguous
+  inputs are made contiguous (a copy).
+* A Gaussian with NaN/Inf in any parameter (colours included), a quaternion of norm
+  < 1e-12, opacity < 1/255, centre outside [near_plane, far_plane] or footprint entirely
+  off-screen is culled: radii 0, no contribution, zero gradient.
 * ``N == 0`` renders the background only; ``C == 0`` returns empty [0, H, W, ch] tensors.
 * Gradients are zero where undefined: culled Gaussians, colour channels clamped at 0
   (SH), and opacity/geometry where alpha was clamped at 0.99. ``viewmats``, ``Ks`` are not
