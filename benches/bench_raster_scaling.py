@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -77,6 +78,7 @@ def main() -> None:
     args = parser.parse_args()
     counts = (10_000, 100_000) if args.quick else tuple(REPS)
     results = []
+    load_before = os.getloadavg()[0]
     for n in counts:
         for size in (512, 1024):
             results.append(measure(n, size, 2 if args.quick else REPS[n]))
@@ -93,7 +95,8 @@ one orbit camera. Native forward and backward on rayon's global pool
 ({_core.info()["threads"]} threads); min and median over the repetitions after one warm-up.
 The saved state is `RasterState.nbytes`: what a forward keeps for its backward (a copy of
 the inputs, projected splats and features, tile lists, final transmittance and last index
-per pixel), so O(N + pixels + intersections).
+per pixel), so O(N + pixels + intersections). 1-minute load average of the machine:
+{load_before:.1f} at the start, {os.getloadavg()[0]:.1f} at the end.
 
 {table}
 """

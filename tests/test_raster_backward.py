@@ -254,3 +254,39 @@ def test_feature_channel_counts_match_reference(channels):
     for name, p, q in zip(NAMES, params, scene64, strict=True):
         assert q.grad.norm() > 0, name
         assert rel_err(p.grad, q.grad) <= 1e-3, (name, rel_err(p.grad, q.grad))
+
+
+@pytest.mark.parametrize("size", [(2, 48, 64), (1, 512, 512)])
+@pytest.mark.parametrize("permuted_grad", [False, True])
+@pytest.mark.parametrize("channels", [1, 3])
+def test_background_blend_is_bit_identical_to_the_torch_expression(size, permuted_grad, channels):
+    # The wrapper blends the background in numpy (one thread); it must be the same bits as
+    # `color + bg * (1 - alpha)` through autograd, signed zeros included.
+    from plantdreamer.rasterizer import _Background
+
+    c, h, w = size
+    g = torch.Generator().manual_seed(c * h)
+    color = torch.rand(c, h, w, channels, generator=g) * 2 - 0.5
+    alpha = torch.rand(c, h, w, 1, generator=g)
+    alpha[0, :3], alpha[0, 3:6], color[0, :2] = 0.0, 1.0, -0.0
+    bg = torch.rand(c, channels, generator=g)
+    bg[-1, 0] = 0.0
+    v = torch.randn(c, channels, h, w, generator=g).permute(0, 2, 3, 1)
+    if not permuted_grad:
+        v = v.contiguous()
+    v[0, :4], v[0, 4] = 0.0, -0.0
+    results = []
+
+    def torch_blend(c_, a_):
+        return c_ + bg[:, None, None, :] * (1.0 - a_)
+
+    def numpy_blend(c_, a_):
+        return _Background.apply(c_, a_, bg)
+
+    for blend in (torch_blend, numpy_blend):
+        c_, a_ = color.clone().requires_grad_(), alpha.clone().requires_grad_()
+        out = blend(c_, a_)
+        out.backward(v)
+        results.append([t.view(torch.int32) for t in (out, c_.grad, a_.grad)])
+    for want, got in zip(*results, strict=True):
+        assert torch.equal(want, got)

@@ -104,6 +104,47 @@ class _RasterizeFunction(torch.autograd.Function):
         )
 
 
+class _Background(torch.autograd.Function):
+    """``color + bg * (1 - alpha)`` and its gradients, in numpy: the same float32 operations
+    in the same order as the torch expression (bit-identical, tested), on one thread.
+
+    A torch op on an image runs as an OpenMP parallel region, and on a loaded machine each
+    region waits for every OpenMP worker to be scheduled: the blend's median cost was tens
+    of milliseconds against ~1 ms on one thread (BENCHMARKS.md, "Whole call and threads").
+    Used for 1 or 3 colour channels (the sums tested bit-identical) and when ``bg`` needs
+    no gradient (its own is a large reduction whose order numpy would not reproduce).
+    """
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any, color: torch.Tensor, alpha: torch.Tensor, bg: torch.Tensor
+    ) -> torch.Tensor:
+        # Channel by channel: numpy broadcasting over a last axis of 3 is slow.
+        c, b = color.numpy(), bg.numpy()
+        one_minus = np.float32(1.0) - alpha.numpy()[..., 0]
+        out = np.empty_like(c)
+        for k in range(c.shape[-1]):
+            np.multiply(one_minus, b[:, k, None, None], out=out[..., k])
+            np.add(c[..., k], out[..., k], out=out[..., k])
+        ctx.bg = b
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def backward(ctx: Any, v: torch.Tensor) -> tuple[Any, ...]:
+        v_alpha = None
+        if ctx.needs_input_grad[1]:
+            # The channel sum in torch's order: ((0 + v0 b0) + v1 b1) + v2 b2, where the
+            # leading +0 turns a -0 into +0 as torch's sum of 3 does (a sum of 1 is a copy).
+            vv, b = v.numpy(), ctx.bg
+            acc = vv[..., 0] * b[:, 0, None, None]
+            if vv.shape[-1] > 1:
+                acc += np.float32(0.0)
+            for k in range(1, vv.shape[-1]):
+                acc = acc + vv[..., k] * b[:, k, None, None]
+            v_alpha = torch.from_numpy(-acc[..., None])
+        return v, v_alpha, None
+
+
 def _tensor(name: str, value: Any) -> torch.Tensor:
     if isinstance(value, np.ndarray):
         value = torch.from_numpy(value)
@@ -259,7 +300,9 @@ def rasterization(
     means2d = torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
     render, alpha = _RasterizeFunction.apply(*params, color_in, means2d, native, threads)
 
-    if bg is not None:
+    if bg is not None and not render_depth and not bg.requires_grad and n_color in (1, 3):
+        render = _Background.apply(render, alpha, bg.contiguous())
+    elif bg is not None:
         # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
         cc = n_color
         color = render[..., :cc] if render_depth else render
