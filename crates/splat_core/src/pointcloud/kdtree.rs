@@ -2,11 +2,13 @@
 //!
 //! Median splits on the widest axis with an implicit (heap-numbered) node layout: the shape
 //! depends only on the point count, so subtrees build in parallel and the nodes need no
-//! pointers. Points are stored in tree order, so queries issued in that order walk memory
-//! that is already cached. The search is nanoflann's (the library inside Open3D): nearer
-//! child first, then the farther one only if its cell is closer than the current k-th
-//! neighbour, tracking the cell distance per axis. Distances are squared f64 summed
-//! x, y, z, exactly as nanoflann's L2 metric does.
+//! pointers. Points are stored in tree order, and inside each leaf ordered by further
+//! median splits, so consecutive tree positions are near neighbours: queries issued in that
+//! order walk memory that is already cached and each starts from a tight bound taken from
+//! the one before. The search visits the cells nanoflann's (the library inside Open3D)
+//! would: the query's own leaf first, then, walking up, each sibling subtree only if its
+//! cell is closer than the current k-th neighbour. Distances are squared f64 summed
+//! x, y, z, exactly as nanoflann's L2 metric does, so the distances found are the same.
 //!
 //! Identical points are harmless (a known panic of another crate's mutable tree): splits
 //! are by rank, not value, so a million copies of one point still give a balanced tree,
@@ -16,8 +18,9 @@ use rayon::prelude::*;
 
 use super::{point, Coord};
 
-/// Points per leaf.
+/// Points per leaf (at most 32: a leaf's candidates are one `u32` bit mask).
 const LEAF: usize = 32;
+const _: () = assert!(LEAF <= 32);
 /// Subtrees larger than this are built on two threads.
 const PARALLEL_BUILD: usize = 1 << 15;
 
@@ -30,6 +33,8 @@ pub struct KdTree {
     ids: Vec<u32>,
     /// Bounding box of the points under node `i` (heap numbering: children 2i+1, 2i+2).
     boxes: Vec<[[f64; 3]; 2]>,
+    /// First tree position and point count under node `i`.
+    ranges: Vec<(u32, u32)>,
 }
 
 /// Above this many neighbours the k best are kept in a binary max-heap (O(log k) per
@@ -37,22 +42,50 @@ pub struct KdTree {
 /// k close to N cost O(N^3): 28 s for 4,000 points). Both keep the same k pairs.
 const HEAP_ABOVE: usize = 32;
 
-/// The k best (squared distance, index) pairs seen so far, by (distance, index). Unfilled
-/// slots hold (bound or +inf, u32::MAX). Small k: a sorted array, worst last. Large k: a
-/// max-heap, worst first, sorted by `finish` when a search ends. Either way the kept pairs
-/// are the k smallest offered, so the result does not depend on the layout.
+/// The k best (squared distance, index) pairs seen so far, by (distance, index), each
+/// packed into one integer key (see `key`). Unfilled slots hold (bound or +inf, u32::MAX).
+/// Small k: a sorted array, worst last (one integer comparison per step of the insertion).
+/// Large k: a max-heap, worst first,
+/// sorted by `finish` when a search ends. Either way the kept pairs are the k smallest
+/// offered, so the result does not depend on the layout.
 pub struct Neighbours {
+    keys: Vec<u128>,
+    heap: bool,
+    /// The result once a search has finished, nearest first.
     d2: Vec<f64>,
     id: Vec<u32>,
-    heap: bool,
+}
+
+/// Squared distance as nanoflann's L2 metric computes it: f64 differences, squares summed
+/// x, y, z in that order (no fused multiply-add), so ties and kept sets match Open3D.
+#[inline]
+fn squared_distance(q: &[f64; 3], p: [f64; 3]) -> f64 {
+    let dx = q[0] - p[0];
+    let dy = q[1] - p[1];
+    let dz = q[2] - p[2];
+    dx * dx + dy * dy + dz * dz
+}
+
+/// (squared distance, index) as one integer that orders as the pair: squared distances are
+/// never negative (nor -0.0: a sum of squares rounds to +0.0), and for such floats the bit
+/// pattern orders as the value, +inf included.
+#[inline]
+fn key(d2: f64, id: u32) -> u128 {
+    (u128::from(d2.to_bits()) << 32) | u128::from(id)
+}
+
+#[inline]
+fn key_distance(key: u128) -> f64 {
+    f64::from_bits((key >> 32) as u64)
 }
 
 impl Neighbours {
     pub fn new(k: usize) -> Self {
         Self {
+            keys: vec![key(f64::INFINITY, u32::MAX); k],
+            heap: k > HEAP_ABOVE,
             d2: vec![f64::INFINITY; k],
             id: vec![u32::MAX; k],
-            heap: k > HEAP_ABOVE,
         }
     }
 
@@ -64,53 +97,49 @@ impl Neighbours {
     /// `bound`: slots start at `bound` so farther cells are pruned from the start (equal
     /// slots are a valid heap as well as a sorted array).
     fn clear_within(&mut self, bound: f64) {
-        self.d2.fill(bound);
-        self.id.fill(u32::MAX);
+        self.keys.fill(key(bound, u32::MAX));
     }
 
     #[inline]
-    fn worst_at(&self) -> usize {
+    fn worst_key(&self) -> u128 {
         if self.heap {
-            0
+            self.keys[0]
         } else {
-            self.d2.len() - 1
+            self.keys[self.keys.len() - 1]
         }
     }
 
     #[inline]
     fn worst(&self) -> f64 {
-        self.d2[self.worst_at()]
+        key_distance(self.worst_key())
     }
 
-    /// (d2, id) sorts after slot `at`.
+    /// Keeps `key` if it sorts before the current worst.
     #[inline]
-    fn after(&self, d2: f64, id: u32, at: usize) -> bool {
-        d2 > self.d2[at] || (d2 == self.d2[at] && id > self.id[at])
-    }
-
-    #[inline]
-    fn offer(&mut self, d2: f64, id: u32) {
-        let w = self.worst_at();
-        if d2 > self.d2[w] || (d2 == self.d2[w] && id >= self.id[w]) {
+    fn offer(&mut self, key: u128) {
+        if key >= self.worst_key() {
             return;
         }
         if self.heap {
-            self.replace_worst(d2, id);
+            self.replace_worst(key);
             return;
         }
-        let mut at = w;
-        while at > 0 && (self.d2[at - 1] > d2 || (self.d2[at - 1] == d2 && self.id[at - 1] > id)) {
-            self.d2[at] = self.d2[at - 1];
-            self.id[at] = self.id[at - 1];
+        let keys = &mut self.keys[..];
+        let mut at = keys.len() - 1;
+        while at > 0 {
+            let before = keys[at - 1];
+            if before <= key {
+                break;
+            }
+            keys[at] = before;
             at -= 1;
         }
-        self.d2[at] = d2;
-        self.id[at] = id;
+        keys[at] = key;
     }
 
-    /// Heap layout: drops the root (the worst) for (d2, id) and sifts it down.
-    fn replace_worst(&mut self, d2: f64, id: u32) {
-        let n = self.d2.len();
+    /// Heap layout: drops the root (the worst) for `key` and sifts it down.
+    fn replace_worst(&mut self, key: u128) {
+        let n = self.keys.len();
         let mut at = 0;
         loop {
             let left = 2 * at + 1;
@@ -118,43 +147,28 @@ impl Neighbours {
                 break;
             }
             let right = left + 1;
-            let big = if right < n && self.after(self.d2[right], self.id[right], left) {
+            let big = if right < n && self.keys[right] > self.keys[left] {
                 right
             } else {
                 left
             };
-            if !self.after_pair(big, d2, id) {
+            if self.keys[big] <= key {
                 break;
             }
-            self.d2[at] = self.d2[big];
-            self.id[at] = self.id[big];
+            self.keys[at] = self.keys[big];
             at = big;
         }
-        self.d2[at] = d2;
-        self.id[at] = id;
+        self.keys[at] = key;
     }
 
-    /// Slot `at` sorts after (d2, id).
-    #[inline]
-    fn after_pair(&self, at: usize, d2: f64, id: u32) -> bool {
-        self.d2[at] > d2 || (self.d2[at] == d2 && self.id[at] > id)
-    }
-
-    /// Ends a search: sorts a heap nearest first (a sorted array already is).
+    /// Ends a search: the pairs nearest first into the result slots.
     fn finish(&mut self) {
-        if !self.heap {
-            return;
+        if self.heap {
+            self.keys.sort_unstable();
         }
-        let mut pairs: Vec<(f64, u32)> = self
-            .d2
-            .iter()
-            .copied()
-            .zip(self.id.iter().copied())
-            .collect();
-        pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        for (slot, (d2, id)) in pairs.into_iter().enumerate() {
-            self.d2[slot] = d2;
-            self.id[slot] = id;
+        for ((d2, id), &key) in self.d2.iter_mut().zip(self.id.iter_mut()).zip(&self.keys) {
+            *d2 = key_distance(key);
+            *id = key as u32;
         }
     }
 
@@ -169,11 +183,57 @@ impl Neighbours {
     }
 }
 
+/// First tree position and point count of every node of a tree over `n` points with
+/// `size` heap-numbered nodes.
+fn node_ranges(size: usize, n: usize) -> Vec<(u32, u32)> {
+    fn fill(node: usize, start: usize, len: usize, out: &mut [(u32, u32)]) {
+        out[node] = (start as u32, len as u32);
+        if len > LEAF {
+            let mid = len / 2;
+            fill(2 * node + 1, start, mid, out);
+            fill(2 * node + 2, start + mid, len - mid, out);
+        }
+    }
+    let mut out = vec![(0, 0); size];
+    fill(0, 0, n, &mut out);
+    out
+}
+
 /// Node id, its bounding box (lo, hi).
 type NodeInfo = (usize, [f64; 3], [f64; 3]);
 
 /// A point and its original index; the build reorders these in place.
 type Item = ([f64; 3], u32);
+
+/// Orders a leaf's points by further median splits on the widest axis (no nodes are kept
+/// for them): consecutive tree positions are then near neighbours, so each query's search
+/// starts from a tight bound taken from the previous one.
+fn order_leaf(items: &mut [Item]) {
+    if items.len() <= 2 {
+        return;
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for (p, _) in items.iter() {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let mut axis = 0;
+    for a in 1..3 {
+        if hi[a] - lo[a] > hi[axis] - lo[axis] {
+            axis = a;
+        }
+    }
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by(mid, |a, b| {
+        a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
+    });
+    let (left, right) = items.split_at_mut(mid);
+    order_leaf(left);
+    order_leaf(right);
+}
 
 fn build_rec(items: &mut [Item], node: usize, out: &mut Vec<NodeInfo>) {
     let len = items.len();
@@ -187,6 +247,7 @@ fn build_rec(items: &mut [Item], node: usize, out: &mut Vec<NodeInfo>) {
     }
     out.push((node, lo, hi));
     if len <= LEAF {
+        order_leaf(items);
         return;
     }
     let mut axis = 0;
@@ -235,6 +296,7 @@ impl KdTree {
             ys: axis(1),
             zs: axis(2),
             ids,
+            ranges: node_ranges(size, n),
             boxes,
         }
     }
@@ -274,22 +336,45 @@ impl KdTree {
         out.finish();
     }
 
-    /// Like `knn_of_position`, seeded by the result for the previous tree position
-    /// (`prev`, whose k-th squared distance is `prev_kth`): by the triangle inequality
-    /// the k-th neighbour of `pos` lies within sqrt(prev_kth) + |pos - prev| (+ the point
-    /// `prev` itself), inflated against rounding. Falls back to an unseeded search if the
-    /// bound ever leaves a slot unfilled.
-    fn knn_of_position_after(&self, pos: usize, prev: usize, prev_kth: f64, out: &mut Neighbours) {
+    /// Like `knn_of_position` for a point of leaf `leaf`, seeded by the result for the
+    /// previous tree position (`prev`, whose k-th squared distance is `prev_kth`; none for
+    /// the first point of a run): by the triangle inequality the k-th neighbour of `pos`
+    /// lies within sqrt(prev_kth) + |pos - prev| (+ the point `prev` itself), inflated
+    /// against rounding. Falls back to an unseeded search if the bound ever leaves a slot
+    /// unfilled.
+    fn knn_in_leaf(&self, leaf: usize, pos: usize, prev: Option<f64>, out: &mut Neighbours) {
         let q = self.point(pos);
-        let p = self.point(prev);
-        let step = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
-        let r = prev_kth.sqrt() + step;
-        let bound = (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE;
-        out.clear_within(bound);
-        self.search(0, 0, self.len(), &q, self.ids[pos], out);
+        match prev {
+            Some(prev_kth) => {
+                let step = squared_distance(&q, self.point(pos - 1)).sqrt();
+                let r = prev_kth.sqrt() + step;
+                out.clear_within((r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE);
+            }
+            None => out.clear(),
+        }
+        self.search_up(leaf, &q, self.ids[pos], out);
         out.finish();
         if out.id.contains(&u32::MAX) {
             self.knn_of_position(pos, out);
+        }
+    }
+
+    /// The search of `search` from the root, walked the other way: the query's own leaf
+    /// first, then the sibling of each ancestor up to the root, each searched only if its
+    /// box is nearer than the k-th neighbour so far. It prunes as the descent from the root
+    /// does (and finds the same distances) but skips the descent's 15-odd levels of box
+    /// tests on a million points.
+    fn search_up(&self, leaf: usize, q: &[f64; 3], skip: u32, out: &mut Neighbours) {
+        let (start, len) = self.ranges[leaf];
+        self.scan_leaf(start as usize, len as usize, q, skip, out);
+        let mut node = leaf;
+        while node > 0 {
+            let sibling = if node % 2 == 1 { node + 1 } else { node - 1 };
+            if self.box_distance(sibling, q) < out.worst() {
+                let (s, l) = self.ranges[sibling];
+                self.search(sibling, s as usize, l as usize, q, skip, out);
+            }
+            node = (node - 1) / 2;
         }
     }
 
@@ -313,6 +398,37 @@ impl KdTree {
         d2
     }
 
+    /// Offers the points at tree positions `start..start + len` (one leaf) to `out`.
+    #[inline]
+    fn scan_leaf(&self, start: usize, len: usize, q: &[f64; 3], skip: u32, out: &mut Neighbours) {
+        // Distances first (a loop the compiler vectorises), then the candidates.
+        let mut d2 = [0.0f64; LEAF];
+        let (xs, ys, zs) = (
+            &self.xs[start..start + len],
+            &self.ys[start..start + len],
+            &self.zs[start..start + len],
+        );
+        for (((d, &x), &y), &z) in d2.iter_mut().zip(xs).zip(ys).zip(zs) {
+            *d = squared_distance(q, [x, y, z]);
+        }
+        // Which points can enter, as bits (a vectorised loop without branches), then only
+        // those are offered: far fewer unpredictable branches than testing each point.
+        let worst = out.worst();
+        let mut mask = 0u32;
+        for (i, &d) in d2[..len].iter().enumerate() {
+            mask |= u32::from(d <= worst) << i;
+        }
+        let ids = &self.ids[start..start + len];
+        while mask != 0 {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let key = key(d2[i], ids[i]);
+            if key < out.worst_key() && ids[i] != skip {
+                out.offer(key);
+            }
+        }
+    }
+
     fn search(
         &self,
         node: usize,
@@ -323,24 +439,7 @@ impl KdTree {
         out: &mut Neighbours,
     ) {
         if len <= LEAF {
-            // Distances first (a loop the compiler vectorises), then the candidates.
-            let mut d2 = [0.0f64; LEAF];
-            let (xs, ys, zs) = (
-                &self.xs[start..start + len],
-                &self.ys[start..start + len],
-                &self.zs[start..start + len],
-            );
-            for (((d, x), y), z) in d2.iter_mut().zip(xs).zip(ys).zip(zs) {
-                let dx = q[0] - x;
-                let dy = q[1] - y;
-                let dz = q[2] - z;
-                *d = dx * dx + dy * dy + dz * dz;
-            }
-            for (&d, &id) in d2[..len].iter().zip(&self.ids[start..start + len]) {
-                if d <= out.worst() && id != skip {
-                    out.offer(d, id);
-                }
-            }
+            self.scan_leaf(start, len, q, skip, out);
             return;
         }
         let mid = len / 2;
@@ -361,27 +460,38 @@ impl KdTree {
         }
     }
 
+    /// The leaves under `node`, in tree order.
+    fn leaves(&self, node: usize, out: &mut Vec<usize>) {
+        if self.ranges[node].1 as usize <= LEAF {
+            out.push(node);
+        } else {
+            self.leaves(2 * node + 1, out);
+            self.leaves(2 * node + 2, out);
+        }
+    }
+
     /// Runs `f(pos, neighbours)` for every point (k nearest others), in parallel over fixed
-    /// chunks of tree order; returns the per-position results in tree order.
+    /// runs of leaves; returns the per-position results in tree order.
     pub fn map_knn<R: Send>(&self, k: usize, f: impl Fn(usize, &Neighbours) -> R + Sync) -> Vec<R> {
-        // Fixed chunks of consecutive tree positions, each searched in order and seeded by
-        // its predecessor: the chunking, and so every result, is independent of threads.
-        const CHUNK: usize = 512;
-        let chunks: Vec<Vec<R>> = (0..self.len().div_ceil(CHUNK))
-            .into_par_iter()
+        // Fixed runs of consecutive leaves, each searched in tree order and seeded by the
+        // predecessor: the runs, and so every result, are independent of threads.
+        const LEAVES_PER_RUN: usize = 16;
+        let mut leaves = Vec::new();
+        self.leaves(0, &mut leaves);
+        let chunks: Vec<Vec<R>> = leaves
+            .par_chunks(LEAVES_PER_RUN)
             .map_init(
                 || Neighbours::new(k),
-                |nb, c| {
-                    let range = c * CHUNK..((c + 1) * CHUNK).min(self.len());
-                    let mut out = Vec::with_capacity(range.len());
-                    for pos in range.clone() {
-                        if pos == range.start {
-                            self.knn_of_position(pos, nb);
-                        } else {
-                            let kth = nb.d2[nb.d2.len() - 1];
-                            self.knn_of_position_after(pos, pos - 1, kth, nb);
+                |nb, run| {
+                    let mut out = Vec::new();
+                    let mut prev = None;
+                    for &leaf in run {
+                        let (start, len) = self.ranges[leaf];
+                        for pos in start as usize..(start + len) as usize {
+                            self.knn_in_leaf(leaf, pos, prev, nb);
+                            prev = Some(nb.d2[nb.d2.len() - 1]);
+                            out.push(f(pos, nb));
                         }
-                        out.push(f(pos, nb));
                     }
                     out
                 },
@@ -450,6 +560,79 @@ mod tests {
                 assert_eq!(ids, nb.indices(), "k {k} position {pos}");
             }
         }
+    }
+
+    /// Checks `map_knn` on `pts` against brute force: the same squared distances, bit for
+    /// bit, and indices that are distinct other points at exactly those distances (which
+    /// of several tied points is returned may differ).
+    fn check_map_knn(pts: &[[f64; 3]], k: usize) {
+        let flat: Vec<f64> = pts.iter().flatten().copied().collect();
+        let tree = KdTree::build(&flat);
+        let got = tree.map_knn(k, |pos, nb| {
+            (
+                tree.id(pos),
+                nb.squared_distances().to_vec(),
+                nb.indices().to_vec(),
+            )
+        });
+        for (q, d2, ids) in got {
+            let want: Vec<f64> = brute(pts, q as usize, k).iter().map(|p| p.0).collect();
+            assert_eq!(d2, want, "k {k} query {q}");
+            let mut seen = ids.clone();
+            seen.sort_unstable();
+            seen.dedup();
+            assert_eq!(seen.len(), k, "k {k} query {q}: repeated index");
+            for (&id, &d) in ids.iter().zip(&d2) {
+                assert_ne!(id, q);
+                assert_eq!(brute_pair(pts, q as usize, id as usize), d);
+            }
+        }
+    }
+
+    fn brute_pair(points: &[[f64; 3]], a: usize, b: usize) -> f64 {
+        let d = [
+            points[a][0] - points[b][0],
+            points[a][1] - points[b][1],
+            points[a][2] - points[b][2],
+        ];
+        d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    }
+
+    #[test]
+    fn map_knn_matches_brute_force_with_ties_and_duplicates() {
+        // A coarse lattice (many equal distances) with repeated points, plus far points.
+        let mut s = 99u64;
+        let mut rnd = |m: u64| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 33) % m
+        };
+        let mut pts: Vec<[f64; 3]> = (0..1500)
+            .map(|_| {
+                [
+                    rnd(12) as f64 * 0.5,
+                    rnd(12) as f64 * 0.5,
+                    rnd(3) as f64 * 0.5,
+                ]
+            })
+            .collect();
+        pts.extend((0..40).map(|i| [100.0 + i as f64, -50.0, 7.0]));
+        for k in [1, 5, 19, 33, 60] {
+            check_map_knn(&pts, k);
+        }
+    }
+
+    #[test]
+    fn map_knn_on_degenerate_clouds() {
+        // Collinear, evenly spaced (every point has two equidistant neighbours).
+        let line: Vec<[f64; 3]> = (0..700).map(|i| [i as f64 * 0.25, 1.0, -2.0]).collect();
+        check_map_knn(&line, 19);
+        // Exactly k + 1 points, and a cloud of identical points with one apart.
+        check_map_knn(&line[..20], 19);
+        let mut same = vec![[0.5, 0.5, 0.5]; 300];
+        same.push([1.0, 2.0, 3.0]);
+        check_map_knn(&same, 19);
     }
 
     #[test]

@@ -165,6 +165,41 @@ mod tests {
     }
 
     #[test]
+    fn collinear_identical_and_non_finite_clouds() {
+        // Collinear, with a stretch of wider spacing: equal distances everywhere.
+        let mut line: Vec<f32> = Vec::new();
+        for i in 0..400 {
+            let x = if i < 350 {
+                i as f32 * 0.5
+            } else {
+                175.0 + (i - 350) as f32 * 3.0
+            };
+            line.extend([x, 2.0 * x, -x]);
+        }
+        assert_eq!(
+            remove_statistical_outliers(&line, 20, 1.0).unwrap(),
+            reference(&line, 20, 1.0)
+        );
+        // All points identical: every score is 0, nothing is kept (as Open3D).
+        let same = [0.25f32, -1.0, 3.0].repeat(500);
+        assert_eq!(
+            remove_statistical_outliers(&same, 20, 2.0).unwrap(),
+            Vec::<i64>::new()
+        );
+        let mut bad = noisy_cloud(50);
+        bad[31] = f32::NAN;
+        assert!(matches!(
+            remove_statistical_outliers(&bad, 5, 2.0),
+            Err(CoreError::Input(_))
+        ));
+        bad[31] = f32::INFINITY;
+        assert!(matches!(
+            statistical_outlier_scores(&bad, 5),
+            Err(CoreError::Input(_))
+        ));
+    }
+
+    #[test]
     fn degenerate_inputs() {
         let pts = noisy_cloud(10);
         assert!(matches!(
