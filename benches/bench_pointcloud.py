@@ -206,7 +206,11 @@ def main() -> int:
     lines.append(
         "\nHow: SOR and kNN use a kd-tree (median splits, tight node boxes) searched in "
         "float64 with nanoflann's distance arithmetic, as in Open3D, so the kept sets are "
-        "identical, not just close. The voxel grid hashes packed voxel keys (each voxel owned "
+        "identical, not just close. Each leaf's points are ordered by further median splits, "
+        "so consecutive queries are near neighbours: each starts from a bound taken from the "
+        "one before (triangle inequality), at its own leaf, walking up through the sibling "
+        "subtrees instead of descending from the root; a leaf's candidates are filtered by a "
+        "branch-free bit mask before they enter the sorted neighbour list. The voxel grid hashes packed voxel keys (each voxel owned "
         "by one worker and summed in input order) and sorts only the occupied voxels, so its "
         "means are Open3D's to the bit and its order is deterministic. With few voxels (1% of "
         "the extent: ~35k) Open3D's own hash map is already fast and the gain is small; it "
