@@ -49,6 +49,8 @@ def build_peer(checkout: Path):
     """Compiles the peer from `checkout` (cached by torch under ~/.cache/torch_extensions)."""
     from torch.utils.cpp_extension import load
 
+    # torch finds ninja on PATH only; the bench extra installs it beside this interpreter.
+    os.environ["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
     cpu_dir = checkout / "rasterizer" / "gsplat-cpu"
     source = cpu_dir / "gsplat_cpu.cpp"
     if not source.is_file():
