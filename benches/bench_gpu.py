@@ -222,6 +222,11 @@ def section(args: argparse.Namespace, guidance: Any, text: str, argv: list[str])
         f"Command: `{command}`.\n",
         text,
         "",
+        f"(L-System bean, seed 0, {args.points:,} points, render {args.render}, SDS {args.sds}, "
+        f"{'tiny random-weight' if args.tiny else 'full-size random-weight'} models, "
+        f"{guidance.device.type.upper()}.) The non-network part is the median step less its "
+        "text, UNet/ControlNet and VAE phases.",
+        "",
     ]
     if guidance.device.type != "cuda":
         lines += [
