@@ -188,17 +188,19 @@ def _share_channels(
     n_inst = len(label_set.instances)
     which = label_set.instance_channel - 1  # instance index per Gaussian, -1: none
     xy = meta["means2d"][0].detach().numpy()
-    radii = meta["radii"][0].numpy().astype(np.float32)  # whole numbers (ceiled), exact
-    seen = (radii.max(axis=1) > 0) & (which >= 0)
+    radii = meta["radii"][0].numpy()  # int32, whole numbers (ceiled): exact in float32
+    seen = np.flatnonzero(((radii[:, 0] > 0) | (radii[:, 1] > 0)) & (which >= 0))
     # The tiles of each footprint box, computed as the rasterizer's binning does (float32,
     # same operations; it bins a splat to no tile outside them); painted per instance with
-    # a 2-D difference array.
+    # a 2-D difference array. Per axis on the seen splats only: the [N, 2] form cost 8 ms.
     inv = np.float32(1.0 / TILE)
-    lo = np.trunc(np.maximum((xy[seen] - radii[seen]) * inv, 0)).astype(np.int64)
-    up = np.maximum((xy[seen] + radii[seen]) * inv, 0)
-    hi = np.ceil(up).astype(np.int64)
-    x0, x1 = np.clip(lo[:, 0], 0, tiles_x), np.clip(hi[:, 0], 0, tiles_x)
-    y0, y1 = np.clip(lo[:, 1], 0, tiles_y), np.clip(hi[:, 1], 0, tiles_y)
+    box = []
+    for axis, tiles in ((0, tiles_x), (1, tiles_y)):
+        centre, r = xy[seen, axis], radii[seen, axis].astype(np.float32)
+        lo = np.maximum((centre - r) * inv, 0).astype(np.int64)  # >= 0: truncation is floor
+        hi = np.ceil(np.maximum((centre + r) * inv, 0)).astype(np.int64)
+        box += [np.clip(lo, 0, tiles), np.clip(hi, 0, tiles)]
+    x0, x1, y0, y1 = box
     inst = which[seen] * (tiles_y + 1)
     corners = [
         ((inst + y) * (tiles_x + 1) + x) for y, x in ((y0, x0), (y1, x1), (y0, x1), (y1, x0))
