@@ -50,7 +50,7 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
     import torch
 
     from plantdreamer.cameras import orbit_ring
-    from plantdreamer.lsystem import generate_plant, sample_points
+    from plantdreamer.pipeline import GenerateConfig
     from plantdreamer.pipeline.ground_truth import (
         GroundTruthRenderer,
         LabelSet,
@@ -59,18 +59,11 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
         _one_hot,
         _share_channels,
     )
-    from plantdreamer.pipeline.init import init_gaussians
     from plantdreamer.pipeline.model import GaussianModel
-    from plantdreamer.pointcloud import normalize
+    from plantdreamer.pipeline.source import initial_gaussians, load_source
 
-    cloud = sample_points(generate_plant(species, 0), n=100_000, seed=0, boundary_distance=True)
-    points, transform = normalize(cloud.positions, 4.0)
-    labels = np.stack([cloud.attributes["label"], cloud.attributes["instance"]], axis=1)
-    edge = cloud.attributes["boundary_distance"] * np.float32(transform.scale)
-    g = init_gaussians(  # as generate initialises an L-System plant
-        points.astype(np.float32), cloud.colors, 0.7, labels=labels, normals=cloud.normals,
-        boundary_distance=edge,
-    )  # fmt: skip
+    cfg = GenerateConfig(species=species, seed=0, n_points=100_000)
+    g = initial_gaussians(cfg, load_source(cfg))  # the Gaussians generate starts from
     model, ls = GaussianModel(g), LabelSet.of(g.labels)
     times: dict[str, list[float]] = {"rgb": [], "gt": [], "naive": []}
     if baseline is not None:

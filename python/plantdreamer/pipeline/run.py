@@ -33,7 +33,6 @@ from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.depth_ahead import DepthAhead
-from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.sampler import CameraSampler
@@ -278,25 +277,14 @@ class _Run:
     # -- setup -----------------------------------------------------------------------
 
     def _start_fresh(self) -> None:
-        from plantdreamer.pipeline.source import load_source
+        from plantdreamer.pipeline.source import initial_gaussians, load_source
 
         cfg = self.cfg
         self.timer = PhaseTimer()
         torch.manual_seed(cfg.seed)
         with self.timer("prepare"):
             source = load_source(cfg)
-            rng = np.random.default_rng([cfg.seed, 0xC0102])
-            colors = initial_colors(source.colors, len(source.points), cfg.color_init, rng)
-            g = init_gaussians(
-                source.points,
-                colors,
-                cfg.initial_opacity(),
-                cfg.sh_degree,
-                scale_rule=cfg.init_scale,
-                labels=source.labels,
-                normals=source.normals,
-                boundary_distance=source.boundary_distance,
-            )
+            g = initial_gaussians(cfg, source)
         self.transform, self.source_counts = source.transform, source.counts
         self.label_fields = source.label_fields if source.labels is not None else None
         if self.show_progress and cfg.pointcloud is not None:

@@ -9,8 +9,10 @@ import numpy as np
 
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
+from plantdreamer.gaussians import Gaussians
 from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pointcloud import NormalizeTransform
 
 
@@ -87,6 +89,22 @@ def load_source(cfg: GenerateConfig) -> Source:
         {"label": "OrganClass", "instance": "leaf"},
         cloud.normals if surface else None,  # normalising scales: directions unchanged
         cloud.attributes["boundary_distance"] * np.float32(transform.scale) if surface else None,
+    )
+
+
+def initial_gaussians(cfg: GenerateConfig, source: Source) -> Gaussians:
+    """The Gaussians a run starts from: one per source point, by the config's rules."""
+    rng = np.random.default_rng([cfg.seed, 0xC0102])
+    colors = initial_colors(source.colors, len(source.points), cfg.color_init, rng)
+    return init_gaussians(
+        source.points,
+        colors,
+        cfg.initial_opacity(),
+        cfg.sh_degree,
+        scale_rule=cfg.init_scale,
+        labels=source.labels,
+        normals=source.normals,
+        boundary_distance=source.boundary_distance,
     )
 
 

@@ -205,6 +205,19 @@ type NodeInfo = (usize, [f64; 3], [f64; 3]);
 /// A point and its original index; the build reorders these in place.
 type Item = ([f64; 3], u32);
 
+/// The tight box (lowest, highest corner) of the points.
+fn bounds(items: &[Item]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for (p, _) in items {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
 /// Orders a leaf's points by further median splits on the widest axis (no nodes are kept
 /// for them): consecutive tree positions are then near neighbours, so each query's search
 /// starts from a tight bound taken from the previous one.
@@ -212,14 +225,7 @@ fn order_leaf(items: &mut [Item]) {
     if items.len() <= 2 {
         return;
     }
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for (p, _) in items.iter() {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
+    let (lo, hi) = bounds(items);
     let mut axis = 0;
     for a in 1..3 {
         if hi[a] - lo[a] > hi[axis] - lo[axis] {
@@ -237,14 +243,7 @@ fn order_leaf(items: &mut [Item]) {
 
 fn build_rec(items: &mut [Item], node: usize, out: &mut Vec<NodeInfo>) {
     let len = items.len();
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for (p, _) in items.iter() {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
+    let (lo, hi) = bounds(items);
     out.push((node, lo, hi));
     if len <= LEAF {
         order_leaf(items);
