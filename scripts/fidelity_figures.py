@@ -38,10 +38,9 @@ from plantdreamer.io import write_ply
 from plantdreamer.lsystem import generate_plant, sample_points
 from plantdreamer.pipeline import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler
-from plantdreamer.pipeline.source import load_source
+from plantdreamer.pipeline.source import initial_gaussians, load_source
 
 SPECIES = ("bean", "mint", "kale")
 REAL_STYLE = (("bean", 7), ("mint", 5))
@@ -90,9 +89,7 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 def initial_model(options: dict) -> tuple[GaussianModel, GenerateConfig]:
     """The initial Gaussians of a run with these options (default settings otherwise)."""
     cfg = GenerateConfig(**options)
-    source = load_source(cfg)
-    colors = initial_colors(source.colors, len(source.points), "original", np.random.default_rng(0))
-    return GaussianModel(init_gaussians(source.points, colors, cfg.initial_opacity())), cfg
+    return GaussianModel(initial_gaussians(cfg, load_source(cfg))), cfg
 
 
 def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> dict:
