@@ -210,8 +210,8 @@ rows). 1-minute load average at the start of each process: {min(loads):.1f} to
 How to read it: the wrapper-alone rows are the Python side's whole cost (the goal is under
 1 ms for the forward at 100k). "public - native" is the difference of two calls that each
 vary by tens of milliseconds on a loaded machine, so it can come out negative. The kernel
-rows are several times the quiet-machine figures of the forward table above because of
-the load; what they show is the spread between the two OpenMP settings.
+rows follow the machine's load and speed (compare them with the forward table's run only
+through its calibration line); what they show is the spread between the two OpenMP settings.
 """
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "raster_call.md").write_text(md)
