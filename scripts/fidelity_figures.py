@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from plantdreamer.atomic import write_text
 from plantdreamer.cloud import PointCloud
 from plantdreamer.guidance.depth import DEPTH_RULES, DepthCleaning, normalise_depth
 from plantdreamer.io import write_ply
@@ -183,17 +183,9 @@ def main() -> None:
             cull[name] = cull_figures(model.params["log_scales"].detach(), cfg)
             depth[name] = depth_figures(model, cfg, args.cameras)
             print(json.dumps({"depth": depth[name], "cull": cull[name]}), flush=True)
-    write_atomic(args.out, markdown(depth, cull, args.cameras))
-    write_atomic(
-        args.out.with_suffix(".json"), json.dumps({"depth": depth, "cull": cull}, indent=2)
-    )
+    write_text(args.out, markdown(depth, cull, args.cameras))
+    write_text(args.out.with_suffix(".json"), json.dumps({"depth": depth, "cull": cull}, indent=2))
     print(f"wrote {args.out}")
-
-
-def write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 if __name__ == "__main__":
