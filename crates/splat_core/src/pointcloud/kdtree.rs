@@ -19,22 +19,25 @@ use rayon::prelude::*;
 use super::{point, Coord};
 
 /// Points per leaf (at most 32: a leaf's candidates are one `u32` bit mask).
-const LEAF: usize = 32;
+pub(super) const LEAF: usize = 32;
 const _: () = assert!(LEAF <= 32);
+/// Leaves searched in a row by one worker, each query seeded by the one before (see
+/// `map_knn`): fixed, so the runs, and so every result, are independent of threads.
+pub(super) const LEAVES_PER_RUN: usize = 16;
 /// Subtrees larger than this are built on two threads.
 const PARALLEL_BUILD: usize = 1 << 15;
 
 pub struct KdTree {
     /// Coordinates in tree order, one array per axis (a leaf's distances vectorise).
-    xs: Vec<f64>,
-    ys: Vec<f64>,
-    zs: Vec<f64>,
+    pub(super) xs: Vec<f64>,
+    pub(super) ys: Vec<f64>,
+    pub(super) zs: Vec<f64>,
     /// Original index of each tree-order point.
     ids: Vec<u32>,
     /// Bounding box of the points under node `i` (heap numbering: children 2i+1, 2i+2).
-    boxes: Vec<[[f64; 3]; 2]>,
+    pub(super) boxes: Vec<[[f64; 3]; 2]>,
     /// First tree position and point count under node `i`.
-    ranges: Vec<(u32, u32)>,
+    pub(super) ranges: Vec<(u32, u32)>,
 }
 
 /// Above this many neighbours the k best are kept in a binary max-heap (O(log k) per
@@ -59,7 +62,7 @@ pub struct Neighbours {
 /// Squared distance as nanoflann's L2 metric computes it: f64 differences, squares summed
 /// x, y, z in that order (no fused multiply-add), so ties and kept sets match Open3D.
 #[inline]
-fn squared_distance(q: &[f64; 3], p: [f64; 3]) -> f64 {
+pub(super) fn squared_distance(q: &[f64; 3], p: [f64; 3]) -> f64 {
     let dx = q[0] - p[0];
     let dy = q[1] - p[1];
     let dz = q[2] - p[2];
@@ -308,7 +311,7 @@ impl KdTree {
         self.ids.is_empty()
     }
 
-    fn point(&self, pos: usize) -> [f64; 3] {
+    pub(super) fn point(&self, pos: usize) -> [f64; 3] {
         [self.xs[pos], self.ys[pos], self.zs[pos]]
     }
 
@@ -335,6 +338,16 @@ impl KdTree {
         out.finish();
     }
 
+    /// A squared distance the k-th neighbour of the point at `pos` lies within, from the
+    /// k-th squared distance `prev_kth` of the point at `pos - 1` (triangle inequality:
+    /// sqrt(prev_kth) + |pos - prev|, the point `prev` itself included), inflated far past
+    /// the rounding of either side.
+    pub(super) fn seed_bound(&self, pos: usize, prev_kth: f64) -> f64 {
+        let step = squared_distance(&self.point(pos), self.point(pos - 1)).sqrt();
+        let r = prev_kth.sqrt() + step;
+        (r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE
+    }
+
     /// Like `knn_of_position` for a point of leaf `leaf`, seeded by the result for the
     /// previous tree position (`prev`, whose k-th squared distance is `prev_kth`; none for
     /// the first point of a run): by the triangle inequality the k-th neighbour of `pos`
@@ -344,11 +357,7 @@ impl KdTree {
     fn knn_in_leaf(&self, leaf: usize, pos: usize, prev: Option<f64>, out: &mut Neighbours) {
         let q = self.point(pos);
         match prev {
-            Some(prev_kth) => {
-                let step = squared_distance(&q, self.point(pos - 1)).sqrt();
-                let r = prev_kth.sqrt() + step;
-                out.clear_within((r * r) * (1.0 + 1e-9) + f64::MIN_POSITIVE);
-            }
+            Some(prev_kth) => out.clear_within(self.seed_bound(pos, prev_kth)),
             None => out.clear(),
         }
         self.search_up(leaf, &q, self.ids[pos], out);
@@ -381,7 +390,7 @@ impl KdTree {
     /// distance to any point in it (the box corners are point coordinates, and rounding is
     /// monotone), so pruning on it is exact.
     #[inline]
-    fn box_distance(&self, node: usize, q: &[f64; 3]) -> f64 {
+    pub(super) fn box_distance(&self, node: usize, q: &[f64; 3]) -> f64 {
         let [lo, hi] = &self.boxes[node];
         let mut d2 = 0.0;
         for a in 0..3 {
@@ -459,8 +468,8 @@ impl KdTree {
         }
     }
 
-    /// The leaves under `node`, in tree order.
-    fn leaves(&self, node: usize, out: &mut Vec<usize>) {
+    /// The leaves under `node`, in tree order (`node` 0: all of them).
+    pub(super) fn leaves(&self, node: usize, out: &mut Vec<usize>) {
         if self.ranges[node].1 as usize <= LEAF {
             out.push(node);
         } else {
@@ -473,8 +482,7 @@ impl KdTree {
     /// runs of leaves; returns the per-position results in tree order.
     pub fn map_knn<R: Send>(&self, k: usize, f: impl Fn(usize, &Neighbours) -> R + Sync) -> Vec<R> {
         // Fixed runs of consecutive leaves, each searched in tree order and seeded by the
-        // predecessor: the runs, and so every result, are independent of threads.
-        const LEAVES_PER_RUN: usize = 16;
+        // predecessor.
         let mut leaves = Vec::new();
         self.leaves(0, &mut leaves);
         let chunks: Vec<Vec<R>> = leaves

@@ -2,6 +2,7 @@
 
 use rayon::prelude::*;
 
+use super::nearest::map_knn_distances;
 use super::{check_points, Coord, KdTree};
 use crate::error::human_bytes;
 use crate::{CoreError, CoreResult};
@@ -70,8 +71,8 @@ pub fn knn_mean_distance<T: Coord>(points: &[T], k: usize) -> CoreResult<Vec<f32
     let n = check_points(points)?;
     check_k(n, k, "k")?;
     let tree = KdTree::build(points);
-    let means = tree.map_knn(k, |_, nb| {
-        nb.squared_distances().iter().map(|d| d.sqrt()).sum::<f64>() / k as f64
+    let means = map_knn_distances(&tree, k, |_, d2| {
+        d2.iter().map(|d| d.sqrt()).sum::<f64>() / k as f64
     });
     let inv = tree.positions();
     Ok(inv

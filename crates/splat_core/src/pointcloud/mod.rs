@@ -6,6 +6,9 @@
 
 mod kdtree;
 mod knn;
+mod nearest;
+#[cfg(target_arch = "x86_64")]
+mod nearest_avx2;
 mod sor;
 mod voxel;
 

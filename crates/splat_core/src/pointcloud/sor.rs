@@ -9,6 +9,7 @@
 //! the same as Open3D's.
 
 use super::knn::check_k;
+use super::nearest::map_knn_distances;
 use super::{check_points, Coord, KdTree};
 use crate::{CoreError, CoreResult};
 
@@ -33,10 +34,10 @@ pub fn statistical_outlier_scores<T: Coord>(
     let scores = if others == 0 {
         vec![0.0; n]
     } else {
-        tree.map_knn(others, |_, nb| {
+        map_knn_distances(&tree, others, |_, d2s| {
             // Open3D: the point itself first (sqrt(0) = 0), then the others nearest first.
             let mut sum = 0.0f64;
-            for &d2 in nb.squared_distances() {
+            for &d2 in d2s {
                 sum += d2.sqrt();
             }
             sum / nb_neighbors as f64
