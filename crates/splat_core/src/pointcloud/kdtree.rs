@@ -392,15 +392,13 @@ impl KdTree {
     #[inline]
     pub(super) fn box_distance(&self, node: usize, q: &[f64; 3]) -> f64 {
         let [lo, hi] = &self.boxes[node];
+        // Branch-free: the larger of lo - q and q - hi, or 0 inside (the same values as
+        // testing which side q is on; at most one of them is positive).
         let mut d2 = 0.0;
         for a in 0..3 {
-            let d = if q[a] < lo[a] {
-                lo[a] - q[a]
-            } else if q[a] > hi[a] {
-                q[a] - hi[a]
-            } else {
-                0.0
-            };
+            let (below, above) = (lo[a] - q[a], q[a] - hi[a]);
+            let d = if below > above { below } else { above };
+            let d = if d > 0.0 { d } else { 0.0 };
             d2 += d * d;
         }
         d2
