@@ -3,6 +3,10 @@
 //! Points are flat `[x0, y0, z0, x1, ...]` slices of f32 or f64; all distance math runs in
 //! f64, as Open3D does (its legacy point cloud stores `Eigen::Vector3d`), so kept sets and
 //! voxel means match Open3D's bit for bit on the same input.
+//!
+//! `kdtree` builds the tree and finds neighbours with their indices (`knn`); `nearest`
+//! finds the distances alone (SOR scores, mean kNN distance) over the same tree with a
+//! cheaper neighbour list, and `nearest_avx2` is its AVX2 instance.
 
 mod kdtree;
 mod knn;

@@ -8,6 +8,8 @@
 //! and are dropped, as in Open3D. Same f64 operations in the same order, so the kept set is
 //! the same as Open3D's.
 
+use rayon::prelude::*;
+
 use super::knn::check_k;
 use super::nearest::map_knn_distances;
 use super::{check_points, Coord, KdTree};
@@ -44,7 +46,7 @@ pub fn statistical_outlier_scores<T: Coord>(
         })
     };
     let inv = tree.positions();
-    Ok(inv.iter().map(|&pos| scores[pos as usize]).collect())
+    Ok(inv.par_iter().map(|&pos| scores[pos as usize]).collect())
 }
 
 /// Indices (ascending) of the points Open3D 0.20's `remove_statistical_outlier` keeps.
