@@ -144,15 +144,13 @@ impl<const P: usize> Search<'_, P> {
                 )
             };
             // The far child first, so the near one is searched first.
+            // Written unconditionally and kept by moving the top or not: no branch to
+            // mispredict (the stack has room for both; see `stack`).
             let limit = self.best.limit();
-            if far.3 < limit {
-                self.stack[top] = far;
-                top += 1;
-            }
-            if near.3 < limit {
-                self.stack[top] = near;
-                top += 1;
-            }
+            self.stack[top] = far;
+            top += usize::from(far.3 < limit);
+            self.stack[top] = near;
+            top += usize::from(near.3 < limit);
         }
     }
 
