@@ -4,7 +4,7 @@
 //! The same kd-tree walk as `KdTree::map_knn` (own leaf first, then the siblings up to the
 //! root, seeded by the previous query's k-th distance, pruned on the same boxes), with two
 //! differences that make it cheaper (SOR on the 1M-point bench cloud, tree build included:
-//! about 1.5x less CPU time than over `map_knn`):
+//! about 1.6x less CPU time than over `map_knn`):
 //! - The k best are a sorted array updated by a branch-free min/max network (see
 //!   `Network::offer`); inserting a candidate costs the same few vector instructions
 //!   wherever it lands, with no mispredicted loop exit. The values are the k smallest of
