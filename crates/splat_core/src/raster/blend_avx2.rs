@@ -64,34 +64,7 @@ fn store_u32(v: &mut [u32], x: __m256i) {
 /// `lanes::exp_neg` on eight lanes.
 #[inline(always)]
 fn exp_neg(x: __m256) -> __m256 {
-    // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
-    unsafe {
-        let s = _mm256_set1_ps;
-        // maxps/minps return the second operand when a lane is NaN, like `if x > c`.
-        let x = _mm256_max_ps(x, s(-87.0));
-        const ROUND: f32 = 12_582_912.0;
-        let t = _mm256_add_ps(_mm256_mul_ps(x, s(std::f32::consts::LOG2_E)), s(ROUND));
-        let n = _mm256_sub_ps(t, s(ROUND));
-        let r = _mm256_sub_ps(
-            _mm256_sub_ps(x, _mm256_mul_ps(n, s(0.693_359_4))),
-            _mm256_mul_ps(n, s(-2.121_944_4e-4)),
-        );
-        let c = EXP_COEFFS.map(|v| s(v));
-        let r2 = _mm256_mul_ps(r, r);
-        let r4 = _mm256_mul_ps(r2, r2);
-        let lin = |a: __m256, b: __m256| _mm256_add_ps(_mm256_mul_ps(a, r), b);
-        let p = _mm256_add_ps(
-            _mm256_mul_ps(lin(c[0], c[1]), r4),
-            _mm256_add_ps(_mm256_mul_ps(lin(c[2], c[3]), r2), lin(c[4], c[5])),
-        );
-        let y = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(p, r2), r), s(1.0));
-        let n_int = _mm256_sub_epi32(
-            _mm256_castps_si256(t),
-            _mm256_set1_epi32(ROUND.to_bits() as i32),
-        );
-        let scale = _mm256_slli_epi32(_mm256_add_epi32(n_int, _mm256_set1_epi32(127)), 23);
-        _mm256_mul_ps(y, _mm256_castsi256_ps(scale))
-    }
+    exp_neg_rows([x])[0]
 }
 
 /// One lane group of footprint columns: the mask of lanes inside the footprint, dx = x_splat
@@ -117,61 +90,203 @@ fn column_group(
     }
 }
 
+/// `[e(0), .., e(R - 1)]` written as a loop over the rows (no closure, so the intrinsics
+/// inline into the AVX2 kernel).
+macro_rules! rows {
+    ($n:expr, $r:ident => $e:expr) => {{
+        let mut v = [Zero::zero(); $n];
+        for $r in 0..$n {
+            v[$r] = $e;
+        }
+        v
+    }};
+}
+
+/// The initial value of `rows!`'s arrays.
+trait Zero: Copy {
+    fn zero() -> Self;
+}
+
+impl Zero for __m256 {
+    #[inline(always)]
+    fn zero() -> Self {
+        // SAFETY: only used in the AVX2 kernels.
+        unsafe { _mm256_setzero_ps() }
+    }
+}
+
+macro_rules! impl_zero {
+    ($($t:ty),*) => {$(impl Zero for $t {
+        #[inline(always)]
+        fn zero() -> Self {
+            0 as $t
+        }
+    })*};
+}
+impl_zero!(usize, i32, f32);
+
+/// `exp_neg` on `R` registers at once, operation by operation, so that the independent
+/// chains of `R` rows sit side by side in the instruction stream.
+#[inline(always)]
+fn exp_neg_rows<const R: usize>(x: [__m256; R]) -> [__m256; R] {
+    // SAFETY (whole body): only called from the `#[target_feature(enable = "avx2")]` kernels.
+    unsafe {
+        let s = _mm256_set1_ps;
+        let x = rows!(R, r => _mm256_max_ps(x[r], s(-87.0)));
+        const ROUND: f32 = 12_582_912.0;
+        let t = rows!(R, r => _mm256_add_ps(_mm256_mul_ps(x[r], s(std::f32::consts::LOG2_E)), s(ROUND)));
+        let n = rows!(R, r => _mm256_sub_ps(t[r], s(ROUND)));
+        let r1 = rows!(R, r => {
+            _mm256_sub_ps(
+                _mm256_sub_ps(x[r], _mm256_mul_ps(n[r], s(0.693_359_4))),
+                _mm256_mul_ps(n[r], s(-2.121_944_4e-4)),
+            )
+        });
+        let c = EXP_COEFFS.map(|v| s(v));
+        let r2 = rows!(R, r => _mm256_mul_ps(r1[r], r1[r]));
+        let r4 = rows!(R, r => _mm256_mul_ps(r2[r], r2[r]));
+        let lin = |a: __m256, b: __m256, r: __m256| _mm256_add_ps(_mm256_mul_ps(a, r), b);
+        let p = rows!(R, r => {
+            _mm256_add_ps(
+                _mm256_mul_ps(lin(c[0], c[1], r1[r]), r4[r]),
+                _mm256_add_ps(
+                    _mm256_mul_ps(lin(c[2], c[3], r1[r]), r2[r]),
+                    lin(c[4], c[5], r1[r]),
+                ),
+            )
+        });
+        let y =
+            rows!(R, r => _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(p[r], r2[r]), r1[r]), s(1.0)));
+        let scale = rows!(R, r => {
+            let n_int = _mm256_sub_epi32(
+                _mm256_castps_si256(t[r]),
+                _mm256_set1_epi32(ROUND.to_bits() as i32),
+            );
+            _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(n_int, _mm256_set1_epi32(127)), 23))
+        });
+        rows!(R, r => _mm256_mul_ps(y[r], scale[r]))
+    }
+}
+
+/// What the forward kernel needs of one splat and one lane group of its footprint.
+struct GroupLanes<'a> {
+    sp: &'a SplatInTile<'a>,
+    gi: usize,
+    cols: __m256,
+    dx: __m256,
+    a_dx2: __m256,
+}
+
+/// Blends `R` rows of one lane group (distinct rows: independent pixels); returns how many
+/// pixels stopped.
+#[inline(always)]
+fn blend_rows<const R: usize, const COUNT: bool>(
+    g: &GroupLanes,
+    rows: [usize; R],
+    t_min: __m256,
+    sc: &mut TileScratch,
+) -> u32 {
+    // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
+    unsafe {
+        let s = _mm256_set1_ps;
+        let (plane, stride) = (sc.geo.plane(), sc.geo.stride);
+        let sp = g.sp;
+        let [_, b, c] = sp.s.conic;
+        let base: [usize; R] = rows!(R, r => rows[r] * stride + g.gi * LANES);
+        let live: [__m256; R] = rows!(R, r => _mm256_castsi256_ps(load_u32(&sc.live[base[r]..])));
+        let inside: [__m256; R] = rows!(R, r => _mm256_and_ps(g.cols, live[r]));
+        let any: [i32; R] = rows!(R, r => _mm256_movemask_ps(inside[r]));
+        // Pixels that already stopped cost nothing more.
+        if any.iter().all(|&m| m == 0) {
+            return 0;
+        }
+        if COUNT {
+            sc.evals.groups += any.iter().filter(|&&m| m != 0).count() as u64;
+        }
+        // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
+        let dy: [f32; R] = rows!(R, r => sp.s.xy[1] - sc.geo.ys[rows[r]]);
+        let sigma: [__m256; R] = rows!(R, r => {
+            _mm256_add_ps(
+                _mm256_mul_ps(s(0.5), _mm256_add_ps(g.a_dx2, s(c * dy[r] * dy[r]))),
+                _mm256_mul_ps(g.dx, s(b * dy[r])),
+            )
+        });
+        let e = exp_neg_rows::<R>(rows!(R, r => _mm256_xor_ps(sigma[r], s(-0.0))));
+        let opacity = s(sp.s.opacity);
+        let alpha: [__m256; R] =
+            rows!(R, r => _mm256_min_ps(_mm256_mul_ps(opacity, e[r]), s(ALPHA_MAX)));
+        let ok: [__m256; R] = rows!(R, r => {
+            _mm256_and_ps(
+                _mm256_and_ps(inside[r], _mm256_cmp_ps::<_CMP_GE_OQ>(sigma[r], s(0.0))),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(alpha[r], s(ALPHA_MIN)),
+            )
+        });
+        let t: [__m256; R] = rows!(R, r => load(&sc.trans[base[r]..]));
+        let next_t: [__m256; R] =
+            rows!(R, r => _mm256_mul_ps(t[r], _mm256_sub_ps(s(1.0), alpha[r])));
+        let stop: [__m256; R] = rows!(R, r => {
+            _mm256_and_ps(ok[r], _mm256_cmp_ps::<_CMP_LE_OQ>(next_t[r], t_min))
+        });
+        let add: [__m256; R] = rows!(R, r => _mm256_andnot_ps(stop[r], ok[r]));
+        if COUNT {
+            for a in add {
+                sc.evals.blended += (_mm256_movemask_ps(a) as u32).count_ones() as u64;
+            }
+        }
+        let weight: [__m256; R] =
+            rows!(R, r => _mm256_and_ps(add[r], _mm256_mul_ps(alpha[r], t[r])));
+        for (ci, &fc) in sp.f.iter().enumerate() {
+            for r in 0..R {
+                let o = &mut sc.feat[ci * plane + base[r]..];
+                store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight[r], s(fc))));
+            }
+        }
+        let k1 = _mm256_set1_epi32(sp.k1 as i32);
+        let mut stopped = 0;
+        for r in 0..R {
+            store(
+                &mut sc.trans[base[r]..],
+                _mm256_blendv_ps(t[r], next_t[r], add[r]),
+            );
+            // last = k1 where added: k1 exceeds every earlier value, so an unsigned max
+            // with k1 & add sets exactly those lanes. A blend of the loaded value would
+            // compile to a masked store (vmaskmovps), microcoded and slow on AMD cores.
+            let last = load_u32(&sc.last[base[r]..]);
+            let k1_add = _mm256_and_si256(k1, _mm256_castps_si256(add[r]));
+            store_u32(&mut sc.last[base[r]..], _mm256_max_epu32(last, k1_add));
+            store_u32(
+                &mut sc.live[base[r]..],
+                _mm256_castps_si256(_mm256_andnot_ps(stop[r], live[r])),
+            );
+            stopped += (_mm256_movemask_ps(stop[r]) as u32).count_ones();
+        }
+        stopped
+    }
+}
+
 #[target_feature(enable = "avx2")]
 fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
-    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
-    let s = _mm256_set1_ps;
-    let t_min = s(tile.t_min);
+    let t_min = _mm256_set1_ps(tile.t_min);
     for_each_splat(tile, ch, scratch, |sp: &SplatInTile, sc| {
-        let [a, _, _] = sp.s.conic;
-        let (opacity, k1) = (s(sp.s.opacity), _mm256_set1_epi32(sp.k1 as i32));
         let mut stopped = 0;
         for gi in sp.fp.groups.clone() {
-            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], a);
-            for ly in sc.geo.group_rows[gi].clone() {
-                let base = ly * stride + gi * LANES;
-                let live = _mm256_castsi256_ps(load_u32(&sc.live[base..]));
-                let inside = _mm256_and_ps(cols, live);
-                // Pixels that already stopped cost nothing more.
-                if _mm256_movemask_ps(inside) == 0 {
-                    continue;
-                }
-                // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
-                let sigma = _mm256_add_ps(
-                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.geo.row_c[ly]))),
-                    _mm256_mul_ps(dx, s(sc.geo.row_b[ly])),
-                );
-                let neg_sigma = _mm256_xor_ps(sigma, s(-0.0));
-                let alpha = _mm256_min_ps(_mm256_mul_ps(opacity, exp_neg(neg_sigma)), s(ALPHA_MAX));
-                let ok = _mm256_and_ps(
-                    _mm256_and_ps(inside, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, s(0.0))),
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
-                );
-                let t = load(&sc.trans[base..]);
-                let next_t = _mm256_mul_ps(t, _mm256_sub_ps(s(1.0), alpha));
-                let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, t_min));
-                let add = _mm256_andnot_ps(stop, ok);
-                if COUNT {
-                    sc.evals.groups += 1;
-                    sc.evals.blended += (_mm256_movemask_ps(add) as u32).count_ones() as u64;
-                }
-                let weight = _mm256_and_ps(add, _mm256_mul_ps(alpha, t));
-                for (c, &fc) in sp.f.iter().enumerate() {
-                    let o = &mut sc.feat[c * plane + base..];
-                    store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight, s(fc))));
-                }
-                store(&mut sc.trans[base..], _mm256_blendv_ps(t, next_t, add));
-                // last = k1 where added: k1 exceeds every earlier value, so an unsigned max
-                // with k1 & add sets exactly those lanes. A blend of the loaded value would
-                // compile to a masked store (vmaskmovps), microcoded and slow on AMD cores.
-                let last = load_u32(&sc.last[base..]);
-                let k1_add = _mm256_and_si256(k1, _mm256_castps_si256(add));
-                store_u32(&mut sc.last[base..], _mm256_max_epu32(last, k1_add));
-                store_u32(
-                    &mut sc.live[base..],
-                    _mm256_castps_si256(_mm256_andnot_ps(stop, live)),
-                );
-                stopped += (_mm256_movemask_ps(stop) as u32).count_ones();
+            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], sp.s.conic[0]);
+            let g = GroupLanes {
+                sp,
+                gi,
+                cols,
+                dx,
+                a_dx2,
+            };
+            // Two rows per step: their long exp chains overlap.
+            let rows = sp.fp.rows.clone();
+            let mut ly = rows.start;
+            while ly + 2 <= rows.end {
+                stopped += blend_rows::<2, COUNT>(&g, [ly, ly + 1], t_min, sc);
+                ly += 2;
+            }
+            if ly < rows.end {
+                stopped += blend_rows::<1, COUNT>(&g, [ly], t_min, sc);
             }
         }
         stopped

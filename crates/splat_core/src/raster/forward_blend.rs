@@ -170,10 +170,10 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let t_min = tile.t_min;
     for_each_splat(tile, ch, scratch, |sp, sc| {
-        let [a, _, _] = sp.s.conic;
+        let [a, b, c] = sp.s.conic;
         let mut stopped = 0;
         for gi in sp.fp.groups.clone() {
-            for ly in sc.geo.group_rows[gi].clone() {
+            for ly in sp.fp.rows.clone() {
                 let base = ly * stride + gi * LANES;
                 let inside = |i: usize| {
                     let x = sc.geo.xs[gi * LANES + i];
@@ -191,7 +191,8 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
                     let x = sc.geo.xs[gi * LANES + i];
                     let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[l] != 0);
                     let dx = sp.s.xy[0] - x;
-                    let sigma = sigma_at(a, dx, sc.geo.row_c[ly], sc.geo.row_b[ly]);
+                    let dy = sp.s.xy[1] - sc.geo.ys[ly];
+                    let sigma = sigma_at(a, dx, c * dy * dy, b * dy);
                     let alpha = (sp.s.opacity * exp_neg(-sigma)).min(ALPHA_MAX);
                     let ok = inside & (sigma >= 0.0) & (alpha >= ALPHA_MIN);
                     let t = sc.trans[l];

@@ -18,7 +18,10 @@ const WIDEN: f32 = (1.0 + SPAN_WIDEN) * (1.0 + SPAN_WIDEN);
 
 /// The pixels of a tile a splat visits: the tile's part of the bounding box of the ellipse
 /// q(d) <= qmax = 2 ln(255 opacity), outside which alpha < 1/255. The per-pixel alpha test
-/// decides inside the box. Forward and backward share it, so both visit the same pixels.
+/// decides inside the box. Forward and backward share it; the backward also trims each
+/// lane group's rows to the ellipse (`TileGeometry::footprint`), the forward does not
+/// (`TileGeometry::box_footprint`). The trimmed rows hold only pixels the alpha test rejects
+/// (tested), so both blend the same pixel-splat pairs.
 ///
 /// A box, not the exact row spans of the ellipse: a span costs a square root per row, more
 /// than the SIMD lanes it would save on splats a few pixels wide.
@@ -36,6 +39,22 @@ impl PixelFootprint {
         let (x0, x1) = pixel_span(s.xy[0] - s.half[0], s.xy[0] + s.half[0], rect.x0, rect.x1);
         let (y0, y1) = pixel_span(s.xy[1] - s.half[1], s.xy[1] + s.half[1], rect.y0, rect.y1);
         Self { x0, x1, y0, y1 }
+    }
+
+    /// The box's columns, lane groups and rows in the tile; None if it is empty.
+    #[inline(always)]
+    fn lanes(&self, rect: &TileRect) -> Option<LaneFootprint> {
+        if self.x0 >= self.x1 || self.y0 >= self.y1 {
+            return None;
+        }
+        let (lx0, lx1) = ((self.x0 - rect.x0) as usize, (self.x1 - rect.x0) as usize);
+        Some(LaneFootprint {
+            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
+            xlo: self.x0 as f32,
+            xhi: self.x1 as f32,
+            groups: lx0 / LANES..lx1.div_ceil(LANES),
+            rows: (self.y0 - rect.y0) as usize..(self.y1 - rect.y0) as usize,
+        })
     }
 }
 
@@ -144,13 +163,16 @@ fn gather_rows<const N: usize>(dst: &mut [f32], src: &[f32], gids: &[u32]) {
 }
 
 /// The geometry every lane kernel (forward and backward) reads: the row stride (rows padded
-/// to whole lane groups), the pixel-centre x of each column of the current tile, for each
-/// footprint row of the current splat dy, c dy^2 and b dy, and for each of its lane groups
-/// the rows where the splat's ellipse meets the group's columns.
+/// to whole lane groups), the pixel-centre x and y of each column and row of the current
+/// tile; for the backward also, for each footprint row of the current splat dy, c dy^2 and
+/// b dy, and for each of its lane groups the rows where the splat's ellipse meets the
+/// group's columns.
 pub(super) struct TileGeometry {
     pub stride: usize,
     pub ts: usize,
     pub xs: Vec<f32>,
+    /// Pixel-centre y of each row of the current tile.
+    pub ys: Vec<f32>,
     pub row_dy: Vec<f32>,
     pub row_c: Vec<f32>,
     pub row_b: Vec<f32>,
@@ -164,6 +186,8 @@ pub(super) struct LaneFootprint {
     pub xlo: f32,
     pub xhi: f32,
     pub groups: std::ops::Range<usize>,
+    /// Rows (relative to the tile) of the footprint box.
+    pub rows: std::ops::Range<usize>,
 }
 
 impl TileGeometry {
@@ -173,6 +197,7 @@ impl TileGeometry {
             stride,
             ts,
             xs: vec![0.0; stride],
+            ys: vec![0.0; ts],
             row_dy: vec![0.0; ts],
             row_c: vec![0.0; ts],
             row_b: vec![0.0; ts],
@@ -189,37 +214,40 @@ impl TileGeometry {
         for (i, x) in self.xs.iter_mut().enumerate() {
             *x = (rect.x0 as usize + i) as f32 + 0.5;
         }
+        for (i, y) in self.ys.iter_mut().enumerate() {
+            *y = (rect.y0 as usize + i) as f32 + 0.5;
+        }
     }
 
-    /// The splat's footprint in the tile (None if it has no pixel there), with the row
-    /// terms of its rows filled in.
+    /// The splat's footprint in the tile (None if it has no pixel there), with each lane
+    /// group's rows and the row terms of its rows filled in (the backward's walk).
     #[inline(always)]
     pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
-        let fp = PixelFootprint::new(s, rect);
-        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
-            return None;
+        let box_fp = PixelFootprint::new(s, rect);
+        let fp = box_fp.lanes(rect)?;
+        if fp.groups.len() == 1 {
+            self.group_rows[fp.groups.start] = fp.rows.clone();
+        } else {
+            self.set_group_rows(s, rect, &box_fp, fp.groups.clone(), fp.rows.clone());
         }
         let [_, b, c] = s.conic;
-        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
-        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
-        for ly in rows.clone() {
-            let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
+        for ly in fp.rows.clone() {
+            let dy = s.xy[1] - self.ys[ly];
             self.row_dy[ly] = dy;
             self.row_c[ly] = c * dy * dy;
             self.row_b[ly] = b * dy;
         }
-        let groups = lx0 / LANES..lx1.div_ceil(LANES);
-        if groups.len() == 1 {
-            self.group_rows[groups.start] = rows;
-        } else {
-            self.set_group_rows(s, rect, &fp, groups.clone(), rows);
-        }
-        Some(LaneFootprint {
-            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
-            xlo: fp.x0 as f32,
-            xhi: fp.x1 as f32,
-            groups,
-        })
+        Some(fp)
+    }
+
+    /// The splat's footprint box in the tile (None if it has no pixel there): its columns,
+    /// lane groups and rows, nothing per group or per row (the forward's walk). Trimming the
+    /// rows per group (`set_group_rows`: a division and square roots per pair) cost the
+    /// forward more than the lane groups it saved on the bench scene; the forward kernel
+    /// computes its row terms itself, next to the exp chain they hide behind.
+    #[inline(always)]
+    pub(super) fn box_footprint(&self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
+        PixelFootprint::new(s, rect).lanes(rect)
     }
 
     /// For a footprint wider than one lane group: the rows of each group's columns that

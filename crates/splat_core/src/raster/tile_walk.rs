@@ -130,7 +130,7 @@ pub(super) fn for_each_splat(
         .zip(tile.features.chunks_exact(ch))
         .enumerate()
     {
-        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
+        let Some(fp) = scratch.geo.box_footprint(s, &tile.rect) else {
             continue;
         };
         let splat = SplatInTile {
