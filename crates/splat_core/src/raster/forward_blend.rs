@@ -57,22 +57,25 @@ pub fn blend(
         t_final: vec![1.0; bins.n_tiles() * tp],
         last: vec![0; bins.n_tiles() * tp],
     };
+    // Each tile's rows of the image, so that tiles write the row-major image directly.
+    let mut render_rows = tile_rows(render, ch, bins, width, height);
+    let mut alpha_rows = tile_rows(alpha, 1, bins, width, height);
     // Tiles are the unit of parallel work (rows of tiles balance badly: a plant fills the
     // middle of the image), handed out a few at a time so that no thread idles while the
-    // other finishes a long run of heavy tiles. Each tile writes its own slices;
-    // `to_image` assembles the image.
-    let mut tile_feat = vec![0.0f32; bins.n_tiles() * tp * ch];
+    // other finishes a long run of heavy tiles. Each tile writes its own slices.
     let totals = std::sync::Mutex::new(EvalCount::default());
-    tile_feat
-        .par_chunks_mut(tp * ch)
+    render_rows
+        .par_chunks_mut(ts)
+        .zip(alpha_rows.par_chunks_mut(ts))
         .zip(out.t_final.par_chunks_mut(tp))
         .zip(out.last.par_chunks_mut(tp))
         .enumerate()
         .with_max_len(4)
         .for_each_init(
             || (TileScratch::new(ts, ch), TileList::default()),
-            |(scratch, list), (t, ((feat, t_final), last))| {
+            |(scratch, list), (t, (((rrows, arows), t_final), last))| {
                 let range = bins.tile_range(t);
+                // An empty tile keeps the zero image and the initial state.
                 if range.is_empty() {
                     return;
                 }
@@ -87,61 +90,42 @@ pub fn blend(
                 };
                 scratch.reset(&rect);
                 blend_tile(&tile, ch, scratch, count);
-                scratch.write(&rect, ch, feat, t_final, last);
+                scratch.write_state(&rect, t_final, last);
+                scratch.write_image(ch, rrows, arows);
                 if count {
                     let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
                     t.add(std::mem::take(&mut scratch.evals));
                 }
             },
         );
-    to_image(
-        &tile_feat,
-        &out.t_final,
-        ch,
-        bins,
-        width,
-        height,
-        render,
-        alpha,
-    );
     let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
     (out, evals)
 }
 
-/// Row-major image [H, W, ch] and alpha [H, W] from the tile-major buffers.
-#[allow(clippy::too_many_arguments)]
-fn to_image(
-    tile_feat: &[f32],
-    t_final: &[f32],
+/// The row-major image [H, W, ch] cut into its tiles' rows: entry `t * ts + ly` is tile t's
+/// part of its row ly (empty below the image's last row).
+fn tile_rows<'a>(
+    image: &'a mut [f32],
     ch: usize,
     bins: &TileBins,
     width: u32,
     height: u32,
-    render: &mut [f32],
-    alpha: &mut [f32],
-) {
+) -> Vec<&'a mut [f32]> {
     let ts = bins.tile_size as usize;
-    let tp = ts * ts;
-    let w = width as usize;
-    render
-        .par_chunks_mut((w * ch).max(1))
-        .zip(alpha.par_chunks_mut(w.max(1)))
+    let (w, tiles_x) = (width as usize, bins.tiles_x as usize);
+    let mut rows: Vec<&mut [f32]> = Vec::new();
+    rows.resize_with(bins.n_tiles() * ts, Default::default);
+    for (y, row) in image
+        .chunks_exact_mut(w * ch)
         .take(height as usize)
         .enumerate()
-        .for_each(|(y, (rrow, arow))| {
-            let tile_row = (y / ts) * bins.tiles_x as usize;
-            let ly = (y % ts) * ts;
-            // Each tile's part of an image row is contiguous in the tile-major buffers: one
-            // copy per tile, not a call per pixel.
-            for x0 in (0..w).step_by(ts) {
-                let n = ts.min(w - x0);
-                let i = (tile_row + x0 / ts) * tp + ly;
-                rrow[x0 * ch..(x0 + n) * ch].copy_from_slice(&tile_feat[i * ch..(i + n) * ch]);
-                for (a, t) in arow[x0..x0 + n].iter_mut().zip(&t_final[i..i + n]) {
-                    *a = 1.0 - t;
-                }
-            }
-        });
+    {
+        let (ty, ly) = (y / ts, y % ts);
+        for (tx, piece) in row.chunks_mut(ts * ch).enumerate() {
+            rows[(ty * tiles_x + tx) * ts + ly] = piece;
+        }
+    }
+    rows
 }
 
 fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch, count: bool) {

@@ -172,13 +172,7 @@ fn backward_kernels_agree() {
             };
             let fw = forward_scratch(&tile, ts, false);
             let (mut t_final, mut last) = (vec![1.0; ts * ts], vec![0; ts * ts]);
-            fw.write(
-                &rect,
-                3,
-                &mut vec![0.0; ts * ts * 3],
-                &mut t_final,
-                &mut last,
-            );
+            fw.write_state(&rect, &mut t_final, &mut last);
             // Upstream gradients on an image just large enough for the tile.
             let (w, h) = (rect.x1 as usize, rect.y1 as usize);
             let v_render: Vec<f32> = (0..w * h * 3).map(|_| rng.uniform() - 0.5).collect();

@@ -78,28 +78,54 @@ impl TileScratch {
         self.active = tw * th;
     }
 
-    /// Copies the tile's pixels into its slices of the tile-major buffers ([pixel][channel]
-    /// for the features).
-    pub(super) fn write(
-        &self,
-        rect: &TileRect,
-        ch: usize,
-        feat: &mut [f32],
-        t_final: &mut [f32],
-        last: &mut [u32],
-    ) {
+    /// Copies the tile's final transmittance and last-contributor counts into its slices
+    /// of the tile-major state ([pixel in tile], rows of `ts`).
+    pub(super) fn write_state(&self, rect: &TileRect, t_final: &mut [f32], last: &mut [u32]) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-        let plane = self.geo.plane();
         for ly in 0..th {
             let (src, dst) = (ly * self.geo.stride, ly * self.geo.ts);
             t_final[dst..dst + tw].copy_from_slice(&self.trans[src..src + tw]);
             last[dst..dst + tw].copy_from_slice(&self.last[src..src + tw]);
-            let row = &mut feat[dst * ch..(dst + tw) * ch];
-            for (lx, px) in row.chunks_exact_mut(ch).enumerate() {
-                for (c, v) in px.iter_mut().enumerate() {
-                    *v = self.feat[c * plane + src + lx];
+        }
+    }
+
+    /// Writes the tile's pixels into its rows of the image: `render[ly]` is the tile's
+    /// part of image row ly ([pixel][channel]), `alpha[ly]` likewise.
+    pub(super) fn write_image(
+        &self,
+        ch: usize,
+        render: &mut [&mut [f32]],
+        alpha: &mut [&mut [f32]],
+    ) {
+        let plane = self.geo.plane();
+        for (ly, (rrow, arow)) in render.iter_mut().zip(alpha.iter_mut()).enumerate() {
+            let src = ly * self.geo.stride;
+            for (a, t) in arow.iter_mut().zip(&self.trans[src..]) {
+                *a = 1.0 - t;
+            }
+            // Fixed-width pixels for the common widths: the compiler unrolls the channels.
+            match ch {
+                3 => interleave::<3>(rrow, &self.feat, plane, src),
+                4 => interleave::<4>(rrow, &self.feat, plane, src),
+                1 => interleave::<1>(rrow, &self.feat, plane, src),
+                _ => {
+                    for (lx, px) in rrow.chunks_exact_mut(ch).enumerate() {
+                        for (c, v) in px.iter_mut().enumerate() {
+                            *v = self.feat[c * plane + src + lx];
+                        }
+                    }
                 }
             }
+        }
+    }
+}
+
+/// `row[lx][c] = planes[c * plane + src + lx]`: planar channels to interleaved pixels.
+#[inline(always)]
+fn interleave<const N: usize>(row: &mut [f32], planes: &[f32], plane: usize, src: usize) {
+    for (lx, px) in row.chunks_exact_mut(N).enumerate() {
+        for (c, v) in px.iter_mut().enumerate() {
+            *v = planes[c * plane + src + lx];
         }
     }
 }
