@@ -77,7 +77,7 @@ fn column_group(
     sx: f32,
     a: f32,
 ) -> (__m256, __m256, __m256) {
-    let x = load(&xs[gi * LANES..]);
+    let x = load(&xs[fp.col0 + gi * LANES..]);
     // SAFETY: only called from the `#[target_feature(enable = "avx2")]` kernels below.
     unsafe {
         let s = _mm256_set1_ps;
@@ -192,7 +192,8 @@ fn blend_rows<const R: usize, const COUNT: bool>(
         let (plane, stride) = (sc.geo.plane(), sc.geo.stride);
         let sp = g.sp;
         let [_, b, c] = sp.s.conic;
-        let base: [usize; R] = rows!(R, r => rows[r] * stride + g.gi * LANES);
+        let col = g.sp.fp.col0 + g.gi * LANES;
+        let base: [usize; R] = rows!(R, r => rows[r] * stride + col);
         let live: [__m256; R] = rows!(R, r => _mm256_castsi256_ps(load_u32(&sc.live[base[r]..])));
         let inside: [__m256; R] = rows!(R, r => _mm256_and_ps(g.cols, live[r]));
         let any: [i32; R] = rows!(R, r => _mm256_movemask_ps(inside[r]));

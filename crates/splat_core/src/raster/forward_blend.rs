@@ -6,8 +6,9 @@
 //! only the pixels of the splat's footprint box; each pixel still sees its splats in depth
 //! order, so the result equals the pixel-major loop bit for bit.
 //!
-//! The footprint is walked in lane groups of `LANES` adjacent pixels of a row, with
-//! branch-free lane rules (masks instead of `continue`). `blend_avx2` runs them with AVX2
+//! The footprint is walked in lane groups of `LANES` adjacent pixels of a row, starting at
+//! the footprint box's first column, with branch-free lane rules (masks instead of
+//! `continue`). `blend_avx2` runs them with AVX2
 //! intrinsics when the CPU has AVX2 (checked at run time), `blend_tile_scalar` otherwise.
 //! Both perform the same operations in the same order, without fused multiply-adds, so
 //! every path gives the same bits (`kernel_tests`), and the backward pass, built the same
@@ -158,9 +159,10 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
         let mut stopped = 0;
         for gi in sp.fp.groups.clone() {
             for ly in sp.fp.rows.clone() {
-                let base = ly * stride + gi * LANES;
+                let col = sp.fp.col0 + gi * LANES;
+                let base = ly * stride + col;
                 let inside = |i: usize| {
-                    let x = sc.geo.xs[gi * LANES + i];
+                    let x = sc.geo.xs[col + i];
                     (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[base + i] != 0)
                 };
                 // Pixels that already stopped cost nothing more.
@@ -172,7 +174,7 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
                 }
                 for i in 0..LANES {
                     let l = base + i;
-                    let x = sc.geo.xs[gi * LANES + i];
+                    let x = sc.geo.xs[col + i];
                     let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[l] != 0);
                     let dx = sp.s.xy[0] - x;
                     let dy = sp.s.xy[1] - sc.geo.ys[ly];

@@ -52,6 +52,7 @@ impl PixelFootprint {
             // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
             xlo: self.x0 as f32,
             xhi: self.x1 as f32,
+            col0: 0,
             groups: lx0 / LANES..lx1.div_ceil(LANES),
             rows: (self.y0 - rect.y0) as usize..(self.y1 - rect.y0) as usize,
         })
@@ -185,6 +186,8 @@ pub(super) struct TileGeometry {
 pub(super) struct LaneFootprint {
     pub xlo: f32,
     pub xhi: f32,
+    /// Lane group g covers the columns `col0 + g * LANES ..` of the tile.
+    pub col0: usize,
     pub groups: std::ops::Range<usize>,
     /// Rows (relative to the tile) of the footprint box.
     pub rows: std::ops::Range<usize>,
@@ -192,7 +195,16 @@ pub(super) struct LaneFootprint {
 
 impl TileGeometry {
     pub(super) fn new(ts: usize) -> Self {
-        let stride = ts.div_ceil(LANES) * LANES;
+        Self::with_stride(ts, ts.div_ceil(LANES) * LANES)
+    }
+
+    /// Rows padded so that a lane group may start at any column of the tile
+    /// (`box_footprint`).
+    pub(super) fn unaligned(ts: usize) -> Self {
+        Self::with_stride(ts, (ts + LANES - 1).div_ceil(LANES) * LANES)
+    }
+
+    fn with_stride(ts: usize, stride: usize) -> Self {
         Self {
             stride,
             ts,
@@ -247,7 +259,19 @@ impl TileGeometry {
     /// computes its row terms itself, next to the exp chain they hide behind.
     #[inline(always)]
     pub(super) fn box_footprint(&self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
-        PixelFootprint::new(s, rect).lanes(rect)
+        debug_assert!(
+            self.stride + 1 >= self.ts + LANES,
+            "needs `TileGeometry::unaligned`"
+        );
+        let mut fp = PixelFootprint::new(s, rect).lanes(rect)?;
+        // Lane groups start at the box's first column, not at multiples of LANES: a box
+        // up to LANES wide is one group wherever it lies (aligned groups split about half
+        // of the few-pixel boxes in two).
+        let lx0 = (fp.xlo as u32 - rect.x0) as usize;
+        let width = (fp.xhi - fp.xlo) as usize;
+        fp.col0 = lx0;
+        fp.groups = 0..width.div_ceil(LANES);
+        Some(fp)
     }
 
     /// For a footprint wider than one lane group: the rows of each group's columns that

@@ -36,7 +36,8 @@ pub(super) struct TileInput<'a> {
     pub simd: bool,
 }
 
-/// Per-tile pixel state, structure of arrays with rows padded to whole lane groups.
+/// Per-tile pixel state, structure of arrays with rows padded so that a lane group may
+/// start at any column (`TileGeometry::unaligned`); padding pixels are never live.
 pub(super) struct TileScratch {
     pub geo: TileGeometry,
     pub trans: Vec<f32>,
@@ -52,7 +53,7 @@ pub(super) struct TileScratch {
 
 impl TileScratch {
     pub(super) fn new(ts: usize, ch: usize) -> Self {
-        let geo = TileGeometry::new(ts);
+        let geo = TileGeometry::unaligned(ts);
         let plane = geo.plane();
         Self {
             geo,
