@@ -11,7 +11,7 @@ use super::options::RasterOptions;
 use super::project::Splat;
 use super::scene::Scene;
 use super::tile_binning::{self, TileBins};
-use super::{features, project_batch};
+use super::{features, project_avx2};
 use crate::{CoreError, CoreResult};
 
 /// Seconds spent in each stage, summed over cameras.
@@ -111,7 +111,7 @@ pub fn forward(
     let mut per_camera = Vec::with_capacity(c);
     for (ci, cam) in cameras.iter().enumerate() {
         let t0 = Instant::now();
-        let splats = project_batch::project_all(&scene, cam, &opts);
+        let splats = project_avx2::project_all(&scene, cam, &opts);
         let feats = features::compute(&scene, cam, &splats, opts.with_depth);
         let t1 = Instant::now();
         let order = tile_binning::depth_order(&splats);

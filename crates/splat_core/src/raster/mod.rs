@@ -2,7 +2,8 @@
 //! backward, rayon-parallel and bit-identical for any thread count.
 //!
 //! Pipeline per camera (`forward_pass`): `project_batch` (EWA splats, eight Gaussians at a
-//! time; `project` is the per-Gaussian reference) -> `features` (SH colour / depth)
+//! time, built for AVX2 by `project_avx2` where the CPU has it; `project` is the
+//! per-Gaussian reference) -> `features` (SH colour / depth)
 //! -> `tile_binning` (depth order, tile lists) -> `forward_blend` (per-tile compositing).
 //! `backward_pass` walks the same lists back to front (`backward_blend`) and chains to the
 //! 3D parameters.
@@ -15,7 +16,8 @@
 //! eval_count                           blending work of a forward state (benchmarks)
 //! forward_pass, backward_pass          whole passes over every camera
 //! forward_blend, backward_blend        per-camera blend drivers + scalar kernels
-//! blend_avx2                           the AVX2 kernels (the only unsafe code)
+//! blend_avx2                           the AVX2 kernels (unsafe: intrinsics)
+//! project_avx2                         project_batch built for AVX2 (unsafe: the call)
 //! tile_walk                            per-tile state, front-to-back / back-to-front walkers
 //! tile_geometry                        tile rectangles, footprints, per-tile splat lists
 //! lanes, options, project, ...         lane arithmetic, settings, projection
@@ -43,6 +45,7 @@ mod kernel_tests;
 mod lanes;
 mod options;
 pub mod project;
+mod project_avx2;
 mod project_batch;
 pub mod scene;
 pub mod sh;

@@ -83,19 +83,56 @@ type V3 = [Lanes; 3];
 /// Gaussian whose colour holds NaN or Inf is culled too: it would poison every pixel
 /// behind it.
 pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> Vec<Splat> {
+    project_all_by(scene, cam, opts, |block| block.run())
+}
+
+/// `project_all` with the blocks projected by `run` (which calls `Block::run`, for example
+/// from a function compiled for a wider vector ISA).
+pub(super) fn project_all_by(
+    scene: &Scene,
+    cam: &Camera,
+    opts: &RasterOptions,
+    run: impl Fn(Block) + Sync,
+) -> Vec<Splat> {
     let mut splats = vec![Splat::default(); scene.n];
     let cl = CameraLanes::new(cam);
     // Blocks of many lane groups: one rayon task per block, not per eight Gaussians.
-    const BLOCK: usize = 32 * N;
     splats
-        .par_chunks_mut(BLOCK)
+        .par_chunks_mut(Block::LEN)
         .enumerate()
-        .for_each(|(b, block)| {
-            for (k, out) in block.chunks_mut(N).enumerate() {
-                project_lanes(scene, b * BLOCK + k * N, cam, &cl, opts, out);
-            }
+        .for_each(|(b, out)| {
+            run(Block {
+                scene,
+                first: b * Block::LEN,
+                cam,
+                cl: &cl,
+                opts,
+                out,
+            })
         });
     splats
+}
+
+/// A block of consecutive Gaussians to project.
+pub(super) struct Block<'a> {
+    scene: &'a Scene,
+    first: usize,
+    cam: &'a Camera,
+    cl: &'a CameraLanes,
+    opts: &'a RasterOptions,
+    out: &'a mut [Splat],
+}
+
+impl Block<'_> {
+    const LEN: usize = 32 * N;
+
+    #[inline(always)]
+    pub(super) fn run(self) {
+        for (k, out) in self.out.chunks_mut(N).enumerate() {
+            let first = self.first + k * N;
+            project_lanes(self.scene, first, self.cam, self.cl, self.opts, out);
+        }
+    }
 }
 
 /// Camera quantities every lane group uses.
@@ -119,6 +156,7 @@ impl CameraLanes {
 }
 
 /// Projects Gaussians first .. first + out.len() (at most eight) into `out`.
+#[inline(always)]
 fn project_lanes(
     scene: &Scene,
     first: usize,
@@ -416,6 +454,35 @@ mod tests {
             a.sqrt(),
             c.sqrt(),
         ]
+    }
+
+    /// The AVX2 build of the lane code (`project_avx2`) gives the baseline build's bits.
+    #[test]
+    fn avx2_build_gives_the_same_bits() {
+        let bits = |s: &Splat| {
+            let v = [s.xy[0], s.xy[1], s.conic[0], s.conic[1], s.conic[2], s.opacity];
+            let w = [s.depth, s.radius[0], s.radius[1], s.extent, s.half[0], s.half[1]];
+            v.into_iter().chain(w).map(f32::to_bits).collect::<Vec<_>>()
+        };
+        let cam = camera(320, 240);
+        for (antialiased, footprint) in [
+            (false, Footprint::OpacityAware),
+            (true, Footprint::OpacityAware),
+            (true, Footprint::Sigma(3.0)),
+        ] {
+            let opts = RasterOptions {
+                antialiased,
+                footprint,
+                ..Default::default()
+            };
+            let sc = scene(4001, 5);
+            let plain = project_all(&sc, &cam, &opts);
+            let wide = super::super::project_avx2::project_all(&sc, &cam, &opts);
+            assert!(plain.iter().filter(|s| s.visible()).count() > 1000);
+            for (i, (a, b)) in plain.iter().zip(&wide).enumerate() {
+                assert_eq!(bits(a), bits(b), "Gaussian {i}");
+            }
+        }
     }
 
     #[test]
