@@ -17,7 +17,9 @@ use crate::{CoreError, CoreResult};
 /// Seconds spent in each stage, summed over cameras.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Profile {
+    /// Projection to splats.
     pub project: f64,
+    /// Depth sort, with the colour features and the per-Gaussian outputs computed beside it.
     pub sort: f64,
     pub bin: f64,
     pub blend: f64,
@@ -112,9 +114,26 @@ pub fn forward(
     for (ci, cam) in cameras.iter().enumerate() {
         let t0 = Instant::now();
         let splats = project_avx2::project_all(&scene, cam, &opts);
-        let feats = features::compute(&scene, cam, &splats, opts.with_depth);
         let t1 = Instant::now();
-        let order = tile_binning::depth_order(&splats);
+        // The depth sort runs on one thread; the colour features and the per-Gaussian
+        // outputs are computed beside it.
+        let (order, feats) = rayon::join(
+            || tile_binning::depth_order(&splats),
+            || {
+                out.radii[2 * ci * n..2 * (ci + 1) * n]
+                    .par_chunks_mut(2)
+                    .zip(out.means2d[2 * ci * n..2 * (ci + 1) * n].par_chunks_mut(2))
+                    .zip(&mut out.depths[ci * n..(ci + 1) * n])
+                    .zip(&splats)
+                    .filter(|(_, s)| s.visible())
+                    .for_each(|(((r, m), d), s)| {
+                        r.copy_from_slice(&s.radius.map(|v| v as i32));
+                        m.copy_from_slice(&s.xy);
+                        *d = s.depth;
+                    });
+                features::compute(&scene, cam, &splats, opts.with_depth)
+            },
+        );
         let t2 = Instant::now();
         let bins = tile_binning::bin(
             &splats,
@@ -143,18 +162,6 @@ pub fn forward(
         out.profile.sort += (t2 - t1).as_secs_f64();
         out.profile.bin += (t3 - t2).as_secs_f64();
         out.profile.blend += (t4 - t3).as_secs_f64();
-
-        out.radii[2 * ci * n..2 * (ci + 1) * n]
-            .par_chunks_mut(2)
-            .zip(out.means2d[2 * ci * n..2 * (ci + 1) * n].par_chunks_mut(2))
-            .zip(&mut out.depths[ci * n..(ci + 1) * n])
-            .zip(&splats)
-            .filter(|(_, s)| s.visible())
-            .for_each(|(((r, m), d), s)| {
-                r.copy_from_slice(&s.radius.map(|v| v as i32));
-                m.copy_from_slice(&s.xy);
-                *d = s.depth;
-            });
         out.n_visible.push(bins.depth_order.len() as u64);
         out.n_intersections.push(bins.n_intersections() as u64);
         per_camera.push(CameraState {
