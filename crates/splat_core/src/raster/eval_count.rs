@@ -36,6 +36,7 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
         let (_, f) = blend(
             &cs.splats,
             &cs.features,
+            None,
             ch,
             &cs.bins,
             state.width,

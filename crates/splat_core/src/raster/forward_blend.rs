@@ -20,7 +20,7 @@ use super::lanes::{exp_neg, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
 use super::tile_binning::TileBins;
-use super::tile_geometry::{TileList, TileRect};
+use super::tile_geometry::{BlendRecord, TileList, TileRect};
 use super::tile_walk::{for_each_splat, EvalCount, TileInput, TileScratch};
 
 /// Blend results of one camera that the backward pass needs.
@@ -42,6 +42,7 @@ pub struct Blended {
 pub fn blend(
     splats: &[Splat],
     features: &[f32],
+    records: Option<&[BlendRecord]>,
     ch: usize,
     bins: &TileBins,
     width: u32,
@@ -80,7 +81,11 @@ pub fn blend(
                 if range.is_empty() {
                     return;
                 }
-                list.gather(&bins.isect_gid[range], splats, features, ch);
+                let gids = &bins.isect_gid[range];
+                match records {
+                    Some(records) => list.gather_records(gids, records, ch),
+                    None => list.gather(gids, splats, features, ch),
+                }
                 let rect = TileRect::new(t, bins, width, height);
                 let tile = TileInput {
                     splats: &list.splats,

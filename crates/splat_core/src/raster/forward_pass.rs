@@ -11,6 +11,7 @@ use super::options::RasterOptions;
 use super::project::Splat;
 use super::scene::Scene;
 use super::tile_binning::{self, TileBins};
+use super::tile_geometry::blend_records;
 use super::{features, project_avx2};
 use crate::{CoreError, CoreResult};
 
@@ -19,7 +20,8 @@ use crate::{CoreError, CoreResult};
 pub struct Profile {
     /// Projection to splats.
     pub project: f64,
-    /// Depth sort, with the colour features and the per-Gaussian outputs computed beside it.
+    /// Depth sort, with the colour features, the blend's per-splat records and the
+    /// per-Gaussian outputs computed beside it.
     pub sort: f64,
     pub bin: f64,
     pub blend: f64,
@@ -115,9 +117,9 @@ pub fn forward(
         let t0 = Instant::now();
         let splats = project_avx2::project_all(&scene, cam, &opts);
         let t1 = Instant::now();
-        // The depth sort runs on one thread; the colour features and the per-Gaussian
-        // outputs are computed beside it.
-        let (order, feats) = rayon::join(
+        // The depth sort runs on one thread; the colour features, the blend's per-splat
+        // records and the per-Gaussian outputs are computed beside it.
+        let (order, (feats, records)) = rayon::join(
             || tile_binning::depth_order(&splats),
             || {
                 out.radii[2 * ci * n..2 * (ci + 1) * n]
@@ -131,7 +133,9 @@ pub fn forward(
                         m.copy_from_slice(&s.xy);
                         *d = s.depth;
                     });
-                features::compute(&scene, cam, &splats, opts.with_depth)
+                let feats = features::compute(&scene, cam, &splats, opts.with_depth);
+                let records = blend_records(&splats, &feats, ch);
+                (feats, records)
             },
         );
         let t2 = Instant::now();
@@ -147,6 +151,7 @@ pub fn forward(
         let (blended, _) = blend(
             &splats,
             &feats,
+            records.as_deref(),
             ch,
             &bins,
             width,

@@ -460,8 +460,17 @@ mod tests {
     #[test]
     fn avx2_build_gives_the_same_bits() {
         let bits = |s: &Splat| {
-            let v = [s.xy[0], s.xy[1], s.conic[0], s.conic[1], s.conic[2], s.opacity];
-            let w = [s.depth, s.radius[0], s.radius[1], s.extent, s.half[0], s.half[1]];
+            let v = [
+                s.xy[0], s.xy[1], s.conic[0], s.conic[1], s.conic[2], s.opacity,
+            ];
+            let w = [
+                s.depth,
+                s.radius[0],
+                s.radius[1],
+                s.extent,
+                s.half[0],
+                s.half[1],
+            ];
             v.into_iter().chain(w).map(f32::to_bits).collect::<Vec<_>>()
         };
         let cam = camera(320, 240);

@@ -2,6 +2,8 @@
 //! (shared by forward and backward, so both visit the same pixels), the per-tile copy of the
 //! splats and features, and the row geometry the lane kernels read.
 
+use rayon::prelude::*;
+
 use super::lanes::LANES;
 use super::project::Splat;
 use super::tile_binning::TileBins;
@@ -80,6 +82,40 @@ impl From<&Splat> for BlendSplat {
     }
 }
 
+/// Feature channels a `BlendRecord` holds; wider features are gathered from their own array.
+pub const RECORD_CHANNELS: usize = 8;
+
+/// A splat and its features in one 64-byte cache line: what the forward's tile lists copy
+/// per entry. Read in list order they are scattered over memory, so one line per entry
+/// instead of a splat and a feature row (two to three lines) is most of the gather's cost.
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+pub struct BlendRecord {
+    pub splat: BlendSplat,
+    pub features: [f32; RECORD_CHANNELS],
+}
+
+/// One record per splat (index order); None if the features are wider than a record.
+pub fn blend_records(splats: &[Splat], features: &[f32], ch: usize) -> Option<Vec<BlendRecord>> {
+    if ch > RECORD_CHANNELS || ch == 0 {
+        return None;
+    }
+    Some(
+        splats
+            .par_iter()
+            .zip(features.par_chunks_exact(ch))
+            .map(|(s, f)| {
+                let mut features = [0.0; RECORD_CHANNELS];
+                features[..ch].copy_from_slice(f);
+                BlendRecord {
+                    splat: BlendSplat::from(s),
+                    features,
+                }
+            })
+            .collect(),
+    )
+}
+
 /// Pixel indices [i0, i1) whose centres (i + 0.5) lie in [lo, hi] (plus slack), clipped.
 ///
 /// Clipping to integers commutes with ceil/floor, so the values are clipped first and
@@ -151,6 +187,36 @@ impl TileList {
                     dst.copy_from_slice(&features[g as usize * ch..][..ch]);
                 }
             }
+        }
+    }
+}
+
+impl TileList {
+    /// `gather` from the splats' records.
+    pub(super) fn gather_records(&mut self, gids: &[u32], records: &[BlendRecord], ch: usize) {
+        self.splats.clear();
+        self.features.clear();
+        match ch {
+            3 => self.gather_record_rows::<3>(gids, records),
+            4 => self.gather_record_rows::<4>(gids, records),
+            1 => self.gather_record_rows::<1>(gids, records),
+            _ => {
+                for &g in gids {
+                    let r = &records[g as usize];
+                    self.splats.push(r.splat);
+                    self.features.extend_from_slice(&r.features[..ch]);
+                }
+            }
+        }
+    }
+
+    fn gather_record_rows<const N: usize>(&mut self, gids: &[u32], records: &[BlendRecord]) {
+        self.splats
+            .extend(gids.iter().map(|&g| records[g as usize].splat));
+        self.features.resize(gids.len() * N, 0.0);
+        for (d, &g) in self.features.chunks_exact_mut(N).zip(gids) {
+            let row: [f32; N] = records[g as usize].features[..N].try_into().unwrap();
+            d.copy_from_slice(&row);
         }
     }
 }
