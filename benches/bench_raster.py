@@ -224,7 +224,7 @@ def profile_table(reps: int) -> tuple[str, dict]:
         blend_share[(n, size)] = best["blend"] / total
         print(rows[-1], flush=True)
     return (
-        "| scene | projection + SH (ms) | depth sort | tile binning | blending |\n"
+        "| scene | projection (ms) | depth sort + SH | tile binning | blending |\n"
         "|---|---|---|---|---|\n" + "\n".join(rows)
     ), blend_share
 
@@ -378,9 +378,10 @@ errors of the default row include the blending exp, a polynomial accurate to 2 u
 
 {prof}
 
-Projection (eight Gaussians at a time) includes the colour / SH features; blending
-includes gathering each tile's splats and features from its list and assembling the
-row-major image. Per-kernel detail without Python:
+Projection runs eight Gaussians at a time; the colour / SH features (and the blend's
+per-splat records) are computed beside the depth sort, which runs on one thread, so that
+column holds both. Blending includes gathering each tile's splats and features from its
+list and writing the tile's rows of the image. Per-kernel detail without Python:
 `python benches/raster_scene.py --dump /tmp/scene.bin` then
 `cargo run --release -p splat_core --example raster_timing -- /tmp/scene.bin 1` (under
 `perf record` for a profile).
