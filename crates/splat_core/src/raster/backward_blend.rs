@@ -13,62 +13,62 @@
 //! gradient sums are kept per lane and added up in a fixed tree at the end, identically in
 //! the AVX2 kernel (`blend_avx2`) and the scalar one here, so both give the same bits.
 //!
-//! Each tile writes only its own slice of the intersection-gradient array, so tiles run in
-//! parallel without locks or atomics; the caller sums a splat's intersections in tile
+//! Each tile writes only its own intersections' rows of the intersection-gradient array,
+//! so tiles run in parallel without locks; the caller sums a splat's intersections in tile
 //! order.
+
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use rayon::prelude::*;
 
+use super::backward_index::SplatIntersections;
 use super::forward_pass::CameraState;
 use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::tile_geometry::{TileList, TileRect};
 use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, EvalCount, ISECT_FIXED};
 
-/// Per-intersection gradients of one camera, tile-major like `TileBins::isect_gid`. With
-/// `count`, runs the kernels' counting instances and returns their work (zero otherwise).
+/// Per-intersection gradients of one camera, `ISECT_FIXED + ch` values per intersection,
+/// at the intersection's splat-major row (`SplatIntersections`). With `count`, runs the
+/// kernels' counting instances and returns their work (zero otherwise).
+///
+/// Each tile computes its gradients in a buffer of its own (in cache), then stores every
+/// row at its splat-major place. Every row belongs to one intersection, hence to one tile,
+/// so the stores never meet; they go through relaxed atomics, which compile to plain
+/// stores, so that tiles can share the array without locks or unsafe code.
 #[allow(clippy::too_many_arguments)]
 pub fn intersection_gradients(
     ch: usize,
     cs: &CameraState,
+    rows: &SplatIntersections,
     width: u32,
     height: u32,
     v_render: &[f32],
     v_alpha: &[f32],
     simd: bool,
     count: bool,
-) -> (Vec<f32>, EvalCount) {
+) -> (Vec<AtomicU32>, EvalCount) {
     let (bins, blended) = (&cs.bins, &cs.blended);
     let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
-    let mut grads = vec![0.0f32; bins.n_intersections() * stride];
-    // Split the gradient array into the tiles' own slices.
-    let mut slices: Vec<&mut [f32]> = Vec::with_capacity(bins.n_tiles());
-    let mut rest = grads.as_mut_slice();
-    for t in 0..bins.n_tiles() {
-        let (head, tail) = rest.split_at_mut(bins.tile_range(t).len() * stride);
-        slices.push(head);
-        rest = tail;
-    }
-    let totals = std::sync::Mutex::new(EvalCount::default());
-    slices
+    let grads: Vec<AtomicU32> = (0..bins.n_intersections() * stride)
         .into_par_iter()
-        .enumerate()
+        .map(|_| AtomicU32::new(0))
+        .collect();
+    let totals = std::sync::Mutex::new(EvalCount::default());
+    (0..bins.n_tiles())
+        .into_par_iter()
         .with_max_len(4)
         .for_each_init(
-            || (BackScratch::new(ts, ch), TileList::default()),
-            |(scratch, list), (t, out)| {
-                if out.is_empty() {
+            || (BackScratch::new(ts, ch), TileList::default(), Vec::new()),
+            |(scratch, list, out), t| {
+                let range = bins.tile_range(t);
+                if range.is_empty() {
                     return;
                 }
                 let rect = TileRect::new(t, bins, width, height);
-                list.gather(
-                    &bins.isect_gid[bins.tile_range(t)],
-                    &cs.splats,
-                    &cs.features,
-                    ch,
-                );
+                list.gather(&bins.isect_gid[range.clone()], &cs.splats, &cs.features, ch);
                 let tile = BackTile {
                     splats: &list.splats,
                     features: &list.features,
@@ -84,7 +84,15 @@ pub fn intersection_gradients(
                     v_render,
                     v_alpha,
                 );
+                out.clear();
+                out.resize(range.len() * stride, 0.0);
                 backward_tile(&tile, ch, scratch, out, count);
+                for (g, &r) in out.chunks_exact(stride).zip(rows.row_of(range)) {
+                    let dst = &grads[r as usize * stride..(r as usize + 1) * stride];
+                    for (d, v) in dst.iter().zip(g) {
+                        d.store(v.to_bits(), Ordering::Relaxed);
+                    }
+                }
                 if count {
                     let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
                     t.add(std::mem::take(&mut scratch.evals));

@@ -1,9 +1,13 @@
 //! Backward pass of `forward`: image gradients -> gradients of every Gaussian parameter and
 //! of the projected 2D means.
 //!
+//! Per camera: `backward_index` orders the tile intersections by splat, `backward_blend`
+//! gives every intersection its gradients in that order, and `backward_chain` sums each
+//! splat's intersections and chains them to the 3D parameters.
+//!
 //! Deterministic for any thread count: tiles write disjoint slices of the per-intersection
 //! gradients; each Gaussian then sums its own intersections in tile order and owns its
-//! output row; cameras are accumulated one after another. No floating-point atomics.
+//! output rows; cameras are accumulated one after another. No floating-point atomics.
 //!
 //! Where a gradient is undefined (culled Gaussians: behind the near plane, NaN/Inf
 //! parameters, zero quaternion, opacity < 1/255, off-screen; colour channels clamped at 0;
@@ -12,10 +16,11 @@
 use rayon::prelude::*;
 
 use super::backward_blend::intersection_gradients;
+use super::backward_chain::{Chain, GradRows};
+use super::backward_index::SplatIntersections;
+use super::batch_lanes::N;
 use super::forward_pass::ForwardState;
-use super::project::{project_backward, SplatGrad};
-use super::scene::ColorMode;
-use super::sh;
+use super::project_backward_batch::CameraLanes;
 use super::tile_walk::ISECT_FIXED;
 use crate::error::check_len;
 use crate::CoreResult;
@@ -41,39 +46,6 @@ pub struct Gradients {
     pub means2d: Vec<f32>,
 }
 
-// Row layout of the per-Gaussian accumulator.
-const MEAN: usize = 0;
-const QUAT: usize = 3;
-const SCALE: usize = 7;
-const OPAC: usize = 10;
-const COLOR: usize = 11;
-
-/// Each splat's intersection gradients summed in tile order: sequential passes over the
-/// tile-major gradients (a splat's tiles come in increasing tile order), so the order, and
-/// the bits, do not depend on the thread count. One pass per thread, each summing the
-/// splats of its own index range: every pass reads all the splat indices but only its
-/// share of the gradient rows.
-fn sum_per_splat(isect: &[f32], gids: &[u32], n: usize, stride: usize) -> Vec<f32> {
-    let mut sums = vec![0.0f32; n * stride];
-    let per_pass = n.div_ceil(rayon::current_num_threads()).max(1);
-    sums.par_chunks_mut(per_pass * stride)
-        .enumerate()
-        .for_each(|(p, own)| {
-            let lo = p * per_pass;
-            let len = own.len() / stride;
-            for (row, &g) in isect.chunks_exact(stride).zip(gids) {
-                // One unsigned comparison: below `lo` wraps around to a large value.
-                let i = (g as usize).wrapping_sub(lo);
-                if i < len {
-                    for (s, v) in own[i * stride..(i + 1) * stride].iter_mut().zip(row) {
-                        *s += v;
-                    }
-                }
-            }
-        });
-    sums
-}
-
 /// Gradients of all parameters given dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W].
 pub fn backward(
     state: &ForwardState,
@@ -85,22 +57,26 @@ pub fn backward(
     let n = scene.n;
     let c = state.cameras.len();
     let ch = state.channels();
-    let cc = scene.color_channels();
     let pixels = state.width as usize * state.height as usize;
     check_len("v_render", v_render, c * pixels, ch)?;
     check_len("v_alpha", v_alpha, c, pixels)?;
 
     let cw = scene.color_width();
-    let gw = COLOR + cw;
-    let geometry = want.means || want.quats || want.scales || want.opacities;
-    let mut acc = vec![0.0f32; n * gw];
+    let output = |wanted: bool, w: usize| vec![0.0f32; if wanted { n * w } else { 0 }];
+    let mut means = output(want.means, 3);
+    let mut quats = output(want.quats, 4);
+    let mut scales = output(want.scales, 3);
+    let mut opacities = output(want.opacities, 1);
+    let mut colors = output(want.colors, cw);
     let mut means2d = vec![0.0f32; c * n * 2];
     let stride = ISECT_FIXED + ch;
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
+        let index = SplatIntersections::new(&cs.bins.isect_gid, n);
         let (isect, _) = intersection_gradients(
             ch,
             cs,
+            &index,
             state.width,
             state.height,
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
@@ -108,90 +84,77 @@ pub fn backward(
             state.opts.simd,
             false,
         );
-        let centre = cam.centre();
-        let bins = &cs.bins;
-        let sums = sum_per_splat(&isect, &bins.isect_gid, n, stride);
-        drop(isect);
-        acc.par_chunks_mut(gw)
-            .zip(means2d[ci * n * 2..(ci + 1) * n * 2].par_chunks_mut(2))
-            .zip(sums.par_chunks(stride))
-            .enumerate()
-            .for_each(|(i, ((row, m2d), sum))| {
-                // A Gaussian no pixel differentiated (hidden behind others, or its pixels
-                // have zero gradients) would add only zeros: its chain is skipped. The
-                // bits are the same, as `row` is never -0 (it starts at +0, and a sum is
-                // -0 only if both terms are), so adding +0 or -0 keeps it.
-                if !cs.splats[i].visible() || sum.iter().all(|&v| v == 0.0) {
-                    return;
-                }
-                m2d.copy_from_slice(&sum[..2]);
-                let v_feat = &sum[ISECT_FIXED..];
-                let g = scene.gaussian(i);
-                if geometry {
-                    let sg = SplatGrad {
-                        xy: [sum[0], sum[1]],
-                        conic: [sum[2], sum[3], sum[4]],
-                        opacity: sum[5],
-                        depth: if state.opts.with_depth {
-                            v_feat[cc]
-                        } else {
-                            0.0
-                        },
-                    };
-                    let g3 = project_backward(&g, cam, &state.opts, &sg);
-                    for d in 0..3 {
-                        row[MEAN + d] += g3.mean[d];
-                        row[SCALE + d] += g3.scale[d];
-                    }
-                    for d in 0..4 {
-                        row[QUAT + d] += g3.quat[d];
-                    }
-                    row[OPAC] += g3.opacity;
-                }
-                match scene.color_mode {
-                    ColorMode::None => {}
-                    ColorMode::Direct { .. } => {
-                        if want.colors {
-                            for (o, v) in row[COLOR..].iter_mut().zip(&v_feat[..cc]) {
-                                *o += v;
-                            }
-                        }
-                    }
-                    ColorMode::Sh { degree, .. } => {
-                        let coeffs = scene.color_row(i);
-                        let dir = g.mean - centre;
-                        let raw = sh::eval(degree, coeffs, dir);
-                        // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
-                        let v_rgb =
-                            [0, 1, 2].map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
-                        let v_coeffs = if want.colors {
-                            Some(&mut row[COLOR..])
-                        } else {
-                            None
-                        };
-                        let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, v_coeffs);
-                        for d in 0..3 {
-                            row[MEAN + d] += v_dir[d];
-                        }
-                    }
-                }
-            });
+        let chain = Chain {
+            state,
+            cs,
+            cam: CameraLanes::new(cam),
+            centre: cam.centre(),
+            isect: &isect,
+            index: &index,
+            stride,
+            geometry: want.means || want.quats || want.scales || want.opacities,
+        };
+        // Blocks of many lane groups: one rayon task per block, not per eight Gaussians.
+        const BLOCK: usize = 32 * N;
+        let mut rows = Vec::with_capacity(n.div_ceil(BLOCK));
+        let mut rest = GradRows {
+            means: &mut means,
+            quats: &mut quats,
+            scales: &mut scales,
+            opacities: &mut opacities,
+            colors: &mut colors,
+            means2d: &mut means2d[ci * n * 2..(ci + 1) * n * 2],
+        };
+        for first in (0..n).step_by(BLOCK) {
+            let m = BLOCK.min(n - first);
+            let (head, tail) = split_rows(rest, m);
+            rows.push((first, head));
+            rest = tail;
+        }
+        rows.into_par_iter()
+            .for_each(|(first, mut out)| chain.block(first, &mut out));
     }
 
-    // Presized and parallel: collecting a flat_map grows the vector step by step.
-    let column = |lo: usize, w: usize| -> Vec<f32> {
-        let mut out = vec![0.0f32; n * w];
-        out.par_chunks_mut(w)
-            .zip(acc.par_chunks(gw))
-            .for_each(|(o, r)| o.copy_from_slice(&r[lo..lo + w]));
-        out
-    };
     Ok(Gradients {
-        means: want.means.then(|| column(MEAN, 3)),
-        quats: want.quats.then(|| column(QUAT, 4)),
-        scales: want.scales.then(|| column(SCALE, 3)),
-        opacities: want.opacities.then(|| column(OPAC, 1)),
-        colors: (want.colors && cw > 0).then(|| column(COLOR, cw)),
+        means: want.means.then_some(means),
+        quats: want.quats.then_some(quats),
+        scales: want.scales.then_some(scales),
+        opacities: want.opacities.then_some(opacities),
+        colors: (want.colors && cw > 0).then_some(colors),
         means2d,
     })
+}
+
+/// The first `m` Gaussians' rows of every output, and the rest.
+fn split_rows(rows: GradRows<'_>, m: usize) -> (GradRows<'_>, GradRows<'_>) {
+    fn split(v: &mut [f32], m: usize, total: usize) -> (&mut [f32], &mut [f32]) {
+        // Row width from the array (0 for an output not requested).
+        let w = v.len().checked_div(total).unwrap_or(0);
+        v.split_at_mut(m * w)
+    }
+    let total = rows.means2d.len() / 2;
+    let (means, means_t) = split(rows.means, m, total);
+    let (quats, quats_t) = split(rows.quats, m, total);
+    let (scales, scales_t) = split(rows.scales, m, total);
+    let (opacities, opacities_t) = split(rows.opacities, m, total);
+    let (colors, colors_t) = split(rows.colors, m, total);
+    let (means2d, means2d_t) = rows.means2d.split_at_mut(m * 2);
+    (
+        GradRows {
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
+            means2d,
+        },
+        GradRows {
+            means: means_t,
+            quats: quats_t,
+            scales: scales_t,
+            opacities: opacities_t,
+            colors: colors_t,
+            means2d: means2d_t,
+        },
+    )
 }

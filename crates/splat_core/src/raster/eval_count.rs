@@ -6,6 +6,7 @@
 //! passes run the instances without counters, so counting costs nothing when not asked.
 
 use super::backward_blend::intersection_gradients;
+use super::backward_index::SplatIntersections;
 use super::forward_blend::blend;
 use super::forward_pass::ForwardState;
 use super::lanes::LANES;
@@ -49,9 +50,11 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
         );
         fw.add(f);
         let (v_render, v_alpha) = (vec![0.0; pixels * ch], vec![0.0; pixels]);
+        let rows = SplatIntersections::new(&cs.bins.isect_gid, state.scene.n);
         let (_, b) = intersection_gradients(
             ch,
             cs,
+            &rows,
             state.width,
             state.height,
             &v_render,

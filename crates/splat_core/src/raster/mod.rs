@@ -5,8 +5,9 @@
 //! time, built for AVX2 by `project_avx2` where the CPU has it; `project` is the
 //! per-Gaussian reference) -> `features` (SH colour / depth)
 //! -> `tile_binning` (depth order, tile lists) -> `forward_blend` (per-tile compositing).
-//! `backward_pass` walks the same lists back to front (`backward_blend`) and chains to the
-//! 3D parameters.
+//! `backward_pass` orders the intersections by splat (`backward_index`), walks the same
+//! lists back to front (`backward_blend`) and chains to the 3D parameters
+//! (`backward_chain`, through `project_backward_batch`, eight Gaussians at a time).
 //!
 //! The blending kernels run on groups of eight pixels: AVX2 code in `blend_avx2` where the
 //! CPU has it, a scalar version of the same operations otherwise; both give the same bits
@@ -15,12 +16,16 @@
 //! ```text
 //! eval_count                           blending work of a forward state (benchmarks)
 //! forward_pass, backward_pass          whole passes over every camera
+//! backward_chain                       per-splat sums -> 3D parameter gradients
 //! forward_blend, backward_blend        per-camera blend drivers + scalar kernels
 //! blend_avx2                           the AVX2 kernels (unsafe: intrinsics)
 //! project_avx2                         project_batch built for AVX2 (unsafe: the call)
+//! backward_index                       intersections in splat order
 //! tile_walk                            per-tile state, front-to-back / back-to-front walkers
 //! tile_geometry                        tile rectangles, footprints, per-tile splat lists
 //! lanes, options, project, ...         lane arithmetic, settings, projection
+//! project_backward_batch, batch_lanes  project's backward on eight Gaussians at a time
+//!                                      (AVX build; unsafe: the call)
 //! ```
 //!
 //! This file only declares and re-exports; no module imports from it
@@ -32,7 +37,10 @@
 //! (O(pixels)). Nothing per (pixel, splat) pair is stored.
 
 mod backward_blend;
+mod backward_chain;
+mod backward_index;
 mod backward_pass;
+mod batch_lanes;
 #[cfg(target_arch = "x86_64")]
 mod blend_avx2;
 pub mod camera;
@@ -46,6 +54,7 @@ mod lanes;
 mod options;
 pub mod project;
 mod project_avx2;
+mod project_backward_batch;
 mod project_batch;
 pub mod scene;
 pub mod sh;

@@ -1,0 +1,151 @@
+//! The last stage of the backward: from each splat's summed intersection gradients (2D
+//! position, conic, opacity, features) to the gradients of its 3D parameters, for one
+//! camera, straight into the output arrays.
+//!
+//! Gaussians run in blocks (one rayon task each) and, inside a block, eight at a time
+//! through the projection's backward (`project_backward_batch`, the same bits as the
+//! per-Gaussian `project_backward`); colours and SH follow per Gaussian. A splat's sum
+//! adds its intersections in tile order, whatever the thread count. A Gaussian whose sum
+//! is all zeros (hidden behind others, or its pixels have zero gradients) would add only
+//! zeros: it is skipped. The bits are the same, as an output is never -0 (it starts at +0,
+//! and a sum is -0 only if both terms are), so adding +0 or -0 keeps it.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use glam::Vec3;
+
+use super::backward_index::SplatIntersections;
+use super::batch_lanes::N;
+use super::forward_pass::{CameraState, ForwardState};
+use super::project_backward_batch::{
+    project_backward_lanes, CameraLanes, GaussianLanes, SplatGradLanes,
+};
+use super::scene::ColorMode;
+use super::sh;
+use super::tile_walk::ISECT_FIXED;
+
+/// One block's rows of every output, empty where that gradient is not requested.
+pub(super) struct GradRows<'a> {
+    pub means: &'a mut [f32],
+    pub quats: &'a mut [f32],
+    pub scales: &'a mut [f32],
+    pub opacities: &'a mut [f32],
+    pub colors: &'a mut [f32],
+    /// dL/d(means2d) of this camera, [Gaussian][2].
+    pub means2d: &'a mut [f32],
+}
+
+/// What the chain of one camera reads.
+pub(super) struct Chain<'a> {
+    pub state: &'a ForwardState,
+    pub cs: &'a CameraState,
+    pub cam: CameraLanes,
+    /// The camera centre (SH view directions).
+    pub centre: Vec3,
+    /// Per-intersection gradients (f32 bits), splat-major, `stride` values each.
+    pub isect: &'a [AtomicU32],
+    pub index: &'a SplatIntersections,
+    pub stride: usize,
+    /// Whether any of means, quats, scales, opacities is requested.
+    pub geometry: bool,
+}
+
+impl Chain<'_> {
+    /// Gaussians first .. first + `out.means2d.len() / 2`.
+    pub fn block(&self, first: usize, out: &mut GradRows) {
+        let m = out.means2d.len() / 2;
+        let stride = self.stride;
+        let mut sums = vec![0.0f32; N * stride];
+        for g0 in (0..m).step_by(N) {
+            let lanes = N.min(m - g0);
+            let mut live = [false; N];
+            for (l, sum) in sums.chunks_exact_mut(stride).enumerate().take(lanes) {
+                let i = first + g0 + l;
+                if !self.cs.splats[i].visible() {
+                    continue;
+                }
+                sum.fill(0.0);
+                let rows = self.index.rows(i, i + 1);
+                for row in self.isect[rows.start * stride..rows.end * stride].chunks_exact(stride) {
+                    for (s, v) in sum.iter_mut().zip(row) {
+                        *s += f32::from_bits(v.load(Ordering::Relaxed));
+                    }
+                }
+                live[l] = sum.iter().any(|&v| v != 0.0);
+            }
+            if live.iter().any(|&b| b) {
+                self.lanes(first + g0, g0, &live, &sums, out);
+            }
+        }
+    }
+
+    /// Eight Gaussians from `first` (rows from `at` in `out`); `live` marks those to chain.
+    fn lanes(&self, first: usize, at: usize, live: &[bool; N], sums: &[f32], out: &mut GradRows) {
+        let (state, scene) = (self.state, &self.state.scene);
+        let stride = self.stride;
+        let sum = |l: usize| &sums[l * stride..(l + 1) * stride];
+        let grads = self.geometry.then(|| {
+            // Lanes without a live Gaussian repeat a live one; their results are dropped.
+            let any = live.iter().position(|&b| b).unwrap_or(0);
+            let lane: [usize; N] = std::array::from_fn(|l| if live[l] { l } else { any });
+            let g = GaussianLanes::load(scene, &lane.map(|l| first + l));
+            let depth = state
+                .opts
+                .with_depth
+                .then(|| ISECT_FIXED + scene.color_channels());
+            let v = SplatGradLanes::load(sums, stride, &lane, depth);
+            project_backward_lanes(&g, &self.cam, &state.opts, &v)
+        });
+        for l in (0..N).filter(|&l| live[l]) {
+            let (i, r, sum) = (first + l, at + l, sum(l));
+            out.means2d[r * 2..r * 2 + 2].copy_from_slice(&sum[..2]);
+            if let Some(grads) = &grads {
+                let g3 = &grads[l];
+                add(out.means, r, &g3.mean.to_array());
+                add(out.quats, r, &g3.quat);
+                add(out.scales, r, &g3.scale.to_array());
+                add(out.opacities, r, &[g3.opacity]);
+            }
+            self.colors(i, r, out, &sum[ISECT_FIXED..]);
+        }
+    }
+
+    /// The colour chain of Gaussian `i` (row `r`): direct colours, or SH coefficients and
+    /// the view direction's share of the mean's gradient.
+    fn colors(&self, i: usize, r: usize, out: &mut GradRows, v_feat: &[f32]) {
+        let scene = &self.state.scene;
+        let cc = scene.color_channels();
+        let cw = scene.color_width();
+        let colors = out.colors.get_mut(r * cw..(r + 1) * cw);
+        match scene.color_mode {
+            ColorMode::None => {}
+            ColorMode::Direct { .. } => {
+                if let Some(row) = colors {
+                    for (o, v) in row.iter_mut().zip(&v_feat[..cc]) {
+                        *o += v;
+                    }
+                }
+            }
+            ColorMode::Sh { degree, .. } => {
+                let coeffs = scene.color_row(i);
+                let dir = scene.gaussian(i).mean - self.centre;
+                let raw = sh::eval(degree, coeffs, dir);
+                // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
+                let v_rgb = [0, 1, 2].map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
+                let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, colors);
+                add(out.means, r, &v_dir.to_array());
+            }
+        }
+    }
+}
+
+/// Adds `v` to row `r` of `out` (rows of `v.len()`); nothing if `out` is empty (not
+/// requested).
+#[inline(always)]
+fn add(out: &mut [f32], r: usize, v: &[f32]) {
+    if let Some(row) = out.get_mut(r * v.len()..(r + 1) * v.len()) {
+        for (o, x) in row.iter_mut().zip(v) {
+            *o += x;
+        }
+    }
+}

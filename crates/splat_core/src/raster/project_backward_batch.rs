@@ -1,0 +1,413 @@
+//! `project::project_backward` eight Gaussians at a time, with the same bits.
+//!
+//! The per-Gaussian backward recomputes the projection's intermediates and chains through
+//! them: a few hundred scalar products, divisions and square roots per Gaussian, which made
+//! it about a quarter of the whole backward. Here every formula runs on `Lanes` of eight
+//! Gaussians with the operands and the order of the glam expressions in `project` (products
+//! with the zeros of `Mat3::from_diagonal` and of the Jacobian included), and each branch
+//! becomes a per-lane select of the branch's own result, so every lane computes exactly
+//! what the scalar code computes: the gradients are bit-identical (`tests`), and
+//! `project_backward` stays the reference.
+
+use super::batch_lanes::{Lanes, M3, N, V3};
+use super::camera::Camera;
+use super::options::RasterOptions;
+use super::project::{Gaussian3Grad, QUAT_NORM2_MIN};
+use super::scene::Scene;
+
+/// Eight Gaussians' parameters, one per lane.
+pub(super) struct GaussianLanes {
+    pub mean: V3,
+    pub quat: [Lanes; 4],
+    pub scale: V3,
+    pub opacity: Lanes,
+}
+
+impl GaussianLanes {
+    /// Gaussians `idx[0]`, ..., `idx[7]` of the scene.
+    #[inline(always)]
+    pub fn load(scene: &Scene, idx: &[usize; N]) -> Self {
+        let load =
+            |v: &[f32], w: usize, c: usize| Lanes(std::array::from_fn(|l| v[idx[l] * w + c]));
+        Self {
+            mean: V3(std::array::from_fn(|c| load(&scene.means, 3, c))),
+            quat: std::array::from_fn(|c| load(&scene.quats, 4, c)),
+            scale: V3(std::array::from_fn(|c| load(&scene.scales, 3, c))),
+            opacity: load(&scene.opacities, 1, 0),
+        }
+    }
+}
+
+/// Eight splats' incoming gradients, one per lane.
+pub(super) struct SplatGradLanes {
+    pub xy: [Lanes; 2],
+    pub conic: [Lanes; 3],
+    pub opacity: Lanes,
+    pub depth: Lanes,
+}
+
+impl SplatGradLanes {
+    /// From rows of per-splat sums (`stride` values: xy, conic, opacity, features), row
+    /// `rows[l]` for lane l, and the depth gradient at `depth` in the row if there is one.
+    #[inline(always)]
+    pub fn load(sums: &[f32], stride: usize, rows: &[usize; N], depth: Option<usize>) -> Self {
+        let load = |c: usize| Lanes(std::array::from_fn(|l| sums[rows[l] * stride + c]));
+        Self {
+            xy: std::array::from_fn(load),
+            conic: std::array::from_fn(|c| load(2 + c)),
+            opacity: load(5),
+            depth: depth.map_or(Lanes::splat(0.0), load),
+        }
+    }
+}
+
+/// The camera as the lanes read it.
+pub(super) struct CameraLanes {
+    rot: M3,
+    rot_t: M3,
+    trans: V3,
+    /// Jacobian clamp limits (right, left, down, up) of x/z and y/z.
+    lim: [f32; 4],
+    fx: f32,
+    fy: f32,
+}
+
+impl CameraLanes {
+    pub fn new(cam: &Camera) -> Self {
+        let rot = M3::splat(cam.rot.to_cols_array_2d());
+        Self {
+            rot,
+            rot_t: rot.transpose(),
+            trans: V3(cam.trans.to_array().map(Lanes::splat)),
+            lim: cam.jacobian_limits(),
+            fx: cam.fx,
+            fy: cam.fy,
+        }
+    }
+}
+
+/// `project_backward` of eight Gaussians; a lane whose Gaussian the projection culls gets
+/// zeros, as there.
+pub(super) fn project_backward_lanes(
+    g: &GaussianLanes,
+    cam: &CameraLanes,
+    opts: &RasterOptions,
+    v: &SplatGradLanes,
+) -> [Gaussian3Grad; N] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        #[allow(unsafe_code)]
+        // SAFETY: the CPU has AVX (checked just above).
+        return unsafe { lanes_avx(g, cam, opts, v) };
+    }
+    lanes(g, cam, opts, v)
+}
+
+/// `lanes` compiled for AVX: one 8-wide instruction per lane operation instead of two
+/// 4-wide SSE ones. The operations are the same (no fused multiply-add), so are the bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn lanes_avx(
+    g: &GaussianLanes,
+    cam: &CameraLanes,
+    opts: &RasterOptions,
+    v: &SplatGradLanes,
+) -> [Gaussian3Grad; N] {
+    lanes(g, cam, opts, v)
+}
+
+#[inline(always)]
+fn lanes(
+    g: &GaussianLanes,
+    cam: &CameraLanes,
+    opts: &RasterOptions,
+    v: &SplatGradLanes,
+) -> [Gaussian3Grad; N] {
+    let one = Lanes::splat(1.0);
+    // --- `project::intermediates` ---
+    let p = cam.rot.mul_vec(g.mean).add(cam.trans);
+    // `quat_to_rotmat`
+    let q = g.quat;
+    let n2 = ((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3];
+    let qnorm = n2.sqrt();
+    let [w, x, y, z] = std::array::from_fn(|c| q[c] / qnorm);
+    let rot = M3([
+        V3([
+            one - 2.0 * (y * y + z * z),
+            2.0 * (x * y + w * z),
+            2.0 * (x * z - w * y),
+        ]),
+        V3([
+            2.0 * (x * y - w * z),
+            one - 2.0 * (x * x + z * z),
+            2.0 * (y * z + w * x),
+        ]),
+        V3([
+            2.0 * (x * z + w * y),
+            2.0 * (y * z - w * x),
+            one - 2.0 * (x * x + y * y),
+        ]),
+    ]);
+    let m = rot.mul(&M3::diagonal(g.scale));
+    let cov_c = cam.rot.mul(&m.mul(&m.transpose())).mul(&cam.rot_t);
+
+    let [lim_xp, lim_xn, lim_yp, lim_yn] = cam.lim;
+    let pz = p.0[2];
+    let rz = one / pz;
+    let (u, vv) = (p.0[0] * rz, p.0[1] * rz);
+    let x_free = u.mask(|u| u <= lim_xp && u >= -lim_xn);
+    let y_free = vv.mask(|v| v <= lim_yp && v >= -lim_yn);
+    let tx = pz * u.map(|u| u.clamp(-lim_xn, lim_xp));
+    let ty = pz * vv.map(|v| v.clamp(-lim_yn, lim_yp));
+    let (fx, fy) = (cam.fx, cam.fy);
+    let zero = Lanes::splat(0.0);
+    let j0 = V3([fx * rz, zero, -fx * tx * rz * rz]);
+    let j1 = V3([zero, fy * rz, -fy * ty * rz * rz]);
+    let (cj0, cj1) = (cov_c.mul_vec(j0), cov_c.mul_vec(j1));
+    let (a0, b, c0) = (j0.dot(cj0), j0.dot(cj1), j1.dot(cj1));
+    let det0 = a0 * c0 - b * b;
+    let (a, c) = (a0 + opts.eps2d, c0 + opts.eps2d);
+    let det = a * c - b * b;
+    let conic = [c / det, -b / det, a / det];
+    let compensation = if opts.antialiased {
+        (det0 / det).map(|r| r.max(0.0).sqrt())
+    } else {
+        one
+    };
+
+    // --- `project_backward` ---
+    let [ca, cb, cc] = conic;
+    let (ga, gb, gc) = (v.conic[0], 0.5 * v.conic[1], v.conic[2]);
+    let qg00 = ca * ga + cb * gb;
+    let qg01 = ca * gb + cb * gc;
+    let qg10 = cb * ga + cc * gb;
+    let qg11 = cb * gb + cc * gc;
+    let mut s00 = -(qg00 * ca + qg01 * cb);
+    let mut s01 = -(qg00 * cb + qg01 * cc);
+    let mut s11 = -(qg10 * cb + qg11 * cc);
+
+    let v_opacity = v.opacity * compensation;
+    if opts.antialiased {
+        let r = det0 / det;
+        let on: [bool; N] = std::array::from_fn(|l| r.0[l] > 0.0 && compensation.0[l] > 0.0);
+        let v_r = v.opacity * g.opacity * 0.5 / compensation;
+        let e = opts.eps2d / det;
+        s00 = (s00 + v_r * ((one - r) * ca - e)).select(on, s00);
+        s01 = (s01 + v_r * (one - r) * cb).select(on, s01);
+        s11 = (s11 + v_r * ((one - r) * cc - e)).select(on, s11);
+    }
+
+    let sj0 = j0.scale(s00).add(j1.scale(s01));
+    let sj1 = j0.scale(s01).add(j1.scale(s11));
+    let g_cov_c = M3(std::array::from_fn(|k| {
+        sj0.scale(j0.0[k]).add(sj1.scale(j1.0[k]))
+    }));
+    let gj0 = cov_c.mul_vec(sj0).scale(Lanes::splat(2.0));
+    let gj1 = cov_c.mul_vec(sj1).scale(Lanes::splat(2.0));
+
+    let rz2 = rz * rz;
+    let rz3 = rz2 * rz;
+    let [px, py, _] = p.0;
+    let mut vpx = fx * rz * v.xy[0];
+    let mut vpy = fy * rz * v.xy[1];
+    let mut vpz = -(fx * px * v.xy[0] + fy * py * v.xy[1]) * rz2 + v.depth;
+    vpz = vpz + (-fx * rz2 * gj0.0[0] - fy * rz2 * gj1.0[1]);
+    vpx = (vpx + -fx * rz2 * gj0.0[2]).select(x_free, vpx);
+    vpz = vpz + (2.0 * fx * tx * rz3 * gj0.0[2]).select(x_free, fx * tx * rz3 * gj0.0[2]);
+    vpy = (vpy + -fy * rz2 * gj1.0[2]).select(y_free, vpy);
+    vpz = vpz + (2.0 * fy * ty * rz3 * gj1.0[2]).select(y_free, fy * ty * rz3 * gj1.0[2]);
+    let v_mean = cam.rot_t.mul_vec(V3([vpx, vpy, vpz]));
+
+    let g_v = cam.rot_t.mul(&g_cov_c).mul(&cam.rot);
+    let g_v = g_v.add(&g_v.transpose());
+    let g_m = g_v.mul(&m);
+    let v_scale: [Lanes; 3] = std::array::from_fn(|k| g_m.0[k].dot(rot.0[k]));
+    let g_r = M3(std::array::from_fn(|k| g_m.0[k].scale(g.scale.0[k])));
+    let v_quat = rotmat_backward(&g_r, [w, x, y, z], qnorm);
+
+    // The culling of `intermediates`, lane by lane.
+    std::array::from_fn(|l| {
+        let at = |v: Lanes| v.0[l];
+        let inputs = [&g.mean.0[..], &g.quat[..], &g.scale.0[..], &[g.opacity]];
+        let finite = inputs.iter().all(|s| s.iter().all(|v| at(*v).is_finite()));
+        let z = at(pz);
+        let n2 = at(n2);
+        let det = at(det);
+        let kept = finite
+            && (z >= opts.near_plane && z <= opts.far_plane)
+            && (n2.is_finite() && n2 >= QUAT_NORM2_MIN)
+            && (det.is_finite() && det > 0.0)
+            && conic.iter().all(|v| at(*v).is_finite());
+        if !kept {
+            return Gaussian3Grad::default();
+        }
+        Gaussian3Grad {
+            mean: glam::Vec3::new(at(v_mean.0[0]), at(v_mean.0[1]), at(v_mean.0[2])),
+            quat: std::array::from_fn(|c| at(v_quat[c])),
+            scale: glam::Vec3::new(at(v_scale[0]), at(v_scale[1]), at(v_scale[2])),
+            opacity: at(v_opacity),
+        }
+    })
+}
+
+/// `project::rotmat_backward` on lanes.
+fn rotmat_backward(g: &M3, qn: [Lanes; 4], norm: Lanes) -> [Lanes; 4] {
+    let [w, x, y, z] = qn;
+    let e = |i: usize, j: usize| g.0[j].0[i];
+    let dw =
+        2.0 * (-z * e(0, 1) + y * e(0, 2) + z * e(1, 0) - x * e(1, 2) - y * e(2, 0) + x * e(2, 1));
+    let dx = 2.0
+        * (y * e(0, 1) + z * e(0, 2) + y * e(1, 0) - 2.0 * x * e(1, 1) - w * e(1, 2)
+            + z * e(2, 0)
+            + w * e(2, 1)
+            - 2.0 * x * e(2, 2));
+    let dy = 2.0
+        * (-2.0 * y * e(0, 0) + x * e(0, 1) + w * e(0, 2) + x * e(1, 0) + z * e(1, 2)
+            - w * e(2, 0)
+            + z * e(2, 1)
+            - 2.0 * y * e(2, 2));
+    let dz = 2.0
+        * (-2.0 * z * e(0, 0) - w * e(0, 1) + x * e(0, 2) + w * e(1, 0) - 2.0 * z * e(1, 1)
+            + y * e(1, 2)
+            + x * e(2, 0)
+            + y * e(2, 1));
+    let dn = [dw, dx, dy, dz];
+    // `Sum` of f32 starts at -0.0, which leaves the first term as it is.
+    let dot = ((dn[0] * qn[0] + dn[1] * qn[1]) + dn[2] * qn[2]) + dn[3] * qn[3];
+    std::array::from_fn(|i| (dn[i] - qn[i] * dot) / norm)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::project::{project_backward, Gaussian3, SplatGrad};
+    use super::super::scene::ColorMode;
+    use super::*;
+    use crate::test_rng::Lcg;
+
+    fn camera() -> Camera {
+        let (s, c) = (0.4f32.sin(), 0.4f32.cos());
+        let view = [
+            c, 0.0, s, 0.2, //
+            0.0, 1.0, 0.0, -0.1, //
+            -s, 0.0, c, 4.0, //
+            0.0, 0.0, 0.0, 1.0,
+        ];
+        let k = [200.0, 0.0, 160.0, 0.0, 210.0, 120.0, 0.0, 0.0, 1.0];
+        Camera::from_matrices(&view, &k, 320, 240).unwrap()
+    }
+
+    /// Random Gaussians (in and out of view, round to needle-thin, some outside the
+    /// Jacobian's clamp) and the degenerate ones the culling is about.
+    fn scene(n: usize, seed: u64) -> Scene {
+        let mut r = Lcg::new(seed);
+        let (mut means, mut quats, mut scales, mut opac) = (vec![], vec![], vec![], vec![]);
+        for _ in 0..n {
+            let spread = if r.uniform() < 0.2 { 12.0 } else { 4.0 };
+            means.extend([
+                spread * (r.uniform() - 0.5),
+                spread * (r.uniform() - 0.5),
+                8.0 * r.uniform() - 4.0,
+            ]);
+            quats.extend([0; 4].map(|_| r.uniform() - 0.5));
+            let base = 10f32.powf(-3.0 + 2.5 * r.uniform());
+            scales.extend([
+                base,
+                base * (0.01 + r.uniform()),
+                base * (0.01 + r.uniform()),
+            ]);
+            opac.push(r.uniform());
+        }
+        type Special = ([f32; 3], [f32; 4], [f32; 3], f32);
+        let specials: [Special; 7] = [
+            ([0.0, 0.0, -4.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9), // at the camera
+            ([0.0, 0.0, 0.0], [0.0; 4], [0.1; 3], 0.9),              // zero quaternion
+            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0; 3], 0.9),  // zero scales
+            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [1e30; 3], 0.9), // huge scales
+            ([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9),
+            (
+                [0.0, 0.0, 0.0],
+                [1.0, f32::INFINITY, 0.0, 0.0],
+                [0.1; 3],
+                0.9,
+            ),
+            ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [1e-7; 3], 1.0), // sub-pixel
+        ];
+        for (m, q, s, o) in specials {
+            means.extend(m);
+            quats.extend(q);
+            scales.extend(s);
+            opac.push(o);
+        }
+        let colors = vec![0.5f32; opac.len() * 3];
+        let mode = ColorMode::Direct { channels: 3 };
+        Scene::new(&means, &quats, &scales, &opac, &colors, mode).unwrap()
+    }
+
+    #[test]
+    fn lanes_give_the_per_gaussian_bits() {
+        let cam = camera();
+        let cl = CameraLanes::new(&cam);
+        let mut r = Lcg::new(11);
+        let mut nonzero = 0;
+        for antialiased in [false, true] {
+            let opts = RasterOptions {
+                antialiased,
+                ..Default::default()
+            };
+            let sc = scene(4000, 5 + antialiased as u64);
+            for first in (0..sc.n).step_by(N) {
+                let idx: [usize; N] = std::array::from_fn(|l| (first + l).min(sc.n - 1));
+                let v: [SplatGrad; N] = std::array::from_fn(|_| SplatGrad {
+                    xy: [r.uniform() - 0.5, r.uniform() - 0.5],
+                    conic: [0; 3].map(|_| 10.0 * (r.uniform() - 0.5)),
+                    opacity: r.uniform() - 0.5,
+                    depth: r.uniform() - 0.5,
+                });
+                let stride = 7;
+                let sums: Vec<f32> = v
+                    .iter()
+                    .flat_map(|g| {
+                        [
+                            g.xy[0], g.xy[1], g.conic[0], g.conic[1], g.conic[2], g.opacity,
+                            g.depth,
+                        ]
+                    })
+                    .collect();
+                let rows = std::array::from_fn(|l| l);
+                let vl = SplatGradLanes::load(&sums, stride, &rows, Some(6));
+                let gl = GaussianLanes::load(&sc, &idx);
+                let got = project_backward_lanes(&gl, &cl, &opts, &vl);
+                // The portable build of the same code (the AVX one runs where the CPU has it).
+                let portable = lanes(&gl, &cl, &opts, &vl);
+                for l in 0..N {
+                    let g: Gaussian3 = sc.gaussian(idx[l]);
+                    let want = project_backward(&g, &cam, &opts, &v[l]);
+                    let bits = |x: &Gaussian3Grad| {
+                        let mut b: Vec<u32> =
+                            x.mean.to_array().iter().map(|v| v.to_bits()).collect();
+                        b.extend(
+                            x.quat
+                                .iter()
+                                .chain(&x.scale.to_array())
+                                .chain(&[x.opacity])
+                                .map(|v| v.to_bits()),
+                        );
+                        b
+                    };
+                    assert_eq!(
+                        bits(&got[l]),
+                        bits(&want),
+                        "gaussian {}: {:?} vs {:?}",
+                        idx[l],
+                        got[l],
+                        want
+                    );
+                    assert_eq!(bits(&portable[l]), bits(&want), "gaussian {}", idx[l]);
+                    nonzero += (want.opacity != 0.0) as usize;
+                }
+            }
+        }
+        // Not vacuous: most Gaussians get gradients.
+        assert!(nonzero > 3000, "{nonzero}");
+    }
+}
