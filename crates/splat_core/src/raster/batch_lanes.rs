@@ -5,8 +5,9 @@
 //! the same order gives the same bits as its scalar form. Also 3-vectors and 3x3 matrices
 //! of lanes whose products add their terms in glam's order (`Mat3 * Vec3` is
 //! `(x_axis * v.x + y_axis * v.y) + z_axis * v.z`, `dot` is `(x x' + y y') + z z'`), so a
-//! formula written with glam types can be mirrored bit for bit. Arrays are built with
-//! `from_fn`, not `map`: `map` on these arrays was left as an out-of-line call.
+//! formula written with glam types can be mirrored bit for bit. The 3-vector and matrix
+//! operations list their entries: `map` and `from_fn` over them were left as out-of-line
+//! calls, which also lose the caller's target features (AVX).
 
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -109,12 +110,12 @@ impl V3 {
 
     #[inline(always)]
     pub fn scale(self, s: Lanes) -> Self {
-        Self(std::array::from_fn(|i| self.0[i] * s))
+        Self([self.0[0] * s, self.0[1] * s, self.0[2] * s])
     }
 
     #[inline(always)]
     pub fn add(self, o: Self) -> Self {
-        Self(std::array::from_fn(|i| self.0[i] + o.0[i]))
+        Self([self.0[0] + o.0[0], self.0[1] + o.0[1], self.0[2] + o.0[2]])
     }
 }
 
@@ -140,19 +141,23 @@ impl M3 {
 
     #[inline(always)]
     pub fn mul(&self, o: &Self) -> Self {
-        Self(std::array::from_fn(|j| self.mul_vec(o.0[j])))
+        let [a, b, c] = o.0;
+        Self([self.mul_vec(a), self.mul_vec(b), self.mul_vec(c)])
     }
 
     #[inline(always)]
     pub fn transpose(&self) -> Self {
-        Self(std::array::from_fn(|j| {
-            V3(std::array::from_fn(|i| self.0[i].0[j]))
-        }))
+        let [[a, b, c], [d, e, f], [g, h, i]] = self.0.map(|v| v.0);
+        Self([V3([a, d, g]), V3([b, e, h]), V3([c, f, i])])
     }
 
     #[inline(always)]
     pub fn add(&self, o: &Self) -> Self {
-        Self(std::array::from_fn(|j| self.0[j].add(o.0[j])))
+        Self([
+            self.0[0].add(o.0[0]),
+            self.0[1].add(o.0[1]),
+            self.0[2].add(o.0[2]),
+        ])
     }
 
     /// `Mat3::from_diagonal(d)`, zeros included: a product with it is computed in full,

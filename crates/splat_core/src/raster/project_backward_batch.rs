@@ -130,7 +130,7 @@ fn lanes(
     let q = g.quat;
     let n2 = ((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3];
     let qnorm = n2.sqrt();
-    let [w, x, y, z] = std::array::from_fn(|c| q[c] / qnorm);
+    let [w, x, y, z] = [q[0] / qnorm, q[1] / qnorm, q[2] / qnorm, q[3] / qnorm];
     let rot = M3([
         V3([
             one - 2.0 * (y * y + z * z),
@@ -199,9 +199,11 @@ fn lanes(
 
     let sj0 = j0.scale(s00).add(j1.scale(s01));
     let sj1 = j0.scale(s01).add(j1.scale(s11));
-    let g_cov_c = M3(std::array::from_fn(|k| {
-        sj0.scale(j0.0[k]).add(sj1.scale(j1.0[k]))
-    }));
+    let g_cov_c = M3([
+        sj0.scale(j0.0[0]).add(sj1.scale(j1.0[0])),
+        sj0.scale(j0.0[1]).add(sj1.scale(j1.0[1])),
+        sj0.scale(j0.0[2]).add(sj1.scale(j1.0[2])),
+    ]);
     let gj0 = cov_c.mul_vec(sj0).scale(Lanes::splat(2.0));
     let gj1 = cov_c.mul_vec(sj1).scale(Lanes::splat(2.0));
 
@@ -221,36 +223,44 @@ fn lanes(
     let g_v = cam.rot_t.mul(&g_cov_c).mul(&cam.rot);
     let g_v = g_v.add(&g_v.transpose());
     let g_m = g_v.mul(&m);
-    let v_scale: [Lanes; 3] = std::array::from_fn(|k| g_m.0[k].dot(rot.0[k]));
-    let g_r = M3(std::array::from_fn(|k| g_m.0[k].scale(g.scale.0[k])));
+    let v_scale = [
+        g_m.0[0].dot(rot.0[0]),
+        g_m.0[1].dot(rot.0[1]),
+        g_m.0[2].dot(rot.0[2]),
+    ];
+    let [s0, s1, s2] = g.scale.0;
+    let g_r = M3([g_m.0[0].scale(s0), g_m.0[1].scale(s1), g_m.0[2].scale(s2)]);
     let v_quat = rotmat_backward(&g_r, [w, x, y, z], qnorm);
 
-    // The culling of `intermediates`, lane by lane.
-    std::array::from_fn(|l| {
+    // The culling of `intermediates`. 0 x is NaN exactly when x is NaN or infinite (else
+    // +-0): one sum flags every non-finite input, another every non-finite result.
+    let zero = Lanes::splat(0.0);
+    let inputs = g.mean.0.iter().chain(&g.quat).chain(&g.scale.0);
+    let probe_in = inputs.fold(g.opacity * zero, |acc, v| acc + *v * zero);
+    let probe_out = n2 * zero + det * zero + conic[0] * zero + conic[1] * zero + conic[2] * zero;
+    let (near, far) = (opts.near_plane, opts.far_plane);
+    let mut out = [Gaussian3Grad::default(); N];
+    for (l, o) in out.iter_mut().enumerate() {
         let at = |v: Lanes| v.0[l];
-        let inputs = [&g.mean.0[..], &g.quat[..], &g.scale.0[..], &[g.opacity]];
-        let finite = inputs.iter().all(|s| s.iter().all(|v| at(*v).is_finite()));
-        let z = at(pz);
-        let n2 = at(n2);
-        let det = at(det);
-        let kept = finite
-            && (z >= opts.near_plane && z <= opts.far_plane)
-            && (n2.is_finite() && n2 >= QUAT_NORM2_MIN)
-            && (det.is_finite() && det > 0.0)
-            && conic.iter().all(|v| at(*v).is_finite());
-        if !kept {
-            return Gaussian3Grad::default();
+        let kept = at(probe_in) == 0.0
+            && at(probe_out) == 0.0
+            && (at(pz) >= near && at(pz) <= far)
+            && at(n2) >= QUAT_NORM2_MIN
+            && at(det) > 0.0;
+        if kept {
+            *o = Gaussian3Grad {
+                mean: glam::Vec3::new(at(v_mean.0[0]), at(v_mean.0[1]), at(v_mean.0[2])),
+                quat: [at(v_quat[0]), at(v_quat[1]), at(v_quat[2]), at(v_quat[3])],
+                scale: glam::Vec3::new(at(v_scale[0]), at(v_scale[1]), at(v_scale[2])),
+                opacity: at(v_opacity),
+            };
         }
-        Gaussian3Grad {
-            mean: glam::Vec3::new(at(v_mean.0[0]), at(v_mean.0[1]), at(v_mean.0[2])),
-            quat: std::array::from_fn(|c| at(v_quat[c])),
-            scale: glam::Vec3::new(at(v_scale[0]), at(v_scale[1]), at(v_scale[2])),
-            opacity: at(v_opacity),
-        }
-    })
+    }
+    out
 }
 
 /// `project::rotmat_backward` on lanes.
+#[inline(always)]
 fn rotmat_backward(g: &M3, qn: [Lanes; 4], norm: Lanes) -> [Lanes; 4] {
     let [w, x, y, z] = qn;
     let e = |i: usize, j: usize| g.0[j].0[i];
@@ -274,7 +284,8 @@ fn rotmat_backward(g: &M3, qn: [Lanes; 4], norm: Lanes) -> [Lanes; 4] {
     let dn = [dw, dx, dy, dz];
     // `Sum` of f32 starts at -0.0, which leaves the first term as it is.
     let dot = ((dn[0] * qn[0] + dn[1] * qn[1]) + dn[2] * qn[2]) + dn[3] * qn[3];
-    std::array::from_fn(|i| (dn[i] - qn[i] * dot) / norm)
+    let out = |i: usize| (dn[i] - qn[i] * dot) / norm;
+    [out(0), out(1), out(2), out(3)]
 }
 
 #[cfg(test)]
