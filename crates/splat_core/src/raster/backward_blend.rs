@@ -29,8 +29,9 @@ use super::tile_geometry::{TileList, TileRect};
 use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, EvalCount, ISECT_FIXED};
 
 /// Per-intersection gradients of one camera, `ISECT_FIXED + ch` values per intersection,
-/// at the intersection's splat-major row (`SplatIntersections`). With `count`, runs the
-/// kernels' counting instances and returns their work (zero otherwise).
+/// stored (as f32 bits) in `grads` at the intersection's splat-major row
+/// (`SplatIntersections`); `grads` comes zeroed (`zeroed_gradients`). With `count`, runs
+/// the kernels' counting instances and returns their work (zero otherwise).
 ///
 /// Each tile computes its gradients in a buffer of its own (in cache), then stores every
 /// row at its splat-major place. Every row belongs to one intersection, hence to one tile,
@@ -41,21 +42,18 @@ pub fn intersection_gradients(
     ch: usize,
     cs: &CameraState,
     rows: &SplatIntersections,
+    grads: &[AtomicU32],
     width: u32,
     height: u32,
     v_render: &[f32],
     v_alpha: &[f32],
     simd: bool,
     count: bool,
-) -> (Vec<AtomicU32>, EvalCount) {
+) -> EvalCount {
     let (bins, blended) = (&cs.bins, &cs.blended);
     let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
-    let grads: Vec<AtomicU32> = (0..bins.n_intersections() * stride)
-        .into_par_iter()
-        .map(|_| AtomicU32::new(0))
-        .collect();
     let totals = std::sync::Mutex::new(EvalCount::default());
     (0..bins.n_tiles())
         .into_par_iter()
@@ -88,6 +86,10 @@ pub fn intersection_gradients(
                 out.resize(range.len() * stride, 0.0);
                 backward_tile(&tile, ch, scratch, out, count);
                 for (g, &r) in out.chunks_exact(stride).zip(rows.row_of(range)) {
+                    // The array starts at +0; rows of splats no pixel saw stay so.
+                    if g.iter().all(|v| v.to_bits() == 0) {
+                        continue;
+                    }
                     let dst = &grads[r as usize * stride..(r as usize + 1) * stride];
                     for (d, v) in dst.iter().zip(g) {
                         d.store(v.to_bits(), Ordering::Relaxed);
@@ -99,8 +101,16 @@ pub fn intersection_gradients(
                 }
             },
         );
-    let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
-    (grads, evals)
+    totals.into_inner().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A zeroed intersection-gradient array for `intersection_gradients` (`len` values),
+/// filled in parallel.
+pub fn zeroed_gradients(len: usize) -> Vec<AtomicU32> {
+    (0..len)
+        .into_par_iter()
+        .map(|_| AtomicU32::new(0))
+        .collect()
 }
 
 fn backward_tile(

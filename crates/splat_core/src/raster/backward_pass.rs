@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::backward_blend::intersection_gradients;
+use super::backward_blend::{intersection_gradients, zeroed_gradients};
 use super::backward_chain::{Chain, GradRows};
 use super::backward_index::SplatIntersections;
 use super::batch_lanes::N;
@@ -72,11 +72,16 @@ pub fn backward(
     let stride = ISECT_FIXED + ch;
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
-        let index = SplatIntersections::new(&cs.bins.isect_gid, n);
-        let (isect, _) = intersection_gradients(
+        // The index is one sequential pass; the zeroing runs beside it.
+        let (index, isect) = rayon::join(
+            || SplatIntersections::new(&cs.bins.isect_gid, n),
+            || zeroed_gradients(cs.bins.n_intersections() * stride),
+        );
+        intersection_gradients(
             ch,
             cs,
             &index,
+            &isect,
             state.width,
             state.height,
             &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],

@@ -335,8 +335,18 @@ pub(super) fn backward_tile<const COUNT: bool>(
     out: &mut [f32],
 ) {
     debug_assert!(ch <= MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2"));
+    // One instance per channel count: with the count known, the per-channel loops unroll
+    // and their sums stay in registers instead of arrays indexed at run time.
     // SAFETY: `backward_blend::backward_tile` calls this only after detecting AVX2.
-    unsafe { backward_tile_avx2::<COUNT>(tile, ch, scratch, out) }
+    unsafe {
+        match ch {
+            3 => backward_tile_avx2::<COUNT, 3>(tile, scratch, out),
+            4 => backward_tile_avx2::<COUNT, 4>(tile, scratch, out),
+            1 => backward_tile_avx2::<COUNT, 1>(tile, scratch, out),
+            2 => backward_tile_avx2::<COUNT, 2>(tile, scratch, out),
+            _ => backward_tile_avx2::<COUNT, 0>(tile, scratch, out),
+        }
+    }
 }
 
 /// `lanes::lane_sum` on a register.
@@ -351,25 +361,25 @@ fn lane_sum(v: __m256) -> f32 {
 }
 
 #[target_feature(enable = "avx2")]
-fn backward_tile_avx2<const COUNT: bool>(
+fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
     tile: &BackTile,
-    ch: usize,
     scratch: &mut BackScratch,
     out: &mut [f32],
 ) {
+    let ch = CH;
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let zero = _mm256_setzero_ps();
     for_each_splat_back(tile, ch, scratch, out, |sp: &BackSplat, sc, o| {
         let [ca, cb, cc] = sp.s.conic;
         let (opacity, k) = (s(sp.s.opacity), _mm256_set1_epi32(sp.k as i32));
-        let mut fc = [zero; MAX_BACKWARD_CHANNELS];
-        for (c, v) in sp.f.iter().enumerate() {
+        let mut fc = [zero; CH];
+        for (c, v) in sp.f.iter().enumerate().take(CH) {
             fc[c] = s(*v);
         }
         // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity and the features.
         let mut acc = [zero; ISECT_FIXED];
-        let mut acc_f = [zero; MAX_BACKWARD_CHANNELS];
+        let mut acc_f = [zero; CH];
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
             for ly in sc.geo.group_rows[gi].clone() {
@@ -413,7 +423,7 @@ fn backward_tile_avx2<const COUNT: bool>(
                 let t_k = _mm256_mul_ps(load(&sc.trans[base..]), ra);
                 let fac = _mm256_mul_ps(alpha, t_k);
                 let mut v_al = _mm256_mul_ps(load(&sc.va_tf[base..]), ra);
-                for c in 0..ch {
+                for c in 0..CH {
                     let vo = load(&sc.v_out[c * plane + base..]);
                     let b = &mut sc.buf[c * plane + base..];
                     let bv = load(b);
@@ -456,7 +466,7 @@ fn backward_tile_avx2<const COUNT: bool>(
                 }
             }
         }
-        for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f[..ch])) {
+        for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
             *o = lane_sum(*a);
         }
     });

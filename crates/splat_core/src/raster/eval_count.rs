@@ -5,12 +5,12 @@
 //! Replays the blends of a forward state with the kernels' counting instances; the timed
 //! passes run the instances without counters, so counting costs nothing when not asked.
 
-use super::backward_blend::intersection_gradients;
+use super::backward_blend::{intersection_gradients, zeroed_gradients};
 use super::backward_index::SplatIntersections;
 use super::forward_blend::blend;
 use super::forward_pass::ForwardState;
 use super::lanes::LANES;
-use super::tile_walk::EvalCount;
+use super::tile_walk::{EvalCount, ISECT_FIXED};
 
 /// Work of the blending kernels, summed over cameras.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -51,10 +51,12 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
         fw.add(f);
         let (v_render, v_alpha) = (vec![0.0; pixels * ch], vec![0.0; pixels]);
         let rows = SplatIntersections::new(&cs.bins.isect_gid, state.scene.n);
-        let (_, b) = intersection_gradients(
+        let grads = zeroed_gradients(cs.bins.n_intersections() * (ISECT_FIXED + ch));
+        let b = intersection_gradients(
             ch,
             cs,
             &rows,
+            &grads,
             state.width,
             state.height,
             &v_render,

@@ -173,35 +173,43 @@ fn backward_kernels_agree() {
             let fw = forward_scratch(&tile, ts, false);
             let (mut t_final, mut last) = (vec![1.0; ts * ts], vec![0; ts * ts]);
             fw.write_state(&rect, &mut t_final, &mut last);
-            // Upstream gradients on an image just large enough for the tile.
-            let (w, h) = (rect.x1 as usize, rect.y1 as usize);
-            let v_render: Vec<f32> = (0..w * h * 3).map(|_| rng.uniform() - 0.5).collect();
-            let v_alpha: Vec<f32> = (0..w * h).map(|_| rng.uniform() - 0.5).collect();
-            let back = BackTile {
-                splats: &splats,
-                features: &feats,
-                rect,
-                simd: true,
-            };
-            let run = |avx: bool| {
-                let mut sc = BackScratch::new(ts, 3);
-                sc.reset(&rect, 3, w, &t_final, &last, &v_render, &v_alpha);
-                let mut out = vec![0.0f32; n * (ISECT_FIXED + 3)];
-                if avx {
-                    blend_avx2::backward_tile::<true>(&back, 3, &mut sc, &mut out);
-                } else {
-                    backward_tile_scalar::<true>(&back, 3, &mut sc, &mut out);
-                }
-                (out, sc)
-            };
-            let ((ga, sa), (gb, sb)) = (run(true), run(false));
-            assert_eq!(bits(&ga), bits(&gb), "ts {ts} seed {seed}");
-            assert_eq!(bits(&sa.trans), bits(&sb.trans));
-            assert_eq!(bits(&sa.buf), bits(&sb.buf));
-            assert_eq!(sa.evals, sb.evals, "ts {ts} seed {seed}");
-            // The backward differentiates exactly the pairs the forward blended.
-            assert_eq!(sb.evals.blended, fw.evals.blended, "ts {ts} seed {seed}");
-            assert!(gb.iter().any(|&g| g != 0.0));
+            // Every channel count the AVX2 kernel has an instance for: the tile's
+            // features cut to `ch` channels or widened by a fourth.
+            for ch in 1..=blend_avx2::MAX_BACKWARD_CHANNELS {
+                let feats: Vec<f32> = feats
+                    .chunks_exact(3)
+                    .flat_map(|f| (0..ch).map(move |c| if c < 3 { f[c] } else { 0.5 * f[0] }))
+                    .collect();
+                // Upstream gradients on an image just large enough for the tile.
+                let (w, h) = (rect.x1 as usize, rect.y1 as usize);
+                let v_render: Vec<f32> = (0..w * h * ch).map(|_| rng.uniform() - 0.5).collect();
+                let v_alpha: Vec<f32> = (0..w * h).map(|_| rng.uniform() - 0.5).collect();
+                let back = BackTile {
+                    splats: &splats,
+                    features: &feats,
+                    rect,
+                    simd: true,
+                };
+                let run = |avx: bool| {
+                    let mut sc = BackScratch::new(ts, ch);
+                    sc.reset(&rect, ch, w, &t_final, &last, &v_render, &v_alpha);
+                    let mut out = vec![0.0f32; n * (ISECT_FIXED + ch)];
+                    if avx {
+                        blend_avx2::backward_tile::<true>(&back, ch, &mut sc, &mut out);
+                    } else {
+                        backward_tile_scalar::<true>(&back, ch, &mut sc, &mut out);
+                    }
+                    (out, sc)
+                };
+                let ((ga, sa), (gb, sb)) = (run(true), run(false));
+                assert_eq!(bits(&ga), bits(&gb), "ts {ts} seed {seed} ch {ch}");
+                assert_eq!(bits(&sa.trans), bits(&sb.trans));
+                assert_eq!(bits(&sa.buf), bits(&sb.buf));
+                assert_eq!(sa.evals, sb.evals, "ts {ts} seed {seed}");
+                // The backward differentiates exactly the pairs the forward blended.
+                assert_eq!(sb.evals.blended, fw.evals.blended, "ts {ts} seed {seed}");
+                assert!(gb.iter().any(|&g| g != 0.0));
+            }
         }
     }
 }
