@@ -422,6 +422,9 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                 );
                 let t_k = _mm256_mul_ps(load(&sc.trans[base..]), ra);
                 let fac = _mm256_mul_ps(alpha, t_k);
+                // fac is finite in every lane (alpha <= 0.99, t_k is T outside m), and so
+                // are the features: fc fac_m is +-0 outside m.
+                let fac_m = _mm256_and_ps(m, fac);
                 let mut v_al = _mm256_mul_ps(load(&sc.va_tf[base..]), ra);
                 for c in 0..CH {
                     let vo = load(&sc.v_out[c * plane + base..]);
@@ -435,16 +438,18 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                             vo,
                         ),
                     );
-                    // + 0 outside m keeps buf's bits: buf starts at +0 and a sum is -0 only
-                    // if both terms are, so buf is never -0.
-                    store(
-                        b,
-                        _mm256_add_ps(bv, _mm256_and_ps(m, _mm256_mul_ps(fc[c], fac))),
-                    );
+                    // +-0 outside m keeps buf's bits: buf starts at +0 and a sum is -0 only
+                    // if both terms are, so buf is never -0. (The sums of v_out products
+                    // keep their own mask: v_out is the caller's and may hold Inf.)
+                    store(b, _mm256_add_ps(bv, _mm256_mul_ps(fc[c], fac_m)));
                 }
                 store(&mut sc.trans[base..], t_k);
                 // Where alpha was clamped it depends on neither opacity nor position.
                 let g = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, s(ALPHA_MAX)));
+                // Masked once here: every term below is v_al times finite values (the
+                // splat's conic and offsets, raw, vis), so +-0 outside g, which adds
+                // nothing to the sums (never -0, as buf).
+                let v_al = _mm256_and_ps(g, v_al);
                 let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, s(-0.0)), v_al);
                 let half_vs = _mm256_mul_ps(s(0.5), v_sigma);
                 let terms = [
@@ -462,7 +467,7 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                     _mm256_mul_ps(vis, v_al),
                 ];
                 for (a, t) in acc.iter_mut().zip(terms) {
-                    *a = _mm256_add_ps(*a, _mm256_and_ps(g, t));
+                    *a = _mm256_add_ps(*a, t);
                 }
             }
         }
