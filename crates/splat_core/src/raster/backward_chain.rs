@@ -46,6 +46,8 @@ pub(super) struct Chain<'a> {
     pub isect: &'a [AtomicU32],
     pub index: &'a SplatIntersections,
     pub stride: usize,
+    /// Feature channels per splat (`cs.features` rows).
+    pub ch: usize,
     /// Whether any of means, quats, scales, opacities is requested.
     pub geometry: bool,
 }
@@ -129,9 +131,19 @@ impl Chain<'_> {
             ColorMode::Sh { degree, .. } => {
                 let coeffs = scene.color_row(i);
                 let dir = scene.gaussian(i).mean - self.centre;
-                let raw = sh::eval(degree, coeffs, dir);
-                // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0.
-                let v_rgb = [0, 1, 2].map(|c| if raw[c] + 0.5 >= 0.0 { v_feat[c] } else { 0.0 });
+                // max(x + 0.5, 0) passes the gradient where x + 0.5 >= 0: wherever the
+                // forward's colour is > 0, and else where x + 0.5 is exactly 0, which only
+                // the SH value itself tells (computed as the forward did, so rarely).
+                let feat = &self.cs.features[i * self.ch..i * self.ch + 3];
+                let raw = feat
+                    .iter()
+                    .any(|&f| f <= 0.0)
+                    .then(|| sh::eval(degree, coeffs, dir));
+                let passes = |c: usize| match raw {
+                    Some(raw) => raw[c] + 0.5 >= 0.0,
+                    None => true,
+                };
+                let v_rgb = [0, 1, 2].map(|c| if passes(c) { v_feat[c] } else { 0.0 });
                 let v_dir = sh::eval_backward(degree, coeffs, dir, v_rgb, colors);
                 add(out.means, r, &v_dir.to_array());
             }

@@ -97,6 +97,7 @@ pub fn backward(
             isect: &isect,
             index: &index,
             stride,
+            ch,
             geometry: want.means || want.quats || want.scales || want.opacities,
         };
         // Blocks of many lane groups: one rayon task per block, not per eight Gaussians.
