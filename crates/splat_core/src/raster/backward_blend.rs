@@ -113,6 +113,8 @@ pub fn zeroed_gradients(len: usize) -> Vec<AtomicU32> {
         .collect()
 }
 
+/// One tile's intersection gradients into `out` (zeroed: the AVX2 kernel leaves the rows of
+/// splats no pixel differentiated as they are).
 fn backward_tile(
     tile: &BackTile,
     ch: usize,

@@ -326,7 +326,8 @@ fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut
 /// kernel.
 pub(super) const MAX_BACKWARD_CHANNELS: usize = 4;
 
-/// Backward of one tile; the caller checked AVX2 and `ch <= MAX_BACKWARD_CHANNELS`.
+/// Backward of one tile into `out` (zeroed by the caller); the caller checked AVX2 and
+/// `ch <= MAX_BACKWARD_CHANNELS`.
 /// `COUNT` selects the instance that counts its work in `scratch.evals`.
 pub(super) fn backward_tile<const COUNT: bool>(
     tile: &BackTile,
@@ -380,6 +381,9 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
         // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity and the features.
         let mut acc = [zero; ISECT_FIXED];
         let mut acc_f = [zero; CH];
+        // Whether any pixel differentiated this splat; if none, its sums stay +0 as `out`
+        // came (a splat hidden in this tile: the lane sums would give +0 too).
+        let mut touched = false;
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
             for ly in sc.geo.group_rows[gi].clone() {
@@ -411,6 +415,7 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                 if _mm256_movemask_ps(m) == 0 {
                     continue;
                 }
+                touched = true;
                 // 1 in the lanes outside m, so that t_k is T unchanged there and the stores
                 // below need no blend of the loaded values (which would compile to masked
                 // stores, vmaskmovps, microcoded and slow on AMD cores). Those lanes' other
@@ -471,8 +476,10 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                 }
             }
         }
-        for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
-            *o = lane_sum(*a);
+        if touched {
+            for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
+                *o = lane_sum(*a);
+            }
         }
     });
 }
