@@ -66,13 +66,6 @@ pub fn intersection_gradients(
                     return;
                 }
                 let rect = TileRect::new(t, bins, width, height);
-                list.gather(&bins.isect_gid[range.clone()], &cs.splats, &cs.features, ch);
-                let tile = BackTile {
-                    splats: &list.splats,
-                    features: &list.features,
-                    rect,
-                    simd,
-                };
                 scratch.reset(
                     &rect,
                     ch,
@@ -82,6 +75,17 @@ pub fn intersection_gradients(
                     v_render,
                     v_alpha,
                 );
+                // Splats behind every pixel's last contributor never reach the kernel: only
+                // the list's front part is gathered.
+                let used = scratch.last.iter().copied().max().unwrap_or(0) as usize;
+                let range = range.start..range.start + used.min(range.len());
+                list.gather(&bins.isect_gid[range.clone()], &cs.splats, &cs.features, ch);
+                let tile = BackTile {
+                    splats: &list.splats,
+                    features: &list.features,
+                    rect,
+                    simd,
+                };
                 out.clear();
                 out.resize(range.len() * stride, 0.0);
                 backward_tile(&tile, ch, scratch, out, count);
