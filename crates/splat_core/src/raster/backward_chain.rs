@@ -87,9 +87,10 @@ impl Chain<'_> {
         let stride = self.stride;
         let sum = |l: usize| &sums[l * stride..(l + 1) * stride];
         let grads = self.geometry.then(|| {
-            // Lanes without a live Gaussian repeat a live one; their results are dropped.
-            let any = live.iter().position(|&b| b).unwrap_or(0);
-            let lane: [usize; N] = std::array::from_fn(|l| if live[l] { l } else { any });
+            // Lanes past the last live one repeat it (the block may end inside the group);
+            // the results of lanes that are not live are dropped.
+            let top = live.iter().rposition(|&b| b).unwrap_or(0);
+            let lane: [usize; N] = std::array::from_fn(|l| l.min(top));
             let g = GaussianLanes::load(scene, &lane.map(|l| first + l));
             let depth = state
                 .opts
