@@ -350,14 +350,41 @@ pub(super) fn backward_tile<const COUNT: bool>(
     }
 }
 
-/// `lanes::lane_sum` on a register.
+/// `lanes::lane_sum` of eight registers at once, in its tree: (l0+l4 + l2+l6) + (l1+l5 +
+/// l3+l7), each addition with the same operands in the same order, eight sums per
+/// instruction after a transposition (21 instructions instead of 8 x 7).
 #[inline(always)]
-fn lane_sum(v: __m256) -> f32 {
+fn lane_sums(v: &[__m256; 8]) -> [f32; 8] {
     // SAFETY (whole body): only called from `backward_tile_avx2`, which has AVX2 enabled.
     unsafe {
-        let s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
-        let t = _mm_add_ps(s, _mm_movehl_ps(s, s));
-        _mm_cvtss_f32(_mm_add_ss(t, _mm_shuffle_ps::<1>(t, t)))
+        // [a0+a4, a1+a5, a2+a6, a3+a7 | b0+b4, b1+b5, b2+b6, b3+b7] for registers a, b.
+        let halves = |a: __m256, b: __m256| {
+            _mm256_add_ps(
+                _mm256_permute2f128_ps::<0x20>(a, b),
+                _mm256_permute2f128_ps::<0x31>(a, b),
+            )
+        };
+        let (p01, p23) = (halves(v[0], v[1]), halves(v[2], v[3]));
+        let (p45, p67) = (halves(v[4], v[5]), halves(v[6], v[7]));
+        // With s = the four sums above per register: [s0+s2, s1+s3] of a, c | of b, d.
+        let pairs = |p: __m256, q: __m256| {
+            let (p, q) = (_mm256_castps_pd(p), _mm256_castps_pd(q));
+            _mm256_add_ps(
+                _mm256_castpd_ps(_mm256_unpacklo_pd(p, q)),
+                _mm256_castpd_ps(_mm256_unpackhi_pd(p, q)),
+            )
+        };
+        let (u0, u1) = (pairs(p01, p23), pairs(p45, p67));
+        // (s0+s2) + (s1+s3): registers 0, 2, 4, 6 | 1, 3, 5, 7.
+        let r = _mm256_add_ps(
+            _mm256_shuffle_ps::<0b10_00_10_00>(u0, u1),
+            _mm256_shuffle_ps::<0b11_01_11_01>(u0, u1),
+        );
+        let mut out = [0.0f32; 8];
+        store(&mut out, r);
+        [
+            out[0], out[4], out[1], out[5], out[2], out[6], out[3], out[7],
+        ]
     }
 }
 
@@ -477,8 +504,13 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
             }
         }
         if touched {
-            for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
-                *o = lane_sum(*a);
+            // The sums in groups of eight registers (zeros past the last, not stored).
+            let mut regs = [zero; 16];
+            regs[..ISECT_FIXED].copy_from_slice(&acc);
+            regs[ISECT_FIXED..ISECT_FIXED + CH].copy_from_slice(&acc_f);
+            for (o, r) in o.chunks_mut(LANES).zip(regs.chunks_exact(LANES)) {
+                let sums = lane_sums(r.try_into().unwrap());
+                o.copy_from_slice(&sums[..o.len()]);
             }
         }
     });
