@@ -6,7 +6,8 @@
 //! `max`/`min` with the constant second so NaN lanes take the constant like the scalar
 //! comparisons), so this path and the scalar one produce the same bits (`kernel_tests`).
 //! Lanes the scalar code skips are computed here and masked out (+0 added, state kept).
-//! The only unsafe code: unaligned loads and stores of eight-element slices whose bounds are
+//! The rasterizer's only unsafe code (with one call into the AVX build of
+//! `project_backward_batch`): unaligned loads and stores of eight-element slices whose bounds are
 //! checked by slicing first, and the calls into `#[target_feature]` functions after
 //! `is_x86_feature_detected!("avx2")`.
 #![allow(unsafe_code)]

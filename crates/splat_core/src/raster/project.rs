@@ -4,7 +4,9 @@
 //! Forward: normalise the quaternion, Sigma = R S S^T R^T, move it to camera space, apply the
 //! EWA Jacobian with gsplat's clamp of x/z and y/z to 1.3x the field of view, add `eps2d` to
 //! the diagonal, invert to the conic, and size the footprint box. The backward recomputes
-//! these intermediates from the inputs instead of storing them (O(1) memory per Gaussian).
+//! these intermediates from the inputs instead of storing them (O(1) memory per Gaussian);
+//! the backward pass runs it eight Gaussians at a time with the same bits
+//! (`project_backward_batch`), and `project_backward` is its reference.
 //! The forward rasterizer runs these rules eight Gaussians at a time (`project_batch`);
 //! `project` is their per-Gaussian reference.
 
