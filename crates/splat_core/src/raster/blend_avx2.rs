@@ -5,7 +5,8 @@
 //! and `lanes::exp_neg` one to one (same operands, same order, no fused multiply-add;
 //! `max`/`min` with the constant second so NaN lanes take the constant like the scalar
 //! comparisons), so this path and the scalar one produce the same bits (`kernel_tests`).
-//! Lanes the scalar code skips are computed here and masked out (+0 added, state kept).
+//! Lanes the scalar code skips are computed here and masked out (+-0 added to sums that
+//! are never -0, state kept).
 //! The rasterizer's only unsafe code (with one call into the AVX build of
 //! `project_backward_batch`): unaligned loads and stores of eight-element slices whose bounds are
 //! checked by slicing first, and the calls into `#[target_feature]` functions after
