@@ -1,5 +1,5 @@
 //! Eight f32 values per operation, for per-Gaussian formulas run on eight Gaussians at a
-//! time (`project_backward_batch`). Plain element-wise arithmetic on arrays, which the
+//! time (`project_batch`, `project_backward_batch`). Plain element-wise arithmetic on arrays, which the
 //! compiler turns into SIMD instructions on any x86-64 (SSE2) or AArch64 CPU; each lane
 //! performs exactly the scalar operation, so a formula written with the same operands in
 //! the same order gives the same bits as its scalar form. Also 3-vectors and 3x3 matrices

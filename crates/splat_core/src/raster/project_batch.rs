@@ -11,70 +11,13 @@
 //! `project::project` stays the reference, and the backward pass recomputes its
 //! intermediates from it.
 
-use std::ops::{Add, Div, Mul, Neg, Sub};
-
 use rayon::prelude::*;
 
+use super::batch_lanes::{Lanes, N};
 use super::camera::Camera;
 use super::options::{RasterOptions, ALPHA_MIN};
 use super::project::{ceil_nonneg, extent_for_contour, Splat, QUAT_NORM2_MIN};
 use super::scene::Scene;
-
-const N: usize = 8;
-
-/// Eight f32 values, one per Gaussian; element-wise arithmetic.
-#[derive(Debug, Clone, Copy)]
-struct Lanes([f32; N]);
-
-impl Lanes {
-    #[inline(always)]
-    fn splat(v: f32) -> Self {
-        Self([v; N])
-    }
-
-    #[inline(always)]
-    fn map(self, f: impl Fn(f32) -> f32) -> Self {
-        Self(self.0.map(f))
-    }
-
-    #[inline(always)]
-    fn zip(self, o: Self, f: impl Fn(f32, f32) -> f32) -> Self {
-        let mut r = self.0;
-        for (a, b) in r.iter_mut().zip(o.0) {
-            *a = f(*a, b);
-        }
-        Self(r)
-    }
-
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        self.map(f32::sqrt)
-    }
-}
-
-macro_rules! lane_op {
-    ($tr:ident, $f:ident, $op:tt) => {
-        impl $tr for Lanes {
-            type Output = Lanes;
-            #[inline(always)]
-            fn $f(self, o: Lanes) -> Lanes {
-                self.zip(o, |a, b| a $op b)
-            }
-        }
-    };
-}
-lane_op!(Add, add, +);
-lane_op!(Sub, sub, -);
-lane_op!(Mul, mul, *);
-lane_op!(Div, div, /);
-
-impl Neg for Lanes {
-    type Output = Lanes;
-    #[inline(always)]
-    fn neg(self) -> Lanes {
-        self.map(|a| -a)
-    }
-}
 
 /// A 3-vector of lanes.
 type V3 = [Lanes; 3];
