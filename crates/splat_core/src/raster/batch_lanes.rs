@@ -1,9 +1,9 @@
 //! Eight f32 values per operation, for per-Gaussian formulas run on eight Gaussians at a
-//! time (`project_batch`, `project_backward_batch`). Plain element-wise arithmetic on arrays, which the
-//! compiler turns into SIMD instructions on any x86-64 (SSE2) or AArch64 CPU; each lane
-//! performs exactly the scalar operation, so a formula written with the same operands in
-//! the same order gives the same bits as its scalar form. Also 3-vectors and 3x3 matrices
-//! of lanes whose products add their terms in glam's order (`Mat3 * Vec3` is
+//! time (`project_batch`, `project_backward_batch`). Plain element-wise arithmetic on
+//! arrays, which the compiler turns into SIMD instructions on any x86-64 (SSE2) or AArch64
+//! CPU; each lane performs exactly the scalar operation, so a formula written with the same
+//! operands in the same order gives the same bits as its scalar form. Also 3-vectors and
+//! 3x3 matrices of lanes whose products add their terms in glam's order (`Mat3 * Vec3` is
 //! `(x_axis * v.x + y_axis * v.y) + z_axis * v.z`, `dot` is `(x x' + y y') + z z'`), so a
 //! formula written with glam types can be mirrored bit for bit. The 3-vector and matrix
 //! operations list their entries: `map` and `from_fn` over them were left as out-of-line
