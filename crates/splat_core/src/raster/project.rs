@@ -10,6 +10,8 @@
 //! The forward rasterizer runs these rules eight Gaussians at a time (`project_batch`);
 //! `project` is their per-Gaussian reference.
 
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
 use glam::{Mat3, Vec3};
 
 use super::camera::Camera;
@@ -93,9 +95,21 @@ pub fn quat_to_rotmat(q: [f32; 4]) -> Option<(Mat3, [f32; 4], f32)> {
 
 /// Gradient of the loss w.r.t. the unnormalised quaternion, given dL/dR.
 fn rotmat_backward(g: Mat3, qn: [f32; 4], norm: f32) -> [f32; 4] {
-    let [w, x, y, z] = qn;
     // g.col(j)[i] = dL/dR_ij
-    let e = |i: usize, j: usize| g.col(j)[i];
+    quat_grad(|i, j| g.col(j)[i], qn, norm)
+}
+
+/// `rotmat_backward` written once for one value (`f32`) or eight (`batch_lanes::Lanes`,
+/// `project_backward_batch`): the same operations in the same order, so both give the same
+/// bits. `e(i, j)` is dL/dR_ij.
+#[inline(always)]
+pub(super) fn quat_grad<T>(e: impl Fn(usize, usize) -> T, qn: [T; 4], norm: T) -> [T; 4]
+where
+    T: Copy + Add<Output = T> + Sub<Output = T> + Mul<Output = T> + Div<Output = T>,
+    T: Neg<Output = T>,
+    f32: Mul<T, Output = T>,
+{
+    let [w, x, y, z] = qn;
     let dw =
         2.0 * (-z * e(0, 1) + y * e(0, 2) + z * e(1, 0) - x * e(1, 2) - y * e(2, 0) + x * e(2, 1));
     let dx = 2.0
@@ -114,8 +128,10 @@ fn rotmat_backward(g: Mat3, qn: [f32; 4], norm: f32) -> [f32; 4] {
             + x * e(2, 0)
             + y * e(2, 1));
     let dn = [dw, dx, dy, dz];
-    let dot: f32 = (0..4).map(|i| dn[i] * qn[i]).sum();
-    [0, 1, 2, 3].map(|i| (dn[i] - qn[i] * dot) / norm)
+    // A sum of f32 starting at -0.0 (as `Sum` does) leaves its first term as it is.
+    let dot = ((dn[0] * qn[0] + dn[1] * qn[1]) + dn[2] * qn[2]) + dn[3] * qn[3];
+    let out = |i: usize| (dn[i] - qn[i] * dot) / norm;
+    [out(0), out(1), out(2), out(3)]
 }
 
 /// Everything the forward computes, kept together so the backward can reuse it.

@@ -12,7 +12,7 @@
 use super::batch_lanes::{Lanes, M3, N, V3};
 use super::camera::Camera;
 use super::options::RasterOptions;
-use super::project::{Gaussian3Grad, QUAT_NORM2_MIN};
+use super::project::{quat_grad, Gaussian3Grad, QUAT_NORM2_MIN};
 use super::scene::Scene;
 
 /// Eight Gaussians' parameters, one per lane.
@@ -262,30 +262,7 @@ fn lanes(
 /// `project::rotmat_backward` on lanes.
 #[inline(always)]
 fn rotmat_backward(g: &M3, qn: [Lanes; 4], norm: Lanes) -> [Lanes; 4] {
-    let [w, x, y, z] = qn;
-    let e = |i: usize, j: usize| g.0[j].0[i];
-    let dw =
-        2.0 * (-z * e(0, 1) + y * e(0, 2) + z * e(1, 0) - x * e(1, 2) - y * e(2, 0) + x * e(2, 1));
-    let dx = 2.0
-        * (y * e(0, 1) + z * e(0, 2) + y * e(1, 0) - 2.0 * x * e(1, 1) - w * e(1, 2)
-            + z * e(2, 0)
-            + w * e(2, 1)
-            - 2.0 * x * e(2, 2));
-    let dy = 2.0
-        * (-2.0 * y * e(0, 0) + x * e(0, 1) + w * e(0, 2) + x * e(1, 0) + z * e(1, 2)
-            - w * e(2, 0)
-            + z * e(2, 1)
-            - 2.0 * y * e(2, 2));
-    let dz = 2.0
-        * (-2.0 * z * e(0, 0) - w * e(0, 1) + x * e(0, 2) + w * e(1, 0) - 2.0 * z * e(1, 1)
-            + y * e(1, 2)
-            + x * e(2, 0)
-            + y * e(2, 1));
-    let dn = [dw, dx, dy, dz];
-    // `Sum` of f32 starts at -0.0, which leaves the first term as it is.
-    let dot = ((dn[0] * qn[0] + dn[1] * qn[1]) + dn[2] * qn[2]) + dn[3] * qn[3];
-    let out = |i: usize| (dn[i] - qn[i] * dot) / norm;
-    [out(0), out(1), out(2), out(3)]
+    quat_grad(|i, j| g.0[j].0[i], qn, norm)
 }
 
 #[cfg(test)]
