@@ -131,11 +131,14 @@ class GroundTruthRenderer:
         n_inst = int(channel.max()) + 1 if len(ls.instances) else 0
         first = min(n_inst, CHANNELS_PER_PASS)
         # Classes and the first instance channels in one [N, n_cls + first] feature block.
-        features = np.zeros((n, self.n_cls + first), dtype=np.float32)
-        rows = np.arange(n)
-        features[rows, self.class_column] = 1.0
-        inside = channel < first
-        features[rows[inside], self.n_cls + channel[inside]] = 1.0
+        # A row is one of n_cls x (first + 1) patterns (its class; its instance channel, or
+        # none in this pass): one gather from a table of them.
+        d = self.n_cls + first
+        table = np.zeros((self.n_cls, first + 1, d), dtype=np.float32)
+        table[np.arange(self.n_cls), :, np.arange(self.n_cls)] = 1.0
+        table[:, np.arange(first), self.n_cls + np.arange(first)] = 1.0
+        pattern = self.class_column * (first + 1) + np.minimum(channel, first)
+        features = table.reshape(-1, d)[pattern]
         weights, d, a, _ = _blend(
             self.splats, camera, torch.from_numpy(features), with_depth=depth is None
         )
@@ -211,20 +214,21 @@ def _share_channels(
     )
     diff = diff.reshape(n_inst, tiles_y + 1, tiles_x + 1)
     touched = diff.cumsum(axis=1).cumsum(axis=2)[:, :tiles_y, :tiles_x] > 0
-    # Greedy colouring in id order: the first channel none of whose instances share a tile.
+    # Greedy colouring in id order: the first channel none of whose instances share a tile
+    # (channels from 1; 0 is "no instance"). Which instances meet: an AND of the tile sets'
+    # bits (a float product would go through BLAS, whose thread pool cost ~30 ms under
+    # load); an instance owns, in its channel, the tiles it touches.
+    bits = np.packbits(touched.reshape(n_inst, -1), axis=1)
+    meets: np.ndarray = np.any(bits[:, None, :] & bits[None, :, :], axis=2)
     colour = np.zeros(n_inst, dtype=np.int64)
-    used: list[np.ndarray] = []
-    owner = [np.full((tiles_y, tiles_x), -1, dtype=np.int64)]  # channel 0: no instance
     for i in range(n_inst):
-        k = next((k for k, u in enumerate(used) if not (u & touched[i]).any()), len(used))
-        if k == len(used):
-            used.append(np.zeros((tiles_y, tiles_x), dtype=bool))
-            owner.append(np.full((tiles_y, tiles_x), -1, dtype=np.int64))
-        used[k] |= touched[i]
-        owner[k + 1][touched[i]] = i
-        colour[i] = k + 1
+        taken = set(colour[:i][meets[i, :i]].tolist())
+        colour[i] = next(k for k in range(1, len(taken) + 2) if k not in taken)
+    owner = np.full((int(colour.max(initial=0)) + 1, tiles_y, tiles_x), -1, dtype=np.int64)
+    who, ty, tx = np.nonzero(touched)
+    owner[colour[who], ty, tx] = who  # one owner per channel and tile: disjoint tile sets
     channel = np.where(which >= 0, colour[np.maximum(which, 0)], 0)
-    return channel, np.stack(owner)
+    return channel, owner
 
 
 def _one_hot(channel: np.ndarray, start: int, stop: int) -> torch.Tensor:
