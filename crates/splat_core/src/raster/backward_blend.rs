@@ -79,7 +79,11 @@ pub fn intersection_gradients(
                 // the list's front part is gathered.
                 let used = scratch.last.iter().copied().max().unwrap_or(0) as usize;
                 let range = range.start..range.start + used.min(range.len());
-                list.gather(&bins.isect_gid[range.clone()], &cs.splats, &cs.features, ch);
+                let gids = &bins.isect_gid[range.clone()];
+                match &cs.records {
+                    Some(records) => list.gather_records(gids, records, ch),
+                    None => list.gather(gids, &cs.splats, &cs.features, ch),
+                }
                 let tile = BackTile {
                     splats: &list.splats,
                     features: &list.features,

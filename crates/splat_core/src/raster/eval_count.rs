@@ -37,7 +37,7 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
         let (_, f) = blend(
             &cs.splats,
             &cs.features,
-            None,
+            cs.records.as_deref(),
             ch,
             &cs.bins,
             state.width,

@@ -11,7 +11,7 @@ use super::options::RasterOptions;
 use super::project::Splat;
 use super::scene::Scene;
 use super::tile_binning::{self, TileBins};
-use super::tile_geometry::blend_records;
+use super::tile_geometry::{blend_records, BlendRecord};
 use super::{features, project_avx2};
 use crate::{CoreError, CoreResult};
 
@@ -32,6 +32,10 @@ pub struct Profile {
 pub struct CameraState {
     pub splats: Vec<Splat>,
     pub features: Vec<f32>,
+    /// The blend's per-splat records (None if the features are wider than a record),
+    /// kept so that the backward's tile lists gather one cache line per entry too
+    /// (64 bytes per Gaussian).
+    pub records: Option<Vec<BlendRecord>>,
     pub bins: TileBins,
     pub blended: Blended,
 }
@@ -172,6 +176,7 @@ pub fn forward(
         per_camera.push(CameraState {
             splats,
             features: feats,
+            records,
             bins,
             blended,
         });
