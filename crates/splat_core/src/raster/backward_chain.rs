@@ -55,19 +55,33 @@ pub(super) struct Chain<'a> {
 impl Chain<'_> {
     /// Gaussians first .. first + `out.means2d.len() / 2`.
     pub fn block(&self, first: usize, out: &mut GradRows) {
+        // One instance per common row width (colour, colour + depth, depth only): with
+        // the width known, the sums unroll and index without divisions.
+        match self.stride {
+            9 => self.block_rows::<9>(first, out),
+            10 => self.block_rows::<10>(first, out),
+            7 => self.block_rows::<7>(first, out),
+            _ => self.block_rows::<0>(first, out),
+        }
+    }
+
+    /// `block` with rows of `S` values (0: `self.stride`, known only at run time).
+    #[inline(always)]
+    fn block_rows<const S: usize>(&self, first: usize, out: &mut GradRows) {
         let m = out.means2d.len() / 2;
-        let stride = self.stride;
+        let stride = if S == 0 { self.stride } else { S };
         let mut sums = vec![0.0f32; N * stride];
         for g0 in (0..m).step_by(N) {
             let lanes = N.min(m - g0);
             let mut live = [false; N];
             for (l, sum) in sums.chunks_exact_mut(stride).enumerate().take(lanes) {
+                // Culled splats have no intersections.
                 let i = first + g0 + l;
-                if !self.cs.splats[i].visible() {
+                let rows = self.index.rows(i, i + 1);
+                if rows.is_empty() {
                     continue;
                 }
                 sum.fill(0.0);
-                let rows = self.index.rows(i, i + 1);
                 for row in self.isect[rows.start * stride..rows.end * stride].chunks_exact(stride) {
                     for (s, v) in sum.iter_mut().zip(row) {
                         *s += f32::from_bits(v.load(Ordering::Relaxed));
