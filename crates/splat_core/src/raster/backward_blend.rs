@@ -17,7 +17,7 @@
 //! so tiles run in parallel without locks; the caller sums a splat's intersections in tile
 //! order.
 
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::AtomicU32;
 
 use rayon::prelude::*;
 
@@ -26,17 +26,16 @@ use super::forward_pass::CameraState;
 use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::tile_geometry::{TileList, TileRect};
-use super::tile_walk::{for_each_splat_back, BackScratch, BackTile, EvalCount, ISECT_FIXED};
+use super::tile_walk::{
+    for_each_splat_back, BackOut, BackScratch, BackTile, EvalCount, ISECT_FIXED,
+};
 
 /// Per-intersection gradients of one camera, `ISECT_FIXED + ch` values per intersection,
 /// stored (as f32 bits) in `grads` at the intersection's splat-major row
 /// (`SplatIntersections`); `grads` comes zeroed (`zeroed_gradients`). With `count`, runs
 /// the kernels' counting instances and returns their work (zero otherwise).
 ///
-/// Each tile computes its gradients in a buffer of its own (in cache), then stores every
-/// row at its splat-major place. Every row belongs to one intersection, hence to one tile,
-/// so the stores never meet; they go through relaxed atomics, which compile to plain
-/// stores, so that tiles can share the array without locks or unsafe code.
+/// The kernels put every splat's row straight at its splat-major place (`BackOut::Shared`).
 #[allow(clippy::too_many_arguments)]
 pub fn intersection_gradients(
     ch: usize,
@@ -51,7 +50,6 @@ pub fn intersection_gradients(
     count: bool,
 ) -> EvalCount {
     let (bins, blended) = (&cs.bins, &cs.blended);
-    let stride = ISECT_FIXED + ch;
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let totals = std::sync::Mutex::new(EvalCount::default());
@@ -59,8 +57,8 @@ pub fn intersection_gradients(
         .into_par_iter()
         .with_max_len(4)
         .for_each_init(
-            || (BackScratch::new(ts, ch), TileList::default(), Vec::new()),
-            |(scratch, list, out), t| {
+            || (BackScratch::new(ts, ch), TileList::default()),
+            |(scratch, list), t| {
                 let range = bins.tile_range(t);
                 if range.is_empty() {
                     return;
@@ -90,19 +88,11 @@ pub fn intersection_gradients(
                     rect,
                     simd,
                 };
-                out.clear();
-                out.resize(range.len() * stride, 0.0);
-                backward_tile(&tile, ch, scratch, out, count);
-                for (g, &r) in out.chunks_exact(stride).zip(rows.row_of(range)) {
-                    // The array starts at +0; rows of splats no pixel saw stay so.
-                    if g.iter().all(|v| v.to_bits() == 0) {
-                        continue;
-                    }
-                    let dst = &grads[r as usize * stride..(r as usize + 1) * stride];
-                    for (d, v) in dst.iter().zip(g) {
-                        d.store(v.to_bits(), Ordering::Relaxed);
-                    }
-                }
+                let mut out = BackOut::Shared {
+                    grads,
+                    rows: rows.row_of(range),
+                };
+                backward_tile(&tile, ch, scratch, &mut out, count);
                 if count {
                     let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
                     t.add(std::mem::take(&mut scratch.evals));
@@ -121,13 +111,13 @@ pub fn zeroed_gradients(len: usize) -> Vec<AtomicU32> {
         .collect()
 }
 
-/// One tile's intersection gradients into `out` (zeroed: the AVX2 kernel leaves the rows of
-/// splats no pixel differentiated as they are).
+/// One tile's intersection gradients into `out` (rows +0 on entry: the AVX2 kernel puts no
+/// row for a splat no pixel differentiated).
 fn backward_tile(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
-    out: &mut [f32],
+    out: &mut BackOut,
     count: bool,
 ) {
     #[cfg(target_arch = "x86_64")]
@@ -154,7 +144,7 @@ pub(super) fn backward_tile_scalar<const COUNT: bool>(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
-    out: &mut [f32],
+    out: &mut BackOut,
 ) {
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let mut acc_f = vec![[0.0f32; LANES]; ch];
@@ -216,5 +206,6 @@ pub(super) fn backward_tile_scalar<const COUNT: bool>(
         for (o, a) in o.iter_mut().zip(acc.iter().chain(&acc_f)) {
             *o = lane_sum(a);
         }
+        true
     });
 }

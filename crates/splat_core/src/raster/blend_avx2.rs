@@ -19,8 +19,8 @@ use super::lanes::{EXP_COEFFS, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::tile_geometry::LaneFootprint;
 use super::tile_walk::{
-    for_each_splat, for_each_splat_back, BackScratch, BackSplat, BackTile, SplatInTile, TileInput,
-    TileScratch, ISECT_FIXED,
+    for_each_splat, for_each_splat_back, BackOut, BackScratch, BackSplat, BackTile, SplatInTile,
+    TileInput, TileScratch, ISECT_FIXED,
 };
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
@@ -328,14 +328,15 @@ fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut
 /// kernel.
 pub(super) const MAX_BACKWARD_CHANNELS: usize = 4;
 
-/// Backward of one tile into `out` (zeroed by the caller); the caller checked AVX2 and
+/// Backward of one tile into `out` (rows +0 on entry: the rows of splats no pixel
+/// differentiated are not put); the caller checked AVX2 and
 /// `ch <= MAX_BACKWARD_CHANNELS`.
 /// `COUNT` selects the instance that counts its work in `scratch.evals`.
 pub(super) fn backward_tile<const COUNT: bool>(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
-    out: &mut [f32],
+    out: &mut BackOut,
 ) {
     debug_assert!(ch <= MAX_BACKWARD_CHANNELS && std::arch::is_x86_feature_detected!("avx2"));
     // One instance per channel count: with the count known, the per-channel loops unroll
@@ -394,7 +395,7 @@ fn lane_sums(v: &[__m256; 8]) -> [f32; 8] {
 fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
     tile: &BackTile,
     scratch: &mut BackScratch,
-    out: &mut [f32],
+    out: &mut BackOut,
 ) {
     let ch = CH;
     let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
@@ -515,5 +516,6 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
                 o.copy_from_slice(&sums[..o.len()]);
             }
         }
+        touched
     });
 }

@@ -5,7 +5,7 @@ use super::blend_avx2;
 use super::forward_blend::blend_tile_scalar;
 use super::options::ALPHA_MIN;
 use super::tile_geometry::{BlendSplat, TileRect};
-use super::tile_walk::{BackScratch, BackTile, TileInput, TileScratch, ISECT_FIXED};
+use super::tile_walk::{BackOut, BackScratch, BackTile, TileInput, TileScratch, ISECT_FIXED};
 use crate::test_rng::Lcg;
 
 /// A random tile list: overlapping anisotropic splats, some fully opaque.
@@ -195,9 +195,19 @@ fn backward_kernels_agree() {
                     sc.reset(&rect, ch, w, &t_final, &last, &v_render, &v_alpha);
                     let mut out = vec![0.0f32; n * (ISECT_FIXED + ch)];
                     if avx {
-                        blend_avx2::backward_tile::<true>(&back, ch, &mut sc, &mut out);
+                        blend_avx2::backward_tile::<true>(
+                            &back,
+                            ch,
+                            &mut sc,
+                            &mut BackOut::Rows(&mut out),
+                        );
                     } else {
-                        backward_tile_scalar::<true>(&back, ch, &mut sc, &mut out);
+                        backward_tile_scalar::<true>(
+                            &back,
+                            ch,
+                            &mut sc,
+                            &mut BackOut::Rows(&mut out),
+                        );
                     }
                     (out, sc)
                 };

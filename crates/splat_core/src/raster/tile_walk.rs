@@ -3,6 +3,8 @@
 //! The scalar kernels (`forward_blend`, `backward_blend`) and the AVX2 ones (`blend_avx2`)
 //! supply only the per-splat lane arithmetic; the walk itself is written once, here.
 
+use std::sync::atomic::{AtomicU32, Ordering};
+
 use super::tile_geometry::{BlendSplat, LaneFootprint, TileGeometry, TileRect};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
@@ -254,17 +256,50 @@ pub(super) struct BackSplat<'a> {
     pub fp: LaneFootprint,
 }
 
+/// Where the backward kernels put a splat's gradient row (`ISECT_FIXED + ch` values).
+pub(super) enum BackOut<'a> {
+    /// Rows in list order: entry k's at `k * stride` (the kernel tests).
+    #[cfg(test)]
+    Rows(&'a mut [f32]),
+    /// The camera's splat-major array (f32 bits, zeroed): entry k's row at `rows[k]`.
+    /// Every row belongs to one intersection, hence to one tile, so tiles never store to
+    /// the same row; relaxed atomics compile to plain stores and let tiles share the
+    /// array without locks or unsafe code.
+    Shared {
+        grads: &'a [AtomicU32],
+        rows: &'a [u32],
+    },
+}
+
+impl BackOut<'_> {
+    #[inline(always)]
+    fn put(&mut self, k: usize, row: &[f32]) {
+        let stride = row.len();
+        match self {
+            #[cfg(test)]
+            BackOut::Rows(out) => out[k * stride..(k + 1) * stride].copy_from_slice(row),
+            BackOut::Shared { grads, rows } => {
+                let r = rows[k] as usize;
+                for (d, v) in grads[r * stride..(r + 1) * stride].iter().zip(row) {
+                    d.store(v.to_bits(), Ordering::Relaxed);
+                }
+            }
+        }
+    }
+}
+
 /// Walks the tile's list back to front from the last splat any pixel used, and calls
-/// `kernel(splat, scratch, out)` with the splat's slice of the gradient array.
+/// `kernel(splat, scratch, row)`; where it returns true (it wrote the splat's gradients
+/// into `row`), puts the row into `out`. Rows it skips stay as they were (+0).
 #[inline(always)]
 pub(super) fn for_each_splat_back(
     tile: &BackTile,
     ch: usize,
     scratch: &mut BackScratch,
-    out: &mut [f32],
-    mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]),
+    out: &mut BackOut,
+    mut kernel: impl FnMut(&BackSplat, &mut BackScratch, &mut [f32]) -> bool,
 ) {
-    let stride = ISECT_FIXED + ch;
+    let mut row = vec![0.0f32; ISECT_FIXED + ch];
     let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..k_end).rev() {
         let s = &tile.splats[k];
@@ -277,6 +312,8 @@ pub(super) fn for_each_splat_back(
             k: k as u32,
             fp,
         };
-        kernel(&splat, scratch, &mut out[k * stride..(k + 1) * stride]);
+        if kernel(&splat, scratch, &mut row) {
+            out.put(k, &row);
+        }
     }
 }
