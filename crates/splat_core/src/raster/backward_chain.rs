@@ -66,46 +66,51 @@ impl Chain<'_> {
     }
 
     /// `block` with rows of `S` values (0: `self.stride`, known only at run time).
+    /// Gaussians with a nonzero sum are chained eight at a time, in index order.
     #[inline(always)]
     fn block_rows<const S: usize>(&self, first: usize, out: &mut GradRows) {
         let m = out.means2d.len() / 2;
         let stride = if S == 0 { self.stride } else { S };
         let mut sums = vec![0.0f32; N * stride];
-        for g0 in (0..m).step_by(N) {
-            let lanes = N.min(m - g0);
-            let mut live = [false; N];
-            for (l, sum) in sums.chunks_exact_mut(stride).enumerate().take(lanes) {
-                // Culled splats have no intersections.
-                let i = first + g0 + l;
-                let rows = self.index.rows(i, i + 1);
-                if rows.is_empty() {
-                    continue;
-                }
-                sum.fill(0.0);
-                for row in self.isect[rows.start * stride..rows.end * stride].chunks_exact(stride) {
-                    for (s, v) in sum.iter_mut().zip(row) {
-                        *s += f32::from_bits(v.load(Ordering::Relaxed));
-                    }
-                }
-                live[l] = sum.iter().any(|&v| v != 0.0);
+        // Rows in `out` of the Gaussians whose sums are in `sums`.
+        let (mut batch, mut filled) = ([0usize; N], 0);
+        for r in 0..m {
+            // Culled splats have no intersections.
+            let i = first + r;
+            let rows = self.index.rows(i, i + 1);
+            if rows.is_empty() {
+                continue;
             }
-            if live.iter().any(|&b| b) {
-                self.lanes(first + g0, g0, &live, &sums, out);
+            let sum = &mut sums[filled * stride..(filled + 1) * stride];
+            sum.fill(0.0);
+            for row in self.isect[rows.start * stride..rows.end * stride].chunks_exact(stride) {
+                for (s, v) in sum.iter_mut().zip(row) {
+                    *s += f32::from_bits(v.load(Ordering::Relaxed));
+                }
             }
+            if sum.iter().any(|&v| v != 0.0) {
+                batch[filled] = r;
+                filled += 1;
+                if filled == N {
+                    self.lanes(first, &batch[..N], &sums, out);
+                    filled = 0;
+                }
+            }
+        }
+        if filled > 0 {
+            self.lanes(first, &batch[..filled], &sums, out);
         }
     }
 
-    /// Eight Gaussians from `first` (rows from `at` in `out`); `live` marks those to chain.
-    fn lanes(&self, first: usize, at: usize, live: &[bool; N], sums: &[f32], out: &mut GradRows) {
+    /// Up to eight Gaussians, `first + batch[l]` (row `batch[l]` in `out`, sums in row l
+    /// of `sums`).
+    fn lanes(&self, first: usize, batch: &[usize], sums: &[f32], out: &mut GradRows) {
         let (state, scene) = (self.state, &self.state.scene);
         let stride = self.stride;
-        let sum = |l: usize| &sums[l * stride..(l + 1) * stride];
         let grads = self.geometry.then(|| {
-            // Lanes past the last live one repeat it (the block may end inside the group);
-            // the results of lanes that are not live are dropped.
-            let top = live.iter().rposition(|&b| b).unwrap_or(0);
-            let lane: [usize; N] = std::array::from_fn(|l| l.min(top));
-            let g = GaussianLanes::load(scene, &lane.map(|l| first + l));
+            // Lanes past the last Gaussian repeat it; their results are dropped.
+            let lane: [usize; N] = std::array::from_fn(|l| l.min(batch.len() - 1));
+            let g = GaussianLanes::load(scene, &lane.map(|l| first + batch[l]));
             let depth = state
                 .opts
                 .with_depth
@@ -113,8 +118,8 @@ impl Chain<'_> {
             let v = SplatGradLanes::load(sums, stride, &lane, depth);
             project_backward_lanes(&g, &self.cam, &state.opts, &v)
         });
-        for l in (0..N).filter(|&l| live[l]) {
-            let (i, r, sum) = (first + l, at + l, sum(l));
+        for (l, &r) in batch.iter().enumerate() {
+            let (i, sum) = (first + r, &sums[l * stride..(l + 1) * stride]);
             out.means2d[r * 2..r * 2 + 2].copy_from_slice(&sum[..2]);
             if let Some(grads) = &grads {
                 let g3 = &grads[l];
