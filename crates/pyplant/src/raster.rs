@@ -20,7 +20,7 @@ pub struct RasterState {
 
 #[pymethods]
 impl RasterState {
-    /// Approximate bytes held (inputs, splats, tile lists, per-pixel state).
+    /// Approximate bytes held (inputs, splats, blend records, tile lists, per-pixel state).
     #[getter]
     fn nbytes(&self) -> usize {
         let s = &self.inner;
@@ -41,6 +41,7 @@ impl RasterState {
                         + c.bins.depth_order.len())
                         * 4
                     + (c.blended.t_final.len() + c.blended.last.len()) * 4
+                    + c.records.as_deref().map_or(0, std::mem::size_of_val)
             })
             .sum();
         scene + cams
