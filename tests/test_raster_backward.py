@@ -223,7 +223,9 @@ def test_saved_state_is_linear_in_gaussians_pixels_and_intersections():
     isect = int(out["n_intersections"].sum())
     tile_pixels = c * 6 * 5 * 256  # ceil(96/16) x ceil(80/16) tiles of 256 pixels
     splat = 48  # bytes of one projected splat (12 f32)
-    per_gaussian = 4 * (3 + 4 + 3 + 1 + 3) + c * (splat + 4 * ch + 8)  # inputs; splats, order
+    record = 64  # bytes of one blend record (splat and features in a cache line)
+    # Inputs; per camera splats, features, order and blend records.
+    per_gaussian = 4 * (3 + 4 + 3 + 1 + 3) + c * (splat + 4 * ch + 8 + record)
     per_isect = 4  # the tile lists (splats and features are gathered per tile when used)
     per_tile_pixel = 4 * ch + 4 + 4  # features, final T, last index
     size = per_gaussian * n + per_isect * isect + per_tile_pixel * tile_pixels
