@@ -56,9 +56,12 @@ pub fn intersection_gradients(
     (0..bins.n_tiles())
         .into_par_iter()
         .with_max_len(4)
-        .for_each_init(
-            || (BackScratch::new(ts, ch), TileList::default()),
-            |(scratch, list), t| {
+        .for_each(|t| {
+            SCRATCH.with_borrow_mut(|kept| {
+                let (scratch, list) = match kept {
+                    Some((sc, _)) if sc.fits(ts, ch) => kept.as_mut().unwrap(),
+                    _ => kept.insert((BackScratch::new(ts, ch), TileList::default())),
+                };
                 let range = bins.tile_range(t);
                 if range.is_empty() {
                     return;
@@ -97,9 +100,15 @@ pub fn intersection_gradients(
                     let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
                     t.add(std::mem::take(&mut scratch.evals));
                 }
-            },
-        );
+            })
+        });
     totals.into_inner().unwrap_or_else(|e| e.into_inner())
+}
+
+thread_local! {
+    /// Each thread's tile scratch, kept between tiles and calls.
+    static SCRATCH: std::cell::RefCell<Option<(BackScratch, TileList)>> =
+        const { std::cell::RefCell::new(None) };
 }
 
 /// A zeroed intersection-gradient array for `intersection_gradients` (`len` values),

@@ -215,6 +215,11 @@ impl BackScratch {
         }
     }
 
+    /// Whether it was made for tiles of `ts` and `ch` channels.
+    pub(super) fn fits(&self, ts: usize, ch: usize) -> bool {
+        self.geo.ts == ts && self.v_out.len() == self.geo.plane() * ch
+    }
+
     /// Loads the tile's pixels (tile-major `t_final` / `last`, row-major gradients).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn reset(
