@@ -63,37 +63,10 @@ fn store_u32(v: &mut [u32], x: __m256i) {
     unsafe { _mm256_storeu_si256(v.as_mut_ptr().cast(), x) }
 }
 
-/// `lanes::exp_neg` on eight lanes.
+/// `lanes::exp_neg` on eight lanes (the backward kernel): `exp_neg_rows` on one register.
 #[inline(always)]
 fn exp_neg(x: __m256) -> __m256 {
-    // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
-    unsafe {
-        let s = _mm256_set1_ps;
-        // maxps/minps return the second operand when a lane is NaN, like `if x > c`.
-        let x = _mm256_max_ps(x, s(-87.0));
-        const ROUND: f32 = 12_582_912.0;
-        let t = _mm256_add_ps(_mm256_mul_ps(x, s(std::f32::consts::LOG2_E)), s(ROUND));
-        let n = _mm256_sub_ps(t, s(ROUND));
-        let r = _mm256_sub_ps(
-            _mm256_sub_ps(x, _mm256_mul_ps(n, s(0.693_359_4))),
-            _mm256_mul_ps(n, s(-2.121_944_4e-4)),
-        );
-        let c = EXP_COEFFS.map(|v| s(v));
-        let r2 = _mm256_mul_ps(r, r);
-        let r4 = _mm256_mul_ps(r2, r2);
-        let lin = |a: __m256, b: __m256| _mm256_add_ps(_mm256_mul_ps(a, r), b);
-        let p = _mm256_add_ps(
-            _mm256_mul_ps(lin(c[0], c[1]), r4),
-            _mm256_add_ps(_mm256_mul_ps(lin(c[2], c[3]), r2), lin(c[4], c[5])),
-        );
-        let y = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(p, r2), r), s(1.0));
-        let n_int = _mm256_sub_epi32(
-            _mm256_castps_si256(t),
-            _mm256_set1_epi32(ROUND.to_bits() as i32),
-        );
-        let scale = _mm256_slli_epi32(_mm256_add_epi32(n_int, _mm256_set1_epi32(127)), 23);
-        _mm256_mul_ps(y, _mm256_castsi256_ps(scale))
-    }
+    exp_neg_rows([x])[0]
 }
 
 /// One lane group of footprint columns: the mask of lanes inside the footprint, dx = x_splat
@@ -156,7 +129,6 @@ impl_zero!(usize, i32, f32);
 
 /// `exp_neg` on `R` registers at once, operation by operation, so that the independent
 /// chains of `R` rows sit side by side in the instruction stream (the forward kernel).
-/// The same operations as `exp_neg`, which the backward kernel keeps as it was tuned.
 #[inline(always)]
 fn exp_neg_rows<const R: usize>(x: [__m256; R]) -> [__m256; R] {
     // SAFETY (whole body): only called from the `#[target_feature(enable = "avx2")]` kernels.
