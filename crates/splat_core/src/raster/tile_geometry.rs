@@ -298,38 +298,24 @@ impl TileGeometry {
     }
 
     /// The splat's footprint in the tile (None if it has no pixel there), with each lane
-    /// group's rows and the row terms of its rows filled in (the backward's walk; kept as it
-    /// was written before `box_footprint`: a version sharing that code ran the backward
-    /// ~5% slower).
+    /// group's rows and the row terms of its rows filled in (the backward's walk).
     #[inline(always)]
     pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
         let fp = PixelFootprint::new(s, rect);
-        if fp.x0 >= fp.x1 || fp.y0 >= fp.y1 {
-            return None;
-        }
+        let lanes = fp.lanes(rect)?;
         let [_, b, c] = s.conic;
-        let (lx0, lx1) = ((fp.x0 - rect.x0) as usize, (fp.x1 - rect.x0) as usize);
-        let rows = (fp.y0 - rect.y0) as usize..(fp.y1 - rect.y0) as usize;
-        for ly in rows.clone() {
+        for ly in lanes.rows.clone() {
             let dy = s.xy[1] - ((rect.y0 as usize + ly) as f32 + 0.5);
             self.row_dy[ly] = dy;
             self.row_c[ly] = c * dy * dy;
             self.row_b[ly] = b * dy;
         }
-        let groups = lx0 / LANES..lx1.div_ceil(LANES);
-        if groups.len() == 1 {
-            self.group_rows[groups.start] = rows.clone();
+        if lanes.groups.len() == 1 {
+            self.group_rows[lanes.groups.start] = lanes.rows.clone();
         } else {
-            self.set_group_rows(s, rect, &fp, groups.clone(), rows.clone());
+            self.set_group_rows(s, rect, &fp, lanes.groups.clone(), lanes.rows.clone());
         }
-        Some(LaneFootprint {
-            // Pixel centres are at integer + 0.5: these bounds select columns x0..x1.
-            xlo: fp.x0 as f32,
-            xhi: fp.x1 as f32,
-            col0: 0,
-            groups,
-            rows,
-        })
+        Some(lanes)
     }
 
     /// The splat's footprint box in the tile (None if it has no pixel there): its columns,
