@@ -14,11 +14,12 @@ embedding); tokenisation is not what is being timed.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import torch
 
-from plantdreamer.guidance.models import DiffusionComponents
+from plantdreamer.guidance.models import DiffusionComponents, save_components
 
 # stabilityai/stable-diffusion-2-1-base, unet/config.json (keys diffusers needs).
 UNET_CONFIG: dict[str, Any] = {
@@ -188,3 +189,12 @@ def full_size_models(seed: int = 0, device: str | torch.device = "cpu") -> Diffu
         scheduler=DDIMScheduler(**SCHEDULER_CONFIG),
         **nets,
     )
+
+
+def save_full_size_models(
+    path: str | Path, seed: int = 0, device: str | torch.device = "cpu"
+) -> tuple[Path, Path]:
+    """Write the full-size random-weight networks in the hub's folder layout (about 6.6 GB
+    of float32 safetensors), so ``generate --base-model/--controlnet`` loads them through the
+    real loading code. Returns (base_model_dir, controlnet_dir)."""
+    return save_components(full_size_models(seed, device), path)

@@ -58,7 +58,37 @@ class DiffusionComponents:
                 model.to(dtype=target)
             model.eval()
             model.requires_grad_(False)
+        if device.type == "cuda":  # NHWC convolutions: 18.1 -> 16.1 ms (bench_networks.py)
+            for model in (self.unet, self.controlnet):
+                model.to(memory_format=torch.channels_last)
         return self
+
+
+def stable_diffusion_pipeline(parts: DiffusionComponents):  # type: ignore[no-untyped-def]
+    """A diffusers ``StableDiffusionPipeline`` of ``parts`` (no safety checker)."""
+    from diffusers import StableDiffusionPipeline
+
+    return StableDiffusionPipeline(
+        vae=parts.vae,
+        text_encoder=parts.text_encoder,
+        tokenizer=parts.tokenizer,
+        unet=parts.unet,
+        scheduler=parts.scheduler,
+        safety_checker=None,
+        feature_extractor=None,
+        requires_safety_checker=False,
+    )
+
+
+def save_components(parts: DiffusionComponents, path: str | Path) -> tuple[Path, Path]:
+    """Write ``parts`` in the hub's folder layout under ``path``: ``base/`` like
+    ``stabilityai/stable-diffusion-2-1-base`` and ``controlnet/`` like
+    ``thibaud/controlnet-sd21-depth-diffusers``. Returns (base_model_dir, controlnet_dir)."""
+    root = Path(path)
+    base, control = root / "base", root / "controlnet"
+    stable_diffusion_pipeline(parts).save_pretrained(base)
+    parts.controlnet.save_pretrained(control)
+    return base, control
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
@@ -83,6 +113,31 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     if resolved.index is not None and resolved.index >= count:
         raise InputError(f"device {device!r}: this machine has {count} CUDA device(s)")
     return resolved
+
+
+def make_cuda_deterministic() -> None:
+    """Process-wide settings under which the CUDA networks give bit-identical results run to
+    run (same seed, same inputs): a fixed cuBLAS workspace (read when cuBLAS first runs),
+    deterministic cuDNN algorithms and no autotuning, and PyTorch's deterministic kernels
+    where it has them (a warning, not an error, for any op without one). SDS backpropagates
+    through the VAE encoder, so its attention also runs on the math kernel
+    (``deterministic_attention``)."""
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.backends.cudnn.benchmark = False
+    torch.backends.cudnn.deterministic = True
+    torch.use_deterministic_algorithms(True, warn_only=True)
+
+
+def deterministic_attention(device: torch.device):  # type: ignore[no-untyped-def]
+    """A context in which scaled-dot-product attention on CUDA takes the math kernel, whose
+    backward has a fixed summation order (the fused kernels' backward may not)."""
+    from contextlib import nullcontext
+
+    if device.type != "cuda":
+        return nullcontext()
+    from torch.nn.attention import SDPBackend, sdpa_kernel
+
+    return sdpa_kernel(SDPBackend.MATH)
 
 
 # The VAE encoder is the one network SDS backpropagates through; its backward pass in fp16

@@ -33,12 +33,15 @@ from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import GuidanceOutput, check_images
 from plantdreamer.guidance.config import RESIZE_MODES, SDS_DEFAULTS
+from plantdreamer.guidance.cuda_graph import GraphedAutogradCall, GraphedCall
 from plantdreamer.guidance.depth import resize_control
 from plantdreamer.guidance.lora_weights import load_lora
 from plantdreamer.guidance.models import (
     DEFAULT_VAE_DTYPE,
     DiffusionComponents,
+    deterministic_attention,
     load_components,
+    make_cuda_deterministic,
     resolve_device,
     resolve_dtype,
 )
@@ -62,7 +65,8 @@ class StableDiffusionDepthGuidance:
     resizes the depth map to ``resolution``.
     UNet, ControlNet and text encoder run in ``dtype`` (fp16 on CUDA by default); the VAE in
     ``vae_dtype`` (float32 by default, because its backward pass produces the render
-    gradients; None = ``dtype``).
+    gradients; None = ``dtype``). On CUDA, ``cuda_graph`` replays ControlNet + UNet and the
+    VAE encoder from CUDA graphs captured on the first step (same bits as eager calls).
     """
 
     needs_depth = True
@@ -90,8 +94,11 @@ class StableDiffusionDepthGuidance:
         grad_clip: tuple[int, float, float, int] | None = DEFAULT_GRAD_CLIP,
         lora_scale: float = 1.0,
         vae_dtype: torch.dtype | str | None = DEFAULT_VAE_DTYPE,
+        cuda_graph: bool = True,
     ):
         self.device = resolve_device(device)
+        if self.device.type == "cuda":
+            make_cuda_deterministic()
         self.dtype = resolve_dtype(dtype, self.device)
         # The VAE encoder is the one network we backpropagate through; in fp16 its backward
         # pass can overflow into the render gradients, where no nan_to_num guards them.
@@ -107,6 +114,11 @@ class StableDiffusionDepthGuidance:
         if lora is not None:
             load_lora(parts.unet, lora, parts.text_encoder, scale=lora_scale)
         self.parts = parts.prepare(self.device, self.dtype, self.vae_dtype)
+        # ControlNet + UNet and the VAE encoder (forward and backward) replayed from CUDA
+        # graphs: on CUDA their eager calls are bound by kernel launches (cuda_graph.py).
+        graphs = cuda_graph and self.device.type == "cuda"
+        self._networks = GraphedCall(self._unet_with_control) if graphs else self._unet_with_control
+        self._vae_moments = GraphedAutogradCall(self._vae_encoder) if graphs else self._vae_encoder
 
         vae_factor = 2 ** (len(parts.vae.config.block_out_channels) - 1)
         if resolution <= 0 or resolution % vae_factor:
@@ -148,10 +160,16 @@ class StableDiffusionDepthGuidance:
 
     def encode(self, rgb: torch.Tensor) -> torch.Tensor:
         """[B, 3, R, R] in [0, 1] -> float32 latents (differentiable)."""
-        vae = self.parts.vae
-        posterior = vae.encode((rgb * 2.0 - 1.0).to(self.vae_dtype)).latent_dist
-        latents = posterior.sample(generator=self.generator) * vae.config.scaling_factor
-        return latents.float()
+        from diffusers.models.autoencoders.vae import DiagonalGaussianDistribution
+
+        moments = self._vae_moments((rgb * 2.0 - 1.0).to(self.vae_dtype))
+        latents = DiagonalGaussianDistribution(moments).sample(generator=self.generator)
+        return (latents * self.parts.vae.config.scaling_factor).float()
+
+    def _vae_encoder(self, x: torch.Tensor) -> torch.Tensor:
+        """The posterior's parameters (mean and log-variance stacked on channels)."""
+        with deterministic_attention(self.device):
+            return self.parts.vae.encode(x).latent_dist.parameters
 
     def control_image(self, depth_cond: torch.Tensor) -> torch.Tensor:
         """[B, 1, h, w] depth in [0, 1] -> [B, 3, R, R] ControlNet input."""
@@ -173,7 +191,15 @@ class StableDiffusionDepthGuidance:
         control: torch.Tensor,
     ) -> torch.Tensor:
         """UNet epsilon prediction with ControlNet residuals (float32, same batch)."""
-        x = latents_noisy.to(self.dtype)
+        out = self._networks(latents_noisy.to(self.dtype), t, embeddings, control).float()
+        if self.prediction_type == "v_prediction":
+            a = self.alphas_cumprod[t].view(-1, 1, 1, 1)
+            out = a.sqrt() * out + (1.0 - a).sqrt() * latents_noisy.float()
+        return out
+
+    def _unet_with_control(
+        self, x: torch.Tensor, t: torch.Tensor, embeddings: torch.Tensor, control: torch.Tensor
+    ) -> torch.Tensor:
         down, mid = self.parts.controlnet(
             x,
             t,
@@ -182,17 +208,13 @@ class StableDiffusionDepthGuidance:
             conditioning_scale=self.conditioning_scale,
             return_dict=False,
         )
-        out = self.parts.unet(
+        return self.parts.unet(
             x,
             t,
             encoder_hidden_states=embeddings,
             down_block_additional_residuals=down,
             mid_block_additional_residual=mid,
-        ).sample.float()
-        if self.prediction_type == "v_prediction":
-            a = self.alphas_cumprod[t].view(-1, 1, 1, 1)
-            out = a.sqrt() * out + (1.0 - a).sqrt() * latents_noisy.float()
-        return out
+        ).sample
 
     def sds_gradient(
         self,

@@ -18,7 +18,11 @@ from typing import Any
 
 import torch
 
-from plantdreamer.guidance.models import DiffusionComponents
+from plantdreamer.guidance.models import (
+    DiffusionComponents,
+    save_components,
+    stable_diffusion_pipeline,
+)
 
 # Kept small but structurally faithful: 4 VAE blocks (factor 8) like SD's VAE.
 TINY_TEXT_DIM = 32
@@ -148,29 +152,9 @@ def tiny_models(seed: int = 0) -> DiffusionComponents:
 
 def tiny_pipeline(seed: int = 0):  # type: ignore[no-untyped-def]
     """A diffusers ``StableDiffusionPipeline`` of tiny models (no safety checker)."""
-    return _pipeline(tiny_models(seed))
-
-
-def _pipeline(parts: DiffusionComponents):  # type: ignore[no-untyped-def]
-    from diffusers import StableDiffusionPipeline
-
-    return StableDiffusionPipeline(
-        vae=parts.vae,
-        text_encoder=parts.text_encoder,
-        tokenizer=parts.tokenizer,
-        unet=parts.unet,
-        scheduler=parts.scheduler,
-        safety_checker=None,
-        feature_extractor=None,
-        requires_safety_checker=False,
-    )
+    return stable_diffusion_pipeline(tiny_models(seed))
 
 
 def save_tiny_models(path: str | Path, seed: int = 0) -> tuple[Path, Path]:
     """Write tiny models in the hub's folder layout; returns (base_model_dir, controlnet_dir)."""
-    root = Path(path)
-    base, control = root / "base", root / "controlnet"
-    parts = tiny_models(seed)
-    _pipeline(parts).save_pretrained(base)
-    parts.controlnet.save_pretrained(control)
-    return base, control
+    return save_components(tiny_models(seed), path)

@@ -1,0 +1,161 @@
+"""The checks that need a CUDA GPU, each one command (BENCHMARKS.md's GPU section cites them).
+
+    python scripts/gpu_checks.py tests OUT                 # the CUDA tests (pytest)
+    python scripts/gpu_checks.py resume OUT --steps 300    # Ctrl-C and --resume on CUDA
+    python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
+
+``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
+layout (``save_full_size_models``), so ``plantdreamer generate`` loads them through the real
+loading code, then runs ``generate --guidance sds`` three times: once straight through, once
+stopped with SIGINT (Ctrl-C) after its first checkpoint, and that run continued with
+``--resume``. It reports each run's wall time and whether plant.ply and every rendered view
+and mask of the resumed run are byte-identical to the straight run's (``OUT/resume.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PYTHON = [sys.executable, "-m", "plantdreamer"]
+# Ground truth and renders compared byte for byte; run.json and log.csv hold timings.
+COMPARED = ("plant.ply", "transforms.json")
+COMPARED_GLOBS = ("renders/*.png", "labels/*.png", "instances/*.png", "depth/*.png")
+
+
+def run_tests(out: Path) -> int:
+    tests = [
+        "tests/test_gpu_path.py",
+        "tests/test_raster_forward.py::test_cuda_inputs_round_trip",
+    ]
+    log = out / "pytest.log"
+    cmd = [sys.executable, "-m", "pytest", "-q", "-rs", *tests]
+    with log.open("w") as f:
+        rc = subprocess.call(cmd, stdout=f, stderr=subprocess.STDOUT)
+    print(log.read_text()[-3000:])
+    return rc
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def compared_files(root: Path) -> list[Path]:
+    files = [root / name for name in COMPARED if (root / name).exists()]
+    for pattern in COMPARED_GLOBS:
+        files += sorted(root.glob(pattern))
+    return [f.relative_to(root) for f in files]
+
+
+def generate_args(args: argparse.Namespace, base: Path, control: Path, out: Path) -> list[str]:
+    return [
+        "generate", "--species", args.species, "--seed", "0", "--guidance", "sds",
+        "--base-model", str(base), "--controlnet", str(control), "--device", args.device,
+        "--steps", str(args.steps), "--checkpoint-every", str(args.checkpoint_every),
+        "--eval-views", str(args.eval_views), "--turntable", "none", "--quiet",
+        "--out", str(out),
+    ]  # fmt: skip
+
+
+def timed(cmd: list[str], log: Path) -> tuple[int, float]:
+    t0 = time.perf_counter()
+    with log.open("w") as f:
+        rc = subprocess.call(cmd, stdout=f, stderr=subprocess.STDOUT)
+    return rc, time.perf_counter() - t0
+
+
+def run_resume(args: argparse.Namespace, out: Path) -> int:
+    from plantdreamer.guidance.full_size import save_full_size_models
+    from plantdreamer.guidance.tiny import save_tiny_models
+
+    models = args.models
+    base, control = models / "base", models / "controlnet"
+    t0 = time.perf_counter()
+    if not (base / "model_index.json").exists() or not (control / "config.json").exists():
+        if args.tiny:  # a dry run of this script on a machine without a GPU
+            save_tiny_models(models)
+        else:
+            save_full_size_models(models, seed=0, device=args.device)
+    report: dict = {"models_s": time.perf_counter() - t0, "steps": args.steps}
+    work = args.work
+    full, cut = work / "full", work / "cut"
+    shutil.rmtree(work, ignore_errors=True)
+
+    rc, report["full_s"] = timed(
+        PYTHON + generate_args(args, base, control, full), out / "full.log"
+    )
+    report["full_rc"] = rc
+    if rc != 0:
+        print((out / "full.log").read_text()[-3000:])
+        return 1
+
+    # Stopped with SIGINT a few seconds after its first checkpoint, as a user's Ctrl-C.
+    t0 = time.perf_counter()
+    with (out / "cut.log").open("w") as f:
+        proc = subprocess.Popen(
+            [*PYTHON, *generate_args(args, base, control, cut)], stdout=f, stderr=subprocess.STDOUT
+        )
+        checkpoint = cut / "checkpoint.pt"
+        while proc.poll() is None and not checkpoint.exists():
+            time.sleep(0.2)
+        time.sleep(args.cut_after)
+        proc.send_signal(signal.SIGINT)
+        report["cut_rc"] = proc.wait()
+    report["cut_s"] = time.perf_counter() - t0
+    rows = (cut / "log.csv").read_text().strip().splitlines() if (cut / "log.csv").exists() else []
+    report["cut_at_step"] = max(len(rows) - 1, 0)
+    resume = [*PYTHON, "generate", "--resume", str(cut), "--quiet"]
+    rc, report["resume_s"] = timed(resume, out / "resume.log")
+    report["resume_rc"] = rc
+    if rc != 0:
+        print((out / "resume.log").read_text()[-3000:])
+        return 1
+
+    names = compared_files(full)
+    different = [str(n) for n in names if (cut / n).read_bytes() != (full / n).read_bytes()]
+    missing = [str(n) for n in compared_files(cut) if n not in set(names)]
+    report.update(
+        compared_files=len(names),
+        different=different,
+        only_in_resumed=missing,
+        identical=not different and not missing and report["cut_rc"] == 130,
+        plant_ply_sha256=sha256(full / "plant.ply"),
+        run_json=json.loads((full / "run.json").read_text()),
+    )
+    (out / "resume.json").write_text(json.dumps(report, indent=2))
+    summary = {k: v for k, v in report.items() if k != "run_json"}
+    print(json.dumps(summary, indent=2))
+    return 0 if report["identical"] else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("check", choices=("tests", "resume"))
+    p.add_argument("out", type=Path, help="folder for logs and the JSON report")
+    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--species", default="bean")
+    p.add_argument("--device", default="cuda")
+    p.add_argument("--checkpoint-every", type=int, default=100)
+    p.add_argument("--cut-after", type=float, default=3.0, help="seconds after the checkpoint")
+    p.add_argument("--eval-views", type=int, default=24)
+    p.add_argument("--tiny", action="store_true", help="tiny models (a dry run on the CPU)")
+    p.add_argument("--models", type=Path, default=Path("/tmp/plantdreamer-full-size"))
+    p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
+    if args.check == "tests":
+        return run_tests(args.out)
+    return run_resume(args, args.out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
