@@ -14,6 +14,8 @@ ahead, the wait for the worker), transfer (host -> device copies), text, unet+co
 vae encode, rasterizer backward, vae backward (the rest of `loss.backward()`), optimiser,
 and the wall time per step; on CUDA the peak GPU memory. Each timed call is bracketed by
 `torch.cuda.synchronize()` on CUDA, so phases do not hide each other's GPU time. The
+phase rows are means over the timed steps, after ``--warmup`` untimed steps (on CUDA, the
+graph captures and the first prompt encodes); the step row is the median. The
 projection is the median step wall time x 3600; on CUDA it comes from a second run of
 the same steps without the per-phase syncs (preparation, evaluation renders and
 export not included). `--compare-depth R` interleaves R rounds of depth in line and depth
@@ -260,6 +262,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--render", type=int, default=768 if cuda else 512)
     p.add_argument("--sds", type=int, default=512)
     p.add_argument("--points", type=int, default=100_000)
+    p.add_argument(
+        "--warmup",
+        type=int,
+        default=5 if cuda else 0,
+        help="untimed steps first (CUDA graph capture, first prompt encodes)",
+    )
     p.add_argument("--compare-depth", type=int, default=0 if cuda else 3, metavar="ROUNDS")
     p.add_argument("--json", type=Path, help="also write the report as JSON here")
     p.add_argument(
@@ -274,6 +282,8 @@ def main(argv: list[str] | None = None) -> int:
         args.md = RESULTS / ("gpu_cuda.md" if guidance.device.type == "cuda" else "gpu.md")
     clock = PhaseClock(guidance.device.type == "cuda")
     instrument(guidance, clock)
+    if args.warmup:
+        run_once(argparse.Namespace(**{**vars(args), "steps": args.warmup}), guidance, clock, True)
     if args.compare_depth:
         text = compare_depth(args, guidance, clock)
         report: dict[str, Any] = {"compare_depth": text}

@@ -35,6 +35,7 @@ def run_tests(out: Path) -> int:
     tests = [
         "tests/test_gpu_path.py",
         "tests/test_raster_forward.py::test_cuda_inputs_round_trip",
+        "tests/test_lora_train.py",
     ]
     log = out / "pytest.log"
     cmd = [sys.executable, "-m", "pytest", "-q", "-rs", *tests]

@@ -13,6 +13,7 @@ from plantdreamer.guidance.depth import (
     dilate,
     erode,
     kernel_size,
+    max_filter,
     normalise_depth,
     save_depth_png,
 )
@@ -53,7 +54,7 @@ def reference_filter(image: np.ndarray, k: int, op) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("k", [1, 3, 5])
+@pytest.mark.parametrize("k", [1, 3, 5, 9])
 def test_morphology_matches_slow_reference(k):
     image = torch.rand(1, 1, 17, 23, generator=torch.Generator().manual_seed(k))
     np.testing.assert_array_equal(
@@ -62,6 +63,17 @@ def test_morphology_matches_slow_reference(k):
     np.testing.assert_array_equal(
         dilate(image, k)[0, 0].numpy(), reference_filter(image[0, 0].numpy(), k, np.max)
     )
+
+
+@pytest.mark.parametrize("k", [3, 5, 7, 13])
+def test_max_filter_equals_max_pooling(k):
+    """The row and column passes give max_pool2d's values exactly (batch, channels, edges
+    wider than the image, ties and infinities included)."""
+    g = torch.Generator().manual_seed(k)
+    image = torch.randint(0, 4, (2, 3, 11, 6), generator=g).float()  # many ties
+    image[0, 0, 0, 0], image[1, 2, 5, 3] = float("inf"), float("-inf")
+    pooled = torch.nn.functional.max_pool2d(image, k, stride=1, padding=k // 2)
+    assert torch.equal(max_filter(image, k), pooled)
 
 
 def test_normalisation_near_is_bright_and_background_halo_and_tail_are_removed():

@@ -1,6 +1,7 @@
 """Species LoRA training with tiny random models on the CPU (issue 10's acceptance)."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -237,3 +238,15 @@ def test_mixed_precision_without_a_gpu_is_refused(images, tmp_path):
         pytest.skip("a GPU is present")
     with pytest.raises(InputError, match="CUDA"):
         train_lora(config(images, tmp_path, mixed_precision=True), components=tiny_models())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("mixed_precision", [False, True])
+def test_training_on_cuda_gives_finite_losses_and_weights(images, tmp_path, mixed_precision):
+    # pragma: no cover - no GPU on CI
+    result = train_lora(
+        config(images, tmp_path, device="cuda", steps=6, mixed_precision=mixed_precision),
+        components=tiny_models(),
+    )
+    assert len(result.losses) == 6 and all(math.isfinite(v) for v in result.losses)
+    assert result.weights.is_file() and result.weights.stat().st_size > 0

@@ -110,14 +110,33 @@ def erode(image: torch.Tensor, k: int) -> torch.Tensor:
     """Grey erosion (min filter) of [B, 1, H, W]; the image border is not treated as dark."""
     if k <= 1:
         return image
-    return -F.max_pool2d(-image, k, stride=1, padding=k // 2)
+    return -max_filter(-image, k)
 
 
 def dilate(image: torch.Tensor, k: int) -> torch.Tensor:
     """Grey dilation (max filter) of [B, 1, H, W]."""
     if k <= 1:
         return image
-    return F.max_pool2d(image, k, stride=1, padding=k // 2)
+    return max_filter(image, k)
+
+
+def max_filter(image: torch.Tensor, k: int) -> torch.Tensor:
+    """k x k maximum of [B, C, H, W] centred on each pixel (odd k; outside the image does not
+    count): ``F.max_pool2d(image, k, stride=1, padding=k // 2)``, the same values, computed
+    as a row pass and a column pass of elementwise maxima. On a 768^2 single-channel map
+    with k = 5 that pooling took 31 ms on one core (it is parallel over B x C only) and these
+    passes 2 ms, side by side (tests/test_guidance_depth.py compares them)."""
+    r = k // 2
+    height, width = image.shape[-2:]
+    rows = F.pad(image, (r, r, 0, 0), value=float("-inf"))
+    out = rows[..., :, 0:width]
+    for i in range(1, k):
+        out = torch.maximum(out, rows[..., :, i : i + width])
+    cols = F.pad(out, (0, 0, r, r), value=float("-inf"))
+    out = cols[..., 0:height, :]
+    for i in range(1, k):
+        out = torch.maximum(out, cols[..., i : i + height, :])
+    return out
 
 
 def normalise_depth(
