@@ -62,7 +62,11 @@ def generate_args(args: argparse.Namespace, base: Path, control: Path, out: Path
         "--base-model", str(base), "--controlnet", str(control), "--device", args.device,
         "--steps", str(args.steps), "--checkpoint-every", str(args.checkpoint_every),
         "--eval-views", str(args.eval_views), "--turntable", "none", "--quiet",
-        "--out", str(out),
+        "--points", str(args.points), "--out", str(out),
+    ] + [
+        f"--{name}={value}"
+        for name, value in (("resolution", args.resolution), ("sds-resolution", args.sds_resolution))
+        if value is not None
     ]  # fmt: skip
 
 
@@ -91,7 +95,7 @@ def run_resume(args: argparse.Namespace, out: Path) -> int:
     shutil.rmtree(work, ignore_errors=True)
 
     rc, report["full_s"] = timed(
-        PYTHON + generate_args(args, base, control, full), out / "full.log"
+        [*PYTHON, *generate_args(args, base, control, full)], out / "full.log"
     )
     report["full_rc"] = rc
     if rc != 0:
@@ -147,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint-every", type=int, default=100)
     p.add_argument("--cut-after", type=float, default=3.0, help="seconds after the checkpoint")
     p.add_argument("--eval-views", type=int, default=24)
+    p.add_argument("--points", type=int, default=100_000)
+    p.add_argument("--resolution", type=int, help="render size (default: generate's)")
+    p.add_argument("--sds-resolution", type=int, help="SDS size (default: generate's)")
     p.add_argument("--tiny", action="store_true", help="tiny models (a dry run on the CPU)")
     p.add_argument("--models", type=Path, default=Path("/tmp/plantdreamer-full-size"))
     p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))

@@ -302,3 +302,21 @@ def test_graphed_vae_gives_the_eager_latents_and_gradients():  # pragma: no cove
             grads.append((latents.detach(), image.grad))
         assert torch.equal(grads[0][0], grads[1][0]) and torch.equal(grads[0][1], grads[1][1])
     assert graphed._vae_moments.graphed is not None
+
+
+def test_gpu_checks_script_resume_dry_run_on_the_cpu(tmp_path):
+    """scripts/gpu_checks.py's Ctrl-C + --resume check, run with tiny models on the CPU: the
+    same script a CUDA machine runs at full size."""
+    out = tmp_path / "out"
+    cmd = [
+        sys.executable, "scripts/gpu_checks.py", "resume", str(out), "--tiny", "--device", "cpu",
+        "--steps", "40", "--checkpoint-every", "5", "--cut-after", "0", "--eval-views", "2",
+        "--points", "1500", "--resolution", "48", "--sds-resolution", "64",
+        "--models", str(tmp_path / "models"), "--work", str(tmp_path / "work"),
+    ]  # fmt: skip
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    report = json.loads((out / "resume.json").read_text())
+    assert report["identical"] and report["cut_rc"] == 130 and 5 <= report["cut_at_step"] < 40
+    assert report["compared_files"] > 2 and not report["different"]
