@@ -16,7 +16,7 @@
 
 use rayon::prelude::*;
 
-use super::{point, Coord};
+use super::{Coord, OrderKey};
 
 /// Points per leaf (at most 32: a leaf's candidates are one `u32` bit mask).
 pub(super) const LEAF: usize = 32;
@@ -205,13 +205,16 @@ fn node_ranges(size: usize, n: usize) -> Vec<(u32, u32)> {
 /// Node id, its bounding box (lo, hi).
 type NodeInfo = (usize, [f64; 3], [f64; 3]);
 
-/// A point and its original index; the build reorders these in place.
-type Item = ([f64; 3], u32);
+/// A point as order keys of its coordinates (see `Coord::Key`) and its original index; the
+/// build reorders these in place. Partitioning on integer keys of the input's own width
+/// gives the same order as on the f64 values (the keys order as the values, ties broken by
+/// index), with one integer comparison per step and, for f32 clouds, half the bytes moved.
+type Item<K> = ([K; 3], u32);
 
-/// The tight box (lowest, highest corner) of the points.
-fn bounds(items: &[Item]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
+/// The tight box (lowest, highest corner) of the points, as keys.
+fn bounds<K: OrderKey>(items: &[Item<K>]) -> ([K; 3], [K; 3]) {
+    let (first, _) = items[0];
+    let (mut lo, mut hi) = (first, first);
     for (p, _) in items {
         for a in 0..3 {
             lo[a] = lo[a].min(p[a]);
@@ -221,47 +224,48 @@ fn bounds(items: &[Item]) -> ([f64; 3], [f64; 3]) {
     (lo, hi)
 }
 
+/// The axis of widest extent (f64 extents, the first of equal ones).
+fn widest<K: OrderKey>(lo: &[K; 3], hi: &[K; 3]) -> usize {
+    let extent = |a: usize| hi[a].value() - lo[a].value();
+    let mut axis = 0;
+    for a in 1..3 {
+        if extent(a) > extent(axis) {
+            axis = a;
+        }
+    }
+    axis
+}
+
+/// Splits `items` at its median along `axis` (by key, then index).
+fn split_median<K: OrderKey>(items: &mut [Item<K>], axis: usize) -> usize {
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by_key(mid, |p| p.0[axis].rank(p.1));
+    mid
+}
+
 /// Orders a leaf's points by further median splits on the widest axis (no nodes are kept
 /// for them): consecutive tree positions are then near neighbours, so each query's search
 /// starts from a tight bound taken from the previous one.
-fn order_leaf(items: &mut [Item]) {
+fn order_leaf<K: OrderKey>(items: &mut [Item<K>]) {
     if items.len() <= 2 {
         return;
     }
     let (lo, hi) = bounds(items);
-    let mut axis = 0;
-    for a in 1..3 {
-        if hi[a] - lo[a] > hi[axis] - lo[axis] {
-            axis = a;
-        }
-    }
-    let mid = items.len() / 2;
-    items.select_nth_unstable_by(mid, |a, b| {
-        a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
-    });
+    let mid = split_median(items, widest(&lo, &hi));
     let (left, right) = items.split_at_mut(mid);
     order_leaf(left);
     order_leaf(right);
 }
 
-fn build_rec(items: &mut [Item], node: usize, out: &mut Vec<NodeInfo>) {
+fn build_rec<K: OrderKey>(items: &mut [Item<K>], node: usize, out: &mut Vec<NodeInfo>) {
     let len = items.len();
     let (lo, hi) = bounds(items);
-    out.push((node, lo, hi));
+    out.push((node, lo.map(K::value), hi.map(K::value)));
     if len <= LEAF {
         order_leaf(items);
         return;
     }
-    let mut axis = 0;
-    for a in 1..3 {
-        if hi[a] - lo[a] > hi[axis] - lo[axis] {
-            axis = a;
-        }
-    }
-    let mid = len / 2;
-    items.select_nth_unstable_by(mid, |a, b| {
-        a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
-    });
+    let mid = split_median(items, widest(&lo, &hi));
     let (left, right) = items.split_at_mut(mid);
     if len > PARALLEL_BUILD {
         let mut right_out = Vec::new();
@@ -280,9 +284,15 @@ impl KdTree {
     /// Builds the tree over a validated flat xyz slice (see `check_points`).
     pub fn build<T: Coord>(points: &[T]) -> Self {
         let n = points.len() / 3;
-        let mut items: Vec<Item> = (0..n)
-            .into_par_iter()
-            .map(|i| (point(points, i), i as u32))
+        let mut items: Vec<Item<T::Key>> = points
+            .par_chunks_exact(3)
+            .enumerate()
+            .map(|(i, p)| {
+                (
+                    [p[0].order_key(), p[1].order_key(), p[2].order_key()],
+                    i as u32,
+                )
+            })
             .collect();
         let mut nodes = Vec::new();
         build_rec(&mut items, 0, &mut nodes);
@@ -291,13 +301,12 @@ impl KdTree {
         for (node, lo, hi) in nodes {
             boxes[node] = [lo, hi];
         }
-        let (pts, ids): (Vec<[f64; 3]>, Vec<u32>) = items.into_par_iter().unzip();
-        let axis = |a: usize| pts.par_iter().map(|p| p[a]).collect();
+        let axis = |a: usize| items.par_iter().map(|p| p.0[a].value()).collect();
         Self {
             xs: axis(0),
             ys: axis(1),
             zs: axis(2),
-            ids,
+            ids: items.par_iter().map(|p| p.1).collect(),
             ranges: node_ranges(size, n),
             boxes,
         }
