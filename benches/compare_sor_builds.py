@@ -1,7 +1,7 @@
 """SOR with two builds of the native module, interleaved in one process, plus Open3D
 (not run by run_all.py: it needs the two builds).
 
-    python benches/compare_sor_builds.py OLD.so NEW.so [--rounds 3] [--threads 2]
+    python benches/compare_sor_builds.py OLD.so NEW.so [--rounds 3] [--threads 2] [--no-open3d]
 
 For judging a kNN change on a shared machine: each round runs the old build, the new
 build and Open3D 0.20 one after the other on the bench cloud of bench_pointcloud.py (1M
@@ -40,6 +40,9 @@ def main() -> int:
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--no-open3d", action="store_true", help="old vs new only (Open3D takes ~10x longer)"
+    )
     args = ap.parse_args()
     old, new = load("sor_old", args.old), load("sor_new", args.new)
     p, _ = cloud(args.points)
@@ -48,12 +51,15 @@ def main() -> int:
         "new": lambda: new.remove_statistical_outliers(p, 20, 2.0, args.threads),
     }
     try:
+        if args.no_open3d:
+            raise ImportError
         import open3d as o3d
 
         peer = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64)))
         runs["Open3D"] = lambda: np.sort(np.asarray(peer.remove_statistical_outlier(20, 2.0)[1]))
     except ImportError:
-        print("note: Open3D is not installed; old vs new only")
+        if not args.no_open3d:
+            print("note: Open3D is not installed; old vs new only")
     wall: dict[str, list[float]] = {k: [] for k in runs}
     cpu: dict[str, list[float]] = {k: [] for k in runs}
     kept: dict[str, np.ndarray] = {}

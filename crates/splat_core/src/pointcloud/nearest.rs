@@ -24,9 +24,11 @@ use super::kdtree::{squared_distance, KdTree, LEAF, LEAVES_PER_RUN};
 /// Most neighbours kept by the network (in groups of 4 slots).
 pub(super) const NETWORK_MAX: usize = 32;
 
-/// The k smallest squared distances seen, ascending, in `P` slots (k <= P, P a multiple of
-/// 4 so the network is whole vectors; slots past k are ignored). Slots start at the
-/// search's bound.
+/// The k smallest squared distances seen, ascending, in the last k of `P` slots (k <= P,
+/// P a multiple of 4 so the network is whole vectors). The first P - k slots hold -1, below
+/// every squared distance, so they never move; the k-th is then always the last slot, a
+/// fixed place the compiler keeps in a register. The other slots start at the search's
+/// bound.
 struct Network<const P: usize> {
     slots: [f64; P],
     k: usize,
@@ -36,19 +38,25 @@ impl<const P: usize> Network<P> {
     #[inline(always)]
     fn start(&mut self, bound: f64) {
         self.slots = [bound; P];
+        self.slots[..P - self.k].fill(-1.0);
     }
 
     /// Only distances below this can change the k smallest.
     #[inline(always)]
     fn limit(&self) -> f64 {
-        self.slots[self.k - 1]
+        self.slots[P - 1]
+    }
+
+    /// The k smallest, ascending.
+    #[inline(always)]
+    fn smallest(&self) -> &[f64] {
+        &self.slots[P - self.k..]
     }
 
     /// Inserts `d`: slot i becomes max(slot i-1, min(slot i, d)), which keeps the slots
     /// below d, puts d in the first slot above it, shifts the rest up and drops the last.
-    /// A d no smaller than slot k-1 leaves slots 0..k unchanged (slot i depends only on the
-    /// slots below it, so the ignored slots past k never matter). Squared distances are
-    /// never NaN, so the comparisons are a total order.
+    /// The -1 slots stay -1 (d >= 0), and a d no smaller than the last slot changes
+    /// nothing. Squared distances are never NaN, so the comparisons are a total order.
     #[inline(always)]
     fn offer(&mut self, d: f64) {
         let s = &mut self.slots;
@@ -208,7 +216,7 @@ pub(super) fn run_leaves<const P: usize, R>(
         for pos in start as usize..(start + len) as usize {
             search.run(leaf, pos, prev);
             prev = Some(search.best.limit());
-            out.push(f(pos, &search.best.slots[..k]));
+            out.push(f(pos, search.best.smallest()));
         }
     }
 }
