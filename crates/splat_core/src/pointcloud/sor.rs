@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 
 use super::knn::check_k;
-use super::nearest::map_knn_distances;
+use super::nearest::{map_knn_distances, NETWORK_MAX};
 use super::{check_points, Coord, KdTree};
 use crate::{CoreError, CoreResult};
 
@@ -38,9 +38,16 @@ pub fn statistical_outlier_scores<T: Coord>(
     } else {
         map_knn_distances(&tree, others, |_, d2s| {
             // Open3D: the point itself first (sqrt(0) = 0), then the others nearest first.
+            // The roots first, as one vectorisable loop, then the sum in that order.
             let mut sum = 0.0f64;
-            for &d2 in d2s {
-                sum += d2.sqrt();
+            for chunk in d2s.chunks(NETWORK_MAX) {
+                let mut roots = [0.0f64; NETWORK_MAX];
+                for (r, &d2) in roots.iter_mut().zip(chunk) {
+                    *r = d2.sqrt();
+                }
+                for &r in &roots[..chunk.len()] {
+                    sum += r;
+                }
             }
             sum / nb_neighbors as f64
         })
