@@ -18,9 +18,12 @@ use rayon::prelude::*;
 
 use super::{Coord, OrderKey};
 
-/// Points per leaf (at most 32: a leaf's candidates are one `u32` bit mask).
-pub(super) const LEAF: usize = 32;
-const _: () = assert!(LEAF <= 32);
+/// Points per leaf (at most 64: a leaf's candidates are one `u64` bit mask). Leaves of 33
+/// to 64 points rather than 17 to 32: the search visits fewer cells (fewer
+/// unpredictable branches in the walk) for more, cheap, vectorised distances; SOR on the
+/// 1M-point bench cloud took 15% less time.
+pub(super) const LEAF: usize = 64;
+const _: () = assert!(LEAF <= 64);
 /// Leaves searched in a row by one worker, each query seeded by the one before (see
 /// `map_knn`): fixed, so the runs, and so every result, are independent of threads.
 pub(super) const LEAVES_PER_RUN: usize = 16;
@@ -429,9 +432,9 @@ impl KdTree {
         // Which points can enter, as bits (a vectorised loop without branches), then only
         // those are offered: far fewer unpredictable branches than testing each point.
         let worst = out.worst();
-        let mut mask = 0u32;
+        let mut mask = 0u64;
         for (i, &d) in d2[..len].iter().enumerate() {
-            mask |= u32::from(d <= worst) << i;
+            mask |= u64::from(d <= worst) << i;
         }
         let ids = &self.ids[start..start + len];
         while mask != 0 {

@@ -9,7 +9,7 @@
 //!   `Network::offer`); inserting a candidate costs the same few vector instructions
 //!   wherever it lands, with no mispredicted loop exit. The values are the k smallest of
 //!   the multiset of distances, which does not depend on ties or visiting order.
-//! - The walk is compiled twice, once for AVX2 (chosen at run time), so a leaf's 32
+//! - The walk is compiled twice, once for AVX2 (chosen at run time), so a leaf's
 //!   distances, the candidate mask and the network each take a few 4-lane instructions.
 //!   Only the instruction width differs: the same f64 subtractions, products and sums in
 //!   the same order (no fused multiply-add), so both give the same bits.
@@ -102,9 +102,9 @@ impl<const P: usize> Search<'_, P> {
         }
         // Which points can enter, as bits (branch-free, vectorised), then only those.
         let limit = self.best.limit();
-        let mut mask = 0u32;
+        let mut mask = 0u64;
         for (i, &d) in d2.iter().enumerate() {
-            mask |= u32::from(d < limit) << i;
+            mask |= u64::from(d < limit) << i;
         }
         // The network in a local copy, so that it stays in registers.
         let mut best = Network::<P> {
