@@ -58,6 +58,8 @@ mod project_backward_batch;
 mod project_batch;
 pub mod scene;
 pub mod sh;
+#[cfg(test)]
+mod test_gaussians;
 pub mod tile_binning;
 mod tile_geometry;
 mod tile_walk;

@@ -268,7 +268,7 @@ fn rotmat_backward(g: &M3, qn: [Lanes; 4], norm: Lanes) -> [Lanes; 4] {
 #[cfg(test)]
 mod tests {
     use super::super::project::{project_backward, Gaussian3, SplatGrad};
-    use super::super::scene::ColorMode;
+    use super::super::test_gaussians::{GaussianLists, DEGENERATE, SUB_PIXEL};
     use super::*;
     use crate::test_rng::Lcg;
 
@@ -288,47 +288,26 @@ mod tests {
     /// Jacobian's clamp) and the degenerate ones the culling is about.
     fn scene(n: usize, seed: u64) -> Scene {
         let mut r = Lcg::new(seed);
-        let (mut means, mut quats, mut scales, mut opac) = (vec![], vec![], vec![], vec![]);
+        let mut gaussians = GaussianLists::default();
         for _ in 0..n {
             let spread = if r.uniform() < 0.2 { 12.0 } else { 4.0 };
-            means.extend([
+            let mean = [
                 spread * (r.uniform() - 0.5),
                 spread * (r.uniform() - 0.5),
                 8.0 * r.uniform() - 4.0,
-            ]);
-            quats.extend([0; 4].map(|_| r.uniform() - 0.5));
+            ];
+            let quat = [0; 4].map(|_| r.uniform() - 0.5);
             let base = 10f32.powf(-3.0 + 2.5 * r.uniform());
-            scales.extend([
+            let scales = [
                 base,
                 base * (0.01 + r.uniform()),
                 base * (0.01 + r.uniform()),
-            ]);
-            opac.push(r.uniform());
+            ];
+            gaussians.push((mean, quat, scales, r.uniform()));
         }
-        type Special = ([f32; 3], [f32; 4], [f32; 3], f32);
-        let specials: [Special; 7] = [
-            ([0.0, 0.0, -4.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9), // at the camera
-            ([0.0, 0.0, 0.0], [0.0; 4], [0.1; 3], 0.9),              // zero quaternion
-            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0; 3], 0.9),  // zero scales
-            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [1e30; 3], 0.9), // huge scales
-            ([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9),
-            (
-                [0.0, 0.0, 0.0],
-                [1.0, f32::INFINITY, 0.0, 0.0],
-                [0.1; 3],
-                0.9,
-            ),
-            ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [1e-7; 3], 1.0), // sub-pixel
-        ];
-        for (m, q, s, o) in specials {
-            means.extend(m);
-            quats.extend(q);
-            scales.extend(s);
-            opac.push(o);
-        }
-        let colors = vec![0.5f32; opac.len() * 3];
-        let mode = ColorMode::Direct { channels: 3 };
-        Scene::new(&means, &quats, &scales, &opac, &colors, mode).unwrap()
+        DEGENERATE.into_iter().for_each(|g| gaussians.push(g));
+        gaussians.push(SUB_PIXEL);
+        gaussians.scene(&vec![0.5f32; gaussians.len() * 3])
     }
 
     #[test]

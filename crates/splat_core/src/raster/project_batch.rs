@@ -241,7 +241,7 @@ fn project_lanes(
 mod tests {
     use super::super::options::Footprint;
     use super::super::project::{project, Gaussian3};
-    use super::super::scene::ColorMode;
+    use super::super::test_gaussians::{GaussianLists, DEGENERATE, SUB_PIXEL};
     use super::*;
     use crate::test_rng::Lcg;
 
@@ -271,66 +271,29 @@ mod tests {
     /// Random Gaussians plus the degenerate ones the culling rules are about.
     fn scene(n: usize, seed: u64) -> Scene {
         let mut r = Lcg::new(seed);
-        let mut means = Vec::new();
-        let mut quats = Vec::new();
-        let mut scales = Vec::new();
-        let mut opac = Vec::new();
+        let mut gaussians = GaussianLists::default();
         for _ in 0..n {
-            means.extend([
+            let mean = [
                 4.0 * r.uniform() - 2.0,
                 4.0 * r.uniform() - 2.0,
                 6.0 * r.uniform() - 3.0,
-            ]);
-            quats.extend([
-                r.uniform() - 0.5,
-                r.uniform() - 0.5,
-                r.uniform() - 0.5,
-                r.uniform() - 0.5,
-            ]);
+            ];
+            let quat = [0; 4].map(|_| r.uniform() - 0.5);
             let base = 10f32.powf(-3.0 + 2.5 * r.uniform());
-            scales.extend([
+            let scales = [
                 base,
                 base * (0.05 + r.uniform()),
                 base * (0.05 + r.uniform()),
-            ]);
-            opac.push(r.uniform());
+            ];
+            gaussians.push((mean, quat, scales, r.uniform()));
         }
-        // (mean, quat, scales, opacity)
-        type Special = ([f32; 3], [f32; 4], [f32; 3], f32);
-        let specials: [Special; 9] = [
-            ([0.0, 0.0, -4.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9), // at the camera
-            ([0.0, 0.0, 0.0], [0.0; 4], [0.1; 3], 0.9),              // zero quaternion
-            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0; 3], 0.9),  // zero scales
-            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [1e30; 3], 0.9), // huge scales
-            ([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.9),
-            (
-                [0.0, 0.0, 0.0],
-                [1.0, f32::INFINITY, 0.0, 0.0],
-                [0.1; 3],
-                0.9,
-            ),
-            ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 1e-3), // below 1/255
-            ([50.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.01; 3], 0.9), // off screen
-            ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [1e-7; 3], 1.0), // sub-pixel
-        ];
-        for (m, q, s, o) in specials {
-            means.extend(m);
-            quats.extend(q);
-            scales.extend(s);
-            opac.push(o);
-        }
-        let n = opac.len();
-        let mut colors = vec![0.5f32; n * 3];
+        DEGENERATE.into_iter().for_each(|g| gaussians.push(g));
+        gaussians.push(([0.0; 3], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 1e-3)); // below 1/255
+        gaussians.push(([50.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.01; 3], 0.9)); // off screen
+        gaussians.push(SUB_PIXEL);
+        let mut colors = vec![0.5f32; gaussians.len() * 3];
         colors[3 * 7] = f32::NAN; // a non-finite colour culls its Gaussian
-        Scene::new(
-            &means,
-            &quats,
-            &scales,
-            &opac,
-            &colors,
-            ColorMode::Direct { channels: 3 },
-        )
-        .unwrap()
+        gaussians.scene(&colors)
     }
 
     /// `project`'s formulas in float64, straight from the definitions: Sigma = R S S^T R^T
