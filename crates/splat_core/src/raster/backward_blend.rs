@@ -25,7 +25,7 @@ use super::backward_index::SplatIntersections;
 use super::forward_pass::CameraState;
 use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
-use super::tile_geometry::{TileList, TileRect};
+use super::tile_geometry::{pixel_boxes, TileList, TileRect};
 use super::tile_walk::{
     for_each_splat_back, BackOut, BackScratch, BackTile, EvalCount, ISECT_FIXED,
 };
@@ -85,8 +85,10 @@ pub fn intersection_gradients(
                     Some(records) => list.gather_records(gids, records, ch),
                     None => list.gather(gids, &cs.splats, &cs.features, ch),
                 }
+                pixel_boxes(&list.splats, &rect, &mut list.boxes);
                 let tile = BackTile {
                     splats: &list.splats,
+                    boxes: &list.boxes,
                     features: &list.features,
                     rect,
                     simd,

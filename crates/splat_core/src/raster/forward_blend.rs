@@ -20,7 +20,7 @@ use super::lanes::{exp_neg, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
 use super::tile_binning::TileBins;
-use super::tile_geometry::{BlendRecord, TileList, TileRect};
+use super::tile_geometry::{pixel_boxes, BlendRecord, TileList, TileRect};
 use super::tile_walk::{for_each_splat, EvalCount, TileInput, TileScratch};
 
 /// Blend results of one camera that the backward pass needs.
@@ -87,8 +87,10 @@ pub fn blend(
                     None => list.gather(gids, splats, features, ch),
                 }
                 let rect = TileRect::new(t, bins, width, height);
+                pixel_boxes(&list.splats, &rect, &mut list.boxes);
                 let tile = TileInput {
                     splats: &list.splats,
+                    boxes: &list.boxes,
                     features: &list.features,
                     rect,
                     t_min,

@@ -4,9 +4,17 @@ use super::backward_blend::backward_tile_scalar;
 use super::blend_avx2;
 use super::forward_blend::blend_tile_scalar;
 use super::options::ALPHA_MIN;
-use super::tile_geometry::{BlendSplat, TileRect};
+use super::tile_geometry::{pixel_boxes, BlendSplat, PixelFootprint, TileRect};
 use super::tile_walk::{BackOut, BackScratch, BackTile, TileInput, TileScratch, ISECT_FIXED};
 use crate::test_rng::Lcg;
+
+/// The footprint boxes the blending loops read, as `forward_blend` and `backward_blend`
+/// compute them.
+fn boxes(splats: &[BlendSplat], rect: &TileRect) -> Vec<PixelFootprint> {
+    let mut out = Vec::new();
+    pixel_boxes(splats, rect, &mut out);
+    out
+}
 
 /// A random tile list: overlapping anisotropic splats, some fully opaque.
 fn random_tile(n: usize, rng: &mut Lcg, rect: TileRect) -> (Vec<BlendSplat>, Vec<f32>) {
@@ -126,8 +134,10 @@ fn forward_kernels_agree() {
     for (ts, rect) in RECTS {
         for (seed, n, t_min) in CASES {
             let (splats, feats) = random_tile(n, &mut Lcg::new(seed), rect);
+            let boxes = boxes(&splats, &rect);
             let tile = TileInput {
                 splats: &splats,
+                boxes: &boxes,
                 features: &feats,
                 rect,
                 t_min,
@@ -163,8 +173,10 @@ fn backward_kernels_agree() {
         for (seed, n, t_min) in CASES {
             let mut rng = Lcg::new(seed);
             let (splats, feats) = random_tile(n, &mut rng, rect);
+            let boxes = boxes(&splats, &rect);
             let tile = TileInput {
                 splats: &splats,
+                boxes: &boxes,
                 features: &feats,
                 rect,
                 t_min,
@@ -186,6 +198,7 @@ fn backward_kernels_agree() {
                 let v_alpha: Vec<f32> = (0..w * h).map(|_| rng.uniform() - 0.5).collect();
                 let back = BackTile {
                     splats: &splats,
+                    boxes: &boxes,
                     features: &feats,
                     rect,
                     simd: true,

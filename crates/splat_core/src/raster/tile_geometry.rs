@@ -27,7 +27,7 @@ const WIDEN: f32 = (1.0 + SPAN_WIDEN) * (1.0 + SPAN_WIDEN);
 ///
 /// A box, not the exact row spans of the ellipse: a span costs a square root per row, more
 /// than the SIMD lanes it would save on splats a few pixels wide.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 pub(super) struct PixelFootprint {
     pub x0: u32,
     pub x1: u32,
@@ -165,8 +165,19 @@ impl TileRect {
 #[derive(Debug, Default)]
 pub(super) struct TileList {
     pub splats: Vec<BlendSplat>,
+    /// The forward's footprint box of each entry in the tile (`set_boxes`).
+    pub boxes: Vec<PixelFootprint>,
     /// [list entry][channel].
     pub features: Vec<f32>,
+}
+
+/// The footprint boxes of `splats` in the tile `rect`, in one pass over the freshly
+/// gathered list ahead of the blending loops (forward and backward): inside the loop, the
+/// box arithmetic sat between the kernel calls; out of it, the forward's blend stage is
+/// 3-5% faster (interleaved, both scenes, 1 and 2 threads), with the same bits.
+pub(super) fn pixel_boxes(splats: &[BlendSplat], rect: &TileRect, boxes: &mut Vec<PixelFootprint>) {
+    boxes.clear();
+    boxes.extend(splats.iter().map(|s| PixelFootprint::new(s, rect)));
 }
 
 impl TileList {
@@ -297,11 +308,16 @@ impl TileGeometry {
         }
     }
 
-    /// The splat's footprint in the tile (None if it has no pixel there), with each lane
-    /// group's rows and the row terms of its rows filled in (the backward's walk).
+    /// The footprint of splat `s` with box `fp` in the tile (None if it has no pixel
+    /// there), with each lane group's rows and the row terms of its rows filled in (the
+    /// backward's walk).
     #[inline(always)]
-    pub(super) fn footprint(&mut self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
-        let fp = PixelFootprint::new(s, rect);
+    pub(super) fn footprint(
+        &mut self,
+        s: &BlendSplat,
+        fp: &PixelFootprint,
+        rect: &TileRect,
+    ) -> Option<LaneFootprint> {
         let lanes = fp.lanes(rect)?;
         let [_, b, c] = s.conic;
         for ly in lanes.rows.clone() {
@@ -313,23 +329,28 @@ impl TileGeometry {
         if lanes.groups.len() == 1 {
             self.group_rows[lanes.groups.start] = lanes.rows.clone();
         } else {
-            self.set_group_rows(s, rect, &fp, lanes.groups.clone(), lanes.rows.clone());
+            self.set_group_rows(s, rect, fp, lanes.groups.clone(), lanes.rows.clone());
         }
         Some(lanes)
     }
 
-    /// The splat's footprint box in the tile (None if it has no pixel there): its columns,
-    /// lane groups and rows, nothing per group or per row (the forward's walk). Trimming the
+    /// The footprint of a splat with box `pixels` in the tile (None if it has no pixel
+    /// there): its columns, lane groups and rows, nothing per group or per row (the
+    /// forward's walk). Trimming the
     /// rows per group (`set_group_rows`: a division and square roots per pair) cost the
     /// forward more than the lane groups it saved on the bench scene; the forward kernel
     /// computes its row terms itself, next to the exp chain they hide behind.
     #[inline(always)]
-    pub(super) fn box_footprint(&self, s: &BlendSplat, rect: &TileRect) -> Option<LaneFootprint> {
+    pub(super) fn box_footprint(
+        &self,
+        pixels: &PixelFootprint,
+        rect: &TileRect,
+    ) -> Option<LaneFootprint> {
         debug_assert!(
             self.stride + 1 >= self.ts + LANES,
             "needs `TileGeometry::unaligned`"
         );
-        let mut fp = PixelFootprint::new(s, rect).lanes(rect)?;
+        let mut fp = pixels.lanes(rect)?;
         // Lane groups start at the box's first column, not at multiples of LANES: a box
         // up to LANES wide is one group wherever it lies (9% fewer evaluations on the
         // bench scene than aligned groups).
@@ -483,10 +504,10 @@ mod tests {
                 opacity,
                 half: [(qmax * cov[0]).sqrt(), (qmax * cov[2]).sqrt()],
             };
-            let Some(fp) = geo.footprint(&s, &rect) else {
+            let box_fp = PixelFootprint::new(&s, &rect);
+            let Some(fp) = geo.footprint(&s, &box_fp, &rect) else {
                 continue;
             };
-            let box_fp = PixelFootprint::new(&s, &rect);
             wide += (fp.groups.len() > 1) as usize;
             let [a, b, c] = s.conic;
             for gi in fp.groups.clone() {

@@ -5,7 +5,7 @@
 
 use std::sync::atomic::{AtomicU32, Ordering};
 
-use super::tile_geometry::{BlendSplat, LaneFootprint, TileGeometry, TileRect};
+use super::tile_geometry::{BlendSplat, LaneFootprint, PixelFootprint, TileGeometry, TileRect};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
 pub const ISECT_FIXED: usize = 6;
@@ -31,6 +31,8 @@ impl EvalCount {
 /// What one tile blends.
 pub(super) struct TileInput<'a> {
     pub splats: &'a [BlendSplat],
+    /// Each splat's footprint box in the tile (`tile_geometry::pixel_boxes`).
+    pub boxes: &'a [PixelFootprint],
     pub features: &'a [f32],
     pub rect: TileRect,
     pub t_min: f32,
@@ -153,13 +155,14 @@ pub(super) fn for_each_splat(
     scratch: &mut TileScratch,
     mut kernel: impl FnMut(&SplatInTile, &mut TileScratch) -> u32,
 ) {
-    for (k, (s, f)) in tile
+    for (k, ((s, f), pixels)) in tile
         .splats
         .iter()
         .zip(tile.features.chunks_exact(ch))
+        .zip(tile.boxes)
         .enumerate()
     {
-        let Some(fp) = scratch.geo.box_footprint(s, &tile.rect) else {
+        let Some(fp) = scratch.geo.box_footprint(pixels, &tile.rect) else {
             continue;
         };
         let splat = SplatInTile {
@@ -179,6 +182,8 @@ pub(super) fn for_each_splat(
 /// What one tile's backward reads: its list (front to back) and its pixels.
 pub(super) struct BackTile<'a> {
     pub splats: &'a [BlendSplat],
+    /// Each splat's footprint box in the tile (`tile_geometry::pixel_boxes`).
+    pub boxes: &'a [PixelFootprint],
     pub features: &'a [f32],
     pub rect: TileRect,
     /// Use the SIMD kernel when the CPU has one.
@@ -308,7 +313,7 @@ pub(super) fn for_each_splat_back(
     let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..k_end).rev() {
         let s = &tile.splats[k];
-        let Some(fp) = scratch.geo.footprint(s, &tile.rect) else {
+        let Some(fp) = scratch.geo.footprint(s, &tile.boxes[k], &tile.rect) else {
             continue;
         };
         let splat = BackSplat {
