@@ -166,9 +166,9 @@ pub(super) fn backward_tile_scalar<const COUNT: bool>(
         acc_f.iter_mut().for_each(|a| *a = [0.0; LANES]);
         for gi in sp.fp.groups.clone() {
             for ly in sc.geo.group_rows[gi].clone() {
-                let base = ly * stride + gi * LANES;
+                let base = ly * stride + sp.fp.col0 + gi * LANES;
                 let active = |i: usize| {
-                    let x = sc.geo.xs[gi * LANES + i];
+                    let x = sc.geo.xs[sp.fp.col0 + gi * LANES + i];
                     (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sp.k < sc.last[base + i])
                 };
                 if COUNT && (0..LANES).any(active) {
@@ -176,7 +176,7 @@ pub(super) fn backward_tile_scalar<const COUNT: bool>(
                 }
                 for i in 0..LANES {
                     let l = base + i;
-                    let x = sc.geo.xs[gi * LANES + i];
+                    let x = sc.geo.xs[sp.fp.col0 + gi * LANES + i];
                     let active = active(i);
                     let dx = sp.s.xy[0] - x;
                     let dy = sc.geo.row_dy[ly];

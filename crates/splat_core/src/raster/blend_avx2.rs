@@ -389,7 +389,7 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
             for ly in sc.geo.group_rows[gi].clone() {
-                let base = ly * stride + gi * LANES;
+                let base = ly * stride + sp.fp.col0 + gi * LANES;
                 // Pixels whose last contributor is in front of this splat never saw it.
                 let seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load_u32(&sc.last[base..]), k));
                 let active = _mm256_and_ps(cols, seen);

@@ -41,7 +41,7 @@ pub(super) struct TileInput<'a> {
 }
 
 /// Per-tile pixel state, structure of arrays with rows padded so that a lane group may
-/// start at any column (`TileGeometry::unaligned`); padding pixels are never live.
+/// start at any column (`TileGeometry::new`); padding pixels are never live.
 pub(super) struct TileScratch {
     pub geo: TileGeometry,
     pub trans: Vec<f32>,
@@ -57,7 +57,7 @@ pub(super) struct TileScratch {
 
 impl TileScratch {
     pub(super) fn new(ts: usize, ch: usize) -> Self {
-        let geo = TileGeometry::unaligned(ts);
+        let geo = TileGeometry::new(ts);
         let plane = geo.plane();
         Self {
             geo,
@@ -190,8 +190,8 @@ pub(super) struct BackTile<'a> {
     pub simd: bool,
 }
 
-/// Per-tile pixel state of the backward, structure of arrays with rows padded to whole
-/// lane groups (padding pixels have `last` 0, so no splat touches them).
+/// Per-tile pixel state of the backward, structure of arrays with rows padded as the
+/// forward's (padding pixels have `last` 0, so no splat touches them).
 pub(super) struct BackScratch {
     pub geo: TileGeometry,
     /// Transmittance after the splat being processed (starts at the final T).
