@@ -22,8 +22,11 @@ const WIDEN: f32 = (1.0 + SPAN_WIDEN) * (1.0 + SPAN_WIDEN);
 /// q(d) <= qmax = 2 ln(255 opacity), outside which alpha < 1/255. The per-pixel alpha test
 /// decides inside the box. Forward and backward share it; the backward also trims each
 /// lane group's rows to the ellipse (`TileGeometry::footprint`), the forward does not
-/// (`TileGeometry::box_footprint`). The trimmed rows hold only pixels the alpha test rejects
-/// (tested), so both blend the same pixel-splat pairs.
+/// (`PixelFootprint::lanes` only): trimming (`set_group_rows`: a division and square roots
+/// per pair) cost the forward more than the lane groups it saved on the bench scene, and
+/// the forward kernel computes its row terms itself, next to the exp chain they hide
+/// behind. The trimmed rows hold only pixels the alpha test rejects (tested), so both blend
+/// the same pixel-splat pairs.
 ///
 /// A box, not the exact row spans of the ellipse: a span costs a square root per row, more
 /// than the SIMD lanes it would save on splats a few pixels wide.
@@ -43,14 +46,15 @@ impl PixelFootprint {
         Self { x0, x1, y0, y1 }
     }
 
-    /// The box's columns, lane groups and rows in the tile; None if it is empty.
+    /// The box's columns, lane groups and rows in the tile (the forward's walk: nothing per
+    /// group or per row); None if it is empty.
     ///
     /// Lane groups start at the box's first column, not at multiples of LANES: a box up to
     /// LANES wide is one group wherever it lies. On the bench scene that is 9% fewer
-    /// evaluations in the forward, and in the backward 8% fewer and fewer boxes whose
+    /// evaluations in the forward, and in the backward 7.5% fewer and fewer boxes whose
     /// rows are trimmed per group (backward 5% faster interleaved, same bits).
     #[inline(always)]
-    fn lanes(&self, rect: &TileRect) -> Option<LaneFootprint> {
+    pub(super) fn lanes(&self, rect: &TileRect) -> Option<LaneFootprint> {
         if self.x0 >= self.x1 || self.y0 >= self.y1 {
             return None;
         }
@@ -169,7 +173,7 @@ impl TileRect {
 #[derive(Debug, Default)]
 pub(super) struct TileList {
     pub splats: Vec<BlendSplat>,
-    /// The forward's footprint box of each entry in the tile (`set_boxes`).
+    /// The footprint box of each entry in the tile (`pixel_boxes`).
     pub boxes: Vec<PixelFootprint>,
     /// [list entry][channel].
     pub features: Vec<f32>,
@@ -245,10 +249,10 @@ fn gather_rows<const N: usize>(dst: &mut [f32], src: &[f32], gids: &[u32]) {
 }
 
 /// The geometry every lane kernel (forward and backward) reads: the row stride (rows padded
-/// so that a lane group may start at any column), the pixel-centre x and y of each column and row of the current
-/// tile; for the backward also, for each footprint row of the current splat dy, c dy^2 and
-/// b dy, and for each of its lane groups the rows where the splat's ellipse meets the
-/// group's columns.
+/// so that a lane group may start at any column), the pixel-centre x and y of each column
+/// and row of the current tile; for the backward also, for each footprint row of the
+/// current splat dy, c dy^2 and b dy, and for each of its lane groups the rows where the
+/// splat's ellipse meets the group's columns.
 pub(super) struct TileGeometry {
     pub stride: usize,
     pub ts: usize,
@@ -336,20 +340,6 @@ impl TileGeometry {
             );
         }
         Some(lanes)
-    }
-
-    /// The footprint of a splat with box `pixels` in the tile (None if it has no pixel
-    /// there): its columns, lane groups and rows, nothing per group or per row (the
-    /// forward's walk). Trimming the rows per group (`set_group_rows`: a division and square roots per pair) cost the
-    /// forward more than the lane groups it saved on the bench scene; the forward kernel
-    /// computes its row terms itself, next to the exp chain they hide behind.
-    #[inline(always)]
-    pub(super) fn box_footprint(
-        &self,
-        pixels: &PixelFootprint,
-        rect: &TileRect,
-    ) -> Option<LaneFootprint> {
-        pixels.lanes(rect)
     }
 
     /// For a footprint wider than one lane group: the rows of each group's columns that

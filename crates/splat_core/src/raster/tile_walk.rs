@@ -162,7 +162,7 @@ pub(super) fn for_each_splat(
         .zip(tile.boxes)
         .enumerate()
     {
-        let Some(fp) = scratch.geo.box_footprint(pixels, &tile.rect) else {
+        let Some(fp) = pixels.lanes(&tile.rect) else {
             continue;
         };
         let splat = SplatInTile {
