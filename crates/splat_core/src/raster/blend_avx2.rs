@@ -17,10 +17,10 @@ use std::arch::x86_64::*;
 
 use super::lanes::{EXP_COEFFS, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
-use super::tile_geometry::LaneFootprint;
+use super::tile_geometry::{LaneFootprint, TileGeometry};
 use super::tile_walk::{
-    for_each_splat, for_each_splat_back, BackOut, BackScratch, BackSplat, BackTile, SplatInTile,
-    TileInput, TileScratch, ISECT_FIXED,
+    for_each_splat, for_each_splat_back, BackOut, BackScratch, BackSplat, BackTile, EvalCount,
+    SplatInTile, TileInput, TileScratch, ISECT_FIXED,
 };
 
 /// Blends one tile; the caller checked that the CPU has AVX2.
@@ -54,13 +54,6 @@ fn load_u32(v: &[u32]) -> __m256i {
     let v = &v[..LANES];
     // SAFETY: 8 u32 = 32 bytes; loadu has no alignment requirement.
     unsafe { _mm256_loadu_si256(v.as_ptr().cast()) }
-}
-
-#[inline(always)]
-fn store_u32(v: &mut [u32], x: __m256i) {
-    let v = &mut v[..LANES];
-    // SAFETY: as in `load_u32`.
-    unsafe { _mm256_storeu_si256(v.as_mut_ptr().cast(), x) }
 }
 
 /// `lanes::exp_neg` on eight lanes (the backward kernel): `exp_neg_rows` on one register.
@@ -170,129 +163,211 @@ fn exp_neg_rows<const R: usize>(x: [__m256; R]) -> [__m256; R] {
     }
 }
 
+/// The forward's tile buffers as raw pointers, bounds checked once per splat
+/// (`for_footprint`) instead of at every load and store: with a checked slice per access
+/// the hot loop spent more instructions on index arithmetic and its branches than on the
+/// blending itself, and the extra live registers spilled the lane state to the stack.
+struct TilePointers {
+    trans: *mut f32,
+    last: *mut u32,
+    feat: *mut f32,
+    plane: usize,
+}
+
+impl TilePointers {
+    fn new(sc: &mut TileScratch, ch: usize) -> Self {
+        let plane = sc.geo.plane();
+        assert!(sc.trans.len() == plane && sc.last.len() == plane && sc.feat.len() == plane * ch);
+        Self {
+            trans: sc.trans.as_mut_ptr(),
+            last: sc.last.as_mut_ptr(),
+            feat: sc.feat.as_mut_ptr(),
+            plane,
+        }
+    }
+}
+
 /// What the forward kernel needs of one splat and one lane group of its footprint.
 struct GroupLanes<'a> {
     sp: &'a SplatInTile<'a>,
-    gi: usize,
+    /// Offset of the group's first lane in row 0 of the tile buffers.
+    col: usize,
     cols: __m256,
     dx: __m256,
     a_dx2: __m256,
 }
 
-/// Blends `R` rows of one lane group (distinct rows: independent pixels); returns how many
-/// pixels stopped.
+/// Blends `R` rows of one lane group (distinct rows: independent pixels); subtracts the
+/// stop masks of its lanes (-1 where a pixel stopped) from `stopped`.
+///
+/// # Safety
+/// AVX2 is enabled, and `rows[r] * stride + g.col + LANES <= p.plane` for every row
+/// (checked per splat by the caller), with `p` made from the scratch of `geo`.
 #[inline(always)]
-fn blend_rows<const R: usize, const COUNT: bool>(
+unsafe fn blend_rows<const R: usize, const COUNT: bool, const CH: usize>(
     g: &GroupLanes,
     rows: [usize; R],
     t_min: __m256,
-    sc: &mut TileScratch,
-) -> u32 {
-    // SAFETY (whole body): only called from `blend_tile_avx2`, which has AVX2 enabled.
-    unsafe {
-        let s = _mm256_set1_ps;
-        let (plane, stride) = (sc.geo.plane(), sc.geo.stride);
-        let sp = g.sp;
-        let [_, b, c] = sp.s.conic;
-        let col = g.sp.fp.col0 + g.gi * LANES;
-        let base: [usize; R] = rows!(R, r => rows[r] * stride + col);
-        let live: [__m256; R] = rows!(R, r => _mm256_castsi256_ps(load_u32(&sc.live[base[r]..])));
-        let inside: [__m256; R] = rows!(R, r => _mm256_and_ps(g.cols, live[r]));
-        let any: [i32; R] = rows!(R, r => _mm256_movemask_ps(inside[r]));
-        // Pixels that already stopped cost nothing more.
-        if any.iter().all(|&m| m == 0) {
-            return 0;
+    geo: &TileGeometry,
+    p: &TilePointers,
+    evals: &mut EvalCount,
+    stopped: &mut __m256i,
+) {
+    let s = _mm256_set1_ps;
+    let sp = g.sp;
+    let [_, b, c] = sp.s.conic;
+    let base: [usize; R] = rows!(R, r => rows[r] * geo.stride + g.col);
+    let t: [__m256; R] = rows!(R, r => _mm256_loadu_ps(p.trans.add(base[r])));
+    // All ones where the pixel stopped (T's sign bit set: `TileScratch::trans`).
+    let stopped_before: [__m256; R] = rows!(R, r => {
+        _mm256_castsi256_ps(_mm256_srai_epi32::<31>(_mm256_castps_si256(t[r])))
+    });
+    let inside: [__m256; R] = rows!(R, r => _mm256_andnot_ps(stopped_before[r], g.cols));
+    let any: [i32; R] = rows!(R, r => _mm256_movemask_ps(inside[r]));
+    // Pixels that already stopped cost nothing more.
+    if any.iter().all(|&m| m == 0) {
+        return;
+    }
+    if COUNT {
+        evals.groups += any.iter().filter(|&&m| m != 0).count() as u64;
+    }
+    // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
+    let dy: [f32; R] = rows!(R, r => sp.s.xy[1] - *geo.ys.get_unchecked(rows[r]));
+    let sigma: [__m256; R] = rows!(R, r => {
+        _mm256_add_ps(
+            _mm256_mul_ps(s(0.5), _mm256_add_ps(g.a_dx2, s(c * dy[r] * dy[r]))),
+            _mm256_mul_ps(g.dx, s(b * dy[r])),
+        )
+    });
+    let e = exp_neg_rows::<R>(rows!(R, r => _mm256_xor_ps(sigma[r], s(-0.0))));
+    let opacity = s(sp.s.opacity);
+    let alpha: [__m256; R] =
+        rows!(R, r => _mm256_min_ps(_mm256_mul_ps(opacity, e[r]), s(ALPHA_MAX)));
+    let ok: [__m256; R] = rows!(R, r => {
+        _mm256_and_ps(
+            _mm256_and_ps(inside[r], _mm256_cmp_ps::<_CMP_GE_OQ>(sigma[r], s(0.0))),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(alpha[r], s(ALPHA_MIN)),
+        )
+    });
+    let next_t: [__m256; R] = rows!(R, r => _mm256_mul_ps(t[r], _mm256_sub_ps(s(1.0), alpha[r])));
+    let stop: [__m256; R] = rows!(R, r => {
+        _mm256_and_ps(ok[r], _mm256_cmp_ps::<_CMP_LE_OQ>(next_t[r], t_min))
+    });
+    let add: [__m256; R] = rows!(R, r => _mm256_andnot_ps(stop[r], ok[r]));
+    if COUNT {
+        for a in add {
+            evals.blended += (_mm256_movemask_ps(a) as u32).count_ones() as u64;
         }
-        if COUNT {
-            sc.evals.groups += any.iter().filter(|&&m| m != 0).count() as u64;
-        }
-        // sigma_at: 0.5 * (a dx dx + c dy^2) + dx * b dy
-        let dy: [f32; R] = rows!(R, r => sp.s.xy[1] - sc.geo.ys[rows[r]]);
-        let sigma: [__m256; R] = rows!(R, r => {
-            _mm256_add_ps(
-                _mm256_mul_ps(s(0.5), _mm256_add_ps(g.a_dx2, s(c * dy[r] * dy[r]))),
-                _mm256_mul_ps(g.dx, s(b * dy[r])),
-            )
-        });
-        let e = exp_neg_rows::<R>(rows!(R, r => _mm256_xor_ps(sigma[r], s(-0.0))));
-        let opacity = s(sp.s.opacity);
-        let alpha: [__m256; R] =
-            rows!(R, r => _mm256_min_ps(_mm256_mul_ps(opacity, e[r]), s(ALPHA_MAX)));
-        let ok: [__m256; R] = rows!(R, r => {
-            _mm256_and_ps(
-                _mm256_and_ps(inside[r], _mm256_cmp_ps::<_CMP_GE_OQ>(sigma[r], s(0.0))),
-                _mm256_cmp_ps::<_CMP_GE_OQ>(alpha[r], s(ALPHA_MIN)),
-            )
-        });
-        let t: [__m256; R] = rows!(R, r => load(&sc.trans[base[r]..]));
-        let next_t: [__m256; R] =
-            rows!(R, r => _mm256_mul_ps(t[r], _mm256_sub_ps(s(1.0), alpha[r])));
-        let stop: [__m256; R] = rows!(R, r => {
-            _mm256_and_ps(ok[r], _mm256_cmp_ps::<_CMP_LE_OQ>(next_t[r], t_min))
-        });
-        let add: [__m256; R] = rows!(R, r => _mm256_andnot_ps(stop[r], ok[r]));
-        if COUNT {
-            for a in add {
-                sc.evals.blended += (_mm256_movemask_ps(a) as u32).count_ones() as u64;
-            }
-        }
-        let weight: [__m256; R] =
-            rows!(R, r => _mm256_and_ps(add[r], _mm256_mul_ps(alpha[r], t[r])));
-        for (ci, &fc) in sp.f.iter().enumerate() {
-            for r in 0..R {
-                let o = &mut sc.feat[ci * plane + base[r]..];
-                store(o, _mm256_add_ps(load(o), _mm256_mul_ps(weight[r], s(fc))));
-            }
-        }
-        let k1 = _mm256_set1_epi32(sp.k1 as i32);
-        let mut stopped = 0;
+    }
+    let weight: [__m256; R] = rows!(R, r => _mm256_and_ps(add[r], _mm256_mul_ps(alpha[r], t[r])));
+    // CH = 0: the channel count known only at run time.
+    let ch = if CH > 0 { CH } else { sp.f.len() };
+    for ci in 0..ch {
+        let fc = s(*sp.f.get_unchecked(ci));
         for r in 0..R {
-            store(
-                &mut sc.trans[base[r]..],
-                _mm256_blendv_ps(t[r], next_t[r], add[r]),
+            let o = p.feat.add(ci * p.plane + base[r]);
+            _mm256_storeu_ps(
+                o,
+                _mm256_add_ps(_mm256_loadu_ps(o), _mm256_mul_ps(weight[r], fc)),
             );
-            // last = k1 where added: k1 exceeds every earlier value, so an unsigned max
-            // with k1 & add sets exactly those lanes. A blend of the loaded value would
-            // compile to a masked store (vmaskmovps), microcoded and slow on AMD cores.
-            let last = load_u32(&sc.last[base[r]..]);
-            let k1_add = _mm256_and_si256(k1, _mm256_castps_si256(add[r]));
-            store_u32(&mut sc.last[base[r]..], _mm256_max_epu32(last, k1_add));
-            store_u32(
-                &mut sc.live[base[r]..],
-                _mm256_castps_si256(_mm256_andnot_ps(stop[r], live[r])),
-            );
-            stopped += (_mm256_movemask_ps(stop[r]) as u32).count_ones();
         }
-        stopped
+    }
+    let k1 = _mm256_set1_epi32(sp.k1 as i32);
+    for r in 0..R {
+        // T where nothing was added, next T where the splat was, its sign set where the
+        // pixel stopped.
+        let kept_t = _mm256_blendv_ps(t[r], next_t[r], add[r]);
+        let sign = _mm256_and_ps(stop[r], s(-0.0));
+        _mm256_storeu_ps(p.trans.add(base[r]), _mm256_or_ps(kept_t, sign));
+        // last = k1 where added: k1 exceeds every earlier value, so an unsigned max
+        // with k1 & add sets exactly those lanes. A blend of the loaded value would
+        // compile to a masked store (vmaskmovps), microcoded and slow on AMD cores.
+        let last = p.last.add(base[r]).cast::<__m256i>();
+        let k1_add = _mm256_and_si256(k1, _mm256_castps_si256(add[r]));
+        _mm256_storeu_si256(last, _mm256_max_epu32(_mm256_loadu_si256(last), k1_add));
+        // A vector count instead of a population count per row (popcnt is not part of
+        // the AVX2 target feature; its software fallback is five instructions).
+        *stopped = _mm256_sub_epi32(*stopped, _mm256_castps_si256(stop[r]));
+    }
+}
+
+/// The forward kernel's instance for `ch` channels: the common counts get their own, so
+/// that the channel loop unrolls.
+#[target_feature(enable = "avx2")]
+fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+    match ch {
+        3 => blend_channels::<COUNT, 3>(tile, ch, scratch),
+        4 => blend_channels::<COUNT, 4>(tile, ch, scratch),
+        1 => blend_channels::<COUNT, 1>(tile, ch, scratch),
+        _ => blend_channels::<COUNT, 0>(tile, ch, scratch),
     }
 }
 
 #[target_feature(enable = "avx2")]
-fn blend_tile_avx2<const COUNT: bool>(tile: &TileInput, ch: usize, scratch: &mut TileScratch) {
+fn blend_channels<const COUNT: bool, const CH: usize>(
+    tile: &TileInput,
+    ch: usize,
+    scratch: &mut TileScratch,
+) {
     let t_min = _mm256_set1_ps(tile.t_min);
+    // Each splat's features are `ch` values (`for_each_splat`), read unchecked below.
+    assert!(CH == 0 || CH == ch);
     for_each_splat(tile, ch, scratch, |sp: &SplatInTile, sc| {
-        let mut stopped = 0;
-        for gi in sp.fp.groups.clone() {
-            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], sp.s.conic[0]);
+        let fp = &sp.fp;
+        let p = TilePointers::new(sc, ch);
+        // Every access below is at row * stride + col0 + group * LANES + lane, lane <
+        // LANES: in bounds if the last group of the last row is (the footprint has at
+        // least one row and one group).
+        let (stride, groups) = (sc.geo.stride, fp.groups.end);
+        assert!(
+            fp.rows.end <= sc.geo.ys.len()
+                && (fp.rows.end - 1) * stride + fp.col0 + groups * LANES <= p.plane
+                && fp.col0 + groups * LANES <= sc.geo.xs.len()
+        );
+        let mut stopped = _mm256_setzero_si256();
+        for gi in fp.groups.clone() {
+            let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, fp, sp.s.xy[0], sp.s.conic[0]);
             let g = GroupLanes {
                 sp,
-                gi,
+                col: fp.col0 + gi * LANES,
                 cols,
                 dx,
                 a_dx2,
             };
             // Two rows per step: their long exp chains overlap.
-            let rows = sp.fp.rows.clone();
-            let mut ly = rows.start;
-            while ly + 2 <= rows.end {
-                stopped += blend_rows::<2, COUNT>(&g, [ly, ly + 1], t_min, sc);
-                ly += 2;
-            }
-            if ly < rows.end {
-                stopped += blend_rows::<1, COUNT>(&g, [ly], t_min, sc);
+            let mut ly = fp.rows.start;
+            // SAFETY: AVX2 is enabled here; the rows and groups are in bounds (asserted
+            // above) of the buffers `p` points into, which nothing else touches meanwhile.
+            unsafe {
+                while ly + 2 <= fp.rows.end {
+                    blend_rows::<2, COUNT, CH>(
+                        &g,
+                        [ly, ly + 1],
+                        t_min,
+                        &sc.geo,
+                        &p,
+                        &mut sc.evals,
+                        &mut stopped,
+                    );
+                    ly += 2;
+                }
+                if ly < fp.rows.end {
+                    blend_rows::<1, COUNT, CH>(
+                        &g,
+                        [ly],
+                        t_min,
+                        &sc.geo,
+                        &p,
+                        &mut sc.evals,
+                        &mut stopped,
+                    );
+                }
             }
         }
-        stopped
+        let mut counts = [0u32; LANES];
+        // SAFETY: 8 u32 = 32 bytes; storeu has no alignment requirement.
+        unsafe { _mm256_storeu_si256(counts.as_mut_ptr().cast(), stopped) };
+        counts.iter().sum()
     });
 }
 

@@ -170,7 +170,7 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
                 let base = ly * stride + col;
                 let inside = |i: usize| {
                     let x = sc.geo.xs[col + i];
-                    (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[base + i] != 0)
+                    (x > sp.fp.xlo) & (x < sp.fp.xhi) & sc.trans[base + i].is_sign_positive()
                 };
                 // Pixels that already stopped cost nothing more.
                 if !(0..LANES).any(inside) {
@@ -182,7 +182,7 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
                 for i in 0..LANES {
                     let l = base + i;
                     let x = sc.geo.xs[col + i];
-                    let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & (sc.live[l] != 0);
+                    let inside = (x > sp.fp.xlo) & (x < sp.fp.xhi) & sc.trans[l].is_sign_positive();
                     let dx = sp.s.xy[0] - x;
                     let dy = sp.s.xy[1] - sc.geo.ys[ly];
                     let sigma = sigma_at(a, dx, c * dy * dy, b * dy);
@@ -204,7 +204,7 @@ pub(super) fn blend_tile_scalar<const COUNT: bool>(
                         sc.last[l] = sp.k1;
                     }
                     if stop {
-                        sc.live[l] = 0;
+                        sc.trans[l] = -t;
                         stopped += 1;
                     }
                 }

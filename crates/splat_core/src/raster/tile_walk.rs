@@ -41,13 +41,15 @@ pub(super) struct TileInput<'a> {
 }
 
 /// Per-tile pixel state, structure of arrays with rows padded so that a lane group may
-/// start at any column (`TileGeometry::new`); padding pixels are never live.
+/// start at any column (`TileGeometry::new`).
 pub(super) struct TileScratch {
     pub geo: TileGeometry,
+    /// Transmittance, with its sign bit set once the pixel stopped (and on padding pixels):
+    /// a live pixel's T is > 0, so the sign is a free stop flag, which the SIMD kernel
+    /// turns into a lane mask with one shift instead of loading and storing a mask array
+    /// per row. `write_state` and `write_image` clear it.
     pub trans: Vec<f32>,
     pub last: Vec<u32>,
-    /// All ones while the pixel is blending (a SIMD mask), 0 once it stopped or if padding.
-    pub live: Vec<u32>,
     /// Planar features: channel c of pixel l at `c * geo.plane() + l`.
     pub feat: Vec<f32>,
     /// Pixels of the tile still blending.
@@ -63,7 +65,6 @@ impl TileScratch {
             geo,
             trans: vec![1.0; plane],
             last: vec![0; plane],
-            live: vec![0; plane],
             feat: vec![0.0; plane * ch],
             active: 0,
             evals: EvalCount::default(),
@@ -72,12 +73,11 @@ impl TileScratch {
 
     pub(super) fn reset(&mut self, rect: &TileRect) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-        self.trans.fill(1.0);
+        self.trans.fill(-1.0);
         self.last.fill(0);
         self.feat.fill(0.0);
-        self.live.fill(0);
-        for row in self.live.chunks_exact_mut(self.geo.stride).take(th) {
-            row[..tw].fill(u32::MAX);
+        for row in self.trans.chunks_exact_mut(self.geo.stride).take(th) {
+            row[..tw].fill(1.0);
         }
         self.geo.set_tile(rect);
         self.active = tw * th;
@@ -89,7 +89,9 @@ impl TileScratch {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
         for ly in 0..th {
             let (src, dst) = (ly * self.geo.stride, ly * self.geo.ts);
-            t_final[dst..dst + tw].copy_from_slice(&self.trans[src..src + tw]);
+            for (d, t) in t_final[dst..dst + tw].iter_mut().zip(&self.trans[src..]) {
+                *d = t.abs();
+            }
             last[dst..dst + tw].copy_from_slice(&self.last[src..src + tw]);
         }
     }
@@ -106,7 +108,7 @@ impl TileScratch {
         for (ly, (rrow, arow)) in render.iter_mut().zip(alpha.iter_mut()).enumerate() {
             let src = ly * self.geo.stride;
             for (a, t) in arow.iter_mut().zip(&self.trans[src..]) {
-                *a = 1.0 - t;
+                *a = 1.0 - t.abs();
             }
             // Fixed-width pixels for the common widths: the compiler unrolls the channels.
             match ch {
