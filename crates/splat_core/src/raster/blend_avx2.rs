@@ -7,10 +7,11 @@
 //! comparisons), so this path and the scalar one produce the same bits (`kernel_tests`).
 //! Lanes the scalar code skips are computed here and masked out (+-0 added to sums that
 //! are never -0, state kept).
-//! The rasterizer's only unsafe code (with one call into the AVX build of
-//! `project_backward_batch`): unaligned loads and stores of eight-element slices whose bounds are
-//! checked by slicing first, and the calls into `#[target_feature]` functions after
-//! `is_x86_feature_detected!("avx2")`.
+//! Unsafe code here: unaligned loads and stores of eight elements, bounds-checked by
+//! slicing first or, in the forward kernel, once per splat for its whole footprint box
+//! (`TilePointers`), and the calls into `#[target_feature]` functions after
+//! `is_x86_feature_detected!("avx2")`. (The rasterizer's other unsafe code: the AVX
+//! builds' calls in `project_avx2` and `project_backward_batch`, and `prefetch`.)
 #![allow(unsafe_code)]
 
 use std::arch::x86_64::*;

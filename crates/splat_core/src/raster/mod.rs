@@ -52,6 +52,7 @@ mod forward_pass;
 mod kernel_tests;
 mod lanes;
 mod options;
+mod prefetch;
 pub mod project;
 mod project_avx2;
 mod project_backward_batch;

@@ -5,6 +5,7 @@
 
 use std::sync::atomic::{AtomicU32, Ordering};
 
+use super::prefetch::prefetch;
 use super::tile_geometry::{BlendSplat, LaneFootprint, PixelFootprint, TileGeometry, TileRect};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
@@ -284,6 +285,24 @@ pub(super) enum BackOut<'a> {
 }
 
 impl BackOut<'_> {
+    /// Asks for the cache lines of entry k's row ahead of `put`: rows land scattered over
+    /// the splat-major array, and a store to a line not in cache stalls the kernel once
+    /// the store buffer fills.
+    #[inline(always)]
+    fn prefetch(&self, k: usize, stride: usize) {
+        match self {
+            #[cfg(test)]
+            BackOut::Rows(_) => {}
+            BackOut::Shared { grads, rows } => {
+                let r = rows[k] as usize * stride;
+                if let (Some(first), Some(last)) = (grads.get(r), grads.get(r + stride - 1)) {
+                    prefetch(first);
+                    prefetch(last);
+                }
+            }
+        }
+    }
+
     #[inline(always)]
     fn put(&mut self, k: usize, row: &[f32]) {
         let stride = row.len();
@@ -300,6 +319,9 @@ impl BackOut<'_> {
     }
 }
 
+/// How many entries ahead of the kernel the backward's walk prefetches the gradient rows.
+const PREFETCH_AHEAD: usize = 2;
+
 /// Walks the tile's list back to front from the last splat any pixel used, and calls
 /// `kernel(splat, scratch, row)`; where it returns true (it wrote the splat's gradients
 /// into `row`), puts the row into `out`. Rows it skips stay as they were (+0).
@@ -314,6 +336,9 @@ pub(super) fn for_each_splat_back(
     let mut row = vec![0.0f32; ISECT_FIXED + ch];
     let k_end = scratch.last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..k_end).rev() {
+        if k >= PREFETCH_AHEAD {
+            out.prefetch(k - PREFETCH_AHEAD, row.len());
+        }
         let s = &tile.splats[k];
         let Some(fp) = scratch.geo.footprint(s, &tile.boxes[k], &tile.rect) else {
             continue;
