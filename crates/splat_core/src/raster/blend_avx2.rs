@@ -57,12 +57,6 @@ fn load_u32(v: &[u32]) -> __m256i {
     unsafe { _mm256_loadu_si256(v.as_ptr().cast()) }
 }
 
-/// `lanes::exp_neg` on eight lanes (the backward kernel): `exp_neg_rows` on one register.
-#[inline(always)]
-fn exp_neg(x: __m256) -> __m256 {
-    exp_neg_rows([x])[0]
-}
-
 /// One lane group of footprint columns: the mask of lanes inside the footprint, dx = x_splat
 /// - x_pixel, and a dx^2 (the row-independent part of sigma, hoisted out of the rows).
 #[inline(always)]
@@ -439,6 +433,159 @@ fn lane_sums(v: &[__m256; 8]) -> [f32; 8] {
     }
 }
 
+/// What the backward kernel needs of one splat and one lane group of its footprint.
+struct BackGroup<const CH: usize> {
+    conic: [f32; 3],
+    opacity: __m256,
+    /// The splat's position in the tile list (pixels with `last > k` saw it).
+    k: __m256i,
+    fc: [__m256; CH],
+    cols: __m256,
+    dx: __m256,
+    a_dx2: __m256,
+    /// Offset of the group's first lane in row 0 of the tile buffers.
+    col: usize,
+}
+
+/// The backward kernel's per-splat sums.
+struct BackSums<const CH: usize> {
+    /// Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity, and of the features.
+    acc: [__m256; ISECT_FIXED],
+    acc_f: [__m256; CH],
+    /// Whether any pixel differentiated this splat; if none, its sums stay +0 as `out`
+    /// came (a splat hidden in this tile: the lane sums would give +0 too).
+    touched: bool,
+}
+
+/// The backward of `R` rows of one lane group (distinct rows: independent pixels), the
+/// rows' terms added to the sums in row order. A row none of whose pixels saw the splat,
+/// or with no pixel that blended it, is computed alongside a row that has one when they
+/// share a step: its lanes are all outside `m`, where every stored value keeps its bits
+/// and every term is +-0 (see below), so the result is that of skipping it.
+#[inline(always)]
+fn back_rows<const R: usize, const COUNT: bool, const CH: usize>(
+    g: &BackGroup<CH>,
+    rows: [usize; R],
+    sc: &mut BackScratch,
+    sums: &mut BackSums<CH>,
+) {
+    // SAFETY (whole body): only called from `backward_tile_avx2`, which has AVX2 enabled.
+    unsafe {
+        let s = _mm256_set1_ps;
+        let zero = _mm256_setzero_ps();
+        let (plane, stride) = (sc.geo.plane(), sc.geo.stride);
+        let [ca, cb, cc] = g.conic;
+        let base: [usize; R] = rows!(R, r => rows[r] * stride + g.col);
+        // Pixels whose last contributor is in front of this splat never saw it.
+        let active: [__m256; R] = rows!(R, r => {
+            let seen = _mm256_cmpgt_epi32(load_u32(&sc.last[base[r]..]), g.k);
+            _mm256_and_ps(g.cols, _mm256_castsi256_ps(seen))
+        });
+        let any: [i32; R] = rows!(R, r => _mm256_movemask_ps(active[r]));
+        if any.iter().all(|&m| m == 0) {
+            return;
+        }
+        if COUNT {
+            sc.evals.groups += any.iter().filter(|&&m| m != 0).count() as u64;
+        }
+        let dy: [__m256; R] = rows!(R, r => s(sc.geo.row_dy[rows[r]]));
+        let sigma: [__m256; R] = rows!(R, r => {
+            _mm256_add_ps(
+                _mm256_mul_ps(s(0.5), _mm256_add_ps(g.a_dx2, s(sc.geo.row_c[rows[r]]))),
+                _mm256_mul_ps(g.dx, s(sc.geo.row_b[rows[r]])),
+            )
+        });
+        let vis = exp_neg_rows::<R>(rows!(R, r => _mm256_xor_ps(sigma[r], s(-0.0))));
+        let raw: [__m256; R] = rows!(R, r => _mm256_mul_ps(g.opacity, vis[r]));
+        let alpha: [__m256; R] = rows!(R, r => _mm256_min_ps(raw[r], s(ALPHA_MAX)));
+        let m: [__m256; R] = rows!(R, r => {
+            _mm256_and_ps(
+                _mm256_and_ps(active[r], _mm256_cmp_ps::<_CMP_GE_OQ>(sigma[r], zero)),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(alpha[r], s(ALPHA_MIN)),
+            )
+        });
+        let blended: [i32; R] = rows!(R, r => _mm256_movemask_ps(m[r]));
+        if COUNT {
+            sc.evals.blended += blended
+                .iter()
+                .map(|&b| (b as u32).count_ones() as u64)
+                .sum::<u64>();
+        }
+        if blended.iter().all(|&b| b == 0) {
+            return;
+        }
+        sums.touched = true;
+        // 1 in the lanes outside m, so that t_k is T unchanged there and the stores below
+        // need no blend of the loaded values (which would compile to masked stores,
+        // vmaskmovps, microcoded and slow on AMD cores). Those lanes' other values are
+        // masked out.
+        let ra: [__m256; R] = rows!(R, r => {
+            _mm256_blendv_ps(
+                s(1.0),
+                _mm256_div_ps(s(1.0), _mm256_max_ps(_mm256_sub_ps(s(1.0), alpha[r]), s(1e-6))),
+                m[r],
+            )
+        });
+        let t_k: [__m256; R] = rows!(R, r => _mm256_mul_ps(load(&sc.trans[base[r]..]), ra[r]));
+        let fac: [__m256; R] = rows!(R, r => _mm256_mul_ps(alpha[r], t_k[r]));
+        // fac is finite in every lane (alpha <= 0.99, t_k is T outside m), and so are the
+        // features: fc fac_m is +-0 outside m.
+        let fac_m: [__m256; R] = rows!(R, r => _mm256_and_ps(m[r], fac[r]));
+        let mut v_al: [__m256; R] = rows!(R, r => _mm256_mul_ps(load(&sc.va_tf[base[r]..]), ra[r]));
+        for c in 0..CH {
+            for r in 0..R {
+                let vo = load(&sc.v_out[c * plane + base[r]..]);
+                let b = &mut sc.buf[c * plane + base[r]..];
+                let bv = load(b);
+                sums.acc_f[c] = _mm256_add_ps(
+                    sums.acc_f[c],
+                    _mm256_and_ps(m[r], _mm256_mul_ps(fac[r], vo)),
+                );
+                v_al[r] = _mm256_add_ps(
+                    v_al[r],
+                    _mm256_mul_ps(
+                        _mm256_sub_ps(_mm256_mul_ps(g.fc[c], t_k[r]), _mm256_mul_ps(bv, ra[r])),
+                        vo,
+                    ),
+                );
+                // +-0 outside m keeps buf's bits: buf starts at +0 and a sum is -0 only if
+                // both terms are, so buf is never -0. (The sums of v_out products keep
+                // their own mask: v_out is the caller's and may hold Inf.)
+                store(b, _mm256_add_ps(bv, _mm256_mul_ps(g.fc[c], fac_m[r])));
+            }
+        }
+        for r in 0..R {
+            store(&mut sc.trans[base[r]..], t_k[r]);
+            // Where alpha was clamped it depends on neither opacity nor position.
+            let gate = _mm256_and_ps(m[r], _mm256_cmp_ps::<_CMP_LE_OQ>(raw[r], s(ALPHA_MAX)));
+            // Masked once here: every term below is v_al times finite values (the splat's
+            // conic and offsets, raw, vis), so +-0 outside the gate, which adds nothing to
+            // the sums (never -0, as buf).
+            let v_al = _mm256_and_ps(gate, v_al[r]);
+            let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw[r], s(-0.0)), v_al);
+            let half_vs = _mm256_mul_ps(s(0.5), v_sigma);
+            let (dx, dy) = (g.dx, dy[r]);
+            let terms = [
+                _mm256_mul_ps(
+                    v_sigma,
+                    _mm256_add_ps(_mm256_mul_ps(s(ca), dx), _mm256_mul_ps(s(cb), dy)),
+                ),
+                _mm256_mul_ps(
+                    v_sigma,
+                    _mm256_add_ps(_mm256_mul_ps(s(cb), dx), _mm256_mul_ps(s(cc), dy)),
+                ),
+                _mm256_mul_ps(_mm256_mul_ps(half_vs, dx), dx),
+                _mm256_mul_ps(_mm256_mul_ps(v_sigma, dx), dy),
+                _mm256_mul_ps(_mm256_mul_ps(half_vs, dy), dy),
+                _mm256_mul_ps(vis[r], v_al),
+            ];
+            for (a, t) in sums.acc.iter_mut().zip(terms) {
+                *a = _mm256_add_ps(*a, t);
+            }
+        }
+    }
+}
+
 #[target_feature(enable = "avx2")]
 fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
     tile: &BackTile,
@@ -446,7 +593,6 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
     out: &mut BackOut,
 ) {
     let ch = CH;
-    let (plane, stride) = (scratch.geo.plane(), scratch.geo.stride);
     let s = _mm256_set1_ps;
     let zero = _mm256_setzero_ps();
     for_each_splat_back(tile, ch, scratch, out, |sp: &BackSplat, sc, o| {
@@ -456,104 +602,39 @@ fn backward_tile_avx2<const COUNT: bool, const CH: usize>(
         for (c, v) in sp.f.iter().enumerate().take(CH) {
             fc[c] = s(*v);
         }
-        // Lane sums of v_x, v_y, v_a, v_b, v_c, v_opacity and the features.
-        let mut acc = [zero; ISECT_FIXED];
-        let mut acc_f = [zero; CH];
-        // Whether any pixel differentiated this splat; if none, its sums stay +0 as `out`
-        // came (a splat hidden in this tile: the lane sums would give +0 too).
-        let mut touched = false;
+        let mut sums = BackSums {
+            acc: [zero; ISECT_FIXED],
+            acc_f: [zero; CH],
+            touched: false,
+        };
         for gi in sp.fp.groups.clone() {
             let (cols, dx, a_dx2) = column_group(&sc.geo.xs, gi, &sp.fp, sp.s.xy[0], ca);
-            for ly in sc.geo.group_rows[gi].clone() {
-                let base = ly * stride + sp.fp.col0 + gi * LANES;
-                // Pixels whose last contributor is in front of this splat never saw it.
-                let seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load_u32(&sc.last[base..]), k));
-                let active = _mm256_and_ps(cols, seen);
-                if _mm256_movemask_ps(active) == 0 {
-                    continue;
-                }
-                if COUNT {
-                    sc.evals.groups += 1;
-                }
-                let dy = s(sc.geo.row_dy[ly]);
-                let sigma = _mm256_add_ps(
-                    _mm256_mul_ps(s(0.5), _mm256_add_ps(a_dx2, s(sc.geo.row_c[ly]))),
-                    _mm256_mul_ps(dx, s(sc.geo.row_b[ly])),
-                );
-                let vis = exp_neg(_mm256_xor_ps(sigma, s(-0.0)));
-                let raw = _mm256_mul_ps(opacity, vis);
-                let alpha = _mm256_min_ps(raw, s(ALPHA_MAX));
-                let m = _mm256_and_ps(
-                    _mm256_and_ps(active, _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero)),
-                    _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, s(ALPHA_MIN)),
-                );
-                if COUNT {
-                    sc.evals.blended += (_mm256_movemask_ps(m) as u32).count_ones() as u64;
-                }
-                if _mm256_movemask_ps(m) == 0 {
-                    continue;
-                }
-                touched = true;
-                // 1 in the lanes outside m, so that t_k is T unchanged there and the stores
-                // below need no blend of the loaded values (which would compile to masked
-                // stores, vmaskmovps, microcoded and slow on AMD cores). Those lanes' other
-                // values are masked out.
-                let ra = _mm256_blendv_ps(
-                    s(1.0),
-                    _mm256_div_ps(s(1.0), _mm256_max_ps(_mm256_sub_ps(s(1.0), alpha), s(1e-6))),
-                    m,
-                );
-                let t_k = _mm256_mul_ps(load(&sc.trans[base..]), ra);
-                let fac = _mm256_mul_ps(alpha, t_k);
-                // fac is finite in every lane (alpha <= 0.99, t_k is T outside m), and so
-                // are the features: fc fac_m is +-0 outside m.
-                let fac_m = _mm256_and_ps(m, fac);
-                let mut v_al = _mm256_mul_ps(load(&sc.va_tf[base..]), ra);
-                for c in 0..CH {
-                    let vo = load(&sc.v_out[c * plane + base..]);
-                    let b = &mut sc.buf[c * plane + base..];
-                    let bv = load(b);
-                    acc_f[c] = _mm256_add_ps(acc_f[c], _mm256_and_ps(m, _mm256_mul_ps(fac, vo)));
-                    v_al = _mm256_add_ps(
-                        v_al,
-                        _mm256_mul_ps(
-                            _mm256_sub_ps(_mm256_mul_ps(fc[c], t_k), _mm256_mul_ps(bv, ra)),
-                            vo,
-                        ),
-                    );
-                    // +-0 outside m keeps buf's bits: buf starts at +0 and a sum is -0 only
-                    // if both terms are, so buf is never -0. (The sums of v_out products
-                    // keep their own mask: v_out is the caller's and may hold Inf.)
-                    store(b, _mm256_add_ps(bv, _mm256_mul_ps(fc[c], fac_m)));
-                }
-                store(&mut sc.trans[base..], t_k);
-                // Where alpha was clamped it depends on neither opacity nor position.
-                let g = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, s(ALPHA_MAX)));
-                // Masked once here: every term below is v_al times finite values (the
-                // splat's conic and offsets, raw, vis), so +-0 outside g, which adds
-                // nothing to the sums (never -0, as buf).
-                let v_al = _mm256_and_ps(g, v_al);
-                let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, s(-0.0)), v_al);
-                let half_vs = _mm256_mul_ps(s(0.5), v_sigma);
-                let terms = [
-                    _mm256_mul_ps(
-                        v_sigma,
-                        _mm256_add_ps(_mm256_mul_ps(s(ca), dx), _mm256_mul_ps(s(cb), dy)),
-                    ),
-                    _mm256_mul_ps(
-                        v_sigma,
-                        _mm256_add_ps(_mm256_mul_ps(s(cb), dx), _mm256_mul_ps(s(cc), dy)),
-                    ),
-                    _mm256_mul_ps(_mm256_mul_ps(half_vs, dx), dx),
-                    _mm256_mul_ps(_mm256_mul_ps(v_sigma, dx), dy),
-                    _mm256_mul_ps(_mm256_mul_ps(half_vs, dy), dy),
-                    _mm256_mul_ps(vis, v_al),
-                ];
-                for (a, t) in acc.iter_mut().zip(terms) {
-                    *a = _mm256_add_ps(*a, t);
-                }
+            let group = BackGroup {
+                conic: [ca, cb, cc],
+                opacity,
+                k,
+                fc,
+                cols,
+                dx,
+                a_dx2,
+                col: sp.fp.col0 + gi * LANES,
+            };
+            // Two rows per step, as in the forward: their long chains overlap.
+            let rows = sc.geo.group_rows[gi].clone();
+            let mut ly = rows.start;
+            while ly + 2 <= rows.end {
+                back_rows::<2, COUNT, CH>(&group, [ly, ly + 1], sc, &mut sums);
+                ly += 2;
+            }
+            if ly < rows.end {
+                back_rows::<1, COUNT, CH>(&group, [ly], sc, &mut sums);
             }
         }
+        let BackSums {
+            acc,
+            acc_f,
+            touched,
+        } = sums;
         if touched {
             // The sums in groups of eight registers (zeros past the last, not stored).
             let mut regs = [zero; 16];
