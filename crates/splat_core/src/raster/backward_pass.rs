@@ -19,6 +19,7 @@ use super::backward_blend::{intersection_gradients, zeroed_gradients};
 use super::backward_chain::{Chain, GradRows};
 use super::backward_index::SplatIntersections;
 use super::batch_lanes::N;
+use super::buffers::filled;
 use super::forward_pass::ForwardState;
 use super::project_backward_batch::CameraLanes;
 use super::tile_walk::ISECT_FIXED;
@@ -62,13 +63,13 @@ pub fn backward(
     check_len("v_alpha", v_alpha, c, pixels)?;
 
     let cw = scene.color_width();
-    let output = |wanted: bool, w: usize| vec![0.0f32; if wanted { n * w } else { 0 }];
+    let output = |wanted: bool, w: usize| filled(if wanted { n * w } else { 0 }, 0.0f32);
     let mut means = output(want.means, 3);
     let mut quats = output(want.quats, 4);
     let mut scales = output(want.scales, 3);
     let mut opacities = output(want.opacities, 1);
     let mut colors = output(want.colors, cw);
-    let mut means2d = vec![0.0f32; c * n * 2];
+    let mut means2d = filled(c * n * 2, 0.0f32);
     let stride = ISECT_FIXED + ch;
 
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {

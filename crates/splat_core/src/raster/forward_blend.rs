@@ -16,6 +16,7 @@
 
 use rayon::prelude::*;
 
+use super::buffers::filled;
 use super::lanes::{exp_neg, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
@@ -56,8 +57,8 @@ pub fn blend(
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let mut out = Blended {
-        t_final: vec![1.0; bins.n_tiles() * tp],
-        last: vec![0; bins.n_tiles() * tp],
+        t_final: filled(bins.n_tiles() * tp, 1.0),
+        last: filled(bins.n_tiles() * tp, 0),
     };
     // Each tile's rows of the image, so that tiles write the row-major image directly.
     let mut render_rows = tile_rows(render, ch, bins, width, height);

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::buffers::filled;
 use super::camera::{self, Camera};
 use super::forward_blend::{blend, Blended};
 use super::options::RasterOptions;
@@ -109,11 +110,11 @@ pub fn forward(
     let (n, c) = (scene.n, cameras.len());
     let pixels = width as usize * height as usize;
     let mut out = ForwardOutput {
-        render: vec![0.0; c * pixels * ch],
-        alpha: vec![0.0; c * pixels],
-        radii: vec![0; c * n * 2],
-        means2d: vec![0.0; c * n * 2],
-        depths: vec![0.0; c * n],
+        render: filled(c * pixels * ch, 0.0),
+        alpha: filled(c * pixels, 0.0),
+        radii: filled(c * n * 2, 0),
+        means2d: filled(c * n * 2, 0.0),
+        depths: filled(c * n, 0.0),
         ..Default::default()
     };
     let mut per_camera = Vec::with_capacity(c);

@@ -43,6 +43,7 @@ mod backward_pass;
 mod batch_lanes;
 #[cfg(target_arch = "x86_64")]
 mod blend_avx2;
+mod buffers;
 pub mod camera;
 mod eval_count;
 pub mod features;

@@ -12,6 +12,7 @@
 
 use rayon::prelude::*;
 
+use super::buffers::filled;
 use super::project::Splat;
 use crate::{CoreError, CoreResult};
 
@@ -380,7 +381,7 @@ pub fn bin(
         let n: u32 = chunks.iter().map(|c| c.len(t)).sum();
         tile_offsets[t + 1] = tile_offsets[t] + n;
     }
-    let mut isect_gid = vec![0u32; total];
+    let mut isect_gid = filled(total, 0u32);
     let mut slices: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);
     let mut rest = isect_gid.as_mut_slice();
     for t in 0..n_tiles {
