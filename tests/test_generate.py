@@ -80,6 +80,34 @@ def tiny_sds_guidance():
     )
 
 
+def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
+    # A scheduler's SIGTERM before it kills the job: the run keeps its progress.
+    cfg = dict(species="mint", steps=6, checkpoint_every=100, seed=3)
+
+    def terminate_at_2(step):
+        if step == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    previous = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(RunInterrupted) as stop:
+        generate(
+            small(**cfg),
+            tmp_path / "cut",
+            guidance=photometric_guidance(),
+            show_progress=False,
+            on_step=terminate_at_2,
+        )
+    assert stop.value.step == 3
+    assert signal.getsignal(signal.SIGTERM) is previous  # the handler is put back
+    resumed = generate(
+        None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
+    )
+    full = generate(
+        small(**cfg), tmp_path / "full", guidance=photometric_guidance(), show_progress=False
+    )
+    assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
+
+
 @pytest.mark.parametrize("make_guidance", [photometric_guidance, tiny_sds_guidance])
 def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, make_guidance):
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)

@@ -156,13 +156,23 @@ def test_server_serves_the_page_and_gui(tmp_path):
     check_port_free(port)  # stopped: nothing listens there any more
 
 
-def test_ctrl_c_stops_the_viewer_cleanly(tmp_path, random_gaussians):
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+# SIGINT with an inherited "ignore" is how a shell starts a background job.
+@pytest.mark.parametrize(
+    ("stop_signal", "preexec"),
+    [(signal.SIGINT, None), (signal.SIGINT, _ignore_sigint), (signal.SIGTERM, None)],
+    ids=["ctrl-c", "ctrl-c-in-a-background-job", "sigterm"],
+)
+def test_a_stop_signal_stops_the_viewer_cleanly(tmp_path, random_gaussians, stop_signal, preexec):
     write_splat_ply(tmp_path / "g.ply", random_gaussians(50))
     port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "plantdreamer", "view", str(tmp_path / "g.ply"), "--labels",
          "--port", str(port)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=preexec,
     )  # fmt: skip
     try:
         assert proc.stdout is not None
@@ -179,7 +189,7 @@ def test_ctrl_c_stops_the_viewer_cleanly(tmp_path, random_gaussians):
         socket.create_connection(("127.0.0.1", port), timeout=30).close()
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:
             assert page.status == 200
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(stop_signal)
         out, _ = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:

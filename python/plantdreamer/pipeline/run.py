@@ -6,7 +6,6 @@ import copy
 import math
 import os
 import shutil
-import signal
 import sys
 import time
 from collections import defaultdict
@@ -36,6 +35,7 @@ from plantdreamer.pipeline.depth_ahead import DepthAhead
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.sampler import CameraSampler
+from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
 
@@ -343,30 +343,28 @@ class _Run:
                 else "; no guidance: the steps only run density control and culling"
             )
         )
-        previous = signal.getsignal(signal.SIGINT)
-        signal.signal(signal.SIGINT, self._request_stop)
         try:
-            for step in range(self.start_step, cfg.steps):
-                if self._stop_requested:
-                    self._checkpoint(step)
-                    raise RunInterrupted(step, self.out_dir)
-                loss = self._train_step(step, depth) if self.trains else None
-                self._adapt_density(step)
-                progress.update(step, loss, len(self.model))
-                if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
-                    self._checkpoint(step + 1)
-                if self.on_step is not None:
-                    self.on_step(step)
+            with stop_signals_handled(self._request_stop):  # Ctrl-C, SIGTERM: checkpoint
+                for step in range(self.start_step, cfg.steps):
+                    if self._stop_requested:
+                        self._checkpoint(step)
+                        raise RunInterrupted(step, self.out_dir)
+                    loss = self._train_step(step, depth) if self.trains else None
+                    self._adapt_density(step)
+                    progress.update(step, loss, len(self.model))
+                    if (step + 1) % cfg.checkpoint_every == 0 and step + 1 < cfg.steps:
+                        self._checkpoint(step + 1)
+                    if self.on_step is not None:
+                        self.on_step(step)
             progress.note(f"exporting {len(self.model)} Gaussians, {cfg.eval_views} renders")
         finally:
-            signal.signal(signal.SIGINT, previous)
             progress.close()
             if depth is not None:
                 depth.close()
         return self._finish()
 
     def _request_stop(self, signum, frame) -> None:
-        if self._stop_requested:  # second Ctrl-C: stop now
+        if self._stop_requested:  # a second Ctrl-C or SIGTERM: stop now
             raise KeyboardInterrupt
         self._stop_requested = True
 

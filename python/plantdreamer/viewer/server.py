@@ -12,7 +12,7 @@ import io
 import logging
 import math
 import socket
-import time
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.viewer import DEFAULT_PORT, HOST
 from plantdreamer.viewer.scene import LABEL_NAMES, SplatScene
 
@@ -103,11 +104,13 @@ def start_viewer(
 
 
 def serve_until_interrupted(viewer: RunningViewer, poll_s: float = 0.2) -> None:
-    """Blocks until Ctrl-C (KeyboardInterrupt), then stops the server."""
+    """Blocks until Ctrl-C or SIGTERM (see stop_signals), then stops the server."""
+    stop = threading.Event()
     try:
-        while True:
-            time.sleep(poll_s)
-    except KeyboardInterrupt:
+        with stop_signals_handled(lambda _sig, _frame: stop.set()):
+            while not stop.wait(poll_s):
+                pass
+    except KeyboardInterrupt:  # not the main thread: Python's own Ctrl-C
         pass
     finally:
         viewer.stop()
