@@ -4,9 +4,11 @@
 //!
 //!     cargo run --release -p splat_core --example raster_timing -- FILE [THREADS] [REPS]
 //!
-//! Prints the min and median of the calls, whole and per stage. `TILE=32` sets the tile size; `BACKWARD=1` also times
-//! the backward pass; `HASH=1` prints hashes of the image and gradient bits; `EVALS=1` also counts the blending work (`raster::count_evaluations`,
-//! outside the timed calls; `benches/bench_roofline.py` divides it by the times).
+//! Prints the min and median of the calls, whole and per stage. `TILE=16` sets the tile
+//! size (default: the core's); `BACKWARD=1` also times the backward pass; `HASH=1` prints
+//! hashes of the image and gradient bits; `EVALS=1` also counts the blending work
+//! (`raster::count_evaluations`, outside the timed calls; `benches/bench_roofline.py`
+//! divides it by the times).
 use std::time::Instant;
 
 #[global_allocator]
@@ -65,9 +67,10 @@ fn main() {
     let (vm, k) = (take(16), take(9));
     let scene = Scene::new(m, q, s, o, c, ColorMode::Direct { channels: 3 }).unwrap();
     let cam = Camera::from_matrices(vm, k, size, size).unwrap();
+    let defaults = RasterOptions::default();
     let opts = RasterOptions {
-        tile_size: std::env::var("TILE").map_or(16, |t| t.parse().unwrap()),
-        ..Default::default()
+        tile_size: std::env::var("TILE").map_or(defaults.tile_size, |t| t.parse().unwrap()),
+        ..defaults
     };
     let run_forward = || raster::forward(scene.clone(), vec![cam], size, size, opts);
     let profiles = with_threads(Some(threads), || {

@@ -32,7 +32,7 @@ from plantdreamer.pipeline.model import GaussianModel
 
 ALPHA_THRESHOLD = 0.5  # below: background (also for depth)
 CHANNELS_PER_PASS = 32  # instance channels blended per rasterizer pass
-TILE = 16  # rasterizer tile size, the grain of the instance channel sharing
+TILE = 16  # tile_size of the label renders: the grain of the instance channel sharing
 
 
 @dataclass

@@ -24,6 +24,9 @@ pub struct RasterOptions {
     pub eps2d: f32,
     /// Multiply opacity by sqrt(det(Sigma) / det(Sigma + eps2d I)) ("antialiased" mode).
     pub antialiased: bool,
+    /// Tile edge in pixels. 32 by default, not gsplat's 16: on the CPU larger tiles mean
+    /// fewer intersections to bin and walk (bench scene 181k -> 140k) for the same image
+    /// bits, and both passes measured faster (docs/rasterizer.md).
     pub tile_size: u32,
     pub footprint: Footprint,
     /// Keep only tiles the footprint ellipse touches, not every tile of its box.
@@ -44,7 +47,7 @@ impl Default for RasterOptions {
             far_plane: 1e10,
             eps2d: 0.3,
             antialiased: false,
-            tile_size: 16,
+            tile_size: 32,
             footprint: Footprint::OpacityAware,
             tile_ellipse: true,
             t_min: 1e-4,
