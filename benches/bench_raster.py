@@ -370,8 +370,9 @@ loses nothing against the reference, unlike 3 sigma, whose cut tails give errors
 and T_min = 1e-4. Except for the tile size (gsplat's is 16, which a CPU pays for in
 intersections), these are gsplat's semantics, which the rest of plantdreamer and the
 reference assume; every row that changes the image (3 sigma, another T_min, including
-T_min = 0, i.e. no early stop) is measured against that reference, hence its error. Tile
-size and the ellipse test never change the image (bit-identical, tested), only the time;
+T_min = 0, i.e. no early stop) is measured against that reference, hence its error. With
+the default footprint, tile size and the ellipse test never change the image
+(bit-identical, tested), only the time;
 the scalar row is the same image computed without SIMD (bit-identical, tested). The
 errors of the default row include the blending exp, a polynomial accurate to 2 ulp
 (`forward::exp_neg`) that forward, backward, SIMD and scalar kernels share.
