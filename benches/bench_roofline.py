@@ -1,7 +1,7 @@
 """Rasterizer roofline: the blending work per call against this CPU's measured vector peak.
 Writes benches/results/roofline.md (+ roofline.json).
 
-    python benches/bench_roofline.py [--reps N] [--threads T] [--baseline BIN [--rounds R]]
+    python benches/bench_roofline.py [--reps N] [--threads T] [--rounds R] [--baseline BIN]
 
 Runs two release examples of splat_core, without Python in the timed calls:
 - `fma_peak`: tight loops of independent AVX2 fused multiply-adds (AVX-512 where the CPU
@@ -40,6 +40,7 @@ SIZE = 512
 # (name, Gaussians): the bench scene and a densified plant.
 SCENES = [("bench", 100_000), ("dense", 400_000)]
 LANES = 8
+MIN_CALLS_PER_RUN = 10
 # Vector floating-point instructions (add, sub, mul, div, min, max, compare) per lane group
 # of 8 pixels in the AVX2 kernels of crates/splat_core/src/raster/blend_avx2.rs with 3
 # channels, counted in the source (bitwise masks, blends, integer ops, loads and stores
@@ -82,18 +83,50 @@ def fma_peak(threads: int) -> list[dict]:
     return rows
 
 
-def timing(scene: Path, threads: int, reps: int) -> dict:
+def timing_run(scene: Path, threads: int, reps: int, count: bool) -> dict:
+    """One `raster_timing` run: min and median per stage; with `count`, also the
+    intersections and the blending work."""
     out = run(
         [str(examples_dir() / "raster_timing"), str(scene), str(threads), str(reps)],
-        {"EVALS": "1", "BACKWARD": "1"},
+        {"BACKWARD": "1", **({"EVALS": "1"} if count else {})},
     )
-    res: dict = {"threads": threads, "stages": {}}
+    res: dict = {"stages": {}}
     for m in re.finditer(r"^\s*(\w+(?: cpu)?) ms: min ([\d.]+) median ([\d.]+)", out, re.M):
         res["stages"][m[1]] = (float(m[2]), float(m[3]))
-    res["intersections"] = int(re.search(r"^intersections (\d+)", out, re.M)[1])
-    for m in re.finditer(r"^(forward|backward) evaluations (\d+) blended (\d+)", out, re.M):
-        res[m[1]] = {"evaluated": int(m[2]), "blended": int(m[3])}
+    if count:
+        res["intersections"] = int(re.search(r"^intersections (\d+)", out, re.M)[1])
+        for m in re.finditer(r"^(forward|backward) evaluations (\d+) blended (\d+)", out, re.M):
+            res[m[1]] = {"evaluated": int(m[2]), "blended": int(m[3])}
     return res
+
+
+def calls_per_run(reps: int, rounds: int) -> int:
+    """Timed calls per `raster_timing` run of a stage row. Short runs read high: before
+    `raster_timing` made an untimed first call, 4-call runs' best forward was 21.7 ms where
+    12-call runs' was 18.3 (bench scene, 2 threads, interleaved)."""
+    return max(reps // rounds, MIN_CALLS_PER_RUN)
+
+
+def stage_rows(scenes: list[tuple[str, int, Path]], threads: list[int], reps: int, rounds: int):
+    """Every (scene, threads) row timed in `rounds` rounds of `calls_per_run` calls, the rows
+    taking turns within a round: min over all calls, median of the runs' medians. Runs spread
+    over time catch fewer of a shared machine's slow spells than one long run per row."""
+    keys = [(name, n, path, t) for name, n, path in scenes for t in threads]
+    runs: dict[tuple, list[dict]] = {k: [] for k in keys}
+    for r in range(rounds):
+        for k in keys:
+            runs[k].append(timing_run(k[2], k[3], calls_per_run(reps, rounds), count=r == 0))
+    rows = []
+    for (name, n, _, t), rs in runs.items():
+        stages = {
+            s: (
+                min(x["stages"][s][0] for x in rs),
+                statistics.median(x["stages"][s][1] for x in rs),
+            )
+            for s in rs[0]["stages"]
+        }
+        rows.append({"scene": name, "n": n, "threads": t, **rs[0], "stages": stages})
+    return rows
 
 
 def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int) -> dict:
@@ -128,21 +161,22 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=20)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--baseline", help="raster_timing built from an earlier commit")
-    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--rounds", type=int, default=4, help="runs per row and per build")
     parser.add_argument("--baseline-label", help="what the baseline is, for the report")
     args = parser.parse_args()
     build()
     peaks = fma_peak(args.threads)
-    runs, compare = [], []
     with tempfile.TemporaryDirectory() as tmp:
+        scenes = []
         for name, n in SCENES:
             path = Path(tmp) / f"{name}.bin"
             dump(str(path), n, SIZE)
-            for threads in sorted({1, args.threads}):
-                runs.append({"scene": name, "n": n, **timing(path, threads, args.reps)})
-            if args.baseline:
-                res = interleaved(path, args.baseline, args.threads, args.reps // 2, args.rounds)
-                compare.append({"scene": name, "n": n, **res})
+            scenes.append((name, n, path))
+        runs = stage_rows(scenes, sorted({1, args.threads}), args.reps, args.rounds)
+        compare = []
+        for name, n, path in scenes if args.baseline else []:
+            res = interleaved(path, args.baseline, args.threads, args.reps // 2, args.rounds)
+            compare.append({"scene": name, "n": n, **res})
     RESULTS.mkdir(exist_ok=True)
     data = {"peaks": peaks, "runs": runs, "compare": compare}
     (RESULTS / "roofline.json").write_text(json.dumps(data, indent=1))
@@ -203,6 +237,9 @@ def report(
         "",
         "### Stages: min / median ms per call",
         "",
+        f"{args.rounds} runs of {calls_per_run(args.reps, args.rounds)} calls per row (after an "
+        "untimed one); min over all calls / "
+        "median of the runs' medians. "
         "Forward stages from the forward's own profile; backward is the whole backward call "
         "(blend backward plus the chain to the 3D parameters). CPU: the calls' CPU time "
         "summed over the threads.",

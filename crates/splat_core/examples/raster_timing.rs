@@ -74,6 +74,9 @@ fn main() {
     };
     let run_forward = || raster::forward(scene.clone(), vec![cam], size, size, opts);
     let profiles = with_threads(Some(threads), || {
+        // One untimed call first: the first calls of a process pay for page faults and the
+        // allocator's growth, which would bias short runs.
+        run_forward()?;
         let mut profiles = Vec::with_capacity(reps);
         for _ in 0..reps {
             let (t, cpu) = (Instant::now(), cpu_seconds());
