@@ -80,24 +80,25 @@ def tiny_sds_guidance():
     )
 
 
+def run_stopped_by(sig, at_step: int, cfg: dict, out, guidance) -> int:
+    """Runs `generate`, sending `sig` to this process after step `at_step`; returns the step
+    the run stopped at (it must stop)."""
+
+    def send(step):
+        if step == at_step:
+            os.kill(os.getpid(), sig)
+
+    with pytest.raises(RunInterrupted) as stop:
+        generate(small(**cfg), out, guidance=guidance, show_progress=False, on_step=send)
+    return stop.value.step
+
+
 def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
     # A scheduler's SIGTERM before it kills the job: the run keeps its progress.
     cfg = dict(species="mint", steps=6, checkpoint_every=100, seed=3)
-
-    def terminate_at_2(step):
-        if step == 2:
-            os.kill(os.getpid(), signal.SIGTERM)
-
     previous = signal.getsignal(signal.SIGTERM)
-    with pytest.raises(RunInterrupted) as stop:
-        generate(
-            small(**cfg),
-            tmp_path / "cut",
-            guidance=photometric_guidance(),
-            show_progress=False,
-            on_step=terminate_at_2,
-        )
-    assert stop.value.step == 3
+    stopped_at = run_stopped_by(signal.SIGTERM, 2, cfg, tmp_path / "cut", photometric_guidance())
+    assert stopped_at == 3
     assert signal.getsignal(signal.SIGTERM) is previous  # the handler is put back
     resumed = generate(
         None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
@@ -112,20 +113,7 @@ def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
 def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, make_guidance):
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
     full = generate(small(**cfg), tmp_path / "full", guidance=make_guidance(), show_progress=False)
-
-    def interrupt_at_7(step):
-        if step == 7:
-            os.kill(os.getpid(), signal.SIGINT)
-
-    with pytest.raises(RunInterrupted) as stop:
-        generate(
-            small(**cfg),
-            tmp_path / "cut",
-            guidance=make_guidance(),
-            show_progress=False,
-            on_step=interrupt_at_7,
-        )
-    assert stop.value.step == 8
+    assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", make_guidance()) == 8
     assert not (tmp_path / "cut" / "plant.ply").exists()
     resumed = generate(
         None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
