@@ -83,11 +83,15 @@ def fma_peak(threads: int) -> list[dict]:
     return rows
 
 
-def timing_run(scene: Path, threads: int, reps: int, count: bool) -> dict:
+def current_binary() -> str:
+    return str(examples_dir() / "raster_timing")
+
+
+def timing_run(binary: str, scene: Path, threads: int, reps: int, count: bool = False) -> dict:
     """One `raster_timing` run: min and median per stage; with `count`, also the
     intersections and the blending work."""
     out = run(
-        [str(examples_dir() / "raster_timing"), str(scene), str(threads), str(reps)],
+        [binary, str(scene), str(threads), str(reps)],
         {"BACKWARD": "1", **({"EVALS": "1"} if count else {})},
     )
     res: dict = {"stages": {}}
@@ -100,6 +104,17 @@ def timing_run(scene: Path, threads: int, reps: int, count: bool) -> dict:
     return res
 
 
+def merged_stages(runs: list[dict]) -> dict:
+    """Per stage over several runs: min over all calls, median of the runs' medians."""
+    return {
+        s: (
+            min(r["stages"][s][0] for r in runs),
+            statistics.median(r["stages"][s][1] for r in runs),
+        )
+        for s in runs[0]["stages"]
+    }
+
+
 def calls_per_run(reps: int, rounds: int) -> int:
     """Timed calls per `raster_timing` run of a stage row. Short runs read high: before
     `raster_timing` made an untimed first call, 4-call runs' best forward was 21.7 ms where
@@ -109,51 +124,30 @@ def calls_per_run(reps: int, rounds: int) -> int:
 
 def stage_rows(scenes: list[tuple[str, int, Path]], threads: list[int], reps: int, rounds: int):
     """Every (scene, threads) row timed in `rounds` rounds of `calls_per_run` calls, the rows
-    taking turns within a round: min over all calls, median of the runs' medians. Runs spread
-    over time catch fewer of a shared machine's slow spells than one long run per row."""
+    taking turns within a round (`merged_stages`). Runs spread over time catch fewer of a
+    shared machine's slow spells than one long run per row."""
     keys = [(name, n, path, t) for name, n, path in scenes for t in threads]
     runs: dict[tuple, list[dict]] = {k: [] for k in keys}
+    calls = calls_per_run(reps, rounds)
     for r in range(rounds):
         for k in keys:
-            runs[k].append(timing_run(k[2], k[3], calls_per_run(reps, rounds), count=r == 0))
-    rows = []
-    for (name, n, _, t), rs in runs.items():
-        stages = {
-            s: (
-                min(x["stages"][s][0] for x in rs),
-                statistics.median(x["stages"][s][1] for x in rs),
-            )
-            for s in rs[0]["stages"]
-        }
-        rows.append({"scene": name, "n": n, "threads": t, **rs[0], "stages": stages})
-    return rows
+            runs[k].append(timing_run(current_binary(), k[2], k[3], calls, count=r == 0))
+    return [
+        {"scene": name, "n": n, "threads": t, **rs[0], "stages": merged_stages(rs)}
+        for (name, n, _, t), rs in runs.items()
+    ]
 
 
 def interleaved(path: Path, baseline: str, threads: int, reps: int, rounds: int) -> dict:
-    """Per binary: min over all calls and median of the runs' medians, forward and backward,
-    wall-clock and CPU time (all threads; it leaves out the time other work holds the cores,
-    so it compares builds more steadily on a loaded machine)."""
-    runs: dict[str, list[dict]] = {"baseline": [], "current": []}
-    current = str(examples_dir() / "raster_timing")
+    """Per binary (`merged_stages`): forward and backward, wall-clock and CPU time (all
+    threads; it leaves out the time other work holds the cores, so it compares builds more
+    steadily on a loaded machine)."""
+    binaries = {"baseline": baseline, "current": current_binary()}
+    runs: dict[str, list[dict]] = {key: [] for key in binaries}
     for _ in range(rounds):
-        for key, binary in (("baseline", baseline), ("current", current)):
-            out = run([binary, str(path), str(threads), str(reps)], {"BACKWARD": "1"})
-            stages = {
-                m[1]: (float(m[2]), float(m[3]))
-                for m in re.finditer(
-                    r"^(forward|backward|forward cpu|backward cpu) ms: min ([\d.]+) median ([\d.]+)",
-                    out,
-                    re.M,
-                )
-            }
-            runs[key].append(stages)
-    res = {}
-    for key, rs in runs.items():
-        res[key] = {
-            p: (min(r[p][0] for r in rs), statistics.median(r[p][1] for r in rs))
-            for p in ("forward", "backward", "forward cpu", "backward cpu")
-        }
-    return res
+        for key, binary in binaries.items():
+            runs[key].append(timing_run(binary, path, threads, reps))
+    return {key: merged_stages(rs) for key, rs in runs.items()}
 
 
 def main() -> None:

@@ -110,7 +110,7 @@ def serve_until_interrupted(viewer: RunningViewer, poll_s: float = 0.2) -> None:
         with stop_signals_handled(lambda _sig, _frame: stop.set()):
             while not stop.wait(poll_s):
                 pass
-    except KeyboardInterrupt:  # not the main thread: Python's own Ctrl-C
+    except KeyboardInterrupt:  # Ctrl-C just before the handlers were in place
         pass
     finally:
         viewer.stop()
