@@ -7,9 +7,9 @@ Runs two release examples of splat_core, without Python in the timed calls:
 - `fma_peak`: tight loops of independent AVX2 fused multiply-adds (AVX-512 where the CPU
   has it) and of separate multiplies and adds, the blending kernels' instruction mix;
 - `raster_timing` with `EVALS=1 BACKWARD=1` on the bench scene (100k Gaussians) and on a
-  dense one (450k, >= 500k tile intersections at 512^2 with the default tiles): min and median per stage, and the
-  pixel-splat evaluations the blends perform (`raster::count_evaluations`, counted outside
-  the timed calls).
+  dense one (450k, >= 500k tile intersections at 512^2 with the default tiles): min and
+  median per stage, and the pixel-splat evaluations the blends perform
+  (`raster::count_evaluations`, counted outside the timed calls).
 
 With `--baseline BIN` (a `raster_timing` built from an earlier commit), it also times BIN and
 the current build alternately, R rounds each, on both scenes: on a shared machine whose

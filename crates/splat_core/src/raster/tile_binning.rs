@@ -249,18 +249,21 @@ fn pair(key: u32, id: u32) -> u64 {
 /// faster than a comparison sort at 100k splats even against two threads. The keys are
 /// sorted as offsets from the smallest one, in 12-bit digits (a 16 KiB histogram, in L1),
 /// so only the bits that vary cost passes: depths of one scene span a few binades, which
-/// take two passes instead of three of the raw bits. All histograms come from one read of
-/// the keys; passes whose digit is the same for every key are skipped. Key and id travel
-/// as one word, so that a pass scatters into one array instead of two.
+/// take two passes instead of three of the raw bits. One read of the keys gives their
+/// range, one more all histograms; passes whose digit is the same for every key are
+/// skipped. Key and id travel as one word, so that a pass scatters into one array, not two.
 fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
     const BITS: u32 = 12;
     const MASK: u64 = (1 << BITS) - 1;
     let key = |p: u64| (p >> 32) as u32;
     let n = pairs.len();
-    let Some(min) = pairs.iter().map(|&p| key(p)).min() else {
+    if n == 0 {
         return Vec::new();
-    };
-    let span = pairs.iter().map(|&p| key(p) - min).max().unwrap_or(0);
+    }
+    let (min, max) = pairs.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
+        (lo.min(key(p)), hi.max(key(p)))
+    });
+    let span = max - min;
     let passes = (u32::BITS - span.leading_zeros()).div_ceil(BITS) as usize;
     let mut hist = vec![[0u32; 1 << BITS]; passes];
     let offset = pair(min, 0);
