@@ -74,9 +74,12 @@ pub fn blend(
         .zip(out.last.par_chunks_mut(tp))
         .enumerate()
         .with_max_len(4)
-        .for_each_init(
-            || (TileScratch::new(ts, ch), TileList::default()),
-            |(scratch, list), (t, (((rrows, arows), t_final), last))| {
+        .for_each(|(t, (((rrows, arows), t_final), last))| {
+            SCRATCH.with_borrow_mut(|kept| {
+                let (scratch, list) = match kept {
+                    Some((sc, _)) if sc.fits(ts, ch) => kept.as_mut().unwrap(),
+                    _ => kept.insert((TileScratch::new(ts, ch), TileList::default())),
+                };
                 let range = bins.tile_range(t);
                 // An empty tile keeps the zero image and the initial state.
                 if range.is_empty() {
@@ -105,10 +108,18 @@ pub fn blend(
                     let mut t = totals.lock().unwrap_or_else(|e| e.into_inner());
                     t.add(std::mem::take(&mut scratch.evals));
                 }
-            },
-        );
+            })
+        });
     let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
     (out, evals)
+}
+
+thread_local! {
+    /// Each thread's tile scratch, kept between tiles and calls, as the backward's: built
+    /// per rayon job (`for_each_init`), its allocation and first fill cost the blend stage
+    /// about 2% (BENCHMARKS.md).
+    static SCRATCH: std::cell::RefCell<Option<(TileScratch, TileList)>> =
+        const { std::cell::RefCell::new(None) };
 }
 
 /// The row-major image [H, W, ch] cut into its tiles' rows: entry `t * ts + ly` is tile t's

@@ -192,3 +192,74 @@ pub fn forward(
     };
     Ok((out, state))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::scene::ColorMode;
+    use super::*;
+    use crate::test_rng::Lcg;
+
+    /// 300 random Gaussians in front of a camera looking down +z, 48 x 40 pixels.
+    fn scene_and_camera() -> (Scene, Camera) {
+        let mut r = Lcg::new(11);
+        let n = 300;
+        let mut u = |k: usize, lo: f32, hi: f32| -> Vec<f32> {
+            (0..k).map(|_| lo + (hi - lo) * r.uniform()).collect()
+        };
+        let (means, quats) = (u(3 * n, -1.0, 1.0), u(4 * n, -0.5, 0.5));
+        let (scales, opacities, colors) = (u(3 * n, 0.01, 0.1), u(n, 0.1, 1.0), u(3 * n, 0.0, 1.0));
+        let mode = ColorMode::Direct { channels: 3 };
+        let scene = Scene::new(&means, &quats, &scales, &opacities, &colors, mode).unwrap();
+        let view = [
+            1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4.0, 0.0, 0.0, 0.0, 1.0,
+        ];
+        let k = [60.0, 0.0, 24.0, 0.0, 60.0, 20.0, 0.0, 0.0, 1.0];
+        (scene, Camera::from_matrices(&view, &k, 48, 40).unwrap())
+    }
+
+    /// Image and alpha bits of a forward call with these tiles and depth channel.
+    fn image_bits(tile_size: u32, with_depth: bool) -> Vec<u32> {
+        let (scene, cam) = scene_and_camera();
+        let opts = RasterOptions {
+            tile_size,
+            with_depth,
+            ..RasterOptions::default()
+        };
+        let (out, _) = forward(scene, vec![cam], 48, 40, opts).unwrap();
+        out.render
+            .iter()
+            .chain(&out.alpha)
+            .map(|v| v.to_bits())
+            .collect()
+    }
+
+    #[test]
+    fn a_kept_tile_scratch_renders_as_a_fresh_one() {
+        // One pool's thread renders tile sizes and channel counts in turn, reusing or
+        // replacing the tile scratch it keeps; each is compared with a fresh pool's render.
+        let pool = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        };
+        let kept = pool(1);
+        let settings = [
+            (16, false),
+            (16, false),
+            (32, true),
+            (32, true),
+            (8, false),
+            (16, false),
+        ];
+        for (tile_size, with_depth) in settings {
+            let again = kept.install(|| image_bits(tile_size, with_depth));
+            let fresh = pool(1).install(|| image_bits(tile_size, with_depth));
+            assert!(
+                fresh.iter().any(|&b| b != 0),
+                "an empty image proves nothing"
+            );
+            assert_eq!(again, fresh, "tile {tile_size}, depth {with_depth}");
+        }
+    }
+}

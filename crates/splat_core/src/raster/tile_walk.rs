@@ -72,6 +72,11 @@ impl TileScratch {
         }
     }
 
+    /// Whether it was made for tiles of `ts` and `ch` channels.
+    pub(super) fn fits(&self, ts: usize, ch: usize) -> bool {
+        self.geo.ts == ts && self.feat.len() == self.geo.plane() * ch
+    }
+
     pub(super) fn reset(&mut self, rect: &TileRect) {
         let (tw, th) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
         self.trans.fill(-1.0);
