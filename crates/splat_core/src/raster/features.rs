@@ -3,6 +3,7 @@
 
 use rayon::prelude::*;
 
+use super::buffers::filled;
 use super::camera::Camera;
 use super::project::Splat;
 use super::scene::{ColorMode, Scene};
@@ -13,7 +14,7 @@ pub fn compute(scene: &Scene, cam: &Camera, splats: &[Splat], with_depth: bool) 
     let cc = scene.color_channels();
     let ch = cc + with_depth as usize;
     let centre = cam.centre();
-    let mut out = vec![0.0f32; scene.n * ch];
+    let mut out = filled(scene.n * ch, 0.0f32);
     out.par_chunks_mut(ch)
         .zip(splats.par_iter())
         .enumerate()
@@ -23,6 +24,11 @@ pub fn compute(scene: &Scene, cam: &Camera, splats: &[Splat], with_depth: bool) 
             }
             match scene.color_mode {
                 ColorMode::None => {}
+                // A fixed width for RGB: a copy of a run-time length is a memcpy call.
+                ColorMode::Direct { channels: 3 } => {
+                    let row: [f32; 3] = scene.colors[3 * i..3 * i + 3].try_into().unwrap();
+                    f[..3].copy_from_slice(&row);
+                }
                 ColorMode::Direct { .. } => f[..cc].copy_from_slice(scene.color_row(i)),
                 ColorMode::Sh { degree, .. } => {
                     let dir = scene.gaussian(i).mean - centre;
