@@ -27,7 +27,7 @@ use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::tile_geometry::{pixel_boxes, TileList, TileRect};
 use super::tile_walk::{
-    for_each_splat_back, BackOut, BackScratch, BackTile, EvalCount, ISECT_FIXED,
+    for_each_splat_back, kept_scratch, BackOut, BackScratch, BackTile, EvalCount, ISECT_FIXED,
 };
 
 /// Per-intersection gradients of one camera, `ISECT_FIXED + ch` values per intersection,
@@ -58,10 +58,8 @@ pub fn intersection_gradients(
         .with_max_len(4)
         .for_each(|t| {
             SCRATCH.with_borrow_mut(|kept| {
-                let (scratch, list) = match kept {
-                    Some((sc, _)) if sc.fits(ts, ch) => kept.as_mut().unwrap(),
-                    _ => kept.insert((BackScratch::new(ts, ch), TileList::default())),
-                };
+                let (scratch, list) =
+                    kept_scratch(kept, |sc| sc.fits(ts, ch), || BackScratch::new(ts, ch));
                 let range = bins.tile_range(t);
                 if range.is_empty() {
                     return;

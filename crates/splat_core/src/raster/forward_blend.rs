@@ -22,7 +22,7 @@ use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::tile_geometry::{pixel_boxes, BlendRecord, TileList, TileRect};
-use super::tile_walk::{for_each_splat, EvalCount, TileInput, TileScratch};
+use super::tile_walk::{for_each_splat, kept_scratch, EvalCount, TileInput, TileScratch};
 
 /// Blend results of one camera that the backward pass needs.
 #[derive(Debug, Clone, Default)]
@@ -76,10 +76,8 @@ pub fn blend(
         .with_max_len(4)
         .for_each(|(t, (((rrows, arows), t_final), last))| {
             SCRATCH.with_borrow_mut(|kept| {
-                let (scratch, list) = match kept {
-                    Some((sc, _)) if sc.fits(ts, ch) => kept.as_mut().unwrap(),
-                    _ => kept.insert((TileScratch::new(ts, ch), TileList::default())),
-                };
+                let (scratch, list) =
+                    kept_scratch(kept, |sc| sc.fits(ts, ch), || TileScratch::new(ts, ch));
                 let range = bins.tile_range(t);
                 // An empty tile keeps the zero image and the initial state.
                 if range.is_empty() {

@@ -6,7 +6,9 @@
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use super::prefetch::prefetch;
-use super::tile_geometry::{BlendSplat, LaneFootprint, PixelFootprint, TileGeometry, TileRect};
+use super::tile_geometry::{
+    BlendSplat, LaneFootprint, PixelFootprint, TileGeometry, TileList, TileRect,
+};
 
 /// Gradient values stored per intersection: xy (2), conic (3), opacity (1), features (ch).
 pub const ISECT_FIXED: usize = 6;
@@ -39,6 +41,20 @@ pub(super) struct TileInput<'a> {
     pub t_min: f32,
     /// Use the SIMD kernel when the CPU has one.
     pub simd: bool,
+}
+
+/// A thread's tile scratch and list kept in `slot` between tiles and calls (the blend
+/// drivers keep one per thread), replaced by `make()` first if there is none or `fits`
+/// rejects it (made for another tile size or channel count).
+pub(super) fn kept_scratch<S>(
+    slot: &mut Option<(S, TileList)>,
+    fits: impl FnOnce(&S) -> bool,
+    make: impl FnOnce() -> S,
+) -> &mut (S, TileList) {
+    if !slot.as_ref().is_some_and(|(s, _)| fits(s)) {
+        *slot = Some((make(), TileList::default()));
+    }
+    slot.as_mut().expect("filled above")
 }
 
 /// Per-tile pixel state, structure of arrays with rows padded so that a lane group may
