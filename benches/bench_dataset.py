@@ -26,7 +26,7 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parent / "results"
 SPECIES = ("bean", "mint", "kale")
 SEEDS = range(4)
-SETTINGS = {"guidance": "none", "n_points": 20_000, "steps": 20, "eval_views": 4, "resolution": 128}
+SETTINGS = {"guidance": "none", "points": 20_000, "steps": 20, "eval_views": 4, "resolution": 128}
 FLAGS = ["--guidance", "none", "--points", "20000", "--steps", "20", "--eval-views", "4",
          "--resolution", "128"]  # fmt: skip
 BASELINE = """
@@ -36,7 +36,7 @@ settings, out = {settings!r}, sys.argv[1]
 t0 = time.perf_counter()
 for species in {species!r}:
     for seed in {seeds!r}:
-        cfg = GenerateConfig(species=species, seed=seed, **settings)
+        cfg = GenerateConfig.of(species=species, seed=seed, **settings)
         generate(cfg, f"{{out}}/{{species}}-{{seed}}", show_progress=False)
 print(time.perf_counter() - t0)
 """

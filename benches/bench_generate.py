@@ -39,12 +39,12 @@ def main() -> int:
     from plantdreamer.pipeline import GenerateConfig
 
     rows = []
-    demo = GenerateConfig(species="bean", guidance="none", resolution=512)
+    demo = GenerateConfig.of(species="bean", guidance="none", resolution=512)
     wall, summary = run(demo)
     rows.append(("none (demo, 3600 steps)", wall, summary))
 
     steps = 20
-    sds_cfg = GenerateConfig(
+    sds_cfg = GenerateConfig.of(
         species="bean", guidance="sds", resolution=512, steps=steps, eval_views=8
     )
     guidance = StableDiffusionDepthGuidance(species="bean", components=tiny_models(), seed=0)

@@ -106,10 +106,10 @@ def run_once(
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
-    cfg = GenerateConfig(
+    cfg = GenerateConfig.of(
         species="bean",
         seed=0,
-        n_points=args.points,
+        points=args.points,
         steps=args.steps,
         resolution=args.render,
         sds_resolution=args.sds,

@@ -62,7 +62,7 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
     from plantdreamer.pipeline.model import GaussianModel
     from plantdreamer.pipeline.source import initial_gaussians, load_source
 
-    cfg = GenerateConfig(species=species, seed=0, n_points=100_000)
+    cfg = GenerateConfig.of(species=species, seed=0, points=100_000)
     g = initial_gaussians(cfg, load_source(cfg))  # the Gaussians generate starts from
     model, ls = GaussianModel(g), LabelSet.of(g.labels)
     times: dict[str, list[float]] = {"rgb": [], "gt": [], "naive": []}

@@ -88,12 +88,12 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 
 def initial_model(options: dict) -> tuple[GaussianModel, GenerateConfig]:
     """The initial Gaussians of a run with these options (default settings otherwise)."""
-    cfg = GenerateConfig(**options)
+    cfg = GenerateConfig.of(**options)
     return GaussianModel(initial_gaussians(cfg, load_source(cfg))), cfg
 
 
 def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> dict:
-    sampler = CameraSampler(cfg.cameras, 512, cfg.seed)
+    sampler = CameraSampler(cfg.train.cameras, 512, cfg.seed)
     per_rule: dict[str, dict[str, list]] = {
         r: {"sat": [], "drop": [], "rho": []} for r in DEPTH_RULES
     }
@@ -126,7 +126,7 @@ def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> 
 
 
 def cull_figures(log_scales: torch.Tensor, cfg: GenerateConfig) -> dict[str, float]:
-    steps = [s for s in range(cfg.steps) if cfg.cull.due(s)]
+    steps = [s for s in range(cfg.train.steps) if cfg.density.cull.due(s)]
     out = {}
     for c, volume in ((3.0, "log"), (7.0, "log"), (3.0, "double-exp"), (7.0, "double-exp")):
         kept = log_scales

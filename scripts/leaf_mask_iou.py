@@ -31,8 +31,8 @@ def ious(
     species: str, seed: int, size: int, shape: str, views: int
 ) -> tuple[list[float], list[float]]:
     """Leaf-mask IoU per view, and (once per row) that of the mesh mask grown by one pixel."""
-    cfg = GenerateConfig(
-        species=species, seed=seed, n_points=100_000, resolution=size, eval_views=views,
+    cfg = GenerateConfig.of(
+        species=species, seed=seed, points=100_000, resolution=size, eval_views=views,
         turntable_frames=2, steps=0, guidance="none", init_shape=shape,
     )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:

@@ -33,7 +33,7 @@ def main() -> int:
     from plantdreamer.pipeline import GenerateConfig, generate
 
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = GenerateConfig(species="bean", seed=1, guidance="none", eval_views=8)
+        cfg = GenerateConfig.of(species="bean", seed=1, guidance="none", eval_views=8)
         generate(cfg, tmp, show_progress=False)
         out = Path(tmp)
         rgb = iio.imread(out / "renders" / "view_001.png")

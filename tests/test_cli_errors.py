@@ -119,7 +119,7 @@ def test_eval_with_malformed_colmap(files, tmp_path, case):
     [
         (["--seed", 2**70], "seed"),
         (["--seed", -1], "seed"),
-        (["--guidance-scale", "nan"], "guidance_scale must be finite"),
+        (["--guidance-scale", "nan"], "guidance-scale must be finite"),
         (["--guidance-scale", -5], "guidance scale"),
         (["--points", 10**11], "points"),
         (["--resolution", 100000], "resolution"),
@@ -138,9 +138,9 @@ def test_generate_bad_numbers(tmp_path, args, message):
     [
         ("background", float("nan"), "background must be finite"),
         ("background", 1.5, "background must be a grey level"),
-        ("guidance_scale", float("nan"), "guidance_scale must be finite"),
-        ("n_points", 3.7, "n_points must be an integer"),
-        ("sh_degree", 2.5, "sh_degree must be an integer"),
+        ("guidance_scale", float("nan"), "guidance-scale must be finite"),
+        ("points", 3.7, "points must be an integer"),
+        ("sh_degree", 2.5, "sh-degree must be an integer"),
         ("resolution", 3.7, "resolution must be an integer"),
         ("seed", True, "seed must be an integer"),
         ("steps", "10", "steps must be an integer"),
@@ -151,7 +151,7 @@ def test_generate_config_refuses_garbage_values(field, value, message):
     from plantdreamer.pipeline import GenerateConfig
 
     with pytest.raises(InputError, match=message):
-        GenerateConfig(species="bean", **{field: value}).validate()
+        GenerateConfig.of(species="bean", **{field: value}).validate()
 
 
 @pytest.mark.parametrize(
@@ -245,23 +245,21 @@ def interrupted_run(tmp_path_factory):
     from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 
     out = tmp_path_factory.mktemp("interrupted") / "run"
-    cfg = GenerateConfig(species="bean", guidance="none", steps=4, checkpoint_every=2,
-                         n_points=500, resolution=32, eval_views=1, turntable_frames=1, seed=5)  # fmt: skip
-    generate(cfg, out, show_progress=False)
-    for name in ("run.json", "plant.ply", "turntable.gif", "renders", "log.csv"):
-        p = out / name
-        shutil_rm(p)
-    assert (out / CHECKPOINT_NAME).is_file()
+    cfg = GenerateConfig.of(species="bean", guidance="none", steps=4, checkpoint_every=2,
+                         points=500, resolution=32, eval_views=1, turntable_frames=1, seed=5)  # fmt: skip
+    import os
+    import signal
+
+    from plantdreamer.pipeline import RunInterrupted
+
+    def ctrl_c(step):  # Ctrl-C during step 1: the run stops at step 2 with a checkpoint
+        if step == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(RunInterrupted):
+        generate(cfg, out, show_progress=False, on_step=ctrl_c)
+    assert not (out / "run.json").exists() and (out / CHECKPOINT_NAME).is_file()
     return out
-
-
-def shutil_rm(p):
-    import shutil
-
-    if p.is_dir():
-        shutil.rmtree(p)
-    else:
-        p.unlink(missing_ok=True)
 
 
 @pytest.mark.parametrize(
@@ -289,7 +287,7 @@ def test_resume_applies_more_steps(interrupted_run, tmp_path):
     result = run("generate", "--resume", out, "--quiet", "--steps", 6, "--seed", 5)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "run.json").read_text())
-    assert summary["config"]["steps"] == 6
+    assert summary["config"]["train"]["steps"] == 6
     assert {"step": 2, "event": "steps changed", "from": 4, "to": 6} in summary["events"]
 
 

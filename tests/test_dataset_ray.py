@@ -22,7 +22,7 @@ from plantdreamer.pipeline import GenerateConfig, generate
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.slow
 
-SMALL = {"guidance": "none", "steps": 20, "n_points": 2000, "eval_views": 1, "resolution": 32}
+SMALL = {"guidance": "none", "steps": 20, "points": 2000, "eval_views": 1, "resolution": 32}
 SMALL_FLAGS = ["--guidance", "none", "--steps", "20", "--points", "2000", "--eval-views", "1",
                "--resolution", "32", "--quiet"]  # fmt: skip
 
@@ -42,7 +42,7 @@ def manifest(out_dir):
 
 def direct_ply(tmp_path, **settings):
     out = tmp_path / "direct" / f"{settings.get('species')}-{settings['seed']}"
-    generate(GenerateConfig(**{**SMALL, **settings}), out, show_progress=False)
+    generate(GenerateConfig.of(**{**SMALL, **settings}), out, show_progress=False)
     return (out / "plant.ply").read_bytes()
 
 
@@ -118,7 +118,7 @@ def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path):
     out = tmp_path / "out"
     env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count", "2",
-           "--local-cpus", "2", "--set", "checkpoint_every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
+           "--local-cpus", "2", "--set", "checkpoint-every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )

@@ -20,38 +20,47 @@ def test_groups_expand_to_plants_with_settings_passed_through(tmp_path):
     spec_file = tmp_path / "spec.toml"
     spec_file.write_text(
         "[defaults]\nsteps = 20\neval-views = 2\n\n"
-        '[[group]]\nspecies = "bean"\ncount = 2\nseed_start = 5\nn_points = 3000\n\n'
+        '[[group]]\nspecies = "bean"\ncount = 2\nseed-start = 5\npoints = 3000\n\n'
         '[[group]]\nname = "scan"\npointclouds = "scans/*.ply"\nspecies = "mint"\n'
         'seeds = [1]\nguidance = "none"\n'
     )
     plants = expand(load_spec(spec_file))
     assert [p.id for p in plants] == ["bean-s0005", "bean-s0006", "scan-a-s0001", "scan-b-s0001"]
     bean, scan = plants[0].config, plants[2].config
-    assert (bean.steps, bean.eval_views, bean.n_points, bean.seed) == (20, 2, 3000, 5)
-    assert bean.guidance == "sds" and scan.guidance == "none"
-    assert scan.pointcloud == str((tmp_path / "scans" / "a.ply").resolve())
-    assert plants[2].source == scan.pointcloud and plants[0].source == "lsystem"
+    assert (bean.get("steps"), bean.get("eval-views"), bean.get("points"), bean.seed) == (
+        20,
+        2,
+        3000,
+        5,
+    )
+    assert bean.get("guidance") == "sds" and scan.get("guidance") == "none"
+    assert scan.source.pointcloud == str((tmp_path / "scans" / "a.ply").resolve())
+    assert plants[2].source == scan.source.pointcloud and plants[0].source == "lsystem"
 
 
 def test_a_preset_in_the_spec_applies_under_the_spec_settings(tmp_path):
     spec_file = tmp_path / "spec.toml"
     spec_file.write_text(
         '[defaults]\npreset = "released"\n\n'
-        '[[group]]\nspecies = "bean"\nseeds = [0]\nn_points = 5000\n'
+        '[[group]]\nspecies = "bean"\nseeds = [0]\npoints = 5000\n'
     )
     (plant,) = expand(load_spec(spec_file))
     cfg = plant.config
     assert cfg.preset == "released"
     # The preset's values, except where the spec sets its own.
-    assert (cfg.cull.threshold, cfg.depth_rule, cfg.guidance_scale) == (7.0, "released", 101.0)
-    assert cfg.n_points == 5000
-    assert plant.config_hash != config_hash(GenerateConfig(species="bean", seed=0, n_points=5000))
+    assert (cfg.density.cull.threshold, cfg.sds.depth_rule, cfg.sds.guidance_scale) == (
+        7.0,
+        "released",
+        101.0,
+    )
+    assert cfg.source.points == 5000
+    assert plant.config_hash != config_hash(GenerateConfig.of(species="bean", seed=0, points=5000))
 
 
 @pytest.mark.parametrize(
     ("group", "message"),
     [
-        ('species = "bean"\nsteps_typo = 3', "unknown config keys: steps_typo"),
+        ('species = "bean"\nsteps_typo = 3', "unknown setting 'steps-typo'; did you mean 'steps'"),
         ('species = "bean"\nseeds = [1, 1]', "duplicates"),
         ('species = "bean"\nseeds = [1]\ncount = 2', "not both"),
         ('species = "bean"\nseed = 3', "chosen per plant"),
@@ -74,19 +83,19 @@ def test_same_ids_in_two_groups_are_refused():
 
 
 def test_config_hash_is_stable_and_sees_every_setting():
-    a = GenerateConfig(species="bean", seed=1)
+    a = GenerateConfig.of(species="bean", seed=1)
     assert config_hash(a) == config_hash(GenerateConfig.from_dict(a.to_dict()))
-    assert config_hash(a) != config_hash(GenerateConfig(species="bean", seed=2))
-    b = GenerateConfig(species="bean", seed=1)
-    b.lr.means *= 2
+    assert config_hash(a) != config_hash(GenerateConfig.of(species="bean", seed=2))
+    b = GenerateConfig.of(species="bean", seed=1)
+    b.train.lr.means *= 2
     assert config_hash(a) != config_hash(b)
 
 
 def test_resources_follow_guidance_and_overrides():
-    sds = plant_demand(GenerateConfig(species="bean"), None, None, {})
-    none = plant_demand(GenerateConfig(species="bean", guidance="none"), None, None, {})
+    sds = plant_demand(GenerateConfig.of(species="bean"), None, None, {})
+    none = plant_demand(GenerateConfig.of(species="bean", guidance="none"), None, None, {})
     assert (sds.gpus, none.gpus) == (1.0, 0.0) and none.threads == 1
-    custom = plant_demand(GenerateConfig(species="bean"), 3.5, 0.5, {"slot": 1})
+    custom = plant_demand(GenerateConfig.of(species="bean"), 3.5, 0.5, {"slot": 1})
     assert (custom.cpus, custom.gpus, custom.threads) == (3.5, 0.5, 3)
     options = custom.ray_options(max_retries=2, extra_env={})
     assert options["resources"] == {"slot": 1} and options["max_retries"] == 2

@@ -29,30 +29,42 @@ def test_presets_resolve_to_the_documented_values():
     released = resolve_config("released")
     expected = {
         "preset": "released",
-        "negative_prompt": RELEASED_NEGATIVE_PROMPT,
-        "prompt_template": "A photo of {species} plants",
-        "depth_rule": "released",
-        "n_points": 300_000,
-        "mesh_sor": True,
-        "sor_after_voxel": True,
-        "elevation_sampling": "mixed",
-        "network_dtype": "float32",
-        "control_resize": "nearest",
-        "init_scale": "rms",
-        "init_shape": "sphere",
+        "negative-prompt": RELEASED_NEGATIVE_PROMPT,
+        "prompt-template": "A photo of {species} plants",
+        "depth-rule": "released",
+        "points": 300_000,
+        "mesh-sor": True,
+        "sor-after-voxel": True,
+        "elevation-sampling": "mixed",
+        "network-dtype": "float32",
+        "control-resize": "nearest",
+        "init-scale": "rms",
+        "init-shape": "sphere",
         "schedule": "released",
-        "guidance_scale": 101.0,
+        "guidance-scale": 101.0,
     }
-    assert {k: getattr(released, k) for k in expected} == expected
-    assert (released.cull.threshold, released.cull.volume) == (7.0, "double-exp")
-    assert (released.densify.split_std, released.densify.cap_rule) == (0.5, "random")
-    assert released.densify.max_gaussians == ours.densify.max_gaussians  # untouched
+    assert {k: released.get(k) for k in expected} == expected
+    assert (released.get("cull-threshold"), released.get("cull-volume")) == (7.0, "double-exp")
+    assert (released.get("densify-split-std"), released.get("densify-cap-rule")) == (
+        0.5,
+        "random",
+    )
+    # untouched
+    assert released.get("densify-max-gaussians") == ours.get("densify-max-gaussians")
     paper = resolve_config("paper")
-    assert (paper.schedule, paper.cull.threshold, paper.cull.volume) == ("paper", 3.0, "log")
-    assert paper.prompt_template == "a {species} plant in a pot"
+    assert (paper.get("schedule"), paper.get("cull-threshold"), paper.get("cull-volume")) == (
+        "paper",
+        3.0,
+        "log",
+    )
+    assert paper.get("prompt-template") == "a {species} plant in a pot"
     # Our own defaults where the released code differs.
-    assert (ours.cull.threshold, ours.cull.volume, ours.depth_rule) == (3.0, "log", "stretch")
-    assert ours.negative_prompt == RELEASED_NEGATIVE_PROMPT
+    assert (ours.get("cull-threshold"), ours.get("cull-volume"), ours.get("depth-rule")) == (
+        3.0,
+        "log",
+        "stretch",
+    )
+    assert ours.get("negative-prompt") == RELEASED_NEGATIVE_PROMPT
 
 
 def test_every_preset_is_a_choice_of_the_preset_setting():
@@ -63,17 +75,21 @@ def test_every_preset_is_a_choice_of_the_preset_setting():
 
 
 def test_explicit_options_override_the_preset():
-    cfg = resolve_config("released", {"cull": {"threshold": 5.0}, "n_points": 2000})
-    assert (cfg.cull.threshold, cfg.n_points, cfg.cull.volume) == (5.0, 2000, "double-exp")
+    cfg = resolve_config("released", {"cull-threshold": 5.0, "points": 2000})
+    assert (cfg.density.cull.threshold, cfg.source.points, cfg.density.cull.volume) == (
+        5.0,
+        2000,
+        "double-exp",
+    )
 
 
 def test_bad_preset_and_choices_are_input_errors():
     with pytest.raises(InputError, match="unknown preset"):
         resolve_config("authors")
     with pytest.raises(InputError, match="depth rule"):
-        GenerateConfig(species="bean", depth_rule="flat").validate()
+        GenerateConfig.of(species="bean", depth_rule="flat").validate()
     with pytest.raises(InputError, match="species"):
-        GenerateConfig(species="bean", prompt_template="a plant").validate()
+        GenerateConfig.of(species="bean", prompt_template="a plant").validate()
 
 
 # -- culling ------------------------------------------------------------------------------
@@ -296,7 +312,7 @@ def test_renders_are_clamped_before_encoding():
 
 def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     from plantdreamer.guidance.lora_weights import recorded_template
-    from plantdreamer.pipeline.run import resolve_runtime
+    from plantdreamer.pipeline.runtime import resolve_runtime
 
     guidance = _guidance(prompt_template="A photo of {species} plants", species="mint")
     assert guidance.prompts_for(_inputs()[2]) == ["A photo of mint plants, front view"]
@@ -305,13 +321,13 @@ def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     )
     assert recorded_template(tmp_path) == "{species} leaves"
     assert recorded_template(tmp_path / "pytorch_lora_weights.safetensors") == "{species} leaves"
-    cfg = GenerateConfig(species="mint", lora=str(tmp_path))
+    cfg = GenerateConfig.of(species="mint", lora=str(tmp_path))
     resolve_runtime(cfg)
-    assert cfg.prompt_template == "{species} leaves"
-    cfg = GenerateConfig(species="mint")
+    assert cfg.sds.prompt_template == "{species} leaves"
+    cfg = GenerateConfig.of(species="mint")
     resolve_runtime(cfg)
-    assert cfg.prompt_template == "a {species} plant in a pot"
-    assert cfg.network_dtype in ("float16", "float32")
+    assert cfg.sds.prompt_template == "a {species} plant in a pot"
+    assert cfg.sds.network_dtype in ("float16", "float32")
 
 
 # -- end to end ---------------------------------------------------------------------------
@@ -333,11 +349,12 @@ def test_released_preset_without_guidance_records_every_resolved_value(tmp_path)
     run = _run_released(tmp_path, "--guidance", "none", "--steps", "620", "--cull-threshold", "6")
     config = run["config"]
     assert set(config) == {f.name for f in dataclasses.fields(GenerateConfig)}
-    assert config["preset"] == "released" and config["cull"]["threshold"] == 6.0
-    assert config["cull"]["volume"] == "double-exp" and config["n_points"] == 1500
-    assert config["densify"] == {**config["densify"], "split_std": 0.5, "cap_rule": "random"}
-    assert config["network_dtype"] == "float32"  # resolved, never "auto"
-    assert config["prompt_template"] == "A photo of {species} plants"
+    cfg = GenerateConfig.from_dict(config)
+    assert config["preset"] == "released" and cfg.get("cull-threshold") == 6.0
+    assert cfg.get("cull-volume") == "double-exp" and cfg.get("points") == 1500
+    assert (cfg.get("densify-split-std"), cfg.get("densify-cap-rule")) == (0.5, "random")
+    assert cfg.get("network-dtype") == "float32"  # resolved, never "auto"
+    assert cfg.get("prompt-template") == "A photo of {species} plants"
     assert run["source_points"]["outliers removed"] <= 1500
     assert [e["step"] for e in run["events"] if e["event"] == "cull"] == [600]
 
@@ -351,5 +368,6 @@ def test_released_preset_with_tiny_sds(tmp_path):
         "--guidance", "sds", "--base-model", str(base), "--controlnet", str(controlnet),
         "--steps", "3", "--sds-resolution", "64",
     )  # fmt: skip
-    assert run["config"]["depth_rule"] == "released" and run["config"]["schedule"] == "released"
+    assert run["config"]["sds"]["depth_rule"] == "released"
+    assert run["config"]["sds"]["schedule"] == "released"
     assert run["per_step_s"]["guidance"] > 0

@@ -18,10 +18,10 @@ INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2
 
 def small(**kw):
     base = dict(
-        n_points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0, guidance="none"
+        points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0, guidance="none"
     )
     base.update(kw)
-    return GenerateConfig(**base)
+    return GenerateConfig.of(**base)
 
 
 def photometric_guidance(seed=0):
@@ -49,7 +49,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     ]
     assert (tmp_path / "turntable.gif").stat().st_size > 0
     run = json.loads((tmp_path / "run.json").read_text())
-    assert run["config"]["species"] == "bean" and run["seed"] == 0
+    assert run["config"]["source"]["species"] == "bean" and run["seed"] == 0
     # Densify/prune rounds in (300, 900) every 100 steps; culling every 100 steps after 500.
     events = [(e["step"], e["event"]) for e in run["events"]]
     assert events == [(400, "densify"), (500, "densify"), (600, "densify"), (600, "cull")]
@@ -63,7 +63,7 @@ def test_point_cloud_comes_back_in_its_original_frame(tmp_path):
     pts = rng.normal(size=(3000, 3)).astype(np.float32) * [0.2, 0.3, 0.5] + [10.0, -20.0, 3.0]
     colors = rng.random((3000, 3), dtype=np.float32)
     write_ply(tmp_path / "in.ply", PointCloud(pts.astype(np.float32), colors=colors))
-    cfg = small(pointcloud=str(tmp_path / "in.ply"), n_points=5000, sor_std=100.0)
+    cfg = small(pointcloud=str(tmp_path / "in.ply"), points=5000, sor_std=100.0)
     result = generate(cfg, tmp_path / "out", show_progress=False)
     g = read_splat_ply(result.ply_path)
     np.testing.assert_allclose(g.means.min(0), pts.min(0), atol=1e-4)
@@ -141,6 +141,42 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     assert not np.array_equal(
         read_splat_ply(untrained.ply_path).sh, read_splat_ply(full.ply_path).sh
     )
+
+
+def _as_format_3(state):
+    """A format-4 checkpoint written the way format 3 was: one flat config (``densify``,
+    ``cull``, ``lr``, ``cameras`` nested once; ``n_points``, ``sds_resolution``) and density
+    control's state under ``densify``."""
+    config = dict(state["config"])
+    flat = {"preset": config.pop("preset"), "seed": config.pop("seed")}
+    train = config.pop("train")
+    density = config.pop("density")
+    sds = config.pop("sds")
+    sds["sds_resolution"] = sds.pop("resolution")
+    source = config.pop("source")
+    source["n_points"] = source.pop("points")
+    flat.update(lr=train.pop("lr"), cameras=train.pop("cameras"), **train, **density)
+    for section in (sds, source, config.pop("init"), config.pop("outputs")):
+        flat.update(section)
+    assert not config
+    old = {k: v for k, v in state.items() if k != "density"}
+    return {**old, "format": 3, "config": flat, "densify": state["density"]}
+
+
+def test_a_format_3_checkpoint_resumes_to_the_same_plant(tmp_path):
+    import torch
+
+    cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
+    full = generate(
+        small(**cfg), tmp_path / "full", guidance=photometric_guidance(), show_progress=False
+    )
+    assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", photometric_guidance()) == 8
+    path = tmp_path / "cut" / "checkpoint.pt"
+    torch.save(_as_format_3(torch.load(path, weights_only=True)), path)
+    resumed = generate(
+        None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
+    )
+    assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
 
 
 @pytest.mark.parametrize(

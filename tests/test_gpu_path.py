@@ -20,11 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def small_sds(**kw):
     base = dict(
-        species="mint", seed=3, n_points=1500, resolution=48, eval_views=2,
+        species="mint", seed=3, points=1500, resolution=48, eval_views=2,
         turntable_frames=2, steps=6, guidance="sds",
     )  # fmt: skip
     base.update(kw)
-    return GenerateConfig(**base)
+    return GenerateConfig.of(**base)
 
 
 def tiny_sds(**kw):
@@ -81,8 +81,8 @@ def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
 
 
 def test_sampler_peek_does_not_draw():
-    from plantdreamer.pipeline.config import CameraRanges
     from plantdreamer.pipeline.sampler import CameraSampler
+    from plantdreamer.pipeline.train_config import CameraRanges
 
     a, b = CameraSampler(CameraRanges(), 32, 5), CameraSampler(CameraRanges(), 32, 5)
     peeked = a.peek()

@@ -17,7 +17,6 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_ply, write_splat_ply
 from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, voxel_majority
 from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.config import LearningRates
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.ground_truth import (
     LabelSet,
@@ -27,6 +26,7 @@ from plantdreamer.pipeline.ground_truth import (
     render_ground_truth,
 )
 from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.train_config import LearningRates
 from plantdreamer.pointcloud import voxel_downsample
 
 
@@ -194,18 +194,18 @@ def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
 
 
 def small(**kw):
-    base = dict(n_points=1500, resolution=48, eval_views=3, turntable_frames=2, steps=0)
+    base = dict(points=1500, resolution=48, eval_views=3, turntable_frames=2, steps=0)
     base.update(guidance="none", **kw)
-    return GenerateConfig(**base)
+    return GenerateConfig.of(**base)
 
 
 def bean_leaf_iou(out_dir, **settings) -> list[float]:
     """Generates an L-System bean as initialised and returns, per evaluation view, the IoU
     of its leaf mask with the mesh's leaf faces (z-buffer) over the whole image."""
-    cfg = small(species="bean", seed=2, n_points=100_000, resolution=1024, **settings)
+    cfg = small(species="bean", seed=2, points=100_000, resolution=1024, **settings)
     generate(cfg, out_dir, show_progress=False)
     ious = leaf_mask_ious(out_dir, "bean", 2)
-    assert len(ious) == cfg.eval_views
+    assert len(ious) == cfg.outputs.eval_views
     return ious
 
 

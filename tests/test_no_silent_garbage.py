@@ -61,8 +61,8 @@ def test_georeferenced_plant_keeps_its_precision(tmp_path):
 
     utm = (500_000.0, 5_000_000.0, 200.0)
     write_ply(tmp_path / "scan.ply", cloud(3000, offset=utm, dtype=np.float64))
-    cfg = GenerateConfig(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
-                         n_points=5000, sor_std=100.0, resolution=32, eval_views=1,
+    cfg = GenerateConfig.of(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
+                         points=5000, sor_std=100.0, resolution=32, eval_views=1,
                          turntable_frames=1)  # fmt: skip
     result = generate(cfg, tmp_path / "o", show_progress=False)
     run = json.loads((tmp_path / "o" / "run.json").read_text())
@@ -81,7 +81,7 @@ def test_georeferenced_plant_keeps_its_precision(tmp_path):
 def test_plant_near_the_origin_has_no_offset(tmp_path):
     from plantdreamer.pipeline import GenerateConfig, generate
 
-    cfg = GenerateConfig(species="kale", guidance="none", steps=0, n_points=500, resolution=32,
+    cfg = GenerateConfig.of(species="kale", guidance="none", steps=0, points=500, resolution=32,
                          eval_views=1, turntable_frames=1)  # fmt: skip
     generate(cfg, tmp_path / "o", show_progress=False)
     assert json.loads((tmp_path / "o" / "run.json").read_text())["export_offset"] is None

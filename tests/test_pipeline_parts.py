@@ -7,16 +7,17 @@ import torch
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
-from plantdreamer.pipeline.config import GenerateConfig, LearningRates
+from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import SURFACE_THICKNESS, init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler
+from plantdreamer.pipeline.train_config import LearningRates
 
 
 def test_config_round_trips_through_json_dict():
-    cfg = GenerateConfig(species="mint", seed=4, lr=LearningRates(means=1e-4))
+    cfg = GenerateConfig.of(species="mint", seed=4, lr_means=1e-4)
     back = GenerateConfig.from_dict(cfg.to_dict())
     assert back == cfg
     with pytest.raises(InputError, match="unknown config keys"):
@@ -29,7 +30,7 @@ def test_config_round_trips_through_json_dict():
 )
 def test_config_rejects_bad_inputs(kwargs):
     with pytest.raises(InputError):
-        GenerateConfig(**kwargs).validate()
+        GenerateConfig.of(**kwargs).validate()
 
 
 def test_culling_removes_exactly_the_planted_giants(random_gaussians):
@@ -60,7 +61,9 @@ def test_checkpoint_is_atomic_and_corruption_is_reported(tmp_path):
 def test_checkpoint_of_an_older_format_is_refused_with_the_way_out(tmp_path):
     # Format 2 runs began from spheres; resuming one under the disc default would mislabel it.
     torch.save({"format": 2, "step": 3}, tmp_path / "checkpoint.pt")
-    with pytest.raises(CheckpointError, match=r"format 2; .* resumes format 3 only .*--overwrite"):
+    with pytest.raises(
+        CheckpointError, match=r"format 2; .* resumes formats 3 and 4 only .*--overwrite"
+    ):
         load_checkpoint(tmp_path)
 
 
@@ -165,7 +168,7 @@ def test_surface_init_lays_flat_discs_in_the_surface_and_stops_at_its_edge():
 
 
 def test_camera_sampler_is_seeded_and_resumable():
-    from plantdreamer.pipeline.config import CameraRanges
+    from plantdreamer.pipeline.train_config import CameraRanges
 
     a = CameraSampler(CameraRanges(), 32, seed=1)
     first = [a.sample() for _ in range(3)]

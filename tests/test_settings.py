@@ -10,21 +10,30 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import generate as generate_cli
 from plantdreamer.cli.options import config_from_options
-from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS
+from plantdreamer.errors import CheckpointError
+from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS, SdsConfig
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
 from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.config import CullConfig, DensifyConfig
+from plantdreamer.pipeline.density import CullConfig
+from plantdreamer.pipeline.outputs import OutputsConfig
+from plantdreamer.pipeline.train_config import TrainConfig
 
 
 def patch_default(monkeypatch, cls, name, value):
+    """Changes a section's default as an edit of its source would: the field and __init__."""
     monkeypatch.setattr(cls.__dataclass_fields__[name], "default", value)
+    defaults = list(cls.__init__.__defaults__)
+    defaults[[f.name for f in dataclasses.fields(cls)].index(name)] = value
+    monkeypatch.setattr(cls.__init__, "__defaults__", tuple(defaults))
 
 
-def test_a_changed_dataclass_default_changes_help_and_behaviour(monkeypatch, tmp_path):
-    patch_default(monkeypatch, GenerateConfig, "steps", 0)
-    patch_default(monkeypatch, GenerateConfig, "eval_views", 2)
+def test_a_changed_section_default_changes_help_spec_and_behaviour(monkeypatch, tmp_path):
+    from plantdreamer.dataset.spec import expand
+
+    patch_default(monkeypatch, TrainConfig, "steps", 0)
+    patch_default(monkeypatch, OutputsConfig, "eval_views", 2)
     patch_default(monkeypatch, CullConfig, "threshold", 2.5)
-    patch_default(monkeypatch, GenerateConfig, "guidance_scale", 7.5)
+    patch_default(monkeypatch, SdsConfig, "guidance_scale", 7.5)
     command = generate_cli.build_command()
     help_text = CliRunner().invoke(command, ["--help"], terminal_width=200).output
     assert "Optimisation steps.  [default: 0]" in help_text
@@ -32,13 +41,17 @@ def test_a_changed_dataclass_default_changes_help_and_behaviour(monkeypatch, tmp
     assert "C in V > mean + C std.  [default: 2.5]" in help_text
     assert "Classifier-free guidance scale.  [default: 7.5]" in help_text
 
+    (plant,) = expand({"group": [{"species": "bean"}]})
+    assert plant.config.get("cull-threshold") == 2.5 and plant.config.get("eval-views") == 2
+
     out = tmp_path / "o"
     args = ["--species", "bean", "--guidance", "none", "--points", "1500", "--resolution", "48"]
     result = CliRunner().invoke(command, [*args, "--out", str(out), "--quiet"])
     assert result.exit_code == 0, result.output
     config = json.loads((out / "run.json").read_text())["config"]
-    assert config["steps"] == 0 and config["eval_views"] == 2
-    assert config["cull"]["threshold"] == 2.5 and config["guidance_scale"] == 7.5
+    assert config["train"]["steps"] == 0 and config["outputs"]["eval_views"] == 2
+    assert config["density"]["cull"]["threshold"] == 2.5
+    assert config["sds"]["guidance_scale"] == 7.5
     assert len(list((out / "renders").iterdir())) == 2
 
 
@@ -47,39 +60,127 @@ def test_every_setting_has_its_dataclass_default_on_the_command_line():
     defaults = {p.name: p.default for p in command.params}
     built = config_from_options(GenerateConfig, dict(defaults))
     assert built == GenerateConfig()
-    assert defaults["cull__threshold"] == CullConfig().threshold
+    assert defaults["cull_threshold"] == CullConfig().threshold
     assert defaults["sds_resolution"] == SDS_DEFAULTS.resolution
 
 
+def _other_value(name, value, cfg):
+    """A valid value of setting ``name`` that differs from ``value``."""
+    import typing
+
+    from plantdreamer import settings
+
+    s = settings.by_name(GenerateConfig)[name]
+    choices = s.field.metadata.get(settings.CHOICES)
+    if choices:
+        return next(c for c in choices if c != value)
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, tuple):
+        return (value[0] + 0.5, value[1] + 1.0)
+    if value is None and settings.RANGE in s.field.metadata:
+        return s.field.metadata[settings.RANGE][1]
+    if value is None:
+        kinds = [a for a in typing.get_args(s.type) if a is not type(None)]
+        return {int: 16, float: 0.5, str: "{species} leaves"}[kinds[0]]
+    if isinstance(value, int):
+        return value + 1
+    if isinstance(value, float):
+        return value * 0.5
+    return value + "x"
+
+
+EXEMPT = {"pointcloud", "seed", "species"}  # chosen per plant in a spec
+
+
+def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tmp_path):
+    """Each setting's CLI option name is its key in a spec, in `dataset --set` and in the
+    changes `--resume` checks: the same name reaches the same field everywhere."""
+    from plantdreamer.cli.dataset import _toml_value
+    from plantdreamer.dataset.spec import expand
+    from plantdreamer.pipeline.run import resumed_config
+
+    base = GenerateConfig.of(species="bean")
+    command = generate_cli.build_command()
+    saved = {"config": base.to_dict(), "step": 0}
+    for name, value in base.settings().items():
+        new = _other_value(name, value, base)
+        if name in ("prompt-template", "negative-prompt", "schedule", "device"):
+            new = {"prompt-template": "{species} leaves", "negative-prompt": "blurry",
+                   "schedule": "released", "device": "cpu"}[name]  # fmt: skip
+        text = json.dumps(list(new) if isinstance(new, tuple) else new)
+        # The command line.
+        cli_args = [f"--{name}", *map(str, new)] if isinstance(new, tuple) else (
+            [f"--{name}" if new else f"--no-{name}"] if isinstance(new, bool)
+            else [f"--{name}", str(new)]
+        )  # fmt: skip
+        ctx = command.make_context("generate", list(cli_args))
+        assert ctx.params[name.replace("-", "_")] == new, name
+        if name in EXEMPT:
+            continue
+        # A spec and `dataset --set NAME=VALUE` (its values are TOML).
+        spec = {"defaults": {name: _toml_value(text)}, "group": [{"species": "bean"}]}
+        (plant,) = expand(spec)
+        assert plant.config.get(name) == new, name
+        # A resume given the setting again: refused by name (only steps may change).
+        if name != "steps":
+            with pytest.raises(CheckpointError, match=f"{name}: checkpoint"):
+                resumed_config(saved, {name: new}, tmp_path)
+        assert resumed_config(saved, {name: value}, tmp_path)[1] is None
+
+
+def test_an_unknown_or_old_setting_name_says_which_one_is_meant():
+    from plantdreamer.dataset.spec import expand
+    from plantdreamer.errors import InputError
+
+    with pytest.raises(InputError, match="unknown setting 'n-points'; did you mean 'points'"):
+        expand({"defaults": {"n_points": 10}, "group": [{"species": "bean"}]})
+
+
 def test_config_round_trips_with_nested_settings():
-    cfg = GenerateConfig(
+    cfg = GenerateConfig.of(
         species="bean",
-        densify=DensifyConfig(until=700, grad_threshold=1e-4),
-        cull=CullConfig(threshold=2.0),
+        densify_until=700,
+        densify_grad_threshold=1e-4,
+        cull_threshold=2.0,
+        cameras_distance=(2.0, 5.0),
         schedule="released",
     )
+    assert cfg.density.densify.until == 700 and cfg.train.cameras.distance == (2.0, 5.0)
     data = json.loads(json.dumps(cfg.to_dict()))
     assert GenerateConfig.from_dict(data) == cfg
 
 
 def test_generate_does_not_change_the_callers_config(tmp_path):
-    cfg = GenerateConfig(
-        species="kale", n_points=1500, eval_views=1, turntable_frames=1, steps=0, guidance="none"
+    cfg = GenerateConfig.of(
+        species="kale", points=1500, eval_views=1, turntable_frames=1, steps=0, guidance="none"
     )
     before = GenerateConfig.from_dict(cfg.to_dict())
     generate(cfg, tmp_path, show_progress=False)
-    assert cfg == before and cfg.resolution is None
+    assert cfg == before and cfg.train.resolution is None
 
 
 def test_bad_choice_is_an_input_error():
     from plantdreamer.errors import InputError
 
     with pytest.raises(InputError, match="color init must be one of original, noise"):
-        GenerateConfig(species="bean", color_init="red").validate()
+        GenerateConfig.of(species="bean", color_init="red").validate()
 
 
 def test_schedule_choices_are_the_built_in_schedules():
     assert set(SCHEDULES) == set(BUILTIN_SCHEDULES)
+
+
+class _Stop(Exception):
+    pass
+
+
+def _stop_after(last):
+    def hook(step):
+        if step == last:
+            raise _Stop
+
+    return hook
 
 
 def test_checkpoint_loads_without_running_code(tmp_path):
@@ -87,12 +188,25 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     from plantdreamer.guidance.base import PhotometricGuidance
 
     # Every value a run decides itself when left open is given (resolution, precision, prompt).
-    cfg = GenerateConfig(
-        species="mint", n_points=1500, resolution=32, eval_views=1, turntable_frames=1,
+    cfg = GenerateConfig.of(
+        species="mint", points=1500, resolution=32, eval_views=1, turntable_frames=1,
         steps=3, checkpoint_every=2, network_dtype="float32", prompt_template="{species}",
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
-    generate(cfg, tmp_path, guidance=guidance, show_progress=False)
+    with pytest.raises(_Stop):
+        generate(cfg, tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1))
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert state["step"] == 2
     assert GenerateConfig.from_dict(state["config"]) == dataclasses.replace(cfg)
+
+
+def test_a_finished_run_leaves_no_checkpoint(tmp_path):
+    from plantdreamer.guidance.base import PhotometricGuidance
+
+    cfg = GenerateConfig.of(
+        species="mint", points=1500, resolution=32, eval_views=1, turntable_frames=1,
+        steps=3, checkpoint_every=2,
+    )  # fmt: skip
+    guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
+    generate(cfg, tmp_path, guidance=guidance, show_progress=False)
+    assert (tmp_path / "run.json").is_file() and not (tmp_path / "checkpoint.pt").exists()

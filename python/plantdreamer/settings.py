@@ -1,24 +1,28 @@
-"""How a config dataclass field describes itself, so one definition is the default, the
-serialised value and the command-line option.
+"""How a config dataclass describes its settings, so one definition is the default, the
+serialised value, the command-line option and the key of a spec, ``--set`` and ``--resume``.
 
-A field made with ``setting(default, "help")`` becomes a CLI option of every command built
-from its dataclass (``plantdreamer.cli.options``); a plain field stays internal. Nested
-config dataclasses are fields with ``metadata=option_prefix(prefix)``: their settings become
-options named ``--<prefix>-<name>``. This module imports nothing heavy, so the CLI can read it at start-up.
+A field made with ``setting(default, "help")`` is a setting; its *name* is its option's name
+without the dashes (``points``, ``densify-start``): ``--points`` on the command line,
+``points = 5000`` in a spec, ``--set points=5000``. A field holding a nested config carries
+``metadata=option_prefix(prefix)``: its settings are named ``<prefix>-<field>`` ("" for none).
+A plain field stays internal. This module imports nothing heavy (the CLI reads it at start-up).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import difflib
+import functools
+import typing
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
-HELP = "help"  # the option's help text; its presence makes the field an option
+HELP = "help"  # the option's help text; its presence makes the field a setting
 CHOICES = "choices"  # allowed values (click.Choice)
 RANGE = "range"  # (min, max) inclusive, for ints (click.IntRange)
 OPTION = "option"  # the option's name when it is not --<prefix>-<field-name>
 DEFAULT_TEXT = "default_text"  # shown as the default when the value is decided at run time
-PREFIX = "prefix"  # on a nested config field: the prefix of its options ("" for none)
+PREFIX = "prefix"  # on a nested config field: the prefix of its settings ("" for none)
 
 
 def setting(
@@ -30,7 +34,7 @@ def setting(
     option: str | None = None,
     default_text: str | None = None,
 ) -> Any:
-    """A dataclass field that is also a command-line option (see the module docstring)."""
+    """A dataclass field that is also a setting (see the module docstring)."""
     meta: dict[str, Any] = {HELP: help}
     if choices is not None:
         meta[CHOICES] = tuple(choices)
@@ -44,17 +48,105 @@ def setting(
 
 
 def option_prefix(prefix: str) -> dict[str, str]:
-    """Metadata of a field holding a nested config: its settings become options
-    ``--<prefix>-<name>`` ("" for no prefix)."""
+    """Metadata of a field holding a nested config: ``field(default_factory=Section,
+    metadata=option_prefix("densify"))`` names its settings ``densify-<name>``."""
     return {PREFIX: prefix}
 
 
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    name: str  # the one name: option without "--", spec / --set / resume key
+    path: tuple[str, ...]  # field names from the top config down
+    field: dataclasses.Field
+    type: Any  # the field's resolved annotation
+    default: Any
+
+    @property
+    def param(self) -> str:
+        """The click parameter (a Python identifier)."""
+        return self.name.replace("-", "_")
+
+
+def walk(cls: type, path: tuple[str, ...] = (), prefix: str = "") -> Iterator[Setting]:
+    """Every setting of ``cls`` and its sections, in declaration order."""
+    hints = _type_hints(cls)
+    for f in dataclasses.fields(cls):
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if PREFIX in f.metadata:
+            inner = f.metadata[PREFIX]
+            yield from walk(type(default), (*path, f.name), _join(prefix, inner))
+        elif HELP in f.metadata:
+            option = f.metadata.get(OPTION) or "--" + _join(prefix, f.name)
+            name = option[2:].replace("_", "-")
+            yield Setting(name, (*path, f.name), f, hints[f.name], default)
+
+
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}-{name}" if prefix else name
+
+
+def by_name(cls: type) -> dict[str, Setting]:
+    return {s.name: s for s in walk(cls)}
+
+
+def canonical(name: str) -> str:
+    """Spec and ``--set`` keys may use ``_`` for ``-`` (TOML users write either)."""
+    return name.strip().replace("_", "-")
+
+
+def unknown_message(name: str, known: Sequence[str]) -> str:
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else " (see `plantdreamer generate --help`)"
+    return f"unknown setting {name!r}{hint}"
+
+
+def names_to_tree(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    """``{name: value}`` as a dict nested like ``cls``'s fields; KeyError-free: an unknown
+    name is a ValueError naming the closest known one."""
+    known = by_name(cls)
+    tree: dict[str, Any] = {}
+    for key, value in values.items():
+        name = canonical(key)
+        if name not in known:
+            raise ValueError(unknown_message(name, list(known)))
+        node = tree
+        path = known[name].path
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = list(value) if isinstance(value, tuple) else value
+    return tree
+
+
+def value_of(config: Any, name: str) -> Any:
+    """The value of the setting ``name`` in ``config``."""
+    known = by_name(type(config))
+    if canonical(name) not in known:
+        raise ValueError(unknown_message(canonical(name), list(known)))
+    return value_at(config, known[canonical(name)].path)
+
+
+def value_at(config: Any, path: tuple[str, ...]) -> Any:
+    value = config
+    for part in path:
+        value = getattr(value, part)
+    return value
+
+
 def check_choices(config: Any) -> None:
-    """ValueError naming the first field whose value is not one of its ``choices``."""
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            check_choices(value)
-        elif CHOICES in f.metadata and value not in f.metadata[CHOICES]:
-            allowed = ", ".join(f.metadata[CHOICES])
-            raise ValueError(f"{f.name.replace('_', ' ')} must be one of {allowed}, got {value!r}")
+    """ValueError naming the first setting whose value is not one of its ``choices`` or is
+    outside its ``range`` (the same limits the command line applies)."""
+    for s in walk(type(config)):
+        value = value_at(config, s.path)
+        meta = s.field.metadata
+        if CHOICES in meta and value not in meta[CHOICES]:
+            allowed = ", ".join(meta[CHOICES])
+            raise ValueError(f"{s.name.replace('-', ' ')} must be one of {allowed}, got {value!r}")
+        if RANGE in meta and value is not None:
+            low, high = meta[RANGE]
+            if not low <= value <= high:
+                raise ValueError(f"{s.name} must be in {low}..{high}, got {value!r}")

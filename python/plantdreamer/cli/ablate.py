@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import click
@@ -12,8 +11,8 @@ from plantdreamer.pipeline.config import GenerateConfig
 
 # The generation settings an ablation varies only through the command line.
 SETTINGS = (
-    "--species", "--seed", "--steps", "--resolution", "--guidance", "--base-model",
-    "--controlnet", "--lora", "--background",
+    "species", "seed", "steps", "resolution", "guidance", "base-model",
+    "controlnet", "lora", "background",
 )  # fmt: skip
 
 
@@ -35,7 +34,7 @@ def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) ->
     from plantdreamer.errors import InputError
     from plantdreamer.eval import scan_dataset
     from plantdreamer.output_folder import claim_folder
-    from plantdreamer.pipeline.config import COLOR_INITS
+    from plantdreamer.pipeline.init import COLOR_INITS
 
     base = config_from_options(GenerateConfig, options)
     settings = [c.strip() for c in colors.split(",") if c.strip()]
@@ -56,11 +55,13 @@ def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
     from plantdreamer.io import read_splat_ply
     from plantdreamer.pipeline import generate
 
-    background = base.background
+    background = base.train.background
     results: dict[str, float] = {}
     for color in settings:
         click.echo(f"== colour init: {color}")
-        cfg = dataclasses.replace(base, pointcloud=pointcloud, color_init=color, eval_views=0)
+        cfg = GenerateConfig.from_settings(
+            {**base.settings(), "pointcloud": pointcloud, "color-init": color, "eval-views": 0}
+        )
         run = generate(cfg, out / color, show_progress=not quiet)
         scored = evaluate(read_splat_ply(run.ply_path), frames, (background,) * 3, keep_views=0)
         write_json(scored, out / color / "eval.json", setting=color)

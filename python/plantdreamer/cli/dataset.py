@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import click
 
+from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
+from plantdreamer.pipeline.config import GenerateConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
+# Generate settings with an option of their own here (any other: --set NAME=VALUE).
+QUICK_SETTINGS = ("guidance", "steps", "points", "resolution", "eval-views")
 
 
 def _key_values(pairs: tuple[str, ...], what: str) -> dict[str, str]:
@@ -20,7 +24,8 @@ def _key_values(pairs: tuple[str, ...], what: str) -> dict[str, str]:
 
 
 def _toml_value(text: str) -> object:
-    """``--set steps=20`` gives an int, ``--set lora=lora/bean`` a string."""
+    """``--set steps=20`` gives an int, ``--set lora=lora/bean`` a string,
+    ``--set cameras-distance=[3, 5]`` a list."""
     from plantdreamer.dataset.spec import tomllib
 
     try:
@@ -35,12 +40,19 @@ def _toml_value(text: str) -> object:
 @click.option("--species", help="Without a spec: comma-separated species, e.g. bean,mint,kale.")
 @click.option("--count", type=click.IntRange(1), default=1, show_default=True)
 @click.option("--seed-start", type=click.IntRange(0), default=0, show_default=True)
-@click.option("--guidance", type=click.Choice(["sds", "none"]), help="Setting for every plant.")
-@click.option("--steps", type=click.IntRange(0), help="Setting for every plant.")
-@click.option("--points", "n_points", type=click.IntRange(1), help="Setting for every plant.")
-@click.option("--resolution", type=click.IntRange(1), help="Setting for every plant.")
-@click.option("--eval-views", type=click.IntRange(0), help="Setting for every plant.")
-@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help="Any generate setting.")
+@config_options(
+    GenerateConfig,
+    QUICK_SETTINGS,
+    with_defaults=False,
+    note=" For every plant [generate's default].",
+)
+@click.option(
+    "--set",
+    "settings",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Any generate setting for every plant, by its option name: --set points=5000.",
+)
 @click.option("--address", help="Join a Ray cluster: auto or HOST:PORT [default: local Ray].")
 @click.option("--local-cpus", type=click.IntRange(1), help="CPUs of the local Ray [all].")
 @click.option(
@@ -104,7 +116,8 @@ def dataset(
         spec = {"group": [{"species": s, "count": count, "seed_start": seed_start} for s in groups]}
     else:
         raise InputError("give a spec file or --species")
-    overrides = {k: v for k, v in quick_settings.items() if v is not None}
+    quick = options_to_settings(GenerateConfig, dict(quick_settings))
+    overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
     spec["defaults"] = {**spec.get("defaults", {}), **overrides}
     plants = expand(spec)

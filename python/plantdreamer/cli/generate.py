@@ -1,7 +1,7 @@
 """``plantdreamer generate``: a species or a point cloud in, a 3DGS plant out.
 
-The run's options are the settings of ``GenerateConfig`` (defaults, choices and help come
-from the dataclass); this module only adds the output folder, ``--resume``, ``--overwrite``,
+The run's options are the settings of ``GenerateConfig``, each under its one name (defaults,
+choices and help come from the sections' dataclasses); this module only adds the output folder, ``--resume``, ``--overwrite``,
 ``--quiet`` and ``--view`` (not settings of the run). ``--preset`` picks the base values
 (``pipeline/presets.py``); only the options given on the command line override them.
 """
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from plantdreamer.cli.options import config_options, given_on_command_line, options_tree
+from plantdreamer.cli.options import config_options, given_on_command_line, options_to_settings
 from plantdreamer.pipeline.config import GenerateConfig
 
 
@@ -62,14 +62,14 @@ def build_command() -> click.Command:
                         "--resume continues the run in its own folder; drop --out"
                     )
                 # Settings typed again on resume: checked against the checkpoint, never ignored.
-                changes = {k.replace("__", "."): v for k, v in options.items() if k in given}
+                changes = options_to_settings(GenerateConfig, given_on_command_line(options))
                 result = run_generate(
                     None, resume_dir, resume=True, changes=changes, show_progress=not quiet
                 )
             else:
                 preset = options.pop("preset")
-                typed = options_tree(GenerateConfig, given_on_command_line(options))
-                defaults = options_tree(GenerateConfig, options)
+                typed = options_to_settings(GenerateConfig, given_on_command_line(options))
+                defaults = options_to_settings(GenerateConfig, options)
                 cfg = resolve_config(preset, typed, base=defaults)
                 result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
         except RunInterrupted as stop:

@@ -1,15 +1,15 @@
 """Command-line options built from config dataclasses (see ``plantdreamer.settings``).
 
-``config_options(GenerateConfig)`` adds one click option per ``setting(...)`` field, nested
-configs included, with the field's default, choices and help; ``config_from_options`` turns
-the parsed values back into the config. A new setting is one field: no edit here.
+``config_options(GenerateConfig)`` adds one click option per setting, sections included,
+named by the setting's one name, with the field's default, choices, range and help;
+``options_to_settings`` turns the parsed values back into ``{name: value}``. A new setting is
+one field: no edit here.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import typing
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection
 from typing import Any, TypeVar
 
 import click
@@ -17,104 +17,76 @@ import click
 from plantdreamer import settings
 
 F = TypeVar("F", bound=Callable[..., Any])
-_SEP = "__"  # joins a nested field's path into one click parameter name
 
 
-@dataclasses.dataclass(frozen=True)
-class _Option:
-    path: tuple[str, ...]  # field names from the top config down
-    field: dataclasses.Field
-    type: Any  # the field's resolved annotation
-    default: Any
-    option: str
-
-    @property
-    def param(self) -> str:
-        return _SEP.join(self.path)
-
-
-def _walk(cls: type, path: tuple[str, ...] = (), prefix: str = "") -> Iterator[_Option]:
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-        if settings.PREFIX in f.metadata:
-            inner = f.metadata[settings.PREFIX]
-            yield from _walk(type(default), (*path, f.name), _join(prefix, inner))
-        elif settings.HELP in f.metadata:
-            option = f.metadata.get(settings.OPTION) or "--" + _join(prefix, f.name)
-            yield _Option((*path, f.name), f, hints[f.name], default, option.replace("_", "-"))
-
-
-def _join(prefix: str, name: str) -> str:
-    return f"{prefix}-{name}" if prefix else name
-
-
-def _click_type(opt: _Option) -> Any:
-    meta = opt.field.metadata
+def _click_type(s: settings.Setting) -> Any:
+    meta = s.field.metadata
     if settings.CHOICES in meta:
         return click.Choice(list(meta[settings.CHOICES]))
     if settings.RANGE in meta:
         return click.IntRange(*meta[settings.RANGE])
-    args = [a for a in typing.get_args(opt.type) if a is not type(None)]
-    base = args[0] if args else opt.type  # X | None -> X
+    if typing.get_origin(s.type) is tuple:
+        return typing.get_args(s.type)
+    args = [a for a in typing.get_args(s.type) if a is not type(None)]
+    base = args[0] if args else s.type  # X | None -> X
     if base not in (int, float, str, bool):
-        raise TypeError(f"setting {opt.param}: no command-line type for {opt.type!r}")
+        raise TypeError(f"setting {s.name}: no command-line type for {s.type!r}")
     return base
 
 
-def _option(opt: _Option) -> Callable[[F], F]:
-    meta = opt.field.metadata
+def _option(s: settings.Setting, with_default: bool, note: str) -> Callable[[F], F]:
+    meta = s.field.metadata
     text = meta.get(settings.DEFAULT_TEXT)
-    kind = _click_type(opt)
+    kind = _click_type(s)
+    default = s.default if with_default else None
+    help_text = meta[settings.HELP] + note
     if kind is bool:
-        name = opt.option[2:]
         return click.option(
-            f"--{name}/--no-{name}", opt.param, default=opt.default, help=meta[settings.HELP],
-            show_default=True,
+            f"--{s.name}/--no-{s.name}", s.param, default=default, help=help_text,
+            show_default=with_default,
         )  # fmt: skip
+    shown = text if text is not None else s.default is not None
     return click.option(
-        opt.option,
-        opt.param,
+        f"--{s.name}",
+        s.param,
         type=kind,
-        default=opt.default,
-        help=meta[settings.HELP],
-        show_default=text if text is not None else opt.default is not None,
+        default=default,
+        help=help_text,
+        show_default=shown if with_default else False,
     )
 
 
-def config_options(cls: type, only: Collection[str] | None = None) -> Callable[[F], F]:
-    """A decorator adding ``cls``'s settings as options (``only``: these option names)."""
-    opts = [o for o in _walk(cls) if only is None or o.option in only]
+def config_options(
+    cls: type, only: Collection[str] | None = None, *, with_defaults: bool = True, note: str = ""
+) -> Callable[[F], F]:
+    """A decorator adding ``cls``'s settings as options (``only``: these names).
+
+    ``with_defaults=False`` leaves every option at None unless given (settings that apply
+    over others, as `dataset`'s do); ``note`` is appended to each help text."""
+    opts = [s for s in settings.walk(cls) if only is None or s.name in only]
     if only is not None and len(opts) != len(only):
-        missing = set(only) - {o.option for o in opts}
+        missing = set(only) - {s.name for s in opts}
         raise ValueError(f"{cls.__name__} has no settings {sorted(missing)}")
 
     def decorate(command: F) -> F:
-        for opt in reversed(opts):  # click lists options in decoration order, bottom up
-            command = _option(opt)(command)
+        for s in reversed(opts):  # click lists options in decoration order, bottom up
+            command = _option(s, with_defaults, note)(command)
         return command
 
     return decorate
 
 
+def options_to_settings(cls: type, values: dict[str, Any]) -> dict[str, Any]:
+    """The option values (click parameter names) that are settings of ``cls``, by their one
+    name; consumes them from ``values``."""
+    return {s.name: values.pop(s.param) for s in settings.walk(cls) if s.param in values}
+
+
 def config_from_options(cls: type, values: dict[str, Any]) -> Any:
     """``cls`` with the given option values (as named by ``config_options``), the rest default.
 
-    Consumes the values it uses from ``values``.
-    """
-    return _build(cls, options_tree(cls, values))
-
-
-def options_tree(cls: type, values: dict[str, Any]) -> dict[str, Any]:
-    """The given option values as a dict nested like ``cls``'s fields; consumes them."""
-    tree: dict[str, Any] = {}
-    for opt in _walk(cls):
-        if opt.param in values:
-            node = tree
-            for name in opt.path[:-1]:
-                node = node.setdefault(name, {})
-            node[opt.path[-1]] = values.pop(opt.param)
-    return tree
+    Consumes the values it uses from ``values``."""
+    return cls.from_settings(options_to_settings(cls, values))  # type: ignore[attr-defined]
 
 
 def given_on_command_line(values: dict[str, Any]) -> dict[str, Any]:
@@ -125,12 +97,3 @@ def given_on_command_line(values: dict[str, Any]) -> dict[str, Any]:
         for name, value in values.items()
         if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
     }
-
-
-def _build(cls: type, tree: dict[str, Any]) -> Any:
-    hints = typing.get_type_hints(cls)
-    kwargs = {
-        name: _build(hints[name], value) if isinstance(value, dict) else value
-        for name, value in tree.items()
-    }
-    return cls(**kwargs)

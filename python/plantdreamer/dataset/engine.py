@@ -69,8 +69,8 @@ def plant_demand(
     gpus_per_plant: float | None,
     custom: dict[str, float],
 ) -> Demand:
-    cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.guidance]
-    gpus = gpus_per_plant if gpus_per_plant is not None else DEFAULT_GPUS[cfg.guidance]
+    cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.sds.guidance]
+    gpus = gpus_per_plant if gpus_per_plant is not None else DEFAULT_GPUS[cfg.sds.guidance]
     if cpus < 1 or gpus < 0:
         raise InputError("a plant needs at least 1 CPU and a non-negative number of GPUs")
     return Demand(cpus, gpus, tuple(sorted(custom.items())))

@@ -2,19 +2,19 @@
 
 A spec is a TOML file::
 
-    [defaults]              # any `generate` setting (GenerateConfig field names)
+    [defaults]              # any `generate` setting, by its option name (`--points`: points)
     steps = 20
     guidance = "none"
 
     [[group]]
     species = "bean"
-    count = 3               # seeds seed_start .. seed_start + count - 1 (or: seeds = [0, 7])
+    count = 3               # seeds seed-start .. seed-start + count - 1 (or: seeds = [0, 7])
 
     [[group]]
     name = "scans"
     pointclouds = "scans/*.ply"   # a glob, relative to the spec file
     species = "bean"              # names the plant in the prompts
-    n_points = 50000
+    points = 50000
 
 Every plant becomes one ``GenerateConfig`` built like `generate`'s (``preset = "released"``
 applies that preset under the spec's own settings), so any setting `generate` knows is
@@ -34,6 +34,7 @@ from typing import Any
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.presets import resolve_config
+from plantdreamer.settings import canonical
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -41,7 +42,7 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 # Keys of a group that choose its plants; every other key is a generate setting.
-_PLANT_KEYS = ("name", "species", "pointclouds", "seeds", "count", "seed_start")
+_PLANT_KEYS = ("name", "species", "pointclouds", "seeds", "count", "seed-start")
 
 
 @dataclass(frozen=True)
@@ -55,11 +56,11 @@ class Plant:
 
     @property
     def species(self) -> str | None:
-        return self.config.species
+        return self.config.source.species
 
     @property
     def source(self) -> str:
-        return self.config.pointcloud or "lsystem"
+        return self.config.source.pointcloud or "lsystem"
 
 
 def config_hash(cfg: GenerateConfig) -> str:
@@ -107,8 +108,8 @@ def expand(spec: dict[str, Any]) -> list[Plant]:
 def _settings(table: Any, where: str) -> dict[str, Any]:
     if not isinstance(table, dict):
         raise InputError(f"spec: {where} must be a table of generate settings")
-    # TOML users write `eval-views` as on the command line; settings use underscores.
-    return {key.replace("-", "_"): value for key, value in table.items()}
+    # Keys are setting names as on the command line; TOML users may write `_` for `-`.
+    return {canonical(key): value for key, value in table.items()}
 
 
 def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Path) -> list[Plant]:
@@ -140,7 +141,7 @@ def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Pa
             data = {**settings, "species": species, "pointcloud": pointcloud, "seed": seed}
             try:
                 # A preset applies as on the command line: its values, then the spec's own.
-                preset = data.pop("preset", GenerateConfig.preset)
+                preset = data.pop("preset", GenerateConfig().preset)
                 cfg = resolve_config(str(preset), data)
                 cfg.validate()
             except (InputError, TypeError, ValueError) as exc:
@@ -160,9 +161,9 @@ def _seeds(table: dict[str, Any], where: str) -> list[int]:
         if len(set(seeds)) != len(seeds):
             raise InputError(f"spec: {where}: 'seeds' has duplicates")
         return list(seeds)
-    count, start = table.get("count", 1), table.get("seed_start", 0)
+    count, start = table.get("count", 1), table.get("seed-start", 0)
     if not isinstance(count, int) or count < 1 or not isinstance(start, int) or start < 0:
-        raise InputError(f"spec: {where}: 'count' must be >= 1 and 'seed_start' >= 0")
+        raise InputError(f"spec: {where}: 'count' must be >= 1 and 'seed-start' >= 0")
     return list(range(start, start + count))
 
 

@@ -1,13 +1,15 @@
 """The settings of SDS guidance: the one place their defaults are written.
 
-``StableDiffusionDepthGuidance`` takes its keyword defaults from ``SDS_DEFAULTS``, and the
-generation config's guidance fields default to the same values, so the CLI, ``run.json``
-and the guidance agree. Imports nothing heavy (the CLI reads it at start-up).
+``SdsConfig`` is the guidance section of ``GenerateConfig`` (its fields are the CLI options),
+and ``StableDiffusionDepthGuidance`` takes its keyword defaults from ``SDS_DEFAULTS``, so the
+CLI, ``run.json`` and the guidance agree. Imports nothing heavy (the CLI reads it at start-up).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from plantdreamer.settings import setting
 
 # Names of the built-in timestep schedules (``schedules.BUILTIN_SCHEDULES``; a test checks).
 SCHEDULES = ("paper", "released")
@@ -27,20 +29,53 @@ RELEASED_NEGATIVE_PROMPT = (
 )
 
 
-@dataclass(frozen=True)
+GUIDANCES = ("sds", "none")
+NETWORK_DTYPES = ("auto", "float32", "float16")
+
+
+@dataclass
 class SdsConfig:
-    """Stable Diffusion 2.1 + depth ControlNet score distillation, as in the paper."""
+    """Stable Diffusion 2.1 + depth ControlNet score distillation, as in the paper: the
+    guidance section of a generation config (``plantdreamer generate --help``)."""
 
-    base_model: str = "stabilityai/stable-diffusion-2-1-base"
-    controlnet: str = "thibaud/controlnet-sd21-depth-diffusers"
-    lora: str | None = None
-    guidance_scale: float = 100.0  # classifier-free guidance (standard form, see sds.py)
-    conditioning_scale: float = 1.0  # ControlNet residual scale
-    schedule: str = "paper"
-    resolution: int = 512  # renders are resized to this before VAE encoding
-    negative_prompt: str = RELEASED_NEGATIVE_PROMPT  # the unconditional CFG branch
-    prompt_template: str = DEFAULT_PROMPT_TEMPLATE  # with a {species} field
-    control_resize: str = "bilinear"  # of the depth control image: bilinear or nearest
+    guidance: str = setting("sds", "Guidance: SDS, or none (no optimisation).", choices=GUIDANCES)
+    base_model: str = setting(
+        "stabilityai/stable-diffusion-2-1-base", "Base model: a hub id or a local folder."
+    )
+    controlnet: str = setting(
+        "thibaud/controlnet-sd21-depth-diffusers", "Depth ControlNet: a hub id or a local folder."
+    )
+    lora: str | None = setting(
+        None, "Species LoRA: a folder or .safetensors file (diffusers format)."
+    )
+    # Classifier-free guidance, standard form (see sds.py).
+    guidance_scale: float = setting(100.0, "Classifier-free guidance scale.")
+    conditioning_scale: float = setting(1.0, "ControlNet residual scale.")
+    schedule: str = setting(
+        "paper",
+        f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
+    )
+    # Renders are resized to this before VAE encoding.
+    resolution: int = setting(512, "Image size given to the VAE.", option="--sds-resolution")
+    prompt_template: str | None = setting(
+        None,
+        "Prompt with a {species} field.",
+        default_text=f"the LoRA's lora.json, else '{DEFAULT_PROMPT_TEMPLATE}'",
+    )
+    negative_prompt: str = setting(
+        RELEASED_NEGATIVE_PROMPT, "The unconditional CFG prompt.", default_text="the authors'"
+    )
+    depth_rule: str = setting("stretch", "Depth-map normalisation.", choices=DEPTH_RULES)
+    control_resize: str = setting(
+        "bilinear", "Resizing of the depth control image.", choices=RESIZE_MODES
+    )
+    network_dtype: str = setting(
+        "auto", "UNet and ControlNet precision (auto: float16 on CUDA).", choices=NETWORK_DTYPES
+    )
+    device: str | None = setting(
+        None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."
+    )
 
 
-SDS_DEFAULTS = SdsConfig()
+# The guidance's own keyword defaults (a template is always set there).
+SDS_DEFAULTS = SdsConfig(prompt_template=DEFAULT_PROMPT_TEMPLATE)

@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import GuidanceOutput, check_images
-from plantdreamer.guidance.config import RESIZE_MODES, SDS_DEFAULTS
+from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE, RESIZE_MODES, SDS_DEFAULTS
 from plantdreamer.guidance.cuda_graph import GraphedAutogradCall, GraphedCall
 from plantdreamer.guidance.depth import resize_control
 from plantdreamer.guidance.lora_weights import load_lora
@@ -84,7 +84,7 @@ class StableDiffusionDepthGuidance:
         | Sequence[tuple[int | None, float, float]] = SDS_DEFAULTS.schedule,
         total_steps: int = REFERENCE_STEPS,
         negative_prompt: str = SDS_DEFAULTS.negative_prompt,
-        prompt_template: str = SDS_DEFAULTS.prompt_template,
+        prompt_template: str = DEFAULT_PROMPT_TEMPLATE,
         control_resize: str = SDS_DEFAULTS.control_resize,
         device: str | torch.device | None = None,
         dtype: torch.dtype | str | None = None,

@@ -1,4 +1,8 @@
-"""Resumable checkpoints of a generation run (``OUT/checkpoint.pt``), written atomically."""
+"""Resumable checkpoints of a generation run (``OUT/checkpoint.pt``), written atomically.
+
+A checkpoint is the config, ``RunState.state_dict()`` and the guidance's noise state. Older
+formats still load where their contents carry over exactly; others fail with one line.
+"""
 
 from __future__ import annotations
 
@@ -7,13 +11,16 @@ from typing import Any
 
 from plantdreamer.atomic import _umask  # noqa: F401  (tests check the file mode with it)
 from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
-from plantdreamer.errors import CheckpointError
+from plantdreamer.errors import CheckpointError, InputError
 
 CHECKPOINT_NAME = "checkpoint.pt"
 # 2: nested config sections, plain data only (weights_only loads);
 # 3: the config records init_shape (format 2 runs began from spheres, the default is now discs,
-#    so resuming one would record a shape its model was not made with).
-FORMAT_VERSION = 3
+#    so resuming one would record a shape its model was not made with);
+# 4: the config in sections (source, init, train, sds, density, outputs); density control's
+#    state under "density". Format 3 converts exactly (each old key has one new name).
+FORMAT_VERSION = 4
+_CONVERTS = (3,)
 
 
 def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
@@ -26,10 +33,24 @@ def load_checkpoint(out_dir: Path) -> dict[str, Any]:
     path = Path(out_dir) / CHECKPOINT_NAME
     state = read_checkpoint(path)
     found = state.get("format")
+    if found in _CONVERTS:
+        return _from_format_3(state, path)
     if found != FORMAT_VERSION:
         what = f"format {found}" if isinstance(found, int) else "not a plantdreamer checkpoint"
         raise CheckpointError(
-            f"{path}: {what}; this plantdreamer resumes format {FORMAT_VERSION} only "
+            f"{path}: {what}; this plantdreamer resumes formats 3 and {FORMAT_VERSION} only "
             "(start the run again with --overwrite)"
         )
     return state
+
+
+def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:
+    from plantdreamer.pipeline.config import from_flat_dict
+
+    try:
+        config = from_flat_dict(state["config"]).to_dict()
+    except (KeyError, TypeError, AttributeError, InputError) as exc:
+        raise CheckpointError(f"{path}: damaged checkpoint, bad config ({exc})") from exc
+    converted = {k: v for k, v in state.items() if k != "densify"}
+    converted.update(format=FORMAT_VERSION, config=config, density=state.get("densify"))
+    return converted

@@ -1,9 +1,12 @@
-"""Every setting of a generation run, with the paper's and released code's defaults.
+"""Every setting of a generation run: sections owned by the modules that read them.
 
-These dataclasses are the one place a default is written: ``plantdreamer generate`` builds
-one option per field made with ``setting(...)`` (default, choices and help read from here),
-``run.json`` and each checkpoint store ``to_dict()``, and ``--resume`` rebuilds the config
-with ``from_dict`` so it continues with exactly the settings it started with.
+``GenerateConfig`` joins the sections (brush's ``#[clap(flatten)]``): ``source``
+(``source.py``), ``init`` (``init.py``), ``train`` (``train_config.py``), ``sds``
+(``guidance/config.py``), ``density`` (``density.py``) and ``outputs`` (``outputs.py``). Each
+setting has one name (``plantdreamer.settings``): the CLI option, the spec key, the ``--set``
+key and the ``--resume`` key. ``run.json`` and each checkpoint store ``to_dict()`` and
+``--resume`` rebuilds the config with ``from_dict``, so a run continues with exactly the
+settings it started with.
 """
 
 from __future__ import annotations
@@ -11,86 +14,24 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from plantdreamer import settings
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES, SCHEDULES, SDS_DEFAULTS
-from plantdreamer.settings import check_choices, option_prefix, setting
-from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+from plantdreamer.guidance.config import SdsConfig
+from plantdreamer.pipeline.density import DensityConfig
+from plantdreamer.pipeline.init import InitConfig
+from plantdreamer.pipeline.outputs import OutputsConfig
+from plantdreamer.pipeline.source import SourceConfig
+from plantdreamer.pipeline.train_config import TrainConfig
+from plantdreamer.settings import option_prefix, setting
 
-COLOR_INITS = ("original", "noise", "black", "white")
-INIT_SHAPES = ("surface", "sphere")
 MAX_RESOLUTION = 8192  # largest training / evaluation render side
-GUIDANCES = ("sds", "none")
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
 # pipeline/presets.py holds each preset's values.
 PRESET_NAMES = ("plantdreamer", "released", "paper")
-
-
-@dataclass
-class LearningRates:
-    """Adam learning rates of the released code (position and SH as in the paper)."""
-
-    means: float = 5e-5
-    sh_dc: float = 0.0125
-    sh_rest: float = 0.0125 / 20
-    opacity: float = 0.01
-    scales: float = 0.005
-    quats: float = 0.001
-    eps: float = 1e-15
-
-
-@dataclass
-class CameraRanges:
-    """Random orbit cameras for training (released code's ranges)."""
-
-    distance: tuple[float, float] = (3.0, 6.0)
-    elevation_deg: tuple[float, float] = (-10.0, 80.0)
-    azimuth_deg: tuple[float, float] = (-180.0, 180.0)
-    fovy_deg: tuple[float, float] = (40.0, 70.0)
-
-
-@dataclass
-class DensifyConfig:
-    """3DGS adaptive density control in the released code's window: every ``every`` steps
-    strictly between ``start`` and ``until``, clone or split Gaussians whose mean 2D-mean
-    gradient (NDC units) is at least ``grad_threshold``, then prune transparent ones."""
-
-    start: int = 300
-    until: int = 900
-    every: int = 100
-    grad_threshold: float = 2e-4
-    split_scale: float = 0.04  # larger Gaussians are split, smaller cloned (1% of the scene)
-    prune_opacity: float = 0.05
-    max_gaussians: int = 500_000
-    cap_rule: str = setting(
-        "strongest",
-        "At the cap: densify the strongest gradients, or all then prune at random (released).",
-        choices=("strongest", "random"),
-    )
-    split_std: float = setting(1.0, "Split samples' std as a fraction of the scale.")
-
-    def due(self, step: int) -> bool:
-        return self.start < step < self.until and step % self.every == 0
-
-
-@dataclass
-class CullConfig:
-    """Large-Gaussian culling (paper Sec. 3.3, on log-scales): every ``every`` steps after
-    ``after``, remove Gaussians with V = ||exp(s)|| > mean + ``threshold`` std."""
-
-    threshold: float = setting(3.0, "C in V > mean + C std.")
-    every: int = 100
-    after: int = 500
-    volume: str = setting(
-        "log",
-        "V on log-scales (paper), or double-exp: exp of activated scales (released).",
-        choices=("log", "double-exp"),
-    )
-
-    def due(self, step: int) -> bool:
-        return step > self.after and step % self.every == 0
 
 
 @dataclass
@@ -101,175 +42,93 @@ class GenerateConfig:
         "(docs/fidelity.md); options given override them.",
         choices=PRESET_NAMES,
     )
-
-    # Input: a point cloud (PLY), or else the species' L-System. With a point cloud, species
-    # only names the plant in the prompts.
-    species: str | None = setting(
-        None,
-        "L-System species to generate (see `plantdreamer lsystem --list`); with "
-        "--pointcloud, the plant named in the prompts.",
-    )
-    pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
     seed: int = setting(0, "Seed of the plant, cameras and noise.")
-    n_points: int = setting(100_000, "Points to start from.", option="--points")
-    sor_neighbors: int = 20
-    sor_std: float = 3.0
-    scene_size: float = 4.0  # longest side of the normalised scene
-    sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
-    mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
-    label_field: str | None = setting(
-        None,
-        "Point-cloud property with class ids.",
-        default_text="label, class, scalar_Classification, semantic, ... if present",
-    )
-    instance_field: str | None = setting(
-        None,
-        "Point-cloud property with instance ids.",
-        default_text="instance, instance_id, leaf_id, ... if present",
-    )
+    source: SourceConfig = field(default_factory=SourceConfig, metadata=option_prefix(""))
+    init: InitConfig = field(default_factory=InitConfig, metadata=option_prefix(""))
+    train: TrainConfig = field(default_factory=TrainConfig, metadata=option_prefix(""))
+    sds: SdsConfig = field(default_factory=SdsConfig, metadata=option_prefix(""))
+    density: DensityConfig = field(default_factory=DensityConfig, metadata=option_prefix(""))
+    outputs: OutputsConfig = field(default_factory=OutputsConfig, metadata=option_prefix(""))
 
-    # Initialisation.
-    sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
-    color_init: str = setting("original", "Colours of the initial Gaussians.", choices=COLOR_INITS)
-    opacity_init: float | None = None  # None: 0.7 for L-System meshes, 0.1 for point clouds
-    init_scale: str = setting(
-        "mean", "Initial scale from the 3 nearest neighbours' distances.", choices=("mean", "rms")
-    )
-    init_shape: str = setting(
-        "surface",
-        "Initial Gaussians on an L-System mesh: flat discs in the surface, or spheres "
-        "(released); point clouds always get spheres.",
-        choices=INIT_SHAPES,
-    )
+    @classmethod
+    def of(cls, **values: Any) -> GenerateConfig:
+        """A config from settings by name (``_`` for ``-``): ``of(species="bean", points=500)``."""
+        return cls.from_settings(values)
 
-    # Optimisation.
-    steps: int = setting(3600, "Optimisation steps.")
-    resolution: int | None = setting(
-        None, "Training render size.", default_text="512 on CPU, 768 on GPU"
-    )
-    background: float = setting(0.75, "Grey level of the background renders are made on.")
-    lr: LearningRates = field(default_factory=LearningRates)
-    cameras: CameraRanges = field(default_factory=CameraRanges)
-    elevation_sampling: str = setting(
-        "uniform",
-        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix.",
-        choices=("uniform", "mixed"),
-    )
-    densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
-    cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
+    @classmethod
+    def from_settings(cls, values: Mapping[str, Any]) -> GenerateConfig:
+        try:
+            return cls.from_dict(settings.names_to_tree(cls, values))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
 
-    # Guidance (SDS defaults: guidance/config.py).
-    guidance: str = setting("sds", "Guidance: SDS, or none (no optimisation).", choices=GUIDANCES)
-    base_model: str = setting(SDS_DEFAULTS.base_model, "Base model: a hub id or a local folder.")
-    controlnet: str = setting(
-        SDS_DEFAULTS.controlnet, "Depth ControlNet: a hub id or a local folder."
-    )
-    lora: str | None = setting(
-        SDS_DEFAULTS.lora, "Species LoRA: a folder or .safetensors file (diffusers format)."
-    )
-    guidance_scale: float = setting(SDS_DEFAULTS.guidance_scale, "Classifier-free guidance scale.")
-    conditioning_scale: float = SDS_DEFAULTS.conditioning_scale
-    schedule: str = setting(
-        SDS_DEFAULTS.schedule,
-        f"Timestep schedule: {' or '.join(SCHEDULES)}, or a table like '0.2-0.98@600,0.075-0.15'.",
-    )
-    sds_resolution: int = setting(SDS_DEFAULTS.resolution, "Image size given to the VAE.")
-    prompt_template: str | None = setting(
-        None,
-        "Prompt with a {species} field.",
-        default_text=f"the LoRA's lora.json, else '{SDS_DEFAULTS.prompt_template}'",
-    )
-    negative_prompt: str = setting(
-        SDS_DEFAULTS.negative_prompt,
-        "The unconditional CFG prompt.",
-        default_text="the authors'",
-    )
-    depth_rule: str = setting("stretch", "Depth-map normalisation.", choices=DEPTH_RULES)
-    control_resize: str = setting(
-        SDS_DEFAULTS.control_resize, "Resizing of the depth control image.", choices=RESIZE_MODES
-    )
-    network_dtype: str = setting(
-        "auto",
-        "UNet and ControlNet precision (auto: float16 on CUDA).",
-        choices=("auto", "float32", "float16"),
-    )
-    device: str | None = setting(
-        None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."
-    )
+    def settings(self) -> dict[str, Any]:
+        """Every setting by its one name."""
+        return {s.name: settings.value_at(self, s.path) for s in settings.walk(type(self))}
 
-    # Outputs.
-    eval_views: int = setting(120, "Renders on the evaluation orbit.")
-    eval_distance: float = 4.0
-    eval_elevation_deg: float = 15.0
-    eval_fovy_deg: float = 70.0
-    turntable_frames: int = TURNTABLE_FRAMES
-    turntable: str = setting(
-        "gif",
-        "Turntable of the evaluation orbit: turntable.gif, turntable.mp4, both or none.",
-        choices=TURNTABLE_FORMATS,
-    )
-    sh_degree_export: int | None = setting(
-        None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
-    )
-    labels: bool = setting(
-        True, "Write label/instance into plant.ply and the class and instance masks."
-    )
-    checkpoint_every: int = setting(500, "Steps between checkpoints.")
+    def get(self, name: str) -> Any:
+        try:
+            return settings.value_of(self, name)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
 
     def validate(self) -> None:
         self._check_numbers()
-        if self.species is None and self.pointcloud is None:
+        if self.source.species is None and self.source.pointcloud is None:
             raise InputError("give an input: a species (L-System) or a point cloud")
         try:
-            check_choices(self)
+            settings.check_choices(self)
         except ValueError as exc:
             raise InputError(str(exc)) from None
-        if not 0 <= self.sh_degree <= 3:
-            raise InputError(f"SH degree must be in 0..3, got {self.sh_degree}")
-        if self.sh_degree_export is not None and not 0 <= self.sh_degree_export <= 3:
-            raise InputError(f"export SH degree must be in 0..3, got {self.sh_degree_export}")
-        if self.steps < 0 or self.n_points <= 0 or self.eval_views < 0:
+        if self.train.steps < 0 or self.source.points <= 0 or self.outputs.eval_views < 0:
             raise InputError("steps, points and views must not be negative")
-        if self.checkpoint_every <= 0 or self.densify.every <= 0 or self.cull.every <= 0:
+        dens = self.density
+        if self.train.checkpoint_every <= 0 or dens.densify.every <= 0 or dens.cull.every <= 0:
             raise InputError("checkpoint, densify and cull intervals must be positive")
-        if not 0.0 < self.densify.split_std <= 4.0:
-            raise InputError(f"split std must be in (0, 4], got {self.densify.split_std}")
-        if self.prompt_template is not None:
+        if not 0.0 < dens.densify.split_std <= 4.0:
+            raise InputError(f"split std must be in (0, 4], got {dens.densify.split_std}")
+        if self.sds.prompt_template is not None:
             from plantdreamer.guidance.prompts import check_template
 
-            check_template(self.prompt_template)
+            check_template(self.sds.prompt_template)
 
     def _check_numbers(self) -> None:
         """Integers are integers (3.7 points is an error, not 3), numbers are finite and
         in range, counts fit in memory: no run starts on values it would silently garble."""
         from plantdreamer.cloud import check_point_count
 
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.type in ("int", "int | None") and value is not None:
+        for s in settings.walk(type(self)):
+            value = settings.value_at(self, s.path)
+            if s.type in (int, int | None) and value is not None:
                 if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-                    raise InputError(f"{f.name} must be an integer, got {value!r}")
-            if f.type in ("float", "float | None") and value is not None:
+                    raise InputError(f"{s.name} must be an integer, got {value!r}")
+            if s.type in (float, float | None) and value is not None:
                 if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                    raise InputError(f"{f.name} must be a number, got {value!r}")
+                    raise InputError(f"{s.name} must be a number, got {value!r}")
                 if not math.isfinite(value):
-                    raise InputError(f"{f.name} must be finite, got {value}")
+                    raise InputError(f"{s.name} must be finite, got {value}")
+            if s.type == tuple[float, float]:
+                ok = isinstance(value, tuple) and len(value) == 2
+                if not ok or not all(_finite_number(v) for v in value):
+                    raise InputError(f"{s.name} must be two finite numbers, got {value!r}")
         if not 0 <= self.seed < 2**32:
             raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
-        check_point_count(self.n_points, "points")
-        if self.guidance_scale < 0:
-            raise InputError(f"guidance scale must be >= 0, got {self.guidance_scale}")
-        if not 0.0 <= self.background <= 1.0:
-            raise InputError(f"background must be a grey level in [0, 1], got {self.background}")
-        for name in ("resolution", "sds_resolution"):
-            size = getattr(self, name)
+        check_point_count(self.source.points, "points")
+        if self.sds.guidance_scale < 0:
+            raise InputError(f"guidance scale must be >= 0, got {self.sds.guidance_scale}")
+        if not 0.0 <= self.train.background <= 1.0:
+            raise InputError(
+                f"background must be a grey level in [0, 1], got {self.train.background}"
+            )
+        for name in ("resolution", "sds-resolution"):
+            size = self.get(name)
             if size is not None and not 8 <= size <= MAX_RESOLUTION:
                 raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
 
     def initial_opacity(self) -> float:
-        if self.opacity_init is not None:
-            return self.opacity_init
-        return 0.1 if self.pointcloud is not None else 0.7
+        if self.init.opacity_init is not None:
+            return self.init.opacity_init
+        return 0.1 if self.source.pointcloud is not None else 0.7
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values only (dicts, lists, numbers, strings, None): JSON and checkpoints."""
@@ -278,6 +137,26 @@ class GenerateConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> GenerateConfig:
         return _build(cls, data)
+
+
+def from_flat_dict(data: dict[str, Any]) -> GenerateConfig:
+    """A config from the flat records of earlier versions (top-level fields, ``densify``,
+    ``cull``, ``lr`` and ``cameras`` nested once): each old key maps to one name."""
+    values: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            values.update({f"{key}-{k}": v for k, v in value.items()})
+        else:
+            values[key] = value
+    renamed = {"n-points": "points", "n_points": "points"}
+    return GenerateConfig.from_settings(
+        {renamed.get(k, settings.canonical(k)): v for k, v in values.items()}
+    )
+
+
+def _finite_number(value: Any) -> bool:
+    real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    return real and math.isfinite(value)
 
 
 def _plain(value: Any) -> Any:

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians, rgb_to_sh_dc, sh_coeff_count
+from plantdreamer.settings import setting
+
+COLOR_INITS = ("original", "noise", "black", "white")
+INIT_SHAPES = ("surface", "sphere")
 
 # Leaf green for clouds without colours (an L-System mesh always has colours).
 DEFAULT_RGB = (0.25, 0.45, 0.15)
@@ -15,6 +21,26 @@ SURFACE_THICKNESS = 0.05
 # A Gaussian's scale is at most this fraction of its distance to the surface's edge: its
 # 2-sigma ellipse stays on the surface (docs/labels.md).
 EDGE_MARGIN = 0.5
+
+
+@dataclass
+class InitConfig:
+    """The initialisation section: how the source points become the first Gaussians."""
+
+    sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
+    color_init: str = setting("original", "Colours of the initial Gaussians.", choices=COLOR_INITS)
+    opacity_init: float | None = setting(
+        None, "Initial opacity.", default_text="0.7 for L-System meshes, 0.1 for point clouds"
+    )
+    init_scale: str = setting(
+        "mean", "Initial scale from the 3 nearest neighbours' distances.", choices=("mean", "rms")
+    )
+    init_shape: str = setting(
+        "surface",
+        "Initial Gaussians on an L-System mesh: flat discs in the surface, or spheres "
+        "(released); point clouds always get spheres.",
+        choices=INIT_SHAPES,
+    )
 
 
 def initial_colors(

@@ -14,7 +14,7 @@ import torch
 
 from plantdreamer.cameras import Camera, stack
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.config import LearningRates
+from plantdreamer.pipeline.train_config import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 

@@ -6,6 +6,7 @@ import csv
 import functools
 import io
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,11 +18,34 @@ from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
-from plantdreamer.turntable import TURNTABLE_FORMATS
+from plantdreamer.settings import setting
+from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
 # float32 positions must resolve the plant at least this finely (relative to its size);
 # georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
 EXPORT_PRECISION = 1e-5
+
+
+@dataclass
+class OutputsConfig:
+    """The outputs section: the evaluation orbit, the turntable and the PLY's contents."""
+
+    eval_views: int = setting(120, "Renders on the evaluation orbit.")
+    eval_distance: float = setting(4.0, "Evaluation orbit camera distance.")
+    eval_elevation_deg: float = setting(15.0, "Evaluation orbit elevation (degrees).")
+    eval_fovy_deg: float = setting(70.0, "Evaluation orbit vertical field of view (degrees).")
+    turntable_frames: int = setting(TURNTABLE_FRAMES, "Frames of the turntable.")
+    turntable: str = setting(
+        "gif",
+        "Turntable of the evaluation orbit: turntable.gif, turntable.mp4, both or none.",
+        choices=TURNTABLE_FORMATS,
+    )
+    sh_degree_export: int | None = setting(
+        None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
+    )
+    labels: bool = setting(
+        True, "Write label/instance into plant.ply and the class and instance masks."
+    )
 
 
 def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:

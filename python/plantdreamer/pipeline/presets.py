@@ -5,8 +5,8 @@
 - ``paper``: the paper's stated values where they differ from ours.
 
 ``docs/fidelity.md`` gives each step with the three values and the reason for ours. Every
-value here is a config field (nested configs as nested dicts), so any of them can still be
-set on its own.
+key here is a setting's one name (``plantdreamer generate --help``), so any of them can still
+be set on its own.
 """
 
 from __future__ import annotations
@@ -20,46 +20,39 @@ from plantdreamer.guidance.config import (
     RELEASED_PROMPT_TEMPLATE,
 )
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.settings import canonical
 
 PRESETS: dict[str, dict[str, Any]] = {
     "plantdreamer": {},
     "released": {
-        "negative_prompt": RELEASED_NEGATIVE_PROMPT,
-        "prompt_template": RELEASED_PROMPT_TEMPLATE,
+        "negative-prompt": RELEASED_NEGATIVE_PROMPT,
+        "prompt-template": RELEASED_PROMPT_TEMPLATE,
         # Their CFG is eps_text + s (eps_text - eps_uncond) with s = 100: ours with s + 1.
-        "guidance_scale": 101.0,
+        "guidance-scale": 101.0,
         "schedule": "released",
-        "depth_rule": "released",
-        "control_resize": "nearest",
-        "network_dtype": "float32",
-        "cull": {"threshold": 7.0, "volume": "double-exp"},
-        "densify": {"split_std": 0.5, "cap_rule": "random"},
-        "n_points": 300_000,
-        "mesh_sor": True,
-        "sor_after_voxel": True,
-        "init_scale": "rms",
-        "init_shape": "sphere",
-        "elevation_sampling": "mixed",
+        "depth-rule": "released",
+        "control-resize": "nearest",
+        "network-dtype": "float32",
+        "cull-threshold": 7.0,
+        "cull-volume": "double-exp",
+        "densify-split-std": 0.5,
+        "densify-cap-rule": "random",
+        "points": 300_000,
+        "mesh-sor": True,
+        "sor-after-voxel": True,
+        "init-scale": "rms",
+        "init-shape": "sphere",
+        "elevation-sampling": "mixed",
     },
     "paper": {
-        "prompt_template": PAPER_PROMPT_TEMPLATE,
+        "prompt-template": PAPER_PROMPT_TEMPLATE,
         "schedule": "paper",
-        "cull": {"threshold": 3.0, "volume": "log"},
-        "n_points": 100_000,
-        "sor_after_voxel": False,
+        "cull-threshold": 3.0,
+        "cull-volume": "log",
+        "points": 100_000,
+        "sor-after-voxel": False,
     },
 }
-
-
-def merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with ``top``'s values on top, nested dicts merged key by key."""
-    out = dict(base)
-    for key, value in top.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = merge(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 def resolve_config(
@@ -67,13 +60,13 @@ def resolve_config(
     options: dict[str, Any] | None = None,
     base: dict[str, Any] | None = None,
 ) -> GenerateConfig:
-    """The config of ``preset`` with ``options`` (the user's explicit settings, nested like
-    ``GenerateConfig.to_dict()``) on top; ``base`` (values under the preset, e.g. the CLI's
-    defaults) fills the rest, else the dataclass defaults do."""
+    """The config of ``preset`` with ``options`` (the user's explicit settings by name) on
+    top; ``base`` (settings under the preset, e.g. the CLI's defaults) fills the rest, else
+    the dataclass defaults do."""
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r}: use one of {', '.join(PRESETS)}")
-    options = dict(options or {})
+    options = {canonical(k): v for k, v in (options or {}).items()}
     if options.pop("preset", preset) != preset:
         raise InputError("two different presets given")
-    values = merge(merge(base or {}, PRESETS[preset]), options)
-    return GenerateConfig.from_dict({**values, "preset": preset})
+    values = {**(base or {}), **PRESETS[preset], **options, "preset": preset}
+    return GenerateConfig.from_settings(values)

@@ -1,9 +1,13 @@
-"""Progress display: a live bar on a terminal, plain periodic log lines otherwise."""
+"""Progress display (a live bar on a terminal, plain periodic log lines otherwise) and the
+per-phase timer whose totals go into run.json."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 
@@ -65,3 +69,18 @@ class Progress:
     def close(self) -> None:
         if self._bar is not None:
             self._bar.stop()
+
+
+class PhaseTimer:
+    """Seconds spent per phase of a run (``with timer("render"): ...``), summed."""
+
+    def __init__(self, totals: dict[str, float] | None = None) -> None:
+        self.totals: dict[str, float] = defaultdict(float, totals or {})
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[name] += time.perf_counter() - t0

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from plantdreamer.cameras import Camera, orbit
-from plantdreamer.pipeline.config import CameraRanges
+from plantdreamer.pipeline.train_config import CameraRanges
 
 
 def area_uniform_elevation(rng: np.random.Generator, low: float, high: float) -> float:

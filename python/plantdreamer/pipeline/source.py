@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,9 +12,41 @@ from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.settings import setting
+
+if TYPE_CHECKING:
+    from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.init import init_gaussians, initial_colors
 from plantdreamer.pointcloud import NormalizeTransform
+
+
+@dataclass
+class SourceConfig:
+    """The input section: a point cloud (PLY), or else the species' L-System. With a point
+    cloud, species only names the plant in the prompts."""
+
+    species: str | None = setting(
+        None,
+        "L-System species to generate (see `plantdreamer lsystem --list`); with "
+        "--pointcloud, the plant named in the prompts.",
+    )
+    pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
+    points: int = setting(100_000, "Points to start from.")
+    sor_neighbors: int = setting(20, "Statistical outlier removal: neighbours per point.")
+    sor_std: float = setting(3.0, "Statistical outlier removal: std multiplier.")
+    scene_size: float = setting(4.0, "Longest side of the normalised scene.")
+    sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
+    mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
+    label_field: str | None = setting(
+        None,
+        "Point-cloud property with class ids.",
+        default_text="label, class, scalar_Classification, semantic, ... if present",
+    )
+    instance_field: str | None = setting(
+        None,
+        "Point-cloud property with instance ids.",
+        default_text="instance, instance_id, leaf_id, ... if present",
+    )
 
 
 @dataclass
@@ -29,28 +62,30 @@ class Source:
 
 
 def load_source(cfg: GenerateConfig) -> Source:
-    """A captured cloud goes through `prepare_cloud` (finite, SOR, voxel to ~n_points,
+    """A captured cloud goes through `prepare_cloud` (finite, SOR, voxel to ~points,
     normalise); an L-System mesh is sampled uniformly by area (then, with ``mesh_sor``,
     filtered by SOR as the released code does), then normalised. Labels come with the points:
     the L-System's organ and leaf ids, or a cloud's label properties."""
     from plantdreamer.pointcloud import normalize
 
-    if cfg.pointcloud is not None:
+    src = cfg.source
+
+    if src.pointcloud is not None:
         from plantdreamer.io import read_ply
         from plantdreamer.prepare import prepare_cloud
 
-        raw = read_ply(Path(cfg.pointcloud))
-        fields = find_label_fields(raw.attributes, cfg.label_field, cfg.instance_field)
+        raw = read_ply(Path(src.pointcloud))
+        fields = find_label_fields(raw.attributes, src.label_field, src.instance_field)
         for name in fields:
             if name is not None:  # check the values before the slow steps
                 raw.attributes[name] = as_int_labels(name, raw.attributes[name])
         cloud, transform, report = prepare_cloud(
             raw,
-            target=cfg.n_points,
-            sor_neighbors=cfg.sor_neighbors,
-            sor_std=cfg.sor_std,
-            normalize_size=cfg.scene_size,
-            sor_after_voxel=cfg.sor_after_voxel,
+            target=src.points,
+            sor_neighbors=src.sor_neighbors,
+            sor_std=src.sor_std,
+            normalize_size=src.scene_size,
+            sor_after_voxel=src.sor_after_voxel,
             label_fields=[n for n in fields if n is not None],
         )
         assert transform is not None
@@ -65,21 +100,21 @@ def load_source(cfg: GenerateConfig) -> Source:
 
     from plantdreamer.lsystem import generate_plant, sample_points
 
-    if cfg.species is None:
+    if src.species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
-    surface = cfg.init_shape == "surface"
+    surface = cfg.init.init_shape == "surface"
     cloud = sample_points(
-        generate_plant(cfg.species, cfg.seed), cfg.n_points, cfg.seed, boundary_distance=surface
+        generate_plant(src.species, cfg.seed), src.points, cfg.seed, boundary_distance=surface
     )
     counts = {"sampled": len(cloud)}
-    if cfg.mesh_sor:
+    if src.mesh_sor:
         from plantdreamer.pointcloud import remove_statistical_outliers
 
         cloud = cloud.subset(
-            remove_statistical_outliers(cloud.positions, cfg.sor_neighbors, cfg.sor_std)
+            remove_statistical_outliers(cloud.positions, src.sor_neighbors, src.sor_std)
         )
         counts["outliers removed"] = len(cloud)
-    points, transform = normalize(cloud.positions, size=cfg.scene_size)
+    points, transform = normalize(cloud.positions, size=src.scene_size)
     return Source(
         points.astype(np.float32),
         cloud.colors,
@@ -95,13 +130,13 @@ def load_source(cfg: GenerateConfig) -> Source:
 def initial_gaussians(cfg: GenerateConfig, source: Source) -> Gaussians:
     """The Gaussians a run starts from: one per source point, by the config's rules."""
     rng = np.random.default_rng([cfg.seed, 0xC0102])
-    colors = initial_colors(source.colors, len(source.points), cfg.color_init, rng)
+    colors = initial_colors(source.colors, len(source.points), cfg.init.color_init, rng)
     return init_gaussians(
         source.points,
         colors,
         cfg.initial_opacity(),
-        cfg.sh_degree,
-        scale_rule=cfg.init_scale,
+        cfg.init.sh_degree,
+        scale_rule=cfg.init.init_scale,
         labels=source.labels,
         normals=source.normals,
         boundary_distance=source.boundary_distance,

@@ -1,0 +1,120 @@
+"""What a finished run writes: plant.ply in the input's frame, the evaluation renders with
+their ground truth, the turntable, log.csv and run.json (written last: it marks the run
+finished). The run's periodic checkpoint is removed once everything else is written."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from plantdreamer import _core
+from plantdreamer.cameras import orbit_ring
+from plantdreamer.gaussians import Gaussians
+from plantdreamer.pipeline import outputs
+from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
+from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.versions import package_versions
+
+# Per-step phases reported in run.json's per_step_s.
+STEP_PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+
+
+@dataclass
+class RunResult:
+    out_dir: Path
+    ply_path: Path
+    steps: int
+    gaussians: int
+    timings: dict[str, float]
+
+
+def export_run(
+    cfg: GenerateConfig, state: RunState, out: Path, resolution: int, device: str
+) -> RunResult:
+    """Writes every output of a finished run into ``out``."""
+    final = state.model.to_gaussians()
+    timer, oc = state.timer, cfg.outputs
+    with timer("export"):
+        ply_path = out / "plant.ply"
+        offset = outputs.export_offset(state.transform, cfg.source.scene_size)
+        export_offset = None if offset is None else [float(v) for v in offset]
+        comments = () if offset is None else (outputs.offset_comment(offset),)
+        outputs.export_ply(
+            ply_path,
+            outputs.to_input_frame(final, state.transform, offset),
+            oc.sh_degree_export,
+            oc.labels,
+            comments,
+        )
+    with timer("renders"), torch.no_grad():
+        # Each view's render, then its ground truth (which reuses the render's footprints).
+        cameras = orbit_ring(
+            oc.eval_views,
+            oc.eval_distance,
+            oc.eval_elevation_deg,
+            oc.eval_fovy_deg,
+            resolution,
+            resolution,
+        )
+        writer = ground_truth_writer(
+            out, state.model, state.transform, oc.labels, _class_names(cfg)
+        )
+
+        def render(camera):
+            image, _, meta = state.model.render([camera], cfg.train.background)
+            return outputs.to_uint8(image[0].numpy()), meta
+
+        frames = render_views(state.model, writer, cameras, render)
+        outputs.write_renders(out / "renders", frames)
+        outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
+    outputs.write_log_csv(out / "log.csv", state.log_rows)
+    summary = _summary(cfg, state, final, device, export_offset)
+    outputs.write_json(out / "run.json", summary)
+    (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
+    return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
+
+
+def _class_names(cfg: GenerateConfig) -> dict[int, str] | None:
+    if cfg.source.pointcloud is not None:
+        return None
+    from plantdreamer.lsystem import OrganClass
+
+    return {int(c): c.name.lower() for c in OrganClass}
+
+
+def _summary(
+    cfg: GenerateConfig,
+    state: RunState,
+    final: Gaussians,
+    device: str,
+    export_offset: list[float] | None,
+) -> dict[str, Any]:
+    totals = state.timer.totals
+    steps_trained = len(state.log_rows)
+    per_step = {
+        k: v / steps_trained for k, v in totals.items() if steps_trained and k in STEP_PHASES
+    }
+    return {
+        "config": cfg.to_dict(),
+        "seed": cfg.seed,
+        "versions": package_versions(),
+        "threads": torch.get_num_threads(),
+        "cpu_count": os.cpu_count(),
+        "device": device,
+        "raster_threads": _core.info()["threads"],
+        "source_points": state.source_counts,
+        "gaussians": {"initial": len(state.initial), "final": len(final)},
+        "labels": state.label_summary(final, cfg.outputs.labels),
+        "timings_s": dict(totals),
+        "per_step_s": per_step,
+        "events": state.events,
+        "transform": state.transform.to_dict(),
+        # plant.ply holds positions minus this offset (None: the input frame itself).
+        "export_offset": export_offset,
+    }

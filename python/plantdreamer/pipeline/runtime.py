@@ -1,0 +1,81 @@
+"""What a config becomes on this machine: its inputs checked, the settings left open decided
+(render size, network precision, prompt template) and its guidance built."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from plantdreamer.errors import InputError
+from plantdreamer.guidance.base import Guidance
+from plantdreamer.pipeline.config import GenerateConfig
+
+
+def check_inputs(cfg: GenerateConfig) -> None:
+    """Fails fast on inputs that cannot work, before any model is loaded."""
+    cfg.validate()
+    src = cfg.source
+    if cfg.sds.guidance != "none":
+        from plantdreamer.guidance.models import resolve_device
+
+        resolve_device(cfg.sds.device)
+    if src.pointcloud is not None and not Path(src.pointcloud).is_file():
+        raise FileNotFoundError(f"point cloud not found: {src.pointcloud}")
+    if src.pointcloud is None:
+        from plantdreamer.lsystem import list_species
+
+        if src.species not in list_species():
+            raise InputError(f"unknown species {src.species!r}; known: {', '.join(list_species())}")
+
+
+def resolve_runtime(cfg: GenerateConfig) -> None:
+    """Fills the settings decided by the machine or the inputs, so run.json and the
+    checkpoints record the values used: the training resolution, the network precision and
+    the prompt template (a LoRA's recorded template, else the default)."""
+    sds = cfg.sds
+    # The networks' device (checked by check_inputs): CUDA when usable unless one is named.
+    cuda = torch.cuda.is_available() if sds.device is None else sds.device.startswith("cuda")
+    if cfg.train.resolution is None:
+        cfg.train.resolution = 768 if cuda else 512
+    if sds.network_dtype == "auto":
+        sds.network_dtype = "float16" if cuda else "float32"
+    if sds.prompt_template is None:
+        sds.prompt_template = lora_template(sds.lora)
+
+
+def lora_template(lora: str | None) -> str:
+    """The prompt template a LoRA recorded in its ``lora.json``, else the default."""
+    from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE
+    from plantdreamer.guidance.lora_weights import recorded_template
+
+    recorded = recorded_template(lora) if lora is not None else None
+    return recorded or DEFAULT_PROMPT_TEMPLATE
+
+
+def build_guidance(cfg: GenerateConfig) -> Guidance:
+    """The guidance a config asks for; missing weights raise ModelNotFoundError here,
+    before anything is written."""
+    from plantdreamer.guidance.base import NoGuidance
+    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
+
+    sds = cfg.sds
+    if sds.guidance == "none":
+        return NoGuidance()
+    return StableDiffusionDepthGuidance(
+        base_model=sds.base_model,
+        controlnet=sds.controlnet,
+        lora=sds.lora,
+        species=cfg.source.species or "plant",
+        guidance_scale=sds.guidance_scale,
+        conditioning_scale=sds.conditioning_scale,
+        schedule=sds.schedule,
+        total_steps=cfg.train.steps,
+        seed=cfg.seed,
+        resolution=sds.resolution,
+        negative_prompt=sds.negative_prompt,
+        prompt_template=sds.prompt_template or lora_template(sds.lora),
+        control_resize=sds.control_resize,
+        dtype=None if sds.network_dtype == "auto" else sds.network_dtype,
+        device=sds.device,
+    )

@@ -1,0 +1,57 @@
+"""The training section of a run's settings: steps, render size, learning rates, cameras.
+
+Read by ``trainer.py`` (the loop), ``model.py`` (Adam) and ``sampler.py`` (cameras); kept in
+its own torch-free module because the CLI builds its options from it at start-up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from plantdreamer.settings import option_prefix, setting
+
+
+@dataclass
+class LearningRates:
+    """Adam learning rates of the released code (position and SH as in the paper)."""
+
+    means: float = setting(5e-5, "Adam learning rate of the Gaussians' positions.")
+    sh_dc: float = setting(0.0125, "Adam learning rate of the base colour.")
+    sh_rest: float = setting(0.0125 / 20, "Adam learning rate of the higher SH bands.")
+    opacity: float = setting(0.01, "Adam learning rate of the opacity logits.")
+    scales: float = setting(0.005, "Adam learning rate of the log-scales.")
+    quats: float = setting(0.001, "Adam learning rate of the rotations.")
+    eps: float = setting(1e-15, "Adam epsilon.")
+
+
+@dataclass
+class CameraRanges:
+    """Random orbit cameras for training (released code's ranges): (low, high) each."""
+
+    distance: tuple[float, float] = setting((3.0, 6.0), "Training camera distance range.")
+    elevation_deg: tuple[float, float] = setting(
+        (-10.0, 80.0), "Training camera elevation range (degrees)."
+    )
+    azimuth_deg: tuple[float, float] = setting(
+        (-180.0, 180.0), "Training camera azimuth range (degrees)."
+    )
+    fovy_deg: tuple[float, float] = setting(
+        (40.0, 70.0), "Training camera vertical field of view range (degrees)."
+    )
+
+
+@dataclass
+class TrainConfig:
+    steps: int = setting(3600, "Optimisation steps.")
+    resolution: int | None = setting(
+        None, "Training render size.", default_text="512 on CPU, 768 on GPU"
+    )
+    background: float = setting(0.75, "Grey level of the background renders are made on.")
+    elevation_sampling: str = setting(
+        "uniform",
+        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix.",
+        choices=("uniform", "mixed"),
+    )
+    checkpoint_every: int = setting(500, "Steps between checkpoints.")
+    lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))
+    cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))
