@@ -33,6 +33,11 @@ def build_command() -> click.Command:
     @click.option(
         "--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out."
     )
+    @click.option(
+        "--seeds",
+        help="Several plants trained together, one folder per seed under --out "
+        "(<species>-s<seed>): 0-7, 0,3,5 or both.",
+    )
     @click.option("--quiet", is_flag=True, help="No progress output.")
     @click.option(
         "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
@@ -43,6 +48,7 @@ def build_command() -> click.Command:
         resume_dir: str | None,
         out_dir: str,
         overwrite: bool,
+        seeds: str | None,
         quiet: bool,
         view: bool,
         **options,
@@ -51,6 +57,7 @@ def build_command() -> click.Command:
         and ground truth per view: labels/, instances/, depth/, transforms.json."""
         from plantdreamer.pipeline import RunInterrupted, resolve_config
         from plantdreamer.pipeline import generate as run_generate
+        from plantdreamer.pipeline.group import GROUP_FILE, generate_group, parse_seeds
 
         given = _given(ctx)
         try:
@@ -63,6 +70,12 @@ def build_command() -> click.Command:
                     )
                 # Settings typed again on resume: checked against the checkpoint, never ignored.
                 changes = options_to_settings(GenerateConfig, given_on_command_line(options))
+                if (Path(resume_dir) / GROUP_FILE).is_file():
+                    if changes or seeds is not None:
+                        raise click.UsageError("a group resumes with the settings it started with")
+                    _group_report(generate_group(None, resume_dir, resume=True,
+                                                 show_progress=not quiet))  # fmt: skip
+                    return
                 result = run_generate(
                     None, resume_dir, resume=True, changes=changes, show_progress=not quiet
                 )
@@ -70,6 +83,18 @@ def build_command() -> click.Command:
                 preset = options.pop("preset")
                 typed = options_to_settings(GenerateConfig, given_on_command_line(options))
                 defaults = options_to_settings(GenerateConfig, options)
+                if seeds is not None:
+                    if "seed" in typed:
+                        raise click.UsageError("give --seed or --seeds, not both")
+                    cfgs = [
+                        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
+                        for seed in parse_seeds(seeds)
+                    ]
+                    group = generate_group(
+                        cfgs, out_dir, overwrite=overwrite, show_progress=not quiet
+                    )
+                    _group_report(group)
+                    return
                 cfg = resolve_config(preset, typed, base=defaults)
                 result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
         except RunInterrupted as stop:
@@ -90,6 +115,19 @@ def build_command() -> click.Command:
             view_file(str(result.ply_path), echo=click.echo)
 
     return generate
+
+
+def _group_report(group) -> None:
+    for _, result in sorted(group.done.items()):
+        click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")
+    if group.failed:
+        from plantdreamer.errors import PlantDreamerError
+
+        failures = "; ".join(f"{name}: {error}" for name, error in sorted(group.failed.items()))
+        raise PlantDreamerError(
+            f"{len(group.failed)} of {len(group.done) + len(group.failed)} plants failed "
+            f"({failures}); see {group.out_dir / 'group.json'}"
+        )
 
 
 def _given(ctx: click.Context) -> set[str]:

@@ -1,12 +1,14 @@
-"""A guidance together with its depth conditioning: the trainer hands it a render and a
-camera; the depth map the ControlNet needs is made here, from a ``render_depth(camera)``
-callback, cleaned by the section's ``depth_rule`` / ``control_resize`` at the guidance's own
-``resolution``, and computed one step ahead on a worker thread (``depth_ahead.py``).
+"""A guidance together with its depth conditioning, for one plant or a group trained
+together: the trainer hands it the renders and their cameras; the depth maps the ControlNet
+needs are made here, one source per plant (a ``render_depth(camera)`` callback over that
+plant's initial Gaussians), cleaned by the section's ``depth_rule`` / ``control_resize`` at
+the guidance's own ``resolution``, and computed one step ahead on a worker thread per plant
+(``depth_ahead.py``). The guidance itself is called once per step on the whole batch.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
@@ -25,43 +27,54 @@ Timer = Callable[[str], AbstractContextManager[Any]]
 class ConditionedGuidance:
     """``guidance`` with the depth conditioning it needs (none when ``needs_depth`` is False).
 
-    ``next_camera()`` names the camera of the following step, so its depth map is ready when
-    that step comes (``ahead=False`` computes each in line: the same bits).
+    Plant ``i`` renders its depth with ``render_depths[i]``; ``next_cameras[i]()`` names its
+    camera of the following step, so that depth map is ready when the step comes
+    (``ahead=False`` computes each in line: the same bits).
     """
 
     def __init__(
         self,
         guidance: Guidance,
-        render_depth: RenderDepth,
-        next_camera: Callable[[], Camera],
+        render_depths: Sequence[RenderDepth],
+        next_cameras: Sequence[Callable[[], Camera]],
         *,
         depth_rule: str = "stretch",
         control_resize: str = "bilinear",
         ahead: bool = True,
     ) -> None:
         self.guidance = guidance
-        self._depth: DepthAhead | None = None
+        self._depth: list[DepthAhead] = []
         if guidance.needs_depth:
             size = guidance.resolution
             if size is None:
                 raise InputError("a guidance that needs depth must say its resolution")
             cleaning = DepthCleaning(rule=depth_rule, resize=control_resize)
-            conditioner = DepthConditioner(render_depth, out_size=size, config=cleaning)
-            self._depth = DepthAhead(conditioner, next_camera, ahead)
+            for render_depth, next_camera in zip(render_depths, next_cameras, strict=True):
+                conditioner = DepthConditioner(render_depth, out_size=size, config=cleaning)
+                self._depth.append(DepthAhead(conditioner, next_camera, ahead))
 
     def __call__(
-        self, image: torch.Tensor, camera: Camera, step: int, more: bool, timer: Timer | None = None
+        self,
+        images: torch.Tensor,
+        plants: Sequence[int],
+        cameras: Sequence[Camera],
+        step: int,
+        more: bool,
+        timer: Timer | None = None,
     ) -> GuidanceOutput:
-        """The guidance of ``image`` (rendered from ``camera``) at ``step``; ``more``: another
-        step follows (so its depth map may be started)."""
+        """The guidance of ``images`` [B, H, W, 3] (plant ``plants[b]`` rendered from
+        ``cameras[b]``) at ``step``; ``more``: another step follows."""
         timed = timer or (lambda name: nullcontext())
         depth = None
-        if self._depth is not None:
+        if self._depth:
             with timed("depth"):
-                depth = self._depth.get(camera, more=more)
+                maps = [
+                    self._depth[i].get(c, more=more) for i, c in zip(plants, cameras, strict=True)
+                ]
+                depth = maps[0] if len(maps) == 1 else torch.cat(maps)
         with timed("guidance"):
-            return self.guidance(image, depth, [camera], step)
+            return self.guidance(images, depth, list(cameras), step)
 
     def close(self) -> None:
-        if self._depth is not None:
-            self._depth.close()
+        for depth in self._depth:
+            depth.close()

@@ -17,7 +17,7 @@ from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.pipeline.runtime import build_guidance, check_inputs, resolve_runtime
-from plantdreamer.pipeline.trainer import RunInterrupted, Trainer
+from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
 from plantdreamer.settings import canonical
 
 __all__ = ["RunInterrupted", "RunResult", "check_inputs", "generate"]
@@ -84,12 +84,7 @@ def generate(
             saved = load_checkpoint(out_dir)
             cfg, note = resumed_config(saved, changes or {}, out_dir)
             check_inputs(cfg)
-            for name in FINAL_OUTPUTS:  # a finished run's outputs are made anew
-                path = out_dir / name
-                if path.is_dir():
-                    shutil.rmtree(path)
-                else:
-                    path.unlink(missing_ok=True)
+            remove_final_outputs(out_dir)
         assert cfg is not None
         cfg = copy.deepcopy(cfg)  # the caller's config is not changed
         resolve_runtime(cfg)
@@ -102,10 +97,20 @@ def generate(
             state = _restore(cfg, resolution, saved, guidance, out_dir)
         if note is not None:
             state.events.append(note)
-        trainer = Trainer(cfg, state, guidance, out_dir, depth_ahead=depth_ahead)
+        trainer = Trainer([PlantRun(cfg, state, out_dir)], guidance, depth_ahead=depth_ahead)
         trainer.run(show_progress, on_step)
         device = str(getattr(guidance, "device", "cpu"))
         return export_run(cfg, state, out_dir, resolution, device)
+
+
+def remove_final_outputs(out_dir: Path) -> None:
+    """A resumed run's final outputs are made anew."""
+    for name in FINAL_OUTPUTS:
+        path = out_dir / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _restore(

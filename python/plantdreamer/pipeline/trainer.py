@@ -1,14 +1,22 @@
-"""The training loop: a ``Trainer`` holds the run's state (model, cameras, density control),
-the guidance with its depth conditioning, and calls each at fixed points of a step:
+"""The training loop: a ``Trainer`` holds the plants it trains together (each with its own
+run state: model, optimiser, cameras, density control, log and folder) and one guidance that
+owns their depth conditioning, and calls each at fixed points of a step:
 
-    camera -> render -> guidance (depth conditioning inside) -> backward
-    -> density.after_backward -> Adam -> density.step_end -> checkpoint when due
+    cameras -> renders (one thread per plant) -> one guidance call on the batch
+    -> backward to the renders -> rasterizer backwards (one thread per plant)
+    -> per plant: density.after_backward, Adam, density.step_end -> checkpoints when due
+
+One plant is a batch of one. In a group a plant that fails (NaN, ...) is recorded and
+dropped; the others go on.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,114 +42,179 @@ class RunInterrupted(KeyboardInterrupt):
         self.step, self.out_dir = step, out_dir
 
 
+@dataclass
+class PlantRun:
+    """One plant of a trainer: its settings, state and folder; ``error`` once it failed."""
+
+    cfg: GenerateConfig
+    state: RunState
+    out_dir: Path
+    error: str | None = None
+
+
 class Trainer:
     def __init__(
         self,
-        cfg: GenerateConfig,
-        state: RunState,
+        plants: list[PlantRun],
         guidance: Guidance,
-        out_dir: Path,
         *,
         depth_ahead: bool = True,
+        isolate_failures: bool = False,
+        out_dir: Path | None = None,
     ) -> None:
+        """``isolate_failures``: a failing plant is recorded and dropped (a group) rather
+        than raised (a single run). ``out_dir`` is the folder ``RunInterrupted`` names."""
         from plantdreamer.guidance.base import NoGuidance
 
-        self.cfg, self.state, self.out_dir = cfg, state, out_dir
-        self.raw_guidance = guidance
+        self.plants, self.raw_guidance = plants, guidance
+        self.cfg = plants[0].cfg  # steps, background, sds settings: the same for all
         self.trains = not isinstance(guidance, NoGuidance)
-        self._initial = GaussianModel(state.initial)  # fixed: the depth maps' scene
+        self.isolate = isolate_failures
+        self.out_dir = out_dir if out_dir is not None else plants[0].out_dir
+        initials = [GaussianModel(p.state.initial) for p in plants]  # the depth maps' scenes
         self.guidance = ConditionedGuidance(
             guidance,
-            self._render_depth,
-            state.sampler.peek,
-            depth_rule=cfg.sds.depth_rule,
-            control_resize=cfg.sds.control_resize,
+            [self._depth_renderer(m) for m in initials],
+            [p.state.sampler.peek for p in plants],
+            depth_rule=self.cfg.sds.depth_rule,
+            control_resize=self.cfg.sds.control_resize,
             ahead=depth_ahead,
         )
+        self._pool = ThreadPoolExecutor(len(plants)) if len(plants) > 1 else None
         self._stop_requested = False
 
-    def _render_depth(self, camera):
-        with torch.no_grad():
-            depth, alpha, _ = self._initial.render([camera], self.cfg.train.background, "ED")
-        return depth, alpha
+    def _depth_renderer(self, initial: GaussianModel):
+        def render_depth(camera):
+            with torch.no_grad():
+                depth, alpha, _ = initial.render([camera], self.cfg.train.background, "ED")
+            return depth, alpha
+
+        return render_depth
+
+    def alive(self) -> list[int]:
+        return [i for i, p in enumerate(self.plants) if p.error is None]
 
     def run(self, show_progress: bool = True, on_step: Callable[[int], None] | None = None) -> None:
-        """Steps from the state's step to the last; Ctrl-C (or SIGTERM) writes a checkpoint
+        """Steps from the plants' step to the last; Ctrl-C (or SIGTERM) writes a checkpoint
         at the next step boundary and raises ``RunInterrupted``."""
-        cfg, state = self.cfg, self.state
-        steps = cfg.train.steps
-        progress = Progress(steps, state.step, show_progress)
+        steps, first = self.cfg.train.steps, self.plants[0].state
+        progress = Progress(steps, first.step, show_progress)
+        note = (
+            "" if self.trains else "; no guidance: the steps only run density control and culling"
+        )
         progress.note(
-            f"initialised {len(state.initial)} Gaussians"
-            + (
-                ""
-                if self.trains
-                else "; no guidance: the steps only run density control and culling"
-            )
+            f"initialised {sum(len(p.state.initial) for p in self.plants)} Gaussians{note}"
         )
         try:
             with stop_signals_handled(self._request_stop):
-                for step in range(state.step, steps):
+                for step in range(first.step, steps):
                     if self._stop_requested:
                         self.checkpoint(step)
                         raise RunInterrupted(step, self.out_dir)
                     loss = self.train_step(step) if self.trains else None
-                    state.events += state.density.step_end(step, state.model, state.timer)
-                    progress.update(step, loss, len(state.model))
-                    if (step + 1) % cfg.train.checkpoint_every == 0 and step + 1 < steps:
+                    for i in self.alive():
+                        st = self.plants[i].state
+                        st.events += st.density.step_end(step, st.model, st.timer)
+                    progress.update(
+                        step, loss, sum(len(self.plants[i].state.model) for i in self.alive())
+                    )
+                    if (step + 1) % self.cfg.train.checkpoint_every == 0 and step + 1 < steps:
                         self.checkpoint(step + 1)
                     if on_step is not None:
                         on_step(step)
-            state.step = steps
-            views = cfg.outputs.eval_views
-            progress.note(f"exporting {len(state.model)} Gaussians, {views} renders")
+                    if not self.alive():
+                        break
+            for p in self.plants:
+                p.state.step = steps
+            progress.note(f"exporting, {self.cfg.outputs.eval_views} renders per plant")
         finally:
             progress.close()
             self.guidance.close()
+            if self._pool is not None:
+                self._pool.shutdown()
 
     def _request_stop(self, signum, frame) -> None:
         if self._stop_requested:  # a second Ctrl-C or SIGTERM: stop now
             raise KeyboardInterrupt
         self._stop_requested = True
 
+    @contextmanager
+    def _timed(self, name: str, plants: list[int]) -> Iterator[None]:
+        """One phase of the step, its wall time added to every plant in it."""
+        first = self.plants[plants[0]].state.timer.totals
+        before = first[name]
+        with self.plants[plants[0]].state.timer(name):
+            yield
+        for i in plants[1:]:
+            self.plants[i].state.timer.totals[name] += first[name] - before
+
+    def _map(self, fn: Callable[[int], Any], plants: list[int]) -> list[Any]:
+        if self._pool is None or len(plants) == 1:
+            return [fn(i) for i in plants]
+        return list(self._pool.map(fn, plants))
+
     def train_step(self, step: int) -> float:
-        cfg, state, timer = self.cfg, self.state, self.state.timer
-        model = state.model
-        camera = state.sampler.sample()
-        with timer("render"):
-            image, _, meta = model.render([camera], cfg.train.background)
-        out = self.guidance(image, camera, step, more=step + 1 < cfg.train.steps, timer=timer)
-        optimizer = model.optimizer
-        assert optimizer is not None  # the model is built with learning rates
-        with timer("backward"):
-            optimizer.zero_grad(set_to_none=True)
-            out.loss.backward()
-        check_finite_gradients(model, step)
-        state.density.after_backward(step, meta, camera)
-        with timer("optimizer"):
-            optimizer.step()
+        plants = self.alive()
+        group = [self.plants[i] for i in plants]
+        cameras = [p.state.sampler.sample() for p in group]
+        background = self.cfg.train.background
+
+        def render(k: int):
+            return group[k].state.model.render([cameras[k]], background)
+
+        with self._timed("render", plants):
+            renders = self._map(render, list(range(len(group))))
+        images = [r[0] for r in renders]
+        batch = images[0] if len(images) == 1 else torch.cat(images)
+        leaf = batch.detach().requires_grad_(True)
+        more = step + 1 < self.cfg.train.steps
+        out = self.guidance(leaf, plants, cameras, step, more, lambda n: self._timed(n, plants))
+        with self._timed("backward", plants):
+            for p in group:
+                optimizer = p.state.model.optimizer
+                assert optimizer is not None  # the models are built with learning rates
+                optimizer.zero_grad(set_to_none=True)
+            # The guidance's loss is a mean over the batch: each plant gets its own gradient.
+            (out.loss if len(group) == 1 else out.loss * len(group)).backward()
+            grads = leaf.grad
+            assert grads is not None
+            self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
         loss = float(out.loss.detach())
-        if not math.isfinite(loss):
-            raise PlantDreamerError(
-                f"loss became {loss} at step {step}; stopping (no output written)"
-            )
-        state.log_rows.append({"step": step, "loss": loss, "gaussians": len(model), **out.stats})
+        for k, p in enumerate(group):
+            try:
+                check_finite_gradients(p.state.model, step)
+                if not math.isfinite(loss):
+                    raise PlantDreamerError(
+                        f"loss became {loss} at step {step}; stopping (no output written)"
+                    )
+            except PlantDreamerError as exc:
+                if not self.isolate:
+                    raise
+                p.error = str(exc)
+                continue
+            p.state.density.after_backward(step, renders[k][2], cameras[k])
+            with p.state.timer("optimizer"):
+                p.state.model.optimizer.step()  # type: ignore[union-attr]
+            row = {"step": step, "loss": loss, "gaussians": len(p.state.model), **out.stats}
+            p.state.log_rows.append(row)
         return loss
 
     def checkpoint(self, step: int) -> None:
-        """Writes ``checkpoint.pt`` (atomically) for a run continuing at ``step``."""
-        state = self.state
-        with state.timer("checkpoint"):
-            state.step = step
-            generator = self.raw_guidance.generator
-            record: dict[str, Any] = {
-                "config": self.cfg.to_dict(),
-                **state.state_dict(),
-                # The guidance's noise generator, so a resumed run draws the same noise.
-                "guidance": None if generator is None else generator.get_state(),
-            }
-            save_checkpoint(self.out_dir, record)
-            outputs.write_log_csv(self.out_dir / "log.csv", state.log_rows)
+        """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``."""
+        generator = self.raw_guidance.generator
+        noise = None if generator is None else generator.get_state()
+        for i in self.alive():
+            p = self.plants[i]
+            with p.state.timer("checkpoint"):
+                p.state.step = step
+                record: dict[str, Any] = {
+                    "config": p.cfg.to_dict(),
+                    **p.state.state_dict(),
+                    # The guidance's noise generator, so a resumed run draws the same noise.
+                    "guidance": noise,
+                }
+                save_checkpoint(p.out_dir, record)
+                outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
 
 
 def check_finite_gradients(model: GaussianModel, step: int) -> None:

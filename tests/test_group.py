@@ -1,0 +1,140 @@
+"""Several plants in one trainer (`generate --seeds`): complete folders, deterministic
+bytes run to run and after Ctrl-C + resume, a bad plant failing alone."""
+
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.cloud import PointCloud
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+from plantdreamer.pipeline.group import generate_group, parse_seeds
+
+SMALL = dict(points=1500, resolution=48, eval_views=2, turntable_frames=2)
+
+
+def tiny_sds(seed=0):
+    from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+
+    return StableDiffusionDepthGuidance(
+        species="mint", components=tiny_models(), resolution=64, seed=seed
+    )
+
+
+def outputs_of(folder):
+    """Every file a plant writes, but run.json (it holds timings), by content."""
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name not in ("run.json", "group.json")
+    }
+
+
+def test_seeds_are_ranges_and_lists():
+    assert parse_seeds("0-3,8") == [0, 1, 2, 3, 8] and parse_seeds("5,1") == [5, 1]
+    from plantdreamer.errors import InputError
+
+    for bad in ("", "1,1", "a-b"):
+        with pytest.raises(InputError):
+            parse_seeds(bad)
+
+
+def test_a_group_of_three_writes_three_complete_plant_folders(tmp_path):
+    out = tmp_path / "g"
+    args = ["generate", "--species", "bean", "--seeds", "0,3,5", "--guidance", "none",
+            "--points", "1500", "--resolution", "32", "--eval-views", "2", "--steps", "0",
+            "--turntable-frames", "2", "--out", str(out), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    names = ["bean-s0000", "bean-s0003", "bean-s0005"]
+    status = json.loads((out / "group.json").read_text())["plants"]
+    assert [(p["name"], p["status"]) for p in status] == [(n, "done") for n in names]
+    for name in names:
+        folder = out / name
+        run = json.loads((folder / "run.json").read_text())
+        assert run["seed"] == int(name[-4:]) and run["labels"]["exported"]
+        for entry in ("plant.ply", "transforms.json", "turntable.gif"):
+            assert (folder / entry).is_file(), (name, entry)
+        for views in ("renders", "labels", "instances", "depth"):
+            assert len(list((folder / views).glob("view_*.png"))) == 2, (name, views)
+        assert not (folder / "checkpoint.pt").exists()
+    # Different seeds, different plants.
+    assert (out / names[0] / "plant.ply").read_bytes() != (
+        out / names[1] / "plant.ply"
+    ).read_bytes()
+
+
+def _stop_at(step_to_stop):
+    def hook(step):
+        if step == step_to_stop:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    return hook
+
+
+@pytest.mark.slow
+def test_a_group_is_byte_identical_run_to_run_and_after_ctrl_c_and_resume(tmp_path):
+    cfgs = [GenerateConfig.of(species="mint", seed=s, steps=6, checkpoint_every=4, **SMALL)
+            for s in (0, 1, 2)]  # fmt: skip
+    first = generate_group(cfgs, tmp_path / "a", guidance=tiny_sds(), show_progress=False)
+    generate_group(cfgs, tmp_path / "b", guidance=tiny_sds(), show_progress=False)
+    assert sorted(first.done) == ["mint-s0000", "mint-s0001", "mint-s0002"] and not first.failed
+    with pytest.raises(RunInterrupted) as stop:
+        generate_group(cfgs, tmp_path / "c", guidance=tiny_sds(), show_progress=False,
+                       on_step=_stop_at(2))  # fmt: skip
+    assert stop.value.step == 3
+    assert not list((tmp_path / "c").glob("*/plant.ply"))
+    resumed = generate_group(None, tmp_path / "c", guidance=tiny_sds(), resume=True,
+                             show_progress=False)  # fmt: skip
+    assert sorted(resumed.done) == sorted(first.done)
+    for name in first.done:
+        a = outputs_of(tmp_path / "a" / name)
+        assert a == outputs_of(tmp_path / "b" / name), name
+        assert a == outputs_of(tmp_path / "c" / name), name
+    plys = {(tmp_path / "a" / n / "plant.ply").read_bytes() for n in first.done}
+    assert len(plys) == 3
+
+
+def test_a_group_of_one_is_the_plant_made_alone(tmp_path):
+    cfg = GenerateConfig.of(species="mint", seed=4, steps=3, **SMALL)
+    alone = generate(cfg, tmp_path / "alone", guidance=tiny_sds(4), show_progress=False)
+    group = generate_group([cfg], tmp_path / "g", guidance=tiny_sds(4), show_progress=False)
+    assert group.done["mint-s0004"].ply_path.read_bytes() == alone.ply_path.read_bytes()
+
+
+def test_a_bad_point_cloud_fails_alone(tmp_path):
+    from plantdreamer.io import write_ply
+
+    rng = np.random.default_rng(0)
+    for name in ("a", "c"):
+        pts = rng.normal(size=(3000, 3)).astype(np.float32)
+        write_ply(
+            tmp_path / f"{name}.ply", PointCloud(pts, colors=rng.random((3000, 3), np.float32))
+        )
+    (tmp_path / "b.ply").write_bytes(b"ply\nformat nonsense\n")
+    cfgs = [GenerateConfig.of(species="mint", pointcloud=str(tmp_path / f"{n}.ply"), steps=2,
+                              guidance="none", **SMALL) for n in "abc"]  # fmt: skip
+    result = generate_group(cfgs, tmp_path / "g", show_progress=False)
+    assert sorted(result.done) == ["a-s0000", "c-s0000"]
+    assert list(result.failed) == ["b-s0000"] and "PlyError" in result.failed["b-s0000"]
+    status = {
+        p["name"]: p["status"]
+        for p in json.loads((tmp_path / "g" / "group.json").read_text())["plants"]
+    }
+    assert status["b-s0000"].startswith("failed: ") and status["a-s0000"] == "done"
+    assert (tmp_path / "g" / "c-s0000" / "plant.ply").is_file()
+
+
+def test_plants_of_a_group_must_share_their_settings(tmp_path):
+    from plantdreamer.errors import InputError
+
+    cfgs = [
+        GenerateConfig.of(species="mint", seed=0),
+        GenerateConfig.of(species="mint", seed=1, steps=5),
+    ]
+    with pytest.raises(InputError, match="these differ: steps"):
+        generate_group(cfgs, tmp_path / "g", show_progress=False)
