@@ -14,6 +14,9 @@ SCHEDULES = ("paper", "released")
 # Depth normalisation rules (``guidance/depth.py``) and control-image resampling.
 DEPTH_RULES = ("stretch", "released", "stretch-lift")
 RESIZE_MODES = ("bilinear", "nearest")
+# What picks the depth erosion kernel: the camera distance, or the released code's
+# Frobenius norm of the 4x4 camera-to-world matrix (``guidance/depth.py``).
+EROSION_DISTANCES = ("camera", "c2w-norm")
 
 PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
 RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"

@@ -15,7 +15,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES, SCHEDULES, SDS_DEFAULTS
+from plantdreamer.guidance.config import (
+    DEPTH_RULES,
+    EROSION_DISTANCES,
+    RESIZE_MODES,
+    SCHEDULES,
+    SDS_DEFAULTS,
+)
 from plantdreamer.settings import check_choices, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
@@ -26,6 +32,8 @@ GUIDANCES = ("sds", "none")
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
 # pipeline/presets.py holds each preset's values.
 PRESET_NAMES = ("plantdreamer", "released", "paper")
+STRUCTURES = ("plantdreamer", "released")  # species grammars: ours or the authors'
+ELEVATION_SAMPLINGS = ("uniform", "mixed", "mixed-full")
 
 
 @dataclass
@@ -88,9 +96,12 @@ class CullConfig:
         "V on log-scales (paper), or double-exp: exp of activated scales (released).",
         choices=("log", "double-exp"),
     )
+    offset: int = setting(
+        0, "Cull when step + offset is a multiple of every (released: 1, steps 599 ... 3599)."
+    )
 
     def due(self, step: int) -> bool:
-        return step > self.after and step % self.every == 0
+        return step > self.after and (step + self.offset) % self.every == 0
 
 
 @dataclass
@@ -109,6 +120,12 @@ class GenerateConfig:
         "L-System species to generate (see `plantdreamer lsystem --list`); with "
         "--pointcloud, the plant named in the prompts.",
     )
+    structures: str = setting(
+        "plantdreamer",
+        "Which grammar a species name grows: ours, or the authors' released structure "
+        "(bean -> bean-released).",
+        choices=STRUCTURES,
+    )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
     seed: int = setting(0, "Seed of the plant, cameras and noise.")
     n_points: int = setting(100_000, "Points to start from.", option="--points")
@@ -116,6 +133,11 @@ class GenerateConfig:
     sor_std: float = 3.0
     scene_size: float = 4.0  # longest side of the normalised scene
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
+    downsample_tolerance: float = setting(
+        0.05,
+        "Capture prep: voxel downsampling aims at --points +- this fraction; clouds below "
+        "(1 + this) x --points are kept whole (released: 0.25).",
+    )
     mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
     label_field: str | None = setting(
         None,
@@ -152,8 +174,9 @@ class GenerateConfig:
     cameras: CameraRanges = field(default_factory=CameraRanges)
     elevation_sampling: str = setting(
         "uniform",
-        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix.",
-        choices=("uniform", "mixed"),
+        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix with "
+        "area-uniform: mixed-full (threestudio since 2023-11, released) or mixed (before).",
+        choices=ELEVATION_SAMPLINGS,
     )
     densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
     cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
@@ -185,6 +208,12 @@ class GenerateConfig:
         default_text="the authors'",
     )
     depth_rule: str = setting("stretch", "Depth-map normalisation.", choices=DEPTH_RULES)
+    erosion_distance: str = setting(
+        "camera",
+        "Depth erosion kernel chosen from the camera distance r, or from the camera-to-world "
+        "matrix's norm sqrt(r^2 + 4) (released: 5 px below r = 4.58, never 3 px).",
+        choices=EROSION_DISTANCES,
+    )
     control_resize: str = setting(
         SDS_DEFAULTS.control_resize, "Resizing of the depth control image.", choices=RESIZE_MODES
     )
@@ -232,6 +261,10 @@ class GenerateConfig:
             raise InputError("steps, points and views must not be negative")
         if self.checkpoint_every <= 0 or self.densify.every <= 0 or self.cull.every <= 0:
             raise InputError("checkpoint, densify and cull intervals must be positive")
+        if not 0.0 < self.downsample_tolerance < 1.0:
+            raise InputError(
+                f"downsample tolerance must be in (0, 1), got {self.downsample_tolerance}"
+            )
         if not 0.0 < self.densify.split_std <= 4.0:
             raise InputError(f"split std must be in (0, 4], got {self.densify.split_std}")
         if self.prompt_template is not None:
@@ -265,6 +298,18 @@ class GenerateConfig:
             size = getattr(self, name)
             if size is not None and not 8 <= size <= MAX_RESOLUTION:
                 raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
+
+    def structure(self) -> str | None:
+        """The registered species the L-System input grows (``structures`` applied)."""
+        from plantdreamer.lsystem.species import structure_for
+
+        return None if self.species is None else structure_for(self.species, self.structures)
+
+    def plant_name(self) -> str:
+        """The plant's name in the prompts (``bean`` for ``bean-released``)."""
+        from plantdreamer.lsystem.species import plant_name
+
+        return "plant" if self.species is None else plant_name(self.species)
 
     def initial_opacity(self) -> float:
         if self.opacity_init is not None:

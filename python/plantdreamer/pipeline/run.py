@@ -81,7 +81,7 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         base_model=cfg.base_model,
         controlnet=cfg.controlnet,
         lora=cfg.lora,
-        species=cfg.species or "plant",
+        species=cfg.plant_name(),
         guidance_scale=cfg.guidance_scale,
         conditioning_scale=cfg.conditioning_scale,
         schedule=cfg.schedule,
@@ -471,7 +471,11 @@ class _Run:
         size = self.guidance.resolution
         if size is None:
             raise InputError("a guidance that needs depth must say its resolution")
-        cleaning = DepthCleaning(rule=self.cfg.depth_rule, resize=self.cfg.control_resize)
+        cleaning = DepthCleaning(
+            rule=self.cfg.depth_rule,
+            resize=self.cfg.control_resize,
+            distance=self.cfg.erosion_distance,
+        )
         return DepthConditioner(render_depth, out_size=size, config=cleaning)
 
     # -- persistence -------------------------------------------------------------------
@@ -600,5 +604,5 @@ def check_inputs(cfg: GenerateConfig) -> None:
     if cfg.pointcloud is None:
         from plantdreamer.lsystem import list_species
 
-        if cfg.species not in list_species():
+        if cfg.structure() not in list_species():
             raise InputError(f"unknown species {cfg.species!r}; known: {', '.join(list_species())}")

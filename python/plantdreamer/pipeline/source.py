@@ -51,6 +51,7 @@ def load_source(cfg: GenerateConfig) -> Source:
             sor_std=cfg.sor_std,
             normalize_size=cfg.scene_size,
             sor_after_voxel=cfg.sor_after_voxel,
+            tolerance=cfg.downsample_tolerance,
             label_fields=[n for n in fields if n is not None],
         )
         assert transform is not None
@@ -65,11 +66,12 @@ def load_source(cfg: GenerateConfig) -> Source:
 
     from plantdreamer.lsystem import generate_plant, sample_points
 
-    if cfg.species is None:
+    species = cfg.structure()  # the registered species grown (``structures`` applied)
+    if species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
     surface = cfg.init_shape == "surface"
     cloud = sample_points(
-        generate_plant(cfg.species, cfg.seed), cfg.n_points, cfg.seed, boundary_distance=surface
+        generate_plant(species, cfg.seed), cfg.n_points, cfg.seed, boundary_distance=surface
     )
     counts = {"sampled": len(cloud)}
     if cfg.mesh_sor:
