@@ -40,6 +40,7 @@ def test_released_preset_with_bean_resolves_to_the_authors_run(tmp_path):
     cfg = shown["config"]
     assert (cfg["elevation_sampling"], cfg["erosion_distance"]) == ("mixed-full", "c2w-norm")
     assert cfg["downsample_tolerance"] == 0.25
+    assert cfg["densify"]["prune_screen_px"] == 1000.0
 
 
 def test_released_names_keep_working_with_the_plants_name_in_the_prompt():
@@ -110,3 +111,34 @@ def test_downsample_tolerance_is_the_released_band():
     ours, _, _ = prepare_cloud(cloud, target=1000, sor_neighbors=0, tolerance=0.05)
     assert len(kept) == 1200  # below 1.25 x the target: not downsampled
     assert abs(len(ours) - 1000) <= 50
+
+
+def test_screen_size_prune_removes_gaussians_wider_than_the_threshold_before_densifying():
+    import torch
+
+    from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model import GaussianModel
+
+    def model_and_stats():
+        rng = np.random.default_rng(0)
+        points = rng.normal(size=(20, 3)).astype(np.float32)
+        model = GaussianModel(init_gaussians(points, np.full((20, 3), 0.5, np.float32), 0.5))
+        stats = DensifyStats.zeros(20)
+        radii = torch.full((1, 20), 30, dtype=torch.int32)
+        radii[0, [3, 7]] = 1500  # two Gaussians wider than 1000 px on screen
+        stats.update(torch.zeros(1, 20, 2), radii, 768, 768)
+        return model, stats
+
+    model, stats = model_and_stats()
+    kept = torch.ones(20, dtype=torch.bool)
+    kept[[3, 7]] = False
+    expected = model.params["means"].detach()[kept].clone()
+    counts = densify_and_prune(
+        model, stats, 1.0, 1.0, 0.0, 1000, torch.Generator(), prune_screen_px=1000.0
+    )
+    assert counts["too_big"] == 2 and len(model) == 18
+    torch.testing.assert_close(model.params["means"].detach(), expected)
+    model, stats = model_and_stats()
+    assert densify_and_prune(model, stats, 1.0, 1.0, 0.0, 1000, torch.Generator())["too_big"] == 0
+    assert len(model) == 20  # ours by default: no screen-size prune

@@ -78,6 +78,11 @@ class DensifyConfig:
         choices=("strongest", "random"),
     )
     split_std: float = setting(1.0, "Split samples' std as a fraction of the scale.")
+    prune_screen_px: float | None = setting(
+        None,
+        "Also prune Gaussians whose screen radius exceeded this many pixels since the last "
+        "round, before densifying (released: 1000).",
+    )
 
     def due(self, step: int) -> bool:
         return self.start < step < self.until and step % self.every == 0
@@ -265,6 +270,9 @@ class GenerateConfig:
             raise InputError(
                 f"downsample tolerance must be in (0, 1), got {self.downsample_tolerance}"
             )
+        screen = self.densify.prune_screen_px
+        if screen is not None and not (math.isfinite(screen) and screen > 0):
+            raise InputError(f"screen-size prune must be a positive pixel count, got {screen}")
         if not 0.0 < self.densify.split_std <= 4.0:
             raise InputError(f"split std must be in (0, 4], got {self.densify.split_std}")
         if self.prompt_template is not None:

@@ -33,7 +33,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "control_resize": "nearest",
         "network_dtype": "float32",
         "cull": {"threshold": 7.0, "volume": "double-exp", "offset": 1},
-        "densify": {"split_std": 0.5, "cap_rule": "random"},
+        "densify": {"split_std": 0.5, "cap_rule": "random", "prune_screen_px": 1000.0},
         "n_points": 300_000,
         "mesh_sor": True,
         "sor_after_voxel": True,

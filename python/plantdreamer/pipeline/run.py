@@ -413,6 +413,7 @@ class _Run:
                     gen,
                     dens.cap_rule,
                     dens.split_std,
+                    dens.prune_screen_px,
                 )
                 self.densify = DensifyStats.zeros(len(self.model))
             event = {"step": step, "event": "densify", **counts, "gaussians": len(self.model)}
@@ -427,9 +428,7 @@ class _Run:
                 if stats["culled"]:
                     self.model.remove(mask)
                 if stats["culled"] and step < dens.until:
-                    self.densify = DensifyStats(
-                        self.densify.grad_sum[~mask], self.densify.count[~mask]
-                    )
+                    self.densify = self.densify.subset(~mask)
             self.events.append(
                 {"step": step, "event": "cull", **stats, "gaussians": len(self.model)}
             )
@@ -497,7 +496,11 @@ class _Run:
                     "source_counts": self.source_counts,
                     "label_fields": self.label_fields,
                     "sampler": self.sampler.state(),
-                    "densify": {"grad_sum": self.densify.grad_sum, "count": self.densify.count},
+                    "densify": {
+                        "grad_sum": self.densify.grad_sum,
+                        "count": self.densify.count,
+                        "max_radius": self.densify.max_radius,
+                    },
                     "torch_rng": torch.get_rng_state(),
                     # The guidance's noise generator, so a resumed run draws the same noise.
                     "guidance": _generator_state(self.guidance),
