@@ -29,8 +29,8 @@ as ``min((n + 0.1) * 1.75, 1)`` on the stretched n, which sets the nearest ~half
 range to 1.0 (docs/fidelity.md measures all three).
 
 Other differences from the released code, on purpose: the kernel is chosen from the real
-camera distance (the released code takes the norm of the 4x4 camera-to-world matrix, which
-is sqrt(4 + r^2), not r); the background is found from alpha, not from depth values; and
+camera distance by default (the released code takes the norm of the 4x4 camera-to-world
+matrix, which is sqrt(4 + r^2), not r; ``distance="c2w-norm"`` does the same); the background is found from alpha, not from depth values; and
 every threshold is a field of ``DepthCleaning``. Kernel sizes are specified in pixels of a
 ``kernel_reference_size`` render (768, the released resolution) and scaled to the actual
 render size. ``resize="nearest"`` resizes as the released code's control-image preparation
