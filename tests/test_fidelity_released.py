@@ -52,6 +52,15 @@ def test_released_names_keep_working_with_the_plants_name_in_the_prompt():
         )
 
 
+def test_print_config_shows_the_prompt_of_a_loras_recorded_template(tmp_path):
+    (tmp_path / "lora.json").write_text(
+        json.dumps({"config": {"caption_template": "{species} leaves"}})
+    )
+    shown = print_config("--species", "mint-released", "--lora", str(tmp_path))
+    assert shown["config"]["prompt_template"] == "{species} leaves"
+    assert shown["prompts"]["back"] == "mint leaves, back view"
+
+
 def test_our_preset_keeps_our_structures_and_cull_steps():
     shown = print_config("--species", "bean", "--guidance", "none")
     assert shown["structure"] == "bean"
