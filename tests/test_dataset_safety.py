@@ -131,6 +131,19 @@ def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
     assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
 
 
+def test_a_clearing_cut_short_is_finished_by_the_next_run(tmp_path):
+    """Killed while clearing: the record says `pending` with the new config; whatever of the
+    old config's folder is left (its checkpoint) must not be resumed."""
+    spec = {"group": [{"species": "bean", "guidance": "none"}]}
+    (plant,) = expand(spec)
+    folder = tmp_path / "plants" / plant.id
+    folder.mkdir(parents=True)
+    (folder / "checkpoint.pt").write_text("the old config's")
+    Manifest(tmp_path).replace(plant.id, {"status": "pending", "config_hash": plant.config_hash})
+    todo, _ = runner._DatasetRun(spec, [plant], tmp_path, RunOptions())._plan()
+    assert todo == [plant] and not folder.exists()
+
+
 def test_a_done_plant_missing_a_file_runs_again(tmp_path):
     spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
     plants = expand(spec)

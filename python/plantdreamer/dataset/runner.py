@@ -144,9 +144,12 @@ class _DatasetRun:
             if done and all((folder / name).is_file() for name in COMPLETE_FILES):
                 skipped.append(plant)
                 continue
-            if not same_config and (record is not None or folder.exists()):
-                # Another config's record and files: the record changes first, so a stop
-                # while the files go never leaves a `done` that has none.
+            # Another config's record and files, or a `pending` plant (no worker started
+            # it: its folder holds only what a clearing cut short left).
+            stale = not same_config or (record is not None and record["status"] == "pending")
+            if stale and (record is not None or folder.exists()):
+                # The record changes first, so a stop while the files go never leaves a
+                # `done` that has none.
                 self.manifest.replace(plant.id, {**self._base_record(plant), "status": "pending"})
                 if folder.exists():
                     shutil.rmtree(folder)
