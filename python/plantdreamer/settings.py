@@ -10,6 +10,9 @@ options named ``--<prefix>-<name>``. This module imports nothing heavy, so the C
 from __future__ import annotations
 
 import dataclasses
+import numbers
+import types
+import typing
 from collections.abc import Sequence
 from typing import Any
 
@@ -58,3 +61,52 @@ def check_choices(config: Any) -> None:
         elif CHOICES in f.metadata and value not in f.metadata[CHOICES]:
             allowed = ", ".join(f.metadata[CHOICES])
             raise ValueError(f"{f.name.replace('_', ' ')} must be one of {allowed}, got {value!r}")
+
+
+def check_types(config: Any, prefix: str = "") -> None:
+    """ValueError naming the first field whose value is not of its annotated type.
+
+    A config built from a file or ``--set`` can hold any TOML value (a list where a path
+    belongs); this refuses it when the config is checked, before any run starts.
+    """
+    hints = typing.get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        value, name = getattr(config, f.name), f"{prefix}{f.name}"
+        expected = hints[f.name]
+        if dataclasses.is_dataclass(expected):
+            if type(value) is not expected:
+                raise ValueError(f"{name} must be a table of settings, got {value!r}")
+            check_types(value, f"{name}.")
+        elif not _has_type(value, expected):
+            raise ValueError(f"{name} must be {_type_text(expected)}, got {value!r}")
+
+
+def _has_type(value: Any, expected: Any) -> bool:
+    args = typing.get_args(expected)
+    if isinstance(expected, types.UnionType) or typing.get_origin(expected) is typing.Union:
+        return any(_has_type(value, a) for a in args)
+    if expected is type(None):
+        return value is None
+    if expected is bool:
+        return isinstance(value, bool)
+    if expected is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if expected is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if typing.get_origin(expected) is tuple:
+        return (
+            isinstance(value, tuple)
+            and len(value) == len(args)
+            and all(_has_type(v, a) for v, a in zip(value, args, strict=True))
+        )
+    return isinstance(value, expected)
+
+
+def _type_text(expected: Any) -> str:
+    args = typing.get_args(expected)
+    if isinstance(expected, types.UnionType) or typing.get_origin(expected) is typing.Union:
+        return " or ".join(_type_text(a) for a in args)
+    if typing.get_origin(expected) is tuple:
+        return f"a list of {len(args)} numbers"
+    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    return names.get(expected, "none" if expected is type(None) else expected.__name__)

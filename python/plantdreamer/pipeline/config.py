@@ -22,7 +22,7 @@ from plantdreamer.guidance.config import (
     SCHEDULES,
     SDS_DEFAULTS,
 )
-from plantdreamer.settings import check_choices, option_prefix, setting
+from plantdreamer.settings import check_choices, check_types, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
 COLOR_INITS = ("original", "noise", "black", "white")
@@ -251,13 +251,14 @@ class GenerateConfig:
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
 
     def validate(self) -> None:
-        self._check_numbers()
-        if self.species is None and self.pointcloud is None:
-            raise InputError("give an input: a species (L-System) or a point cloud")
         try:
+            check_types(self)  # a spec or --set can give any TOML value
             check_choices(self)
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        self._check_numbers()
+        if self.species is None and self.pointcloud is None:
+            raise InputError("give an input: a species (L-System) or a point cloud")
         if not 0 <= self.sh_degree <= 3:
             raise InputError(f"SH degree must be in 0..3, got {self.sh_degree}")
         if self.sh_degree_export is not None and not 0 <= self.sh_degree_export <= 3:

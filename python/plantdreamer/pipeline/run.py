@@ -23,7 +23,7 @@ from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.labels import class_counts
+from plantdreamer.labels import check_mask_limits, class_counts
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
@@ -285,6 +285,8 @@ class _Run:
         with self.timer("prepare"):
             source = load_source(cfg)
             g = initial_gaussians(cfg, source)
+        if cfg.labels:  # the masks' limits, now rather than after the last step
+            check_mask_limits(g.labels)
         self.transform, self.source_counts = source.transform, source.counts
         self.label_fields = source.label_fields if source.labels is not None else None
         if self.show_progress and cfg.pointcloud is not None:
