@@ -14,8 +14,9 @@ erosion) is compared over plant pixels (alpha > 0.5): the share set to 1.0 (satu
 share dropped to 0, and Spearman's rank correlation of the normalised value with -depth
 (1 = nearer is always brighter).
 
-Culling: the culling rounds of a 3600-step ``--guidance none`` run (steps 600, 700, ...,
-3500) replayed on the initial Gaussians for each C and volume rule. That is what such a run
+Culling: the culling rounds of a 3600-step ``--guidance none`` run (ours: steps 600, 700,
+..., 3500; the released rounds 599, ..., 3599 for the released column) replayed on the
+initial Gaussians for each C and volume rule. That is what such a run
 does: nothing is optimised, so densification selects nothing, no opacity falls below the
 prune threshold, and each round cuts the tail of the initial scale distribution. The figure
 is the share of the initial Gaussians culled over the run.
@@ -24,6 +25,7 @@ is the share of the initial Gaussians culled over the run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 from pathlib import Path
@@ -39,6 +41,7 @@ from plantdreamer.lsystem import generate_plant, sample_points
 from plantdreamer.pipeline import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.presets import PRESETS
 from plantdreamer.pipeline.sampler import CameraSampler
 from plantdreamer.pipeline.source import initial_gaussians, load_source
 
@@ -126,14 +129,21 @@ def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> 
 
 
 def cull_figures(log_scales: torch.Tensor, cfg: GenerateConfig) -> dict[str, float]:
-    steps = [s for s in range(cfg.train.steps) if cfg.density.cull.due(s)]
+    released = dataclasses.replace(cfg.density.cull, offset=PRESETS["released"]["cull-offset"])
+    rounds = {
+        cull.offset: sum(cull.due(s) for s in range(cfg.train.steps))
+        for cull in (cfg.density.cull, released)
+    }
+    settings = [(3.0, "log", 0), (7.0, "log", 0), (3.0, "double-exp", 0), (7.0, "double-exp", 0)]
+    settings.append((7.0, "double-exp", released.offset))
     out = {}
-    for c, volume in ((3.0, "log"), (7.0, "log"), (3.0, "double-exp"), (7.0, "double-exp")):
+    for c, volume, offset in settings:
         kept = log_scales
-        for _ in steps:
+        for _ in range(rounds[offset]):
             mask, _ = large_gaussian_mask(kept, c, volume)
             kept = kept[~mask]
-        out[f"C={c:g} {volume}"] = 1.0 - len(kept) / len(log_scales)
+        name = f"C={c:g} {volume}" + (f", {rounds[offset]} rounds (released)" if offset else "")
+        out[name] = 1.0 - len(kept) / len(log_scales)
     return out
 
 

@@ -65,7 +65,8 @@ def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):
     for plant_id, record in records.items():
         assert record["status"] == "done" and record["error"] is None
         assert record["raster_threads"] == 1  # one CPU per plant with --guidance none
-        assert "plant.ply" in record["outputs"] and "run.json" in record["outputs"]
+        assert "outputs" not in record  # the folder is the list of files
+        assert (out / "plants" / plant_id / "run.json").is_file()
         species, seed = plant_id.split("-s")
         expected = direct_ply(tmp_path, species=species, seed=int(seed))
         assert (out / "plants" / plant_id / "plant.ply").read_bytes() == expected, plant_id
@@ -175,3 +176,43 @@ def test_plants_spread_over_a_two_node_cluster(two_node_cluster, tmp_path):
     records = manifest(out)
     assert all(r["status"] == "done" for r in records.values())
     assert {r["node"] for r in records.values()} == nodes  # both nodes ran plants
+
+
+def _stopped_by(signum, out):
+    """Runs two long plants, sends ``signum`` to the driver once both have checkpointed,
+    and returns its exit status, output and manifest."""
+    cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count",
+           "2", "--local-cpus", "2", "--set", "checkpoint_every=5", *SMALL_FLAGS,
+           "--steps", "100000", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, env=loopback_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        checkpoints = [out / "plants" / f"bean-s000{i}" / "checkpoint.pt" for i in (0, 1)]
+        deadline = time.time() + 300
+        while not all(c.is_file() for c in checkpoints):
+            assert proc.poll() is None and time.time() < deadline, "the plants never started"
+            time.sleep(0.5)
+        proc.send_signal(signum)
+        output, _ = proc.communicate(timeout=200)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=120)
+    return proc.returncode, output, manifest(out)
+
+
+def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path):
+    runs = {s: _stopped_by(s, tmp_path / s.name) for s in (signal.SIGINT, signal.SIGTERM)}
+    shapes = {}
+    for signum, (code, output, records) in runs.items():
+        assert code == 130, output
+        assert "interrupted" in output and "Traceback" not in output, output
+        assert "error:" not in output and "Aborted" not in output, output
+        for plant_id, record in records.items():
+            folder = tmp_path / signum.name / "plants" / plant_id
+            assert (folder / "checkpoint.pt").is_file(), plant_id
+            assert record["error"].startswith("interrupted at step "), record
+        shapes[signum] = {i: (r["status"], sorted(r)) for i, r in records.items()}
+    assert shapes[signal.SIGINT] == shapes[signal.SIGTERM]
+    assert {s for s, _ in shapes[signal.SIGTERM].values()} == {"interrupted"}

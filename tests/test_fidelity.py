@@ -18,7 +18,7 @@ from plantdreamer.pipeline.culling import large_gaussian_mask
 from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune, random_cap_mask
 from plantdreamer.pipeline.init import neighbour_spacing
 from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.sampler import area_uniform_elevation, mixed_elevation
+from plantdreamer.pipeline.sampler import legacy_area_uniform_elevation, mixed_elevation
 
 # -- presets ------------------------------------------------------------------------------
 
@@ -35,7 +35,10 @@ def test_presets_resolve_to_the_documented_values():
         "points": 300_000,
         "mesh-sor": True,
         "sor-after-voxel": True,
-        "elevation-sampling": "mixed",
+        "elevation-sampling": "mixed-full",
+        "structures": "released",
+        "erosion-distance": "c2w-norm",
+        "downsample-tolerance": 0.25,
         "network-dtype": "float32",
         "control-resize": "nearest",
         "init-scale": "rms",
@@ -44,7 +47,11 @@ def test_presets_resolve_to_the_documented_values():
         "guidance-scale": 101.0,
     }
     assert {k: released.get(k) for k in expected} == expected
-    assert (released.get("cull-threshold"), released.get("cull-volume")) == (7.0, "double-exp")
+    assert (
+        released.get("cull-threshold"),
+        released.get("cull-volume"),
+        released.get("cull-offset"),
+    ) == (7.0, "double-exp", 1)
     assert (released.get("densify-split-std"), released.get("densify-cap-rule")) == (
         0.5,
         "random",
@@ -119,9 +126,9 @@ def test_double_exp_culling_volume_is_exp_of_activated_scales():
 # -- cameras ------------------------------------------------------------------------------
 
 
-def test_area_uniform_elevation_follows_threestudio():
+def test_legacy_area_uniform_elevation_follows_threestudio_before_its_fix():
     rng = np.random.default_rng(1)
-    values = np.array([area_uniform_elevation(rng, -10.0, 80.0) for _ in range(20_000)])
+    values = np.array([legacy_area_uniform_elevation(rng, -10.0, 80.0) for _ in range(20_000)])
     low = math.degrees(math.asin(2 * 80 / 180 - 1))  # p0 = (-10 + 90) / 180
     high = math.degrees(math.asin(2 * 170 / 180 - 1))  # p1 = (80 + 90) / 180
     assert values.min() >= low and values.max() <= high
@@ -136,8 +143,9 @@ def test_mixed_elevation_is_seeded_and_uses_both_branches():
     draw = lambda seed: [mixed_elevation(np.random.default_rng(seed), -10, 80) for _ in range(1)]  # noqa: E731
     assert draw(3) == draw(3)
     rng = np.random.default_rng(0)
-    values = np.array([mixed_elevation(rng, -10.0, 80.0) for _ in range(4000)])
-    assert values.max() > 70.0  # the uniform branch reaches past the area branch's 62.7
+    draw = legacy_area_uniform_elevation
+    values = np.array([mixed_elevation(rng, -10.0, 80.0, draw) for _ in range(4000)])
+    assert values.max() > 70.0  # the uniform branch reaches past the legacy area branch's 62.7
     assert values.min() >= -10.0 and values.max() <= 80.0
 
 
@@ -356,7 +364,7 @@ def test_released_preset_without_guidance_records_every_resolved_value(tmp_path)
     assert cfg.get("network-dtype") == "float32"  # resolved, never "auto"
     assert cfg.get("prompt-template") == "A photo of {species} plants"
     assert run["source_points"]["outliers removed"] <= 1500
-    assert [e["step"] for e in run["events"] if e["event"] == "cull"] == [600]
+    assert [e["step"] for e in run["events"] if e["event"] == "cull"] == [599]  # theirs
 
 
 def test_released_preset_with_tiny_sds(tmp_path):

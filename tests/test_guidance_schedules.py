@@ -33,7 +33,7 @@ def test_paper_schedule_boundaries(step, bounds):
 
 
 @pytest.mark.parametrize(
-    ("step", "bounds"), [(0, (20, 980)), (500, (20, 980)), (501, (20, 500)), (3599, (20, 500))]
+    ("step", "bounds"), [(0, (20, 980)), (500, (20, 980)), (501, (20, 550)), (3599, (20, 550))]
 )
 def test_released_code_schedule_boundaries(step, bounds):
     assert released_code_schedule().bounds(step) == bounds

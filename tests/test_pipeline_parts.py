@@ -104,7 +104,7 @@ def test_densify_clones_small_splits_large_prunes_transparent(random_gaussians):
     counts = densify_and_prune(
         model, stats, 2e-4, 0.04, 0.05, 1000, torch.Generator().manual_seed(0)
     )
-    assert counts == {"cloned": 1, "split": 1, "pruned": 1, "capped": 0}
+    assert counts == {"cloned": 1, "split": 1, "pruned": 1, "capped": 0, "too_big": 0}
     # 6 + 1 clone + 2 split samples - 1 split original - 1 pruned
     assert len(model) == 7
     scales = torch.exp(model.params["log_scales"]).amax(dim=1)

@@ -197,3 +197,37 @@ def test_a_stop_signal_stops_the_viewer_cleanly(tmp_path, random_gaussians, stop
             proc.communicate()
     assert proc.returncode == 0, out
     assert "viewer stopped" in out and "Traceback" not in out
+
+
+def test_non_finite_gaussians_are_dropped_with_a_warning(tmp_path, random_gaussians):
+    from types import SimpleNamespace
+
+    from plantdreamer.viewer.server import _frame_camera
+
+    g = random_gaussians(3000)
+    g.means[:10] = np.nan
+    g.sh[10, 0, 1] = np.inf
+    write_splat_ply(tmp_path / "nan.ply", g)
+    with pytest.warns(UserWarning, match="11 of 3000 Gaussians have NaN or Inf"):
+        scene = load_scene(tmp_path / "nan.ply")
+    assert len(scene) == 2989 and np.isfinite(scene.centers).all()
+    camera = SimpleNamespace()
+    _frame_camera(camera, scene)
+    assert np.isfinite(camera.position).all() and np.isfinite(camera.look_at).all()
+    g.means[:] = np.nan
+    write_splat_ply(tmp_path / "all_nan.ply", g)
+    result = CliRunner().invoke(main, ["view", str(tmp_path / "all_nan.ply")])
+    assert result.exit_code == 1 and "no Gaussian has finite parameters" in result.output
+
+
+def test_a_float_label_column_with_whole_values_is_shown(tmp_path, random_gaussians):
+    from plantdreamer import _core
+    from plantdreamer.io import read_ply_columns
+
+    write_splat_ply(tmp_path / "int.ply", random_gaussians(5))
+    cols = read_ply_columns(tmp_path / "int.ply")
+    cols["label"] = np.array([1, 2, 3, 4, -1], np.float32)
+    fields = [([k], v) for k, v in cols.items()]
+    _core.write_ply_vertex(str(tmp_path / "float.ply"), fields, True, [])
+    scene = load_scene(tmp_path / "float.ply")
+    assert scene.labels is not None and scene.labels.tolist() == [1, 2, 3, 4, -1]

@@ -39,6 +39,13 @@ INSTANCE_FIELD_NAMES = (
     "object_id",
 )
 NO_INSTANCE = -1
+NO_CLASS = -1  # a point of no class (any other negative id is a class)
+# What the per-view masks can hold: 8-bit class values 1..255 and 16-bit instance values
+# 1..65535 (0 is background). Other ids are mapped onto these, so these are counts.
+MAX_CLASSES = 255
+MAX_INSTANCES = 65535
+# Vertex properties a cloud reads as position, normal or colour, never as labels.
+_GEOMETRY_PROPERTIES = ("x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha")
 
 
 def find_label_fields(
@@ -56,6 +63,11 @@ def find_label_fields(
         if given is not None:
             if given not in attributes:
                 have = ", ".join(attributes) or "none"
+                if given in _GEOMETRY_PROPERTIES:
+                    raise InputError(
+                        f"{what} field {given!r} is the points' position, normal or colour, "
+                        f"not an integer property (other properties: {have})"
+                    )
                 raise InputError(
                     f"{what} field {given!r} is not a vertex property (properties: {have})"
                 )
@@ -84,6 +96,24 @@ def as_int_labels(name: str, values: np.ndarray) -> np.ndarray:
             "labels must be whole numbers"
         )
     return v.astype(np.int32)
+
+
+def check_mask_limits(labels: np.ndarray | None) -> None:
+    """InputError, before any work, when a model's [N, 2] (class, instance) labels have more
+    distinct classes or instances than the per-view masks can tell apart."""
+    if labels is None or len(labels) == 0:
+        return
+    for column, none, limit, what, fix in (
+        (0, NO_CLASS, MAX_CLASSES, "classes", "an 8-bit class mask"),
+        (1, NO_INSTANCE, MAX_INSTANCES, "instances", "a 16-bit instance mask"),
+    ):
+        values = np.asarray(labels)[:, column]
+        count = np.unique(values[values != none]).size
+        if count > limit:
+            raise InputError(
+                f"{count} distinct {what} do not fit {fix} (at most {limit}); merge some, "
+                "or run with --no-labels"
+            )
 
 
 def voxel_keys(points: np.ndarray, voxel_size: float) -> np.ndarray:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
+import numbers
+import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
@@ -100,6 +102,9 @@ def canonical(name: str) -> str:
 
 
 def unknown_message(name: str, known: Sequence[str]) -> str:
+    inside = [k for k in known if k.startswith(name + "-")]
+    if inside:  # a section's prefix (lr, cameras, densify, cull): name its settings
+        return f"{name!r} is not one setting; give each by name: {', '.join(inside)}"
     close = difflib.get_close_matches(name, known, n=1)
     hint = f"; did you mean {close[0]!r}?" if close else " (see `plantdreamer generate --help`)"
     return f"unknown setting {name!r}{hint}"
@@ -150,3 +155,46 @@ def check_choices(config: Any) -> None:
             low, high = meta[RANGE]
             if not low <= value <= high:
                 raise ValueError(f"{s.name} must be in {low}..{high}, got {value!r}")
+
+
+def check_types(config: Any) -> None:
+    """ValueError naming the first setting whose value is not of its annotated type.
+
+    A config built from a file or ``--set`` can hold any TOML value (a list where a path
+    belongs); this refuses it when the config is checked, before any run starts.
+    """
+    for s in walk(type(config)):
+        value = value_at(config, s.path)
+        if not _has_type(value, s.type):
+            raise ValueError(f"{s.name} must be {_type_text(s.type)}, got {value!r}")
+
+
+def _has_type(value: Any, expected: Any) -> bool:
+    args = typing.get_args(expected)
+    if isinstance(expected, types.UnionType) or typing.get_origin(expected) is typing.Union:
+        return any(_has_type(value, a) for a in args)
+    if expected is type(None):
+        return value is None
+    if expected is bool:
+        return isinstance(value, bool)
+    if expected is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if expected is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if typing.get_origin(expected) is tuple:
+        return (
+            isinstance(value, tuple)
+            and len(value) == len(args)
+            and all(_has_type(v, a) for v, a in zip(value, args, strict=True))
+        )
+    return isinstance(value, expected)
+
+
+def _type_text(expected: Any) -> str:
+    args = typing.get_args(expected)
+    if isinstance(expected, types.UnionType) or typing.get_origin(expected) is typing.Union:
+        return " or ".join(_type_text(a) for a in args)
+    if typing.get_origin(expected) is tuple:
+        return f"a list of {len(args)} numbers"
+    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    return names.get(expected, "none" if expected is type(None) else expected.__name__)

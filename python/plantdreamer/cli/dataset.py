@@ -103,7 +103,8 @@ def dataset(
     every plant, over the spec's [defaults]. Plants already complete in OUT are skipped.
     """
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
-    from plantdreamer.dataset.engine import import_ray
+    from plantdreamer.dataset.engine import custom_resources, import_ray
+    from plantdreamer.dataset.spec import with_settings
     from plantdreamer.errors import InputError
 
     import_ray()  # fail first, with what to install, when Ray is missing
@@ -119,12 +120,9 @@ def dataset(
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
-    spec["defaults"] = {**spec.get("defaults", {}), **overrides}
-    plants = expand(spec)
-    try:
-        custom = {k: float(v) for k, v in _key_values(resources, "--resource").items()}
-    except ValueError:
-        raise click.BadParameter("amounts must be numbers", param_hint="--resource") from None
+    spec = with_settings(spec, overrides)
+    plants = expand(spec)  # every plant's config is checked here, before Ray starts
+    custom = custom_resources(_key_values(resources, "--resource"))
     options = RunOptions(
         address=address,
         local_cpus=local_cpus,

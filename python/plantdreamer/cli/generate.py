@@ -2,12 +2,13 @@
 
 The run's options are the settings of ``GenerateConfig``, each under its one name (defaults,
 choices and help come from the sections' dataclasses); this module only adds the output folder, ``--resume``, ``--overwrite``,
-``--quiet`` and ``--view`` (not settings of the run). ``--preset`` picks the base values
+``--quiet``, ``--view``, ``--seeds`` and ``--print-config`` (not settings of the run). ``--preset`` picks the base values
 (``pipeline/presets.py``); only the options given on the command line override them.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -42,6 +43,12 @@ def build_command() -> click.Command:
     @click.option(
         "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
     )
+    @click.option(
+        "--print-config",
+        is_flag=True,
+        help="Print the resolved settings (preset, options, LoRA record; prompts, timestep "
+        "phases, cull steps) as JSON and exit without running.",
+    )
     @click.pass_context
     def generate(
         ctx: click.Context,
@@ -51,6 +58,7 @@ def build_command() -> click.Command:
         seeds: str | None,
         quiet: bool,
         view: bool,
+        print_config: bool,
         **options,
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
@@ -62,6 +70,8 @@ def build_command() -> click.Command:
         given = _given(ctx)
         try:
             if resume_dir is not None:
+                if print_config:
+                    raise click.UsageError("--print-config shows a new run; drop --resume")
                 if overwrite:
                     raise click.UsageError("--overwrite starts afresh; it cannot go with --resume")
                 if "out_dir" in given and Path(out_dir) != Path(resume_dir):
@@ -96,6 +106,11 @@ def build_command() -> click.Command:
                     _group_report(group)
                     return
                 cfg = resolve_config(preset, typed, base=defaults)
+                if print_config:
+                    from plantdreamer.pipeline.resolved import resolved_settings
+
+                    click.echo(json.dumps(resolved_settings(cfg), indent=2))
+                    return
                 result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
         except RunInterrupted as stop:
             click.secho(

@@ -52,7 +52,7 @@ def print_summary(
     from rich.console import Console
     from rich.table import Table
 
-    statuses = ("done", "failed", "interrupted", "running")
+    statuses = ("done", "failed", "interrupted", "running", "pending")
     table = Table(title="dataset")
     table.add_column("species")
     for status in statuses:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 import os
+import signal
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -63,6 +65,33 @@ class Demand:
         return ", ".join(parts)
 
 
+# Resources Ray counts itself; a plant asks for them with their own options.
+_BUILT_IN_RESOURCES = {"CPU": "--cpus-per-plant", "GPU": "--gpus-per-plant"}
+_RAY_OWNED_RESOURCES = ("memory", "object_store_memory")
+RESOURCE_PRECISION = 1e-4  # Ray's finest fraction of a resource
+
+
+def custom_resources(given: dict[str, str]) -> dict[str, float]:
+    """``--resource NAME=AMOUNT`` values, checked before Ray starts: positive finite amounts
+    of resources that are not Ray's own."""
+    out = {}
+    for name, text in given.items():
+        if name in _BUILT_IN_RESOURCES:
+            raise InputError(f"--resource {name}: use {_BUILT_IN_RESOURCES[name]} for {name}")
+        if name in _RAY_OWNED_RESOURCES or name.startswith("node:"):
+            raise InputError(f"--resource {name}: Ray manages {name!r} itself")
+        try:
+            amount = float(text)
+        except ValueError:
+            raise InputError(f"--resource {name}={text}: the amount must be a number") from None
+        if not (math.isfinite(amount) and amount >= RESOURCE_PRECISION):
+            raise InputError(
+                f"--resource {name}={text}: the amount must be a number >= {RESOURCE_PRECISION}"
+            )
+        out[name] = amount
+    return out
+
+
 def plant_demand(
     cfg: GenerateConfig,
     cpus_per_plant: float | None,
@@ -71,7 +100,7 @@ def plant_demand(
 ) -> Demand:
     cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.sds.guidance]
     gpus = gpus_per_plant if gpus_per_plant is not None else DEFAULT_GPUS[cfg.sds.guidance]
-    if cpus < 1 or gpus < 0:
+    if not (math.isfinite(cpus) and math.isfinite(gpus)) or cpus < 1 or gpus < 0:
         raise InputError("a plant needs at least 1 CPU and a non-negative number of GPUs")
     return Demand(cpus, gpus, tuple(sorted(custom.items())))
 
@@ -82,19 +111,29 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
     if ray.is_initialized():
         return False
     common: dict[str, Any] = {"log_to_driver": False, "logging_level": "WARNING"}
-    if address is None:
-        ray.init(
-            address="local",
-            num_cpus=local_cpus or os.cpu_count() or 1,
-            include_dashboard=False,
-            _node_ip_address=LOCAL_HOST,
-            **common,
-        )
-    else:
-        try:
-            ray.init(address=address, **common)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise InputError(f"cannot join the Ray cluster at {address}: {exc}") from None
+    # ray.init installs a SIGTERM handler that exits at once (status 1, a native stack
+    # dump, no checkpoints); the caller's handler, which stops cleanly, is put back.
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        if address is None:
+            ray.init(
+                address="local",
+                num_cpus=local_cpus or os.cpu_count() or 1,
+                include_dashboard=False,
+                _node_ip_address=LOCAL_HOST,
+                **common,
+            )
+        else:
+            try:
+                ray.init(address=address, **common)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise InputError(f"cannot join the Ray cluster at {address}: {exc}") from None
+    except SystemExit:  # SIGTERM while Ray starts, through Ray's handler: a clean stop
+        ray.shutdown()
+        raise KeyboardInterrupt from None
+    finally:
+        if threading.current_thread() is threading.main_thread() and previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return True
 
 

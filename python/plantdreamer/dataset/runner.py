@@ -1,9 +1,16 @@
 """Runs a dataset: plan (skip, resume, redo), schedule plants as Ray tasks, record results.
 
 Every plant is one `generate` run into ``DIR/plants/<id>/``. A plant is complete when the
-manifest says ``done`` with the same config hash and its ``plant.ply`` exists; those are
-skipped. A plant folder left by an earlier run with the same config keeps its checkpoint,
-so the plant resumes; any other leftover folder is cleared first.
+manifest says ``done`` with the same config hash and its files (``plant.ply``, ``run.json``)
+exist; those are skipped. A plant folder left by an earlier run with the same config keeps
+its checkpoint, so the plant resumes; any other leftover folder is cleared first, after its
+record says ``pending`` (a record changes before its files do, so a stop at any point
+leaves no ``done`` record without its files).
+
+Nothing outside ``DIR`` is written or deleted: plant ids are checked folder names
+(``dataset.spec``), and a plant folder must resolve to a direct child of ``DIR/plants``.
+Ctrl-C and SIGTERM both stop cleanly: running plants checkpoint and stop, and their records
+say ``interrupted``.
 """
 
 from __future__ import annotations
@@ -21,11 +28,16 @@ from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.spec import Plant
 from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
+from plantdreamer.errors import PlantDreamerError
+from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
 PLANTS_DIR = "plants"
-# After Ctrl-C, how long running plants get to write their checkpoint and stop.
+# After Ctrl-C or SIGTERM, how long running plants get to write their checkpoint and stop.
 STOP_GRACE_S = 60.0
+STOPPED = "stopped by Ctrl-C or SIGTERM"
+# A plant's files that make it complete (with a `done` record of the same config).
+COMPLETE_FILES = ("plant.ply", "run.json")
 
 
 @dataclass
@@ -58,8 +70,13 @@ def run_dataset(
     spec: dict[str, Any], plants: list[Plant], out_dir: str | Path, options: RunOptions
 ) -> DatasetReport:
     out_dir = Path(out_dir).resolve()
-    with dataset_lock(out_dir):
+    # SIGTERM (a scheduler's notice before a kill) stops the run as Ctrl-C does.
+    with stop_signals_handled(_interrupt), dataset_lock(out_dir):
         return _DatasetRun(spec, plants, out_dir, options).run()
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 class _DatasetRun:
@@ -73,16 +90,16 @@ class _DatasetRun:
         self.ray_nodes: int | None = None
 
     def run(self) -> DatasetReport:
-        todo, skipped = self._plan()
-        demands = {
+        demands = {  # checked before _plan clears any folder
             p.id: engine.plant_demand(
                 p.config,
                 self.options.cpus_per_plant,
                 self.options.gpus_per_plant,
                 self.options.resources,
             )
-            for p in todo
+            for p in self.plants
         }
+        todo, skipped = self._plan()
         self._write_summary("running", skipped)
         results: dict[str, dict[str, Any]] = {}
         state = "stopped"
@@ -93,7 +110,9 @@ class _DatasetRun:
         finally:
             for plant in todo:  # still running after a stop: its checkpoint is what is left
                 if self._status(plant.id) == "running":
-                    self.manifest.update(plant.id, status="interrupted", error="stopped by Ctrl-C")
+                    self.manifest.update(plant.id, status="interrupted", error=STOPPED)
+            if self.manifest.lines > len(self.manifest.records):
+                self.manifest.compact()
             self._write_summary(state, skipped)
         seconds = time.time() - self.t0
         ids = [p.id for p in todo]
@@ -122,16 +141,28 @@ class _DatasetRun:
             folder = self._plant_dir(plant)
             same_config = record is not None and record.get("config_hash") == plant.config_hash
             done = same_config and record is not None and record["status"] == "done"
-            if done and (folder / "plant.ply").is_file():
+            if done and all((folder / name).is_file() for name in COMPLETE_FILES):
                 skipped.append(plant)
                 continue
-            if folder.exists() and not same_config:
-                shutil.rmtree(folder)  # another config's leftovers: start this plant afresh
+            # Another config's record and files, or a `pending` plant (no worker started
+            # it: its folder holds only what a clearing cut short left).
+            stale = not same_config or (record is not None and record["status"] == "pending")
+            if stale and (record is not None or folder.exists()):
+                # The record changes first, so a stop while the files go never leaves a
+                # `done` that has none.
+                self.manifest.replace(plant.id, {**self._base_record(plant), "status": "pending"})
+                if folder.exists():
+                    shutil.rmtree(folder)
             todo.append(plant)
         return todo, skipped
 
     def _plant_dir(self, plant: Plant) -> Path:
-        return self.out_dir / PLANTS_DIR / plant.id
+        plants_dir = self.out_dir / PLANTS_DIR
+        folder = plants_dir / plant.id
+        # Ids are checked folder names; this keeps any other from reaching outside DIR.
+        if folder.parent != plants_dir or folder.resolve().parent != plants_dir.resolve():
+            raise PlantDreamerError(f"plant id {plant.id!r} is not a folder name in {plants_dir}")
+        return folder
 
     def _status(self, plant_id: str) -> str | None:
         record = self.manifest.get(plant_id)
@@ -145,7 +176,7 @@ class _DatasetRun:
         ray = engine.import_ray()
         started_ray = engine.connect(self.options.address, self.options.local_cpus)
         try:
-            engine.check_feasible(set(demands.values()))
+            engine.check_feasible({demands[p.id] for p in todo})
             self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
             board = ray.remote(num_cpus=0)(StatusBoard).remote()
             task = ray.remote(run_plant)
@@ -208,7 +239,8 @@ class _DatasetRun:
         return result
 
     def _stop(self, ray, pending, board, results) -> None:
-        """Ctrl-C: ask running plants to checkpoint and stop, then record what happened."""
+        """Ctrl-C or SIGTERM: ask running plants to checkpoint and stop, then record what
+        happened."""
         for ref in pending:
             ray.cancel(ref, force=False)
         deadline = time.time() + STOP_GRACE_S

@@ -18,7 +18,14 @@ A spec is a TOML file::
 
 Every plant becomes one ``GenerateConfig`` built like `generate`'s (``preset = "released"``
 applies that preset under the spec's own settings), so any setting `generate` knows is
-accepted and an unknown one is a clear error.
+accepted and an unknown one is a clear error; every plant's config is checked (types,
+ranges, species) here, before Ray starts.
+
+A plant's folder name (its id) is made only of checked parts: the group ``name`` must be
+letters, digits, ``-``, ``_`` and ``.`` (not first), and a point cloud's file name has any
+other character replaced by ``_``. So a plant folder is always a direct child of
+``OUT/plants``. A point cloud's config hash covers the file's contents (SHA-256), not only
+its path: a scan replaced at the same path is run again.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +51,9 @@ else:  # pragma: no cover - Python 3.10
 
 # Keys of a group that choose its plants; every other key is a generate setting.
 _PLANT_KEYS = ("name", "species", "pointclouds", "seeds", "count", "seed-start")
+# A group name: a folder-name part that is never a path (no separator, no leading dot).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
+_UNSAFE_CHARACTERS = re.compile(r"[^A-Za-z0-9._-]")
 
 
 @dataclass(frozen=True)
@@ -63,20 +74,40 @@ class Plant:
         return self.config.source.pointcloud or "lsystem"
 
 
-def config_hash(cfg: GenerateConfig) -> str:
-    """A stable hash of every setting (sorted JSON), to tell whether a plant is up to date."""
+def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
+    """A stable hash of every setting (sorted JSON) and of the input file's contents
+    (``source_digest``), to tell whether a plant is up to date."""
     text = json.dumps(cfg.to_dict(), sort_keys=True, separators=(",", ":"))
+    if source_digest is not None:
+        text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file's contents (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def load_spec(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
-        spec = tomllib.loads(path.read_text())
+        spec = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}); TOML is UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from exc
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
     spec.setdefault("base_dir", str(path.resolve().parent))
     return spec
+
+
+def with_settings(spec: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """The spec with ``overrides`` (the command line's settings) over its [defaults]."""
+    defaults = _settings(spec.get("defaults", {}), "[defaults]")
+    return {**spec, "defaults": {**defaults, **overrides}}
 
 
 def expand(spec: dict[str, Any]) -> list[Plant]:
@@ -93,8 +124,9 @@ def expand(spec: dict[str, Any]) -> list[Plant]:
     base_dir = Path(spec.get("base_dir", "."))
     plants: list[Plant] = []
     seen: dict[str, str] = {}
+    digests: dict[Path, str] = {}
     for index, group in enumerate(groups, 1):
-        for plant in _group_plants(group, index, defaults, base_dir):
+        for plant in _group_plants(group, index, defaults, base_dir, digests):
             if plant.id in seen:
                 raise InputError(
                     f"spec: plant id {plant.id!r} appears twice ({seen[plant.id]} and "
@@ -112,10 +144,12 @@ def _settings(table: Any, where: str) -> dict[str, Any]:
     return {canonical(key): value for key, value in table.items()}
 
 
-def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Path) -> list[Plant]:
+def _group_plants(
+    group: Any, index: int, defaults: dict[str, Any], base_dir: Path, digests: dict[Path, str]
+) -> list[Plant]:
     where = f"group {index}"
     table = _settings(group, where)
-    name = str(table.get("name", ""))
+    name = _group_name(table.get("name", ""), where)
     if name:
         where = f"group {index} ({name})"
     settings = {**defaults, **{k: v for k, v in table.items() if k not in _PLANT_KEYS}}
@@ -129,14 +163,22 @@ def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Pa
     species = table.get("species")
     sources: list[tuple[str | None, str]]
     if "pointclouds" in table:
-        files = _glob(str(table["pointclouds"]), base_dir, where)
-        sources = [(str(f), f.stem) for f in files]
+        if not isinstance(table["pointclouds"], str):
+            raise InputError(f"spec: {where}: 'pointclouds' must be a glob pattern (a string)")
+        files = _glob(table["pointclouds"], base_dir, where)
+        sources = [(str(f), _UNSAFE_CHARACTERS.sub("_", f.stem).lstrip(".")) for f in files]
     elif species is not None:
-        sources = [(None, str(species))]
+        if not isinstance(species, str):
+            raise InputError(f"spec: {where}: 'species' must be a string")
+        sources = [(None, species)]
     else:
         raise InputError(f"spec: {where} needs 'species' or 'pointclouds'")
     plants = []
     for pointcloud, stem in sources:
+        digest = None
+        if pointcloud is not None:
+            path = Path(pointcloud)
+            digest = digests.get(path) or digests.setdefault(path, file_digest(path))
         for seed in seeds:
             data = {**settings, "species": species, "pointcloud": pointcloud, "seed": seed}
             try:
@@ -144,11 +186,33 @@ def _group_plants(group: Any, index: int, defaults: dict[str, Any], base_dir: Pa
                 preset = data.pop("preset", GenerateConfig().preset)
                 cfg = resolve_config(str(preset), data)
                 cfg.validate()
+                _check_species(cfg)
             except (InputError, TypeError, ValueError) as exc:
                 raise InputError(f"spec: {where}: {exc}") from None
-            plant_id = f"{name + '-' if name else ''}{stem}-s{seed:04d}"
-            plants.append(Plant(plant_id, name or f"group{index}", cfg, config_hash(cfg)))
+            plant_id = f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}"
+            plants.append(Plant(plant_id, name or f"group{index}", cfg, config_hash(cfg, digest)))
     return plants
+
+
+def _group_name(name: Any, where: str) -> str:
+    if not isinstance(name, str):
+        raise InputError(f"spec: {where}: 'name' must be a string, got {name!r}")
+    if name and not NAME_PATTERN.fullmatch(name):
+        raise InputError(
+            f"spec: {where}: group name {name!r} must be 1-100 letters, digits, '-', '_' or "
+            "'.' (not first): it names the plants' folders, never a path"
+        )
+    return name
+
+
+def _check_species(cfg: GenerateConfig) -> None:
+    """An L-System species must exist (a point cloud's species only names it in prompts)."""
+    species = cfg.source.species
+    if cfg.source.pointcloud is None:
+        from plantdreamer.lsystem import list_species
+
+        if species not in list_species():
+            raise InputError(f"unknown species {species!r}; known: {', '.join(list_species())}")
 
 
 def _seeds(table: dict[str, Any], where: str) -> list[int]:
@@ -156,15 +220,21 @@ def _seeds(table: dict[str, Any], where: str) -> list[int]:
         raise InputError(f"spec: {where}: give 'seeds' or 'count', not both")
     if "seeds" in table:
         seeds = table["seeds"]
-        if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
+        if not isinstance(seeds, list) or not all(_is_int(s) for s in seeds):
             raise InputError(f"spec: {where}: 'seeds' must be a list of integers")
+        if not seeds:
+            raise InputError(f"spec: {where}: 'seeds' is empty; a group needs at least one seed")
         if len(set(seeds)) != len(seeds):
             raise InputError(f"spec: {where}: 'seeds' has duplicates")
         return list(seeds)
     count, start = table.get("count", 1), table.get("seed-start", 0)
-    if not isinstance(count, int) or count < 1 or not isinstance(start, int) or start < 0:
-        raise InputError(f"spec: {where}: 'count' must be >= 1 and 'seed-start' >= 0")
+    if not _is_int(count) or count < 1 or not _is_int(start) or start < 0:
+        raise InputError(f"spec: {where}: 'count' must be an integer >= 1 and 'seed-start' >= 0")
     return list(range(start, start + count))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)  # TOML's true is no count
 
 
 def _glob(pattern: str, base_dir: Path, where: str) -> list[Path]:

@@ -112,9 +112,6 @@ def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
         "raster_threads": int(_core.info()["threads"]),
         "gaussians": _gaussian_counts(plant_dir, result.gaussians),
         "timings_s": {k: round(v, 3) for k, v in result.timings.items()},
-        "outputs": sorted(
-            str(p.relative_to(plant_dir)) for p in plant_dir.rglob("*") if p.is_file()
-        ),
     }
 
 

@@ -40,6 +40,7 @@ class ConditionedGuidance:
         *,
         depth_rule: str = "stretch",
         control_resize: str = "bilinear",
+        erosion_distance: str = "camera",
         ahead: bool = True,
     ) -> None:
         self.guidance = guidance
@@ -48,7 +49,9 @@ class ConditionedGuidance:
             size = guidance.resolution
             if size is None:
                 raise InputError("a guidance that needs depth must say its resolution")
-            cleaning = DepthCleaning(rule=depth_rule, resize=control_resize)
+            cleaning = DepthCleaning(
+                rule=depth_rule, resize=control_resize, distance=erosion_distance
+            )
             for render_depth, next_camera in zip(render_depths, next_cameras, strict=True):
                 conditioner = DepthConditioner(render_depth, out_size=size, config=cleaning)
                 self._depth.append(DepthAhead(conditioner, next_camera, ahead))

@@ -16,6 +16,9 @@ SCHEDULES = ("paper", "released")
 # Depth normalisation rules (``guidance/depth.py``) and control-image resampling.
 DEPTH_RULES = ("stretch", "released", "stretch-lift")
 RESIZE_MODES = ("bilinear", "nearest")
+# What picks the depth erosion kernel: the camera distance, or the released code's
+# Frobenius norm of the 4x4 camera-to-world matrix (``guidance/depth.py``).
+EROSION_DISTANCES = ("camera", "c2w-norm")
 
 PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
 RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"
@@ -66,6 +69,12 @@ class SdsConfig:
         RELEASED_NEGATIVE_PROMPT, "The unconditional CFG prompt.", default_text="the authors'"
     )
     depth_rule: str = setting("stretch", "Depth-map normalisation.", choices=DEPTH_RULES)
+    erosion_distance: str = setting(
+        "camera",
+        "Depth erosion kernel chosen from the camera distance r, or from the camera-to-world "
+        "matrix's norm sqrt(r^2 + 4) (released: 5 px below r = 4.58, never 3 px).",
+        choices=EROSION_DISTANCES,
+    )
     control_resize: str = setting(
         "bilinear", "Resizing of the depth control image.", choices=RESIZE_MODES
     )

@@ -29,8 +29,8 @@ as ``min((n + 0.1) * 1.75, 1)`` on the stretched n, which sets the nearest ~half
 range to 1.0 (docs/fidelity.md measures all three).
 
 Other differences from the released code, on purpose: the kernel is chosen from the real
-camera distance (the released code takes the norm of the 4x4 camera-to-world matrix, which
-is sqrt(4 + r^2), not r); the background is found from alpha, not from depth values; and
+camera distance by default (the released code takes the norm of the 4x4 camera-to-world
+matrix, which is sqrt(4 + r^2), not r; ``distance="c2w-norm"`` does the same); the background is found from alpha, not from depth values; and
 every threshold is a field of ``DepthCleaning``. Kernel sizes are specified in pixels of a
 ``kernel_reference_size`` render (768, the released resolution) and scaled to the actual
 render size. ``resize="nearest"`` resizes as the released code's control-image preparation
@@ -39,6 +39,7 @@ does (bilinear with antialiasing otherwise).
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -51,7 +52,7 @@ import torch.nn.functional as F
 from plantdreamer.atomic import write_image
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES
+from plantdreamer.guidance.config import DEPTH_RULES, EROSION_DISTANCES, RESIZE_MODES
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,10 @@ class DepthCleaning:
     # (max camera distance, kernel px) pairs, tried in order; beyond all of them: far_kernel.
     kernel_by_distance: tuple[tuple[float, int], ...] = ((2.0, 3), (5.0, 5))
     far_kernel: int = 7
+    # "camera": the thresholds above apply to the camera distance r; "c2w-norm": to the
+    # Frobenius norm of the 4x4 camera-to-world matrix, sqrt(r^2 + 4), as the released code
+    # does (its radius argument, geometry/depth_utils.py:17-22): 5 px below r = sqrt(21).
+    distance: str = "camera"
     kernel_reference_size: int = 768
     erode: bool = True
     dilate: bool = True
@@ -78,6 +83,8 @@ class DepthCleaning:
     def __post_init__(self) -> None:
         if self.rule not in DEPTH_RULES:
             raise InputError(f"depth rule must be one of {', '.join(DEPTH_RULES)}")
+        if self.distance not in EROSION_DISTANCES:
+            raise InputError(f"erosion distance must be camera or c2w-norm, got {self.distance!r}")
         if self.resize not in RESIZE_MODES:
             raise InputError(f"depth resize must be bilinear or nearest, got {self.resize!r}")
         if not 0.0 <= self.alpha_threshold < 1.0:
@@ -97,6 +104,8 @@ def kernel_size(camera_distance: float, image_size: int, config: DepthCleaning) 
     """Odd square kernel (pixels of an ``image_size`` render) for a camera at this distance."""
     if not np.isfinite(camera_distance) or camera_distance <= 0.0:
         raise InputError(f"camera distance must be positive and finite, got {camera_distance}")
+    if config.distance == "c2w-norm":  # ||[R t; 0 1]||_F with orthonormal R
+        camera_distance = math.sqrt(camera_distance**2 + 4.0)
     k_ref = config.far_kernel
     for max_distance, size in config.kernel_by_distance:
         if camera_distance < max_distance:

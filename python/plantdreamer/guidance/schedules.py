@@ -11,8 +11,10 @@ Built-in tables (both defined for a 3600-step run):
 
 - ``paper``: the PlantDreamer paper's four stages, 0.2-0.98 below step 600, 0.12-0.35 until
   1000, 0.12-0.25 until 2000, then 0.075-0.15.
-- ``released``: the authors' released code, U[0.02, 0.98] up to step 500, then [0.02, 0.50]
-  (their threestudio ramp ``[500, 0.98, 0.50, 501]`` reaches 0.50 at step 501).
+- ``released``: the authors' released code, U[0.02, 0.98] up to step 500, then [0.02, 0.55].
+  Their yaml's ramp ``[500, 0.98, 0.50, 501]`` would give 0.50 from step 501, but their
+  system (``system/gaussian_splatting.py:59-61``) sets 0.02-0.55 whenever the step is past
+  500, later in each step than the ramp, so 0.55 is what runs.
 
 A run of a different length scales the built-in stage boundaries proportionally
 (``TimestepSchedule.scaled``), so a short test run still passes through every stage.
@@ -123,8 +125,8 @@ def paper_schedule() -> TimestepSchedule:
 
 
 def released_code_schedule() -> TimestepSchedule:
-    """The authors' released configuration: 0.02-0.98, then max 0.50 from step 501."""
-    return TimestepSchedule([(501, 0.02, 0.98), (None, 0.02, 0.50)])
+    """The authors' released code: 0.02-0.98, then 0.02-0.55 from step 501."""
+    return TimestepSchedule([(501, 0.02, 0.98), (None, 0.02, 0.55)])
 
 
 BUILTIN_SCHEDULES = {"paper": paper_schedule, "released": released_code_schedule}

@@ -73,18 +73,25 @@ class GenerateConfig:
             raise InputError(str(exc)) from None
 
     def validate(self) -> None:
-        self._check_numbers()
-        if self.source.species is None and self.source.pointcloud is None:
-            raise InputError("give an input: a species (L-System) or a point cloud")
         try:
+            settings.check_types(self)  # a spec or --set can give any TOML value
             settings.check_choices(self)
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        self._check_numbers()
+        if self.source.species is None and self.source.pointcloud is None:
+            raise InputError("give an input: a species (L-System) or a point cloud")
         if self.train.steps < 0 or self.source.points <= 0 or self.outputs.eval_views < 0:
             raise InputError("steps, points and views must not be negative")
         dens = self.density
         if self.train.checkpoint_every <= 0 or dens.densify.every <= 0 or dens.cull.every <= 0:
             raise InputError("checkpoint, densify and cull intervals must be positive")
+        tolerance = self.source.downsample_tolerance
+        if not 0.0 < tolerance < 1.0:
+            raise InputError(f"downsample tolerance must be in (0, 1), got {tolerance}")
+        screen = dens.densify.prune_screen_px
+        if screen is not None and not (math.isfinite(screen) and screen > 0):
+            raise InputError(f"screen-size prune must be a positive pixel count, got {screen}")
         if not 0.0 < dens.densify.split_std <= 4.0:
             raise InputError(f"split std must be in (0, 4], got {dens.densify.split_std}")
         if self.sds.prompt_template is not None:
@@ -124,6 +131,19 @@ class GenerateConfig:
             size = self.get(name)
             if size is not None and not 8 <= size <= MAX_RESOLUTION:
                 raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
+
+    def structure(self) -> str | None:
+        """The registered species the L-System input grows (``structures`` applied)."""
+        from plantdreamer.lsystem.species import structure_for
+
+        species = self.source.species
+        return None if species is None else structure_for(species, self.source.structures)
+
+    def plant_name(self) -> str:
+        """The plant's name in the prompts (``bean`` for ``bean-released``)."""
+        from plantdreamer.lsystem.species import plant_name
+
+        return "plant" if self.source.species is None else plant_name(self.source.species)
 
     def initial_opacity(self) -> float:
         if self.init.opacity_init is not None:

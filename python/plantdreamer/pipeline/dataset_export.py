@@ -1,15 +1,19 @@
 """Ground-truth files beside the renders, laid out as a nerfstudio/NeRF dataset.
 
-``labels/view_XXX.png``: 8-bit class ids, 0 = background (and unlabelled Gaussians).
+``labels/view_XXX.png``: 8-bit class ids, 0 = background (and Gaussians of class -1).
 Class ids 1..255 are written as they are; a model with other ids (0, negative, > 255) gets
 pixel values 1..K in ascending class order, and ``transforms.json`` lists the mapping in
 ``semantic_classes`` either way. ``labels/preview/view_XXX.png``: the same in colour with a
-legend. ``instances/view_XXX.png``: 16-bit, 0 = background or no instance, else instance
-id + 1. ``depth/view_XXX.png``: 16-bit z-depth (along the optical axis, not along the ray)
-in millimetres of the input's units (metres for L-System plants), 0 where there is no plant;
-``depth_unit_scale_factor`` 0.001 turns it back into input units. ``transforms.json``: pinhole
-intrinsics and OpenGL camera-to-world poses in the frame of ``plant.ply``, with the image,
-mask (the class map: non-zero is plant), depth and instance paths of every frame.
+legend. ``instances/view_XXX.png``: 16-bit, 0 = background or no instance (-1); instance
+ids 0..65534 are written as id + 1, a model with other ids gets 1..K in ascending order,
+and ``instance_ids`` in ``transforms.json`` lists the mapping either way.
+``depth/view_XXX.png``: 16-bit z-depth (along the optical axis, not along the ray), 0 where
+there is no plant, in units of ``depth_unit_scale_factor`` input units: 0.001 (millimetres
+of the input's units; metres for L-System plants) unless the farthest plant point seen
+from any view would not fit 16 bits; then the smallest of 0.01, 0.1, 1, ... that fits, so
+depth never saturates. ``transforms.json``: pinhole intrinsics and OpenGL camera-to-world
+poses in the frame of ``plant.ply``, with the image, mask (the class map: non-zero is
+plant), depth and instance paths of every frame.
 """
 
 from __future__ import annotations
@@ -21,12 +25,12 @@ import numpy as np
 
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import Camera
-from plantdreamer.errors import InputError
+from plantdreamer.labels import MAX_CLASSES, MAX_INSTANCES, check_mask_limits
 from plantdreamer.pipeline.ground_truth import GroundTruth, LabelSet
 from plantdreamer.pointcloud import NormalizeTransform
 
-DEPTH_UNIT_SCALE = 0.001  # depth PNG value * this = depth in input units
-MAX_INSTANCE_ID = 65534  # 16-bit PNG, value = id + 1
+DEPTH_UNIT_SCALE = 0.001  # depth PNG value * this = depth in input units, unless too far
+MAX_DEPTH_VALUE = 65535  # 16-bit PNG
 
 # Colours of the preview (tab10-like, then repeating); background is black.
 _PALETTE = np.array(
@@ -51,13 +55,30 @@ class GroundTruthWriter:
         self.out_dir, self.label_set, self.transform = out_dir, label_set, transform
         self.class_names = class_names or {}
         self.frames: list[dict[str, object]] = []
-        self.pixel_values = None if label_set is None else class_pixel_values(label_set.classes)
-        if label_set is not None and label_set.instances.size:
-            if label_set.instances.max() > MAX_INSTANCE_ID:
-                raise InputError(
-                    f"instance ids above {MAX_INSTANCE_ID} do not fit a 16-bit mask, "
-                    f"got {int(label_set.instances.max())}"
-                )
+        self.depth_unit_scale = DEPTH_UNIT_SCALE
+        self.pixel_values = self.instance_values = None
+        if label_set is not None:
+            self.pixel_values = class_pixel_values(label_set.classes)
+            self.instance_values = instance_pixel_values(label_set.instances)
+
+    def choose_depth_unit(self, means: np.ndarray, cameras: list[Camera]) -> None:
+        """The depth unit (before the first ``add``): millimetres of the input's units,
+        else the smallest power of ten that holds the farthest point any camera can see
+        (a bound: the distance to the far side of the points' bounding sphere)."""
+        if len(means) == 0 or not cameras:
+            return
+        p = np.asarray(means, dtype=np.float64)
+        p = p[np.isfinite(p).all(axis=1)]
+        if len(p) == 0:
+            return
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
+        far = max(float(np.linalg.norm(c.position - centre)) for c in cameras) + radius
+        far_input = far / self.transform.scale
+        scale = DEPTH_UNIT_SCALE
+        while far_input / scale > MAX_DEPTH_VALUE and scale < 1e30:
+            scale *= 10
+        self.depth_unit_scale = float(f"{scale:.0e}")  # 0.01, not 0.010000000000000002
 
     def add(self, name: str, image_path: str, camera: Camera, gt: GroundTruth) -> None:
         """Writes one view's maps; ``image_path`` is the render, relative to ``out_dir``."""
@@ -65,8 +86,8 @@ class GroundTruthWriter:
             "file_path": image_path,
             "transform_matrix": self._c2w(camera).tolist(),
         }
-        depth_mm = gt.depth.astype(np.float64) / self.transform.scale / DEPTH_UNIT_SCALE
-        _write_png(self.out_dir / "depth" / f"{name}.png", _to_uint16(depth_mm))
+        depth = gt.depth.astype(np.float64) / self.transform.scale / self.depth_unit_scale
+        _write_png(self.out_dir / "depth" / f"{name}.png", _to_uint16(depth))
         frame["depth_file_path"] = f"depth/{name}.png"
         if self.label_set is not None:
             assert self.pixel_values is not None
@@ -74,7 +95,8 @@ class GroundTruthWriter:
             semantic = table[gt.label]
             _write_png(self.out_dir / "labels" / f"{name}.png", semantic)
             _write_png(self.out_dir / "labels" / "preview" / f"{name}.png", self._preview(semantic))
-            inst_ids = np.r_[self.label_set.instances + 1, 0].astype(np.uint16)
+            assert self.instance_values is not None
+            inst_ids = np.r_[self.instance_values, 0].astype(np.uint16)  # index -1: none
             _write_png(self.out_dir / "instances" / f"{name}.png", inst_ids[gt.instance])
             frame["mask_path"] = f"labels/{name}.png"
             frame["semantic_path"] = f"labels/{name}.png"
@@ -92,7 +114,7 @@ class GroundTruthWriter:
             "cy": float(k[1, 2]),
             "w": camera.width,
             "h": camera.height,
-            "depth_unit_scale_factor": DEPTH_UNIT_SCALE,
+            "depth_unit_scale_factor": self.depth_unit_scale,
         }
         if self.label_set is not None:
             assert self.pixel_values is not None
@@ -101,6 +123,11 @@ class GroundTruthWriter:
                 for v, c in zip(self.pixel_values, self.label_set.classes, strict=True)
             ]
             meta["instance_count"] = int(self.label_set.instances.size)
+            assert self.instance_values is not None
+            meta["instance_ids"] = [
+                {"value": int(v), "instance": int(i)}
+                for v, i in zip(self.instance_values, self.label_set.instances, strict=True)
+            ]
         meta["frames"] = self.frames
         text = json.dumps(meta, indent=2)
         atomic_write(self.out_dir / "transforms.json", lambda tmp: tmp.write_text(text + "\n"))
@@ -134,11 +161,19 @@ class GroundTruthWriter:
 def class_pixel_values(classes: np.ndarray) -> np.ndarray:
     """The 8-bit value of each class: the id itself when all ids are in 1..255, else 1..K."""
     classes = np.asarray(classes)
-    if classes.size > 255:
-        raise InputError(f"{classes.size} classes do not fit an 8-bit mask (at most 255)")
-    if classes.size == 0 or (classes.min() >= 1 and classes.max() <= 255):
+    check_mask_limits(np.stack([classes, np.full_like(classes, -1)], axis=1))
+    if classes.size == 0 or (classes.min() >= 1 and classes.max() <= MAX_CLASSES):
         return classes.astype(np.uint8)
     return np.arange(1, classes.size + 1, dtype=np.uint8)
+
+
+def instance_pixel_values(instances: np.ndarray) -> np.ndarray:
+    """The 16-bit value of each instance: id + 1 when all ids are in 0..65534, else 1..K."""
+    instances = np.asarray(instances)
+    check_mask_limits(np.stack([np.full_like(instances, -1), instances], axis=1))
+    if instances.size == 0 or (instances.min() >= 0 and instances.max() < MAX_INSTANCES):
+        return (instances + 1).astype(np.uint16)
+    return np.arange(1, instances.size + 1, dtype=np.uint16)
 
 
 def _to_uint16(values: np.ndarray) -> np.ndarray:
@@ -173,6 +208,7 @@ def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render
     from plantdreamer.pipeline.ground_truth import GroundTruthRenderer
 
     ground_truth = GroundTruthRenderer(model, writer.label_set)
+    writer.choose_depth_unit(model.params["means"].detach().numpy(), cameras)
     images = []
     for i, camera in enumerate(cameras):
         image, meta = render(camera)

@@ -14,14 +14,24 @@ from plantdreamer.pipeline.model import GaussianModel
 
 @dataclass
 class DensifyStats:
-    """Running mean of the view-space (NDC) 2D-mean gradient norm per Gaussian."""
+    """Running mean of the view-space (NDC) 2D-mean gradient norm per Gaussian, and the
+    largest screen radius (pixels) each reached, since the last densify round."""
 
     grad_sum: torch.Tensor
     count: torch.Tensor
+    max_radius: torch.Tensor | None = None  # None (checkpoints without it): zeros
+
+    def __post_init__(self) -> None:
+        if self.max_radius is None:
+            self.max_radius = torch.zeros(len(self.count), dtype=torch.float32)
 
     @classmethod
     def zeros(cls, n: int) -> DensifyStats:
         return cls(torch.zeros(n, dtype=torch.float64), torch.zeros(n, dtype=torch.int64))
+
+    def subset(self, keep: torch.Tensor) -> DensifyStats:
+        assert self.max_radius is not None
+        return DensifyStats(self.grad_sum[keep], self.count[keep], self.max_radius[keep])
 
     def update(self, means2d_grad: torch.Tensor, radii: torch.Tensor, width: int, height: int):
         """Adds one step's gradients. ``means2d_grad`` [C, N, 2] in pixels, ``radii`` [C, N...]."""
@@ -30,10 +40,13 @@ class DensifyStats:
         g = means2d_grad.detach().to(torch.float64).clone()
         g[..., 0] *= width / 2.0 * c
         g[..., 1] *= height / 2.0 * c
-        visible = radii.reshape(c, radii.shape[1], -1).amax(dim=-1) > 0
+        radius = radii.reshape(c, radii.shape[1], -1).amax(dim=-1)
+        visible = radius > 0
         norms = torch.linalg.vector_norm(g, dim=-1) * visible
         self.grad_sum += norms.sum(dim=0)
         self.count += visible.sum(dim=0)
+        assert self.max_radius is not None
+        self.max_radius = torch.maximum(self.max_radius, radius.amax(dim=0).float().cpu())
 
     def mean(self) -> torch.Tensor:
         return self.grad_sum / self.count.clamp(min=1)
@@ -49,6 +62,7 @@ def densify_and_prune(
     generator: torch.Generator,
     cap_rule: str = "strongest",
     split_std: float = 1.0,
+    prune_screen_px: float | None = None,
 ) -> dict[str, int]:
     """One densify-and-prune round; returns how many were cloned, split, pruned and capped.
 
@@ -56,9 +70,19 @@ def densify_and_prune(
     strongest gradients that fit; "random" (the released code) densifies every selected
     Gaussian, then prunes a random subset back down to the cap. ``split_std`` is the std of
     the split samples as a fraction of the scale (the released code: 0.5).
+    ``prune_screen_px``: first remove the Gaussians whose screen radius exceeded this since
+    the last round (the released code's 1000 px prune, before it densifies).
     """
     if cap_rule not in ("strongest", "random"):
         raise ValueError(f"unknown cap rule {cap_rule!r}")
+    too_big = 0
+    if prune_screen_px is not None:
+        assert stats.max_radius is not None
+        big = stats.max_radius > prune_screen_px
+        if bool(big.any()):
+            model.remove(big)
+            stats = stats.subset(~big)
+            too_big = int(big.sum())
     p = model.params
     n = len(model)
     grads = stats.mean()
@@ -99,6 +123,7 @@ def densify_and_prune(
         "split": int(split.sum()),
         "pruned": int(pruned.sum()),
         "capped": capped,
+        "too_big": too_big,
     }
 
 

@@ -45,6 +45,11 @@ class DensifyConfig:
         choices=("strongest", "random"),
     )
     split_std: float = setting(1.0, "Split samples' std as a fraction of the scale.")
+    prune_screen_px: float | None = setting(
+        None,
+        "Also prune Gaussians whose screen radius exceeded this many pixels since the last "
+        "round, before densifying (released: 1000).",
+    )
 
     def due(self, step: int) -> bool:
         return self.start < step < self.until and step % self.every == 0
@@ -63,9 +68,12 @@ class CullConfig:
         "V on log-scales (paper), or double-exp: exp of activated scales (released).",
         choices=("log", "double-exp"),
     )
+    offset: int = setting(
+        0, "Cull when step + offset is a multiple of every (released: 1, steps 599 ... 3599)."
+    )
 
     def due(self, step: int) -> bool:
-        return step > self.after and step % self.every == 0
+        return step > self.after and (step + self.offset) % self.every == 0
 
 
 @dataclass
@@ -117,6 +125,7 @@ class DensityControl:
                     gen,
                     dens.cap_rule,
                     dens.split_std,
+                    dens.prune_screen_px,
                 )
                 self.stats = DensifyStats.zeros(len(model))
             event = {"step": step, "event": "densify", **counts, "gaussians": len(model)}
@@ -131,17 +140,19 @@ class DensityControl:
                 if stats["culled"]:
                     model.remove(mask)
                 if stats["culled"] and step < dens.until:
-                    self.stats = DensifyStats(self.stats.grad_sum[~mask], self.stats.count[~mask])
+                    self.stats = self.stats.subset(~mask)
             events.append({"step": step, "event": "cull", **stats, "gaussians": len(model)})
         return events
 
     def state_dict(self) -> dict[str, Any]:
-        return {"grad_sum": self.stats.grad_sum, "count": self.stats.count}
+        stats = self.stats
+        return {"grad_sum": stats.grad_sum, "count": stats.count, "max_radius": stats.max_radius}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         from plantdreamer.pipeline.densify import DensifyStats
 
-        self.stats = DensifyStats(state["grad_sum"], state["count"])
+        # Checkpoints before the screen-size prune hold no max_radius: zeros.
+        self.stats = DensifyStats(state["grad_sum"], state["count"], state.get("max_radius"))
 
 
 def _class_counts(model: GaussianModel) -> dict[str, int]:

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
+from plantdreamer.labels import NO_CLASS, NO_INSTANCE
 from plantdreamer.pipeline.model import GaussianModel
 
 ALPHA_THRESHOLD = 0.5  # below: background (also for depth)
@@ -59,11 +60,14 @@ class LabelSet:
 
     @classmethod
     def of(cls, labels: np.ndarray) -> LabelSet:
+        """Only -1 means "none": every other id, negative ones included, is a class or an
+        instance of its own."""
         label, instance = labels[:, 0], labels[:, 1]
-        classes = np.unique(label[label >= 0])
-        instances = np.unique(instance[instance >= 0])
-        class_channel = np.where(label >= 0, np.searchsorted(classes, label), -1)
-        instance_channel = np.where(instance >= 0, np.searchsorted(instances, instance) + 1, 0)
+        has_class, has_instance = label != NO_CLASS, instance != NO_INSTANCE
+        classes = np.unique(label[has_class])
+        instances = np.unique(instance[has_instance])
+        class_channel = np.where(has_class, np.searchsorted(classes, label), -1)
+        instance_channel = np.where(has_instance, np.searchsorted(instances, instance) + 1, 0)
         return cls(classes, instances, class_channel, instance_channel)
 
 

@@ -49,6 +49,10 @@ class RunState:
         with timer("prepare"):
             source = load_source(cfg)
             g = initial_gaussians(cfg, source)
+        if cfg.outputs.labels:  # the masks' limits, now rather than after the last step
+            from plantdreamer.labels import check_mask_limits
+
+            check_mask_limits(g.labels)
         if show_progress and cfg.source.pointcloud is not None:
             found = source.label_fields or {}
             print(

@@ -25,7 +25,7 @@ def check_inputs(cfg: GenerateConfig) -> None:
     if src.pointcloud is None:
         from plantdreamer.lsystem import list_species
 
-        if src.species not in list_species():
+        if cfg.structure() not in list_species():
             raise InputError(f"unknown species {src.species!r}; known: {', '.join(list_species())}")
 
 
@@ -66,7 +66,7 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         base_model=sds.base_model,
         controlnet=sds.controlnet,
         lora=sds.lora,
-        species=cfg.source.species or "plant",
+        species=cfg.plant_name(),
         guidance_scale=sds.guidance_scale,
         conditioning_scale=sds.conditioning_scale,
         schedule=sds.schedule,

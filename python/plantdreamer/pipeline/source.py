@@ -12,12 +12,14 @@ from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
+from plantdreamer.pipeline.init import init_gaussians, initial_colors
+from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.settings import setting
 
 if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.init import init_gaussians, initial_colors
-from plantdreamer.pointcloud import NormalizeTransform
+
+STRUCTURES = ("plantdreamer", "released")  # species grammars: ours or the authors'
 
 
 @dataclass
@@ -30,12 +32,23 @@ class SourceConfig:
         "L-System species to generate (see `plantdreamer lsystem --list`); with "
         "--pointcloud, the plant named in the prompts.",
     )
+    structures: str = setting(
+        "plantdreamer",
+        "Which grammar a species name grows: ours, or the authors' released structure "
+        "(bean -> bean-released).",
+        choices=STRUCTURES,
+    )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
     points: int = setting(100_000, "Points to start from.")
     sor_neighbors: int = setting(20, "Statistical outlier removal: neighbours per point.")
     sor_std: float = setting(3.0, "Statistical outlier removal: std multiplier.")
     scene_size: float = setting(4.0, "Longest side of the normalised scene.")
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
+    downsample_tolerance: float = setting(
+        0.05,
+        "Capture prep: voxel downsampling aims at --points +- this fraction; clouds below "
+        "(1 + this) x --points are kept whole (released: 0.25).",
+    )
     mesh_sor: bool = setting(False, "Outlier removal on L-System mesh samples too.")
     label_field: str | None = setting(
         None,
@@ -86,6 +99,7 @@ def load_source(cfg: GenerateConfig) -> Source:
             sor_std=src.sor_std,
             normalize_size=src.scene_size,
             sor_after_voxel=src.sor_after_voxel,
+            tolerance=src.downsample_tolerance,
             label_fields=[n for n in fields if n is not None],
         )
         assert transform is not None
@@ -100,11 +114,12 @@ def load_source(cfg: GenerateConfig) -> Source:
 
     from plantdreamer.lsystem import generate_plant, sample_points
 
-    if src.species is None:
+    species = cfg.structure()  # the registered species grown (``structures`` applied)
+    if species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
     surface = cfg.init.init_shape == "surface"
     cloud = sample_points(
-        generate_plant(src.species, cfg.seed), src.points, cfg.seed, boundary_distance=surface
+        generate_plant(species, cfg.seed), src.points, cfg.seed, boundary_distance=surface
     )
     counts = {"sampled": len(cloud)}
     if src.mesh_sor:

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 from plantdreamer.settings import option_prefix, setting
 
+ELEVATION_SAMPLINGS = ("uniform", "mixed", "mixed-full")
+
 
 @dataclass
 class LearningRates:
@@ -49,8 +51,9 @@ class TrainConfig:
     background: float = setting(0.75, "Grey level of the background renders are made on.")
     elevation_sampling: str = setting(
         "uniform",
-        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix.",
-        choices=("uniform", "mixed"),
+        "Training camera elevation: uniform in degrees, or threestudio's 50/50 mix with "
+        "area-uniform: mixed-full (threestudio since 2023-11, released) or mixed (before).",
+        choices=ELEVATION_SAMPLINGS,
     )
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
     lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))

@@ -78,6 +78,7 @@ class Trainer:
             [p.state.sampler.peek for p in plants],
             depth_rule=self.cfg.sds.depth_rule,
             control_resize=self.cfg.sds.control_resize,
+            erosion_distance=self.cfg.sds.erosion_distance,
             ahead=depth_ahead,
         )
         self._pool = ThreadPoolExecutor(len(plants)) if len(plants) > 1 else None

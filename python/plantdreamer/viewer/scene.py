@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians, sh_dc_to_rgb
 from plantdreamer.io import read_ply_columns, read_splat_ply
 
@@ -85,13 +87,33 @@ def scene_from_gaussians(g: Gaussians, name: str, labels: np.ndarray | None) -> 
 
 
 def load_scene(path: str | os.PathLike[str]) -> SplatScene:
-    """Reads a splat PLY (INRIA layout) and its integer ``label`` property when it has one.
+    """Reads a splat PLY (INRIA layout) and its ``label`` property when it has one (integer,
+    or float with whole values, as `render --labels` and `generate` accept).
 
-    Raises PlyError for a file that is not a 3DGS PLY (for example a plain point cloud).
+    Gaussians with a non-finite position, rotation, scale, opacity or colour are dropped
+    with a warning saying how many (they would put the camera at NaN). Raises PlyError for
+    a file that is not a 3DGS PLY (for example a plain point cloud), InputError when no
+    Gaussian is finite.
     """
     g = read_splat_ply(path)
-    label_column = read_ply_columns(path).get("label")
-    labels = None
-    if label_column is not None and label_column.dtype.kind in "iu":
-        labels = label_column.astype(np.int32)
+    has_label = "label" in read_ply_columns(path)
+    finite = finite_gaussians(g)
+    if not finite.all():
+        warnings.warn(
+            f"{int((~finite).sum())} of {len(g)} Gaussians have NaN or Inf parameters "
+            "(position, rotation, scale, opacity or colour); they are not shown",
+            stacklevel=2,
+        )
+        if not finite.any():
+            raise InputError(f"{Path(path).name}: no Gaussian has finite parameters")
+        g = g.subset(np.flatnonzero(finite))
+    labels = g.labels[:, 0].copy() if has_label and g.labels is not None else None
     return scene_from_gaussians(g, Path(path).name, labels)
+
+
+def finite_gaussians(g: Gaussians) -> np.ndarray:
+    """[N] bool: every parameter the viewer draws is finite."""
+    ok = np.isfinite(g.opacity_logits)
+    for values in (g.means, g.quats, g.log_scales, g.sh[:, 0, :]):
+        ok &= np.isfinite(values).all(axis=1)
+    return ok

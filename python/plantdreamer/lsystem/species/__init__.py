@@ -7,7 +7,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.lsystem.species import bean, kale, mint, released
 from plantdreamer.lsystem.species.base import Species
 
-__all__ = ["Species", "get_species", "list_species", "register"]
+__all__ = ["Species", "get_species", "list_species", "plant_name", "register", "structure_for"]
 
 # Ours, then the authors' released structures (bean-released, mint-released, kale-released).
 _BUILTIN = (bean.SPECIES, kale.SPECIES, mint.SPECIES, *released.SPECIES)
@@ -33,3 +33,18 @@ def get_species(name: str) -> Species:
         raise InputError(
             f"unknown species {name!r}; known species: {', '.join(list_species())}"
         ) from None
+
+
+def structure_for(name: str, structures: str = "plantdreamer") -> str:
+    """The species to grow for ``name``: with ``structures="released"``, the authors'
+    structure of that plant (``bean`` -> ``bean-released``) where one is registered."""
+    if structures == "released" and f"{name}-released" in _REGISTRY:
+        return f"{name}-released"
+    return name
+
+
+def plant_name(name: str) -> str:
+    """What prompts call the plant ``name``: a registered species' prompt name (``bean`` for
+    ``bean-released``), else ``name`` itself (the plant of a point cloud)."""
+    species = _REGISTRY.get(name)
+    return species.plant_name if species is not None else name

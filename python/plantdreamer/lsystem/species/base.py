@@ -36,6 +36,12 @@ class Species:
     pot: PotShape = field(default_factory=PotShape)
     height_range: tuple[float, float] = (0.0, 1.0)
     leaf_range: tuple[int, int] = (0, 10_000)
+    prompt_name: str | None = None  # the plant's name in prompts, if not ``name``
+
+    @property
+    def plant_name(self) -> str:
+        """What the prompts call this plant: ``bean-released`` is a bean."""
+        return self.prompt_name or self.name
 
     @cached_property
     def lsystem(self) -> LSystem:

@@ -1,0 +1,249 @@
+"""`dataset` touches only its own folder, checks every input before Ray starts, and keeps its
+manifest true to the plant folders through any stop (no Ray started here: a stop while Ray
+starts is a KeyboardInterrupt from ``engine.connect``)."""
+
+import json
+import os
+
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.dataset import RunOptions, expand, run_dataset, runner
+from plantdreamer.dataset.manifest import Manifest
+from plantdreamer.dataset.spec import Plant
+from plantdreamer.errors import InputError, PlantDreamerError
+
+FAST = ["--guidance", "none", "--steps", "0", "--eval-views", "0", "--quiet"]
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, ["dataset", *map(str, args)])
+
+
+def one_line_error(result, message):
+    assert result.exit_code == 1, result.output
+    assert "Traceback" not in result.output and "internal error" not in result.output
+    assert f"error: {message}" in result.output or message in result.output, result.output
+
+
+# -- cause 1: a group name is never a path -----------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["{outside}/keep/important", "../../keep/important", "a/b"])
+def test_a_group_name_that_is_a_path_is_refused_and_nothing_outside_is_touched(tmp_path, name):
+    keep = tmp_path / "keep"
+    victim = keep / "important-bean-s0000"
+    victim.mkdir(parents=True)
+    (victim / "sentinel.txt").write_text("mine")
+    out = tmp_path / "work" / "ds"
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'[[group]]\nname = "{name.format(outside=tmp_path)}"\nspecies = "bean"\n')
+    result = invoke(spec, "--out", out, *FAST)
+    one_line_error(result, "never a path")
+    assert (victim / "sentinel.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep", "spec.toml"]  # no out either
+
+
+def test_group_names_must_be_folder_name_strings():
+    for name in ("", "bean_2.a", "A-1"):
+        expand({"group": [{"name": name, "species": "bean"}]})
+    for name in (".hidden", "a b", "x\\y", "a" * 101):
+        with pytest.raises(InputError, match="never a path"):
+            expand({"group": [{"name": name, "species": "bean"}]})
+    with pytest.raises(InputError, match="'name' must be a string"):
+        expand({"group": [{"name": [1, 2], "species": "bean"}]})
+
+
+def test_point_cloud_file_names_become_safe_folder_names(tmp_path):
+    (tmp_path / "my scan#1.ply").write_bytes(b"ply")
+    (tmp_path / ".dot.ply").write_bytes(b"ply")
+    groups = [{"pointclouds": "*.ply"}, {"pointclouds": ".dot.ply"}]  # * skips dot files
+    plants = expand({"base_dir": str(tmp_path), "group": groups})
+    assert sorted(p.id for p in plants) == ["dot-s0000", "my_scan_1-s0000"]
+
+
+def test_a_plant_folder_outside_the_plants_folder_is_refused(tmp_path):
+    (plant,) = expand({"group": [{"species": "bean", "guidance": "none"}]})
+    run = runner._DatasetRun({}, [], tmp_path, RunOptions())
+    bad = Plant("../escape", plant.group, plant.config, plant.config_hash)
+    with pytest.raises(PlantDreamerError, match="not a folder name"):
+        run._plant_dir(bad)
+
+
+# -- cause 2: a record changes before its files -------------------------------------------
+
+
+def _finished_dataset(out, plants):
+    """A dataset as an earlier run left it: every plant done, with its files."""
+    manifest = Manifest(out)
+    for plant in plants:
+        folder = out / "plants" / plant.id
+        folder.mkdir(parents=True)
+        for name in ("plant.ply", "run.json", "checkpoint.pt"):
+            (folder / name).write_text("x")
+        manifest.replace(plant.id, {"status": "done", "config_hash": plant.config_hash})
+
+
+def _check_manifest_against_folders(out):
+    for plant_id, record in Manifest(out).records.items():
+        if record["status"] == "done":
+            folder = out / "plants" / plant_id
+            assert (folder / "plant.ply").is_file() and (folder / "run.json").is_file(), plant_id
+
+
+def test_a_rerun_stopped_while_ray_starts_leaves_no_done_record_without_files(
+    tmp_path, monkeypatch
+):
+    spec = {"group": [{"species": "bean", "count": 3, "guidance": "none"}]}
+    _finished_dataset(tmp_path, expand(spec))
+    changed = {**spec, "defaults": {"steps": 7}}
+
+    def ctrl_c_while_ray_starts(*_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner.engine, "connect", ctrl_c_while_ray_starts)
+    with pytest.raises(KeyboardInterrupt):
+        run_dataset(changed, expand(changed), tmp_path, RunOptions(show_progress=False))
+    records = Manifest(tmp_path).records
+    assert {r["status"] for r in records.values()} == {"pending"}
+    assert not any((tmp_path / "plants").iterdir())
+    _check_manifest_against_folders(tmp_path)
+    summary = json.loads((tmp_path / "dataset.json").read_text())
+    assert summary["state"] == "stopped"
+
+
+def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
+    """A SIGKILL can come at any instant: at each deletion the record on disk is already
+    no longer `done`."""
+    spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
+    _finished_dataset(tmp_path, expand(spec))
+    real_rmtree, seen = runner.shutil.rmtree, []
+
+    def checked_rmtree(folder, *args, **kwargs):
+        assert Manifest(tmp_path).get(folder.name)["status"] == "pending"
+        seen.append(folder.name)
+        real_rmtree(folder, *args, **kwargs)
+
+    monkeypatch.setattr(runner.shutil, "rmtree", checked_rmtree)
+    changed = {**spec, "defaults": {"steps": 7}}
+    todo, skipped = runner._DatasetRun(changed, expand(changed), tmp_path, RunOptions())._plan()
+    assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
+
+
+def test_a_clearing_cut_short_is_finished_by_the_next_run(tmp_path):
+    """Killed while clearing: the record says `pending` with the new config; whatever of the
+    old config's folder is left (its checkpoint) must not be resumed."""
+    spec = {"group": [{"species": "bean", "guidance": "none"}]}
+    (plant,) = expand(spec)
+    folder = tmp_path / "plants" / plant.id
+    folder.mkdir(parents=True)
+    (folder / "checkpoint.pt").write_text("the old config's")
+    Manifest(tmp_path).replace(plant.id, {"status": "pending", "config_hash": plant.config_hash})
+    todo, _ = runner._DatasetRun(spec, [plant], tmp_path, RunOptions())._plan()
+    assert todo == [plant] and not folder.exists()
+
+
+def test_a_done_plant_missing_a_file_runs_again(tmp_path):
+    spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
+    plants = expand(spec)
+    _finished_dataset(tmp_path, plants)
+    (tmp_path / "plants" / "bean-s0001" / "run.json").unlink()
+    todo, skipped = runner._DatasetRun(spec, plants, tmp_path, RunOptions())._plan()
+    assert [p.id for p in skipped] == ["bean-s0000"] and [p.id for p in todo] == ["bean-s0001"]
+    assert (tmp_path / "plants" / "bean-s0001" / "checkpoint.pt").is_file()  # same config
+
+
+# -- causes 6 and 7: clear errors, before Ray starts --------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("spec_bytes", "message"),
+    [
+        (b"defaults = 5\n", "[defaults] must be a table"),
+        (b'[[group]]\nspecies = "be\xffan"\n', "not UTF-8 text"),
+        (b'[[group]]\nspecies = "bean"\nseeds = []\n', "'seeds' is empty"),
+        (b'[[group]]\nspecies = "bean"\ncount = true\n', "'count' must be an integer"),
+        (b'[[group]]\nspecies = "beanz"\n', "unknown species 'beanz'"),
+        (b'[[group]]\nspecies = "bean"\nlora = [1, 2]\n', "lora must be a string or none"),
+        (b'[[group]]\nspecies = "bean"\nlr = 5\n', "'lr' is not one setting; give each by name: lr-means, lr-sh-dc"),
+    ],
+)
+def test_bad_specs_are_one_line_errors_before_ray(tmp_path, spec_bytes, message):
+    spec = tmp_path / "spec.toml"
+    spec.write_bytes(spec_bytes)
+    one_line_error(invoke(spec, "--out", tmp_path / "out", *FAST), message)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--set", "lora=[1,2]"], "lora must be a string or none, got [1, 2]"),
+        (["--set", "cameras-distance=[1, 2, 3]"], "cameras-distance must be a list of 2"),
+        (["--resource", "disk=-1"], "--resource disk=-1: the amount must be a number"),
+        (["--resource", "disk=nan"], "the amount must be a number"),
+        (["--resource", "CPU=1"], "--resource CPU: use --cpus-per-plant"),
+        (["--resource", "memory=1"], "Ray manages 'memory' itself"),
+        (["--cpus-per-plant", "nan"], "at least 1 CPU"),
+    ],
+)
+def test_bad_settings_are_one_line_errors_before_ray(tmp_path, args, message):
+    ray = pytest.importorskip("ray")
+    result = invoke("--species", "bean", "--out", tmp_path / "out", *FAST, *args)
+    one_line_error(result, message)
+    assert not ray.is_initialized()
+
+
+def test_a_manifest_line_without_status_is_a_clear_error(tmp_path):
+    (tmp_path / "manifest.jsonl").write_text('{"id": "bean-s0000"}\n')
+    one_line_error(
+        invoke("--species", "bean", "--out", tmp_path, *FAST), "has status None, not one of"
+    )
+
+
+def test_a_replaced_scan_at_the_same_path_is_a_new_config(tmp_path):
+    scan = tmp_path / "scan.ply"
+    scan.write_bytes(b"first")
+    spec = {"base_dir": str(tmp_path), "group": [{"pointclouds": "scan.ply", "species": "bean"}]}
+    (before,) = expand(spec)
+    scan.write_bytes(b"other")
+    (after,) = expand(spec)
+    assert before.config == after.config and before.config_hash != after.config_hash
+
+
+# -- cause 8: one appended line per change ------------------------------------------------
+
+
+def test_a_change_appends_one_line_and_a_reopen_compacts(tmp_path):
+    manifest = Manifest(tmp_path)
+    for plant_id in ("a", "b"):
+        manifest.replace(plant_id, {"status": "running"})
+    before = (tmp_path / "manifest.jsonl").read_bytes()
+    manifest.update("a", status="done")
+    after = (tmp_path / "manifest.jsonl").read_bytes()
+    assert after.startswith(before) and after.count(b"\n") == 3  # appended, not rewritten
+    reopened = Manifest(tmp_path)
+    assert reopened.get("a")["status"] == "done" and list(reopened.records) == ["a", "b"]
+    assert (tmp_path / "manifest.jsonl").read_bytes().count(b"\n") == 2  # compacted
+
+
+def test_a_line_cut_short_by_a_kill_is_dropped(tmp_path):
+    manifest = Manifest(tmp_path)
+    manifest.replace("a", {"status": "running"})
+    with open(tmp_path / "manifest.jsonl", "ab") as f:
+        f.write(b'{"id": "a", "sta')  # the driver died inside this write
+    assert Manifest(tmp_path).get("a")["status"] == "running"
+    assert (tmp_path / "manifest.jsonl").read_bytes().endswith(b"}\n")
+
+
+def test_the_file_stays_within_a_few_lines_per_plant(tmp_path):
+    manifest = Manifest(tmp_path)
+    for i in range(10):
+        manifest.replace(f"p{i}", {"status": "running"})
+    for _ in range(100):
+        manifest.update("p0", status="running", attempt=1)
+    lines = (tmp_path / "manifest.jsonl").read_bytes().count(b"\n")
+    assert lines <= 3 * 10 + 64 + 1
+    assert Manifest(tmp_path).records == manifest.records
+    assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
