@@ -166,7 +166,10 @@ def test_a_done_plant_missing_a_file_runs_again(tmp_path):
         (b'[[group]]\nspecies = "bean"\ncount = true\n', "'count' must be an integer"),
         (b'[[group]]\nspecies = "beanz"\n', "unknown species 'beanz'"),
         (b'[[group]]\nspecies = "bean"\nlora = [1, 2]\n', "lora must be a string or none"),
-        (b'[[group]]\nspecies = "bean"\nlr = 5\n', "'lr' is not one setting; give each by name: lr-means, lr-sh-dc"),
+        (
+            b'[[group]]\nspecies = "bean"\nlr = 5\n',
+            "'lr' is not one setting; give each by name: lr-means, lr-sh-dc",
+        ),
     ],
 )
 def test_bad_specs_are_one_line_errors_before_ray(tmp_path, spec_bytes, message):
