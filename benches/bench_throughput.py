@@ -9,7 +9,7 @@ min and median are reported. "plants per hour" projects the measured training ti
 plant-step to 3600-step plants (preparation and export excluded: they are per plant and
 do not change with B).
 
-    python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 10 steps; 3 repeats
+    python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 6 steps; 3 repeats
     python benches/bench_throughput.py --groups 1 2 --steps 4 --repeats 1 --render 64
 """
 
@@ -62,10 +62,10 @@ def one_group(b: int, args: argparse.Namespace) -> dict[str, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--groups", type=int, nargs="+", default=[1, 2, 4, 8])
-    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=6)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--points", type=int, default=20_000)
-    parser.add_argument("--render", type=int, default=256)
+    parser.add_argument("--points", type=int, default=10_000)
+    parser.add_argument("--render", type=int, default=128)
     parser.add_argument("--sds", type=int, default=64)
     parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
     args = parser.parse_args()
@@ -82,9 +82,12 @@ def main() -> int:
         rows.append(row)
     command = "python benches/bench_throughput.py " + " ".join(sys.argv[1:])
     lines = [
-        "# Plants per hour, several plants in one trainer (CPU, tiny models)",
+        "## Several plants in one trainer (`benches/bench_throughput.py`)",
         "",
-        f"`{command.strip()}` on {os.cpu_count()} CPUs, no CUDA GPU; L-System bean, "
+        f"Command: `{command.strip()}`, on {os.cpu_count()} shared CPU cores (other jobs ran "
+        "beside it: the spread between min and median is theirs), no CUDA GPU on the "
+        "benchmark machine, so these are the host side with tiny random-weight networks, "
+        "not the 30-plants-per-hour goal's full-size CUDA figures (not measured). L-System bean, "
         f"{args.points} points, {args.render} px renders, tiny SDS at {args.sds} px, "
         f"{args.steps} steps, {args.repeats} interleaved repeats (min / median). Step phases "
         "are the group's (one step trains B plants); plants per hour projects them to "

@@ -181,23 +181,23 @@ class Trainer:
             assert grads is not None
             self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
         loss = float(out.loss.detach())
-        for k, p in enumerate(group):
-            try:
-                check_finite_gradients(p.state.model, step)
-                if not math.isfinite(loss):
-                    raise PlantDreamerError(
-                        f"loss became {loss} at step {step}; stopping (no output written)"
-                    )
-            except PlantDreamerError as exc:
-                if not self.isolate:
-                    raise
-                p.error = str(exc)
-                continue
-            p.state.density.after_backward(step, renders[k][2], cameras[k])
-            with p.state.timer("optimizer"):
+        with self._timed("optimizer", plants):  # per-plant checks and Adam, the group's time
+            for k, p in enumerate(group):
+                try:
+                    check_finite_gradients(p.state.model, step)
+                    if not math.isfinite(loss):
+                        raise PlantDreamerError(
+                            f"loss became {loss} at step {step}; stopping (no output written)"
+                        )
+                except PlantDreamerError as exc:
+                    if not self.isolate:
+                        raise
+                    p.error = str(exc)
+                    continue
+                p.state.density.after_backward(step, renders[k][2], cameras[k])
                 p.state.model.optimizer.step()  # type: ignore[union-attr]
-            row = {"step": step, "loss": loss, "gaussians": len(p.state.model), **out.stats}
-            p.state.log_rows.append(row)
+                row = {"step": step, "loss": loss, "gaussians": len(p.state.model), **out.stats}
+                p.state.log_rows.append(row)
         return loss
 
     def checkpoint(self, step: int) -> None:
