@@ -3,6 +3,9 @@
     python scripts/gpu_checks.py tests OUT                 # the CUDA tests (pytest)
     python scripts/gpu_checks.py resume OUT --steps 300    # Ctrl-C and --resume on CUDA
     python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
+    python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8
+
+``throughput`` is ``scripts/gpu_throughput.py``: several plants in one trainer.
 
 ``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
 layout (``save_full_size_models``), so ``plantdreamer generate`` loads them through the real
@@ -143,9 +146,9 @@ def run_resume(args: argparse.Namespace, out: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("check", choices=("tests", "resume"))
+    p.add_argument("check", choices=("tests", "resume", "throughput"))
     p.add_argument("out", type=Path, help="folder for logs and the JSON report")
-    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--steps", type=int, help="steps per run (resume: 300, throughput: 40)")
     p.add_argument("--species", default="bean")
     p.add_argument("--device", default="cuda")
     p.add_argument("--checkpoint-every", type=int, default=100)
@@ -157,11 +160,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tiny", action="store_true", help="tiny models (a dry run on the CPU)")
     p.add_argument("--models", type=Path, default=Path("/tmp/plantdreamer-full-size"))
     p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
+    p.add_argument("--groups", type=int, nargs="+", default=[1, 4, 8], help="throughput: B")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
     if args.check == "tests":
         return run_tests(args.out)
+    if args.check == "throughput":
+        from gpu_throughput import run_throughput
+
+        args.steps = args.steps or 40
+        args.resolution = args.resolution or (128 if args.tiny else 768)
+        args.sds_resolution = args.sds_resolution or (64 if args.tiny else 512)
+        return run_throughput(args, args.out)
+    args.steps = args.steps or 300
     return run_resume(args, args.out)
 
 
