@@ -138,3 +138,21 @@ def test_plants_of_a_group_must_share_their_settings(tmp_path):
     ]
     with pytest.raises(InputError, match="these differ: steps"):
         generate_group(cfgs, tmp_path / "g", show_progress=False)
+
+
+def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
+    import torch
+
+    from plantdreamer.guidance.base import PhotometricGuidance
+
+    targets = torch.full((3, 48, 48, 3), 0.5)
+    targets[1] = float("nan")  # the second plant's loss and gradients become NaN
+    cfgs = [GenerateConfig.of(species="mint", seed=s, steps=1, **SMALL) for s in (0, 1, 2)]
+    result = generate_group(cfgs, tmp_path / "g", guidance=PhotometricGuidance(targets),
+                            show_progress=False)  # fmt: skip
+    assert sorted(result.done) == ["mint-s0000", "mint-s0002"]
+    assert (
+        "non-finite" in result.failed["mint-s0001"] or "loss became" in result.failed["mint-s0001"]
+    )
+    assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
+    assert (tmp_path / "g" / "mint-s0002" / "plant.ply").is_file()

@@ -181,11 +181,17 @@ class Trainer:
             assert grads is not None
             self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
         loss = float(out.loss.detach())
+        # A non-finite loss fails the plants whose renders got non-finite gradients (all of
+        # them when none did): one plant's NaN must not stop the others.
+        culprits = set()
+        if not math.isfinite(loss):
+            culprits = {k for k in range(len(group)) if not bool(grads[k].isfinite().all())}
+            culprits = culprits or set(range(len(group)))
         with self._timed("optimizer", plants):  # per-plant checks and Adam, the group's time
             for k, p in enumerate(group):
                 try:
                     check_finite_gradients(p.state.model, step)
-                    if not math.isfinite(loss):
+                    if k in culprits:
                         raise PlantDreamerError(
                             f"loss became {loss} at step {step}; stopping (no output written)"
                         )
