@@ -21,6 +21,9 @@ import torch
 from plantdreamer import _core
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
+from plantdreamer.exports import write_plant_exports
+from plantdreamer.exports.plant import LABEL_FILES
+from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.labels import class_counts
@@ -131,6 +134,7 @@ FINAL_OUTPUTS = (
     "instances",
     "depth",
     "transforms.json",
+    *LABEL_FILES,
 )
 # Everything a run writes.
 RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", CHECKPOINT_NAME)
@@ -511,7 +515,10 @@ class _Run:
             ply_path = out / "plant.ply"
             offset = outputs.export_offset(self.transform, cfg.scene_size)
             self.export_offset = None if offset is None else [float(v) for v in offset]
-            comments = () if offset is None else (outputs.offset_comment(offset),)
+            comments: tuple[str, ...] = ()
+            if offset is not None:
+                comments = (outputs.offset_comment(offset),)
+            comments += class_comments(self._class_names()) if cfg.labels else ()
             outputs.export_ply(
                 ply_path,
                 outputs.to_input_frame(final, self.transform, offset),
@@ -541,6 +548,8 @@ class _Run:
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntables(out, frames, cfg.turntable_frames, cfg.turntable)
         outputs.write_log_csv(out / "log.csv", self.log_rows)
+        with self.timer("label files"):
+            write_plant_exports(out)
         outputs.write_json(out / "run.json", self._summary(final))
         return RunResult(out, ply_path, cfg.steps, len(final), dict(self.timer.totals))
 
@@ -562,6 +571,7 @@ class _Run:
             "source_points": self.source_counts,
             "gaussians": {"initial": len(self.initial_gaussians), "final": len(final)},
             "labels": self._label_summary(final),
+            "class_names": self._class_names() if self.cfg.labels else None,
             "timings_s": dict(self.timer.totals),
             "per_step_s": per_step,
             "events": self.events,
