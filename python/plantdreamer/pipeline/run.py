@@ -37,6 +37,7 @@ from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.depth_ahead import DepthAhead
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
+from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.sampler import CameraSampler
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
@@ -519,13 +520,10 @@ class _Run:
             if offset is not None:
                 comments = (outputs.offset_comment(offset),)
             comments += class_comments(self._class_names()) if cfg.labels else ()
-            outputs.export_ply(
-                ply_path,
-                outputs.to_input_frame(final, self.transform, offset),
-                cfg.sh_degree_export,
-                cfg.labels,
-                comments,
-            )
+            exported = outputs.to_input_frame(final, self.transform, offset)
+            outputs.export_ply(ply_path, exported, cfg.sh_degree_export, cfg.labels, comments)
+            # Views and ground truth of what plant.ply holds, so `render` remakes them exactly.
+            view_model = GaussianModel(exported_scene(exported, self.transform, offset))
         with self.timer("renders"), torch.no_grad():
             # Each view's render, then its ground truth (which reuses the render's footprints).
             cameras = orbit_ring(
@@ -537,14 +535,14 @@ class _Run:
                 self.resolution,
             )
             writer = ground_truth_writer(
-                out, self.model, self.transform, cfg.labels, self._class_names()
+                out, view_model, self.transform, cfg.labels, self._class_names()
             )
 
             def render(camera):
-                image, _, meta = self.model.render([camera], cfg.background)
+                image, _, meta = view_model.render([camera], cfg.background)
                 return outputs.to_uint8(image[0].numpy()), meta
 
-            frames = render_views(self.model, writer, cameras, render)
+            frames = render_views(view_model, writer, cameras, render)
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntables(out, frames, cfg.turntable_frames, cfg.turntable)
         outputs.write_log_csv(out / "log.csv", self.log_rows)
