@@ -7,7 +7,7 @@ dataset folder; both read only what ``generate`` wrote, so they can be remade at
 
 from __future__ import annotations
 
-from plantdreamer.exports.dataset import DatasetLabels, write_dataset_exports
+from plantdreamer.exports.dataset import DatasetLabels, LabelOptions, write_dataset_exports
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, ViewObjects, view_objects
 from plantdreamer.exports.plant import LabelReport, write_plant_exports
 from plantdreamer.exports.splits import DEFAULT_RATIOS, split_plants
@@ -16,6 +16,7 @@ __all__ = [
     "DEFAULT_RATIOS",
     "MIN_INSTANCE_AREA",
     "DatasetLabels",
+    "LabelOptions",
     "LabelReport",
     "ViewObjects",
     "split_plants",

@@ -4,7 +4,8 @@
 - ``coco/{train,val,test}.json``: COCO files whose ``file_name`` is relative to ``DIR``
   (``plants/<id>/renders/view_000.png``), image and annotation ids unique per file;
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
-  ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``.
+  ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
+- ``gallery.png``, the contact sheet (``exports.gallery``).
 
 A plant counts once its ``run.json`` is written (the last file of a run).
 """
@@ -21,7 +22,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses
-from plantdreamer.exports.plant import LabelReport, plant_views
+from plantdreamer.exports.plant import COCO_FILE, LabelReport, plant_views, write_plant_exports
 from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED, SPLITS, split_plants
 
 PLANTS_DIR = "plants"
@@ -36,9 +37,19 @@ class PlantEntry:
 
 
 @dataclass(frozen=True)
+class LabelOptions:
+    """How a dataset's label files are made (the options of ``dataset`` and ``labels``)."""
+
+    ratios: tuple[float, float, float] = DEFAULT_RATIOS
+    seed: int = DEFAULT_SEED
+    min_area: int = MIN_INSTANCE_AREA
+
+
+@dataclass(frozen=True)
 class DatasetLabels:
     splits: dict[str, list[str]]
     report: LabelReport
+    gallery: Path
 
 
 def finished_plants(dataset_dir: Path) -> list[PlantEntry]:
@@ -56,18 +67,20 @@ def plant_species(run_json: Path) -> str:
     return Path(str(config.get("pointcloud") or "?")).name
 
 
-def write_dataset_exports(
-    dataset_dir: Path,
-    ratios: tuple[float, float, float] = DEFAULT_RATIOS,
-    seed: int = DEFAULT_SEED,
-    min_area: int = MIN_INSTANCE_AREA,
-) -> DatasetLabels:
+def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
+    """Writes the dataset's splits, COCO and YOLO files and gallery; a plant whose own
+    label files were made with another area limit gets them remade with this one."""
+    options = options or LabelOptions()
+    ratios, seed, min_area = options.ratios, options.seed, options.min_area
     dataset_dir = Path(dataset_dir)
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
     classes = {p.id: _classes(p) for p in plants}
     labelled = [p for p in plants if classes[p.id]]
+    for p in labelled:
+        if _plant_min_area(p.folder) != min_area:
+            write_plant_exports(p.folder, min_area)
     names: dict[int, str] = {}
     for p in labelled:
         names.update({v: n for v, n in classes[p.id].items() if v not in names})
@@ -104,7 +117,16 @@ def write_dataset_exports(
         coco.write(dataset_dir / "coco" / f"{split}.json", report.info(f"{split} split", min_area))
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, names)
-    return DatasetLabels(splits, total)
+    from plantdreamer.exports.gallery import write_gallery  # it reads this module's listing
+
+    return DatasetLabels(splits, total, write_gallery(dataset_dir))
+
+
+def _plant_min_area(folder: Path) -> int | None:
+    try:
+        return int(json.loads((folder / COCO_FILE).read_text())["info"]["min_instance_area"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _classes(plant: PlantEntry) -> dict[int, str]:
