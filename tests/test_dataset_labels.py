@@ -79,6 +79,14 @@ def test_another_area_limit_remakes_each_plants_files(dataset):
     assert coco["info"]["min_instance_area"] == 1
 
 
+def test_labels_of_one_plant_folder(dataset):
+    plant = dataset / "plants" / "bean-a"
+    result = cli("labels", plant, "--min-instance-area", "1")
+    assert result.exit_code == 0, result.output
+    assert "objects in 2 images (0 under 1 pixels left out)" in result.output
+    assert json.loads((plant / "coco.json").read_text())["info"]["min_instance_area"] == 1
+
+
 def test_gallery_shows_every_plant(dataset, tmp_path):
     import imageio.v3 as iio
 

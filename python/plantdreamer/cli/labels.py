@@ -13,8 +13,9 @@ from plantdreamer.cli.label_options import label_options
 @click.argument("folder", type=click.Path(exists=True, file_okay=False))
 @label_options
 def labels(folder: str, split_ratios: str, split_seed: int, min_instance_area: int) -> None:
-    """Remake the COCO and YOLO files, points.ply, and for a dataset folder the splits and
-    gallery.png, from what generate wrote in FOLDER (a plant folder or a dataset folder)."""
+    """Remake the label files from what generate wrote in FOLDER: for a plant folder its
+    coco.json, yolo/ and points.ply; for a dataset folder splits.json, coco/, yolo/ and
+    gallery.png (and each plant's own files when --min-instance-area changed)."""
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
 
