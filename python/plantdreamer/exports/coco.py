@@ -41,9 +41,9 @@ class CocoBuilder:
         self.dropped += objects.dropped
         if not len(objects.masks):
             return
-        rles = mask_utils.encode(
-            np.asfortranarray(objects.masks.transpose(1, 2, 0), dtype=np.uint8)
-        )
+        # [K, W, H] in C order is [H, W, K] in Fortran order, as encode wants it.
+        columns = np.ascontiguousarray(objects.masks.view(np.uint8).transpose(0, 2, 1))
+        rles = mask_utils.encode(columns.transpose(2, 1, 0))
         boxes = mask_utils.toBbox(rles)
         areas = mask_utils.area(rles)
         for k, rle in enumerate(rles):

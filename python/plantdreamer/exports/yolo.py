@@ -30,13 +30,19 @@ def mask_polygons(mask: np.ndarray) -> list[np.ndarray]:
     pixel-edge coordinates (pixel (r, c) spans x in [c, c + 1]), collinear vertices removed."""
     import contourpy
 
-    z = np.pad(mask.astype(np.float64), 1)
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return []
+    # Contour the object's box, not the whole frame once per object.
+    y0, x0 = rows[0], cols[0]
+    z = np.pad(mask[y0 : rows[-1] + 1, x0 : cols[-1] + 1].astype(np.float64), 1)
     gen = contourpy.contour_generator(z=z, fill_type="OuterOffset", corner_mask=False)
     filled: Any = gen.filled(0.5, 2.0)  # OuterOffset: (points, offsets) per polygon
     points, offsets = filled[0], filled[1]
+    shift = np.array([x0 - 0.5, y0 - 0.5])  # the padding, then pixel centres at +0.5
     rings = []
     for pts, offs in zip(points, offsets, strict=True):
-        ring = pts[offs[0] : offs[1] - 1] - 0.5  # the outer ring, without its closing vertex
+        ring = pts[offs[0] : offs[1] - 1] + shift  # the outer ring, without its closing vertex
         rings.append(_drop_collinear(ring))
     return [r for r in rings if len(r) >= 3]
 
