@@ -85,3 +85,10 @@ def test_a_trained_plant_is_reproduced_bit_for_bit(tmp_path):
     )  # fmt: skip
     render(plant, "--labels", "--transforms", plant / "transforms.json", "--out", tmp_path / "v")
     assert_same_views(tmp_path / "v", plant, 6)
+
+
+def test_a_plant_exported_at_sh_degree_0_is_reproduced_too(tmp_path):
+    """generate renders the SH degree plant.ply holds, whatever --sh-degree-export is."""
+    plant = make_plant(tmp_path / "bean", sh_degree_export=0, resolution=64)
+    render(plant, "--labels", "--out", tmp_path / "v")
+    assert_same_views(tmp_path / "v", plant, 3)

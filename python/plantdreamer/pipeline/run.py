@@ -522,7 +522,10 @@ class _Run:
             comments += class_comments(self._class_names()) if cfg.labels else ()
             exported = outputs.to_input_frame(final, self.transform, offset)
             outputs.export_ply(ply_path, exported, cfg.sh_degree_export, cfg.labels, comments)
-            # Views and ground truth of what plant.ply holds, so `render` remakes them exactly.
+            # Views and ground truth of what plant.ply holds (positions as float32 in the
+            # input frame, its SH degree), so `render` remakes them exactly.
+            if cfg.sh_degree_export is not None:
+                exported = exported.with_sh_degree(cfg.sh_degree_export)
             view_model = GaussianModel(exported_scene(exported, self.transform, offset))
         with self.timer("renders"), torch.no_grad():
             # Each view's render, then its ground truth (which reuses the render's footprints).
