@@ -137,6 +137,7 @@ def test_yolo_labels_follow_the_documented_layout_and_cover_the_masks(bean):
         label_file = bean / "yolo" / "labels" / (image.stem + ".txt")
         assert label[0] + "/labels/" + image.stem + ".txt" == str(label_file)
         np.testing.assert_array_equal(read_png(image), read_png(bean / "renders" / image.name))
+        assert image.stat().st_ino == (bean / "renders" / image.name).stat().st_ino  # a link
         polygons = parse_yolo_seg(label_file, data["nc"])
         h, w = read_png(image).shape[:2]
         # A pixel is inside when its centre is (the 0.5 level passes between centres).

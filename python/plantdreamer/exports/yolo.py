@@ -81,14 +81,16 @@ def write_data_yaml(path: Path, splits: dict[str, str], names: dict[int, str]) -
 
 def link_image(source: Path, target: Path) -> None:
     """``target`` as a hard link to ``source`` (no second copy on disk), or a copy where
-    the file system has no hard links."""
+    the file system has no hard links; put in place by a rename, as every write is."""
     target.parent.mkdir(parents=True, exist_ok=True)
-    if target.exists():
-        target.unlink()
+    temporary = target.with_name(f".{target.name}.link")
+    temporary.unlink(missing_ok=True)
     try:
-        os.link(source, target)
+        os.link(source, temporary)
     except OSError:
-        shutil.copyfile(source, target)
+        atomic.atomic_write(target, lambda tmp: shutil.copyfile(source, tmp))
+        return
+    os.replace(temporary, target)
 
 
 def _drop_collinear(ring: np.ndarray) -> np.ndarray:
