@@ -21,6 +21,9 @@ import torch
 from plantdreamer import _core
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import CheckpointError, InputError, PlantDreamerError
+from plantdreamer.exports import write_plant_exports
+from plantdreamer.exports.plant import LABEL_FILES
+from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.labels import check_mask_limits, class_counts
@@ -34,6 +37,7 @@ from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.depth_ahead import DepthAhead
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
+from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.sampler import CameraSampler
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
@@ -131,6 +135,7 @@ FINAL_OUTPUTS = (
     "instances",
     "depth",
     "transforms.json",
+    *LABEL_FILES,
 )
 # Everything a run writes.
 RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", CHECKPOINT_NAME)
@@ -520,14 +525,17 @@ class _Run:
             ply_path = out / "plant.ply"
             offset = outputs.export_offset(self.transform, cfg.scene_size)
             self.export_offset = None if offset is None else [float(v) for v in offset]
-            comments = () if offset is None else (outputs.offset_comment(offset),)
-            outputs.export_ply(
-                ply_path,
-                outputs.to_input_frame(final, self.transform, offset),
-                cfg.sh_degree_export,
-                cfg.labels,
-                comments,
-            )
+            comments: tuple[str, ...] = ()
+            if offset is not None:
+                comments = (outputs.offset_comment(offset),)
+            comments += class_comments(self._class_names()) if cfg.labels else ()
+            exported = outputs.to_input_frame(final, self.transform, offset)
+            outputs.export_ply(ply_path, exported, cfg.sh_degree_export, cfg.labels, comments)
+            # Views and ground truth of what plant.ply holds (positions as float32 in the
+            # input frame, its SH degree), so `render` remakes them exactly.
+            if cfg.sh_degree_export is not None:
+                exported = exported.with_sh_degree(cfg.sh_degree_export)
+            view_model = GaussianModel(exported_scene(exported, self.transform, offset))
         with self.timer("renders"), torch.no_grad():
             # Each view's render, then its ground truth (which reuses the render's footprints).
             cameras = orbit_ring(
@@ -539,17 +547,19 @@ class _Run:
                 self.resolution,
             )
             writer = ground_truth_writer(
-                out, self.model, self.transform, cfg.labels, self._class_names()
+                out, view_model, self.transform, cfg.labels, self._class_names()
             )
 
             def render(camera):
-                image, _, meta = self.model.render([camera], cfg.background)
+                image, _, meta = view_model.render([camera], cfg.background)
                 return outputs.to_uint8(image[0].numpy()), meta
 
-            frames = render_views(self.model, writer, cameras, render)
+            frames = render_views(view_model, writer, cameras, render)
             outputs.write_renders(out / "renders", frames)
             outputs.write_turntables(out, frames, cfg.turntable_frames, cfg.turntable)
         outputs.write_log_csv(out / "log.csv", self.log_rows)
+        with self.timer("label files"):
+            write_plant_exports(out)
         outputs.write_json(out / "run.json", self._summary(final))
         return RunResult(out, ply_path, cfg.steps, len(final), dict(self.timer.totals))
 
@@ -571,6 +581,7 @@ class _Run:
             "source_points": self.source_counts,
             "gaussians": {"initial": len(self.initial_gaussians), "final": len(final)},
             "labels": self._label_summary(final),
+            "class_names": self._class_names() if self.cfg.labels else None,
             "timings_s": dict(self.timer.totals),
             "per_step_s": per_step,
             "events": self.events,
