@@ -38,3 +38,11 @@ def make_random_gaussians(
 def random_gaussians():
     """The ``make_random_gaussians`` factory."""
     return make_random_gaussians
+
+
+@pytest.fixture(scope="module")
+def bean(tmp_path_factory):
+    """A small generated bean's plant folder with its label files (do not modify it)."""
+    from labelled_plant import make_plant
+
+    return make_plant(tmp_path_factory.mktemp("bean") / "plant")

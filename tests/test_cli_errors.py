@@ -304,8 +304,8 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads((out / "run.json").read_text())["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
-        "depth", "instances", "labels", "log.csv", "plant.ply", "renders", "run.json",
-        "transforms.json", "turntable.gif",
+        "coco.json", "depth", "instances", "labels", "log.csv", "plant.ply", "points.ply",
+        "renders", "run.json", "transforms.json", "turntable.gif", "yolo",
     ]  # fmt: skip
 
 

@@ -74,6 +74,18 @@ def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):
     assert summary["state"] == "finished" and summary["totals"]["mint"] == {"done": 2}
 
 
+def test_a_dataset_run_ends_with_splits_label_files_and_a_gallery(six_plants):
+    out, _, result = six_plants
+    assert f"gallery: {out / 'gallery.png'}" in result.output
+    splits = json.loads((out / "splits.json").read_text())
+    assert sorted(splits["train"] + splits["val"] + splits["test"]) == sorted(manifest(out))
+    assert [len(splits[s]) for s in ("train", "val", "test")] == [5, 1, 0]  # 0.8, 0.1, 0.1
+    for split in ("train", "val", "test"):
+        coco = json.loads((out / "coco" / f"{split}.json").read_text())
+        assert len(coco["images"]) == len(splits[split])  # one view per plant
+    assert (out / "yolo" / "data.yaml").is_file() and (out / "gallery.png").stat().st_size > 0
+
+
 def test_rerun_skips_complete_plants(six_plants):
     out, args, _ = six_plants
     before = (out / "manifest.jsonl").read_text()

@@ -78,8 +78,9 @@ def _other_value(name, value, cfg):
         return not value
     if isinstance(value, tuple):
         return (value[0] + 0.5, value[1] + 1.0)
-    if value is None and settings.RANGE in s.field.metadata:
-        return s.field.metadata[settings.RANGE][1]
+    if settings.RANGE in s.field.metadata:  # another value inside the range
+        low, high = s.field.metadata[settings.RANGE]
+        return high if value != high else low
     if value is None:
         kinds = [a for a in typing.get_args(s.type) if a is not type(None)]
         return {int: 16, float: 0.5, str: "{species} leaves"}[kinds[0]]

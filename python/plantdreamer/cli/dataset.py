@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from plantdreamer.cli.label_options import label_options
 from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
 from plantdreamer.pipeline.config import GenerateConfig
@@ -80,6 +81,7 @@ def _toml_value(text: str) -> object:
     help="Re-runs of a plant whose worker died.",
 )
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
+@label_options
 def dataset(
     spec_file: str | None,
     out_dir: str,
@@ -94,6 +96,9 @@ def dataset(
     resources: tuple[str, ...],
     max_retries: int,
     quiet: bool,
+    split_ratios: str,
+    split_seed: int,
+    min_instance_area: int,
     **quick_settings: object,
 ) -> None:
     """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
@@ -101,7 +106,10 @@ def dataset(
     SPEC_FILE (TOML) lists groups of plants and their settings; without one, --species,
     --count and --seed-start give one group per species. Settings given here apply to
     every plant, over the spec's [defaults]. Plants already complete in OUT are skipped.
+    At the end, the finished plants are split by plant into train/val/test and written as
+    COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
+    from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.spec import with_settings
@@ -131,6 +139,7 @@ def dataset(
         resources=custom,
         max_retries=max_retries,
         show_progress=not quiet,
+        labels=make_label_options(split_ratios, split_seed, min_instance_area),
     )
     report = run_dataset(spec, plants, out_dir, options)
     if report.interrupted:
@@ -155,3 +164,5 @@ def dataset(
         f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: "
         f"{report.out_dir}"
     )
+    if report.labels is not None:
+        click.echo(describe(report.labels))

@@ -19,11 +19,13 @@ RENDER_OUTPUTS = (
     "instances",
     "depth",
     "transforms.json",
+    "coco.json",
+    "yolo",
 )
 
 
 @click.command()
-@click.argument("ply", type=click.Path(dir_okay=False))
+@click.argument("ply", type=click.Path())
 @click.option(
     "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
 )
@@ -60,18 +62,20 @@ RENDER_OUTPUTS = (
 @click.option(
     "--transforms",
     type=click.Path(),
-    help="Render at the cameras of this transforms.json (model kept in its own frame) "
-    "instead of the orbit.",
+    help="Render at the cameras of this transforms.json (poses in the PLY's frame) instead of "
+    "the orbit.",
 )
 @click.option(
     "--labels",
     "ground_truth",
     is_flag=True,
-    help="Also write the ground truth of each orbit view (labels/, instances/ from the PLY's "
-    "label and instance properties; depth/, transforms.json), laid out as generate does.",
+    help="Also write the ground truth of each view (labels/, instances/ from the PLY's label "
+    "and instance properties; depth/, transforms.json), laid out as generate does.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace the images of an earlier render in --out.")
+@click.pass_context
 def render(
+    ctx: click.Context,
     ply: str,
     out_dir: str,
     views: int,
@@ -90,17 +94,40 @@ def render(
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF and/or MP4.
 
-    On the orbit, the model is turned so --up points up, centred on the opacity-weighted
+    PLY may be a folder written by generate (its plant.ply is rendered). A PLY with
+    generate's run.json beside it is framed as generate framed it, and the orbit settings
+    not given here are generate's: view i is generate's view i, and --labels writes the same
+    ground truth. Any other PLY is turned so --up points up, centred on the opacity-weighted
     median of its Gaussians and scaled so the central 96% of them span 4 units: stray far
-    Gaussians do not shrink the subject. With --transforms, each view is named after its frame.
+    Gaussians do not shrink the subject. With --transforms, views are rendered at its cameras.
     """
     from plantdreamer.errors import InputError
     from plantdreamer.eval.images import check_image_size
     from plantdreamer.io import read_splat_ply
     from plantdreamer.output_folder import claim_folder
+    from plantdreamer.pipeline.rerender import GenerateFrame
 
+    path = Path(ply)
+    if path.is_dir():
+        path = path / "plant.ply"
+    if not path.is_file():
+        raise FileNotFoundError(f"PLY not found: {path}")
     views = views_alias if views_alias is not None else views
     target = None if center is None else parse_center(center)
+    frame = GenerateFrame.beside(path) if up == "z" and target is None else None
+    if frame is not None:  # generate's orbit, for the settings not given here
+        given = {
+            "views": _given(ctx, "views") or views_alias is not None,
+            **{name: _given(ctx, name) for name in frame.orbit if name != "views"},
+        }
+        orbit: dict[str, float] = {
+            "views": views, "distance": distance, "elevation": elevation, "fovy": fovy,
+            "resolution": resolution, "background": background,
+        }  # fmt: skip
+        orbit.update({k: v for k, v in frame.orbit.items() if not given[k]})
+        views, resolution = int(orbit["views"]), int(orbit["resolution"])
+        distance, elevation, fovy = orbit["distance"], orbit["elevation"], orbit["fovy"]
+        background = orbit["background"]
     if not 0.0 <= background <= 1.0:  # also refuses NaN
         raise InputError(f"--background must be a grey level in [0, 1], got {background}")
     if views < 1:
@@ -108,24 +135,38 @@ def render(
     check_image_size(resolution, resolution, "--resolution")
     if not (math.isfinite(distance) and distance > 0 and 0 < fovy < 180):
         raise InputError("--distance must be positive and --fovy in (0, 180) degrees")
-    if ground_truth and transforms is not None:
-        raise InputError("--labels renders the orbit; it cannot be combined with --transforms")
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
         raise InputError("--labels writes poses in the PLY's own frame; use it with --up z")
+    gaussians = read_splat_ply(path)
+    if ground_truth and gaussians.labels is None:
+        raise InputError(f"{path} has no label or instance property to render masks from")
     out = Path(out_dir)
     with claim_folder(out, overwrite=overwrite, owned=RENDER_OUTPUTS):
-        if transforms is not None:
-            _render_dataset_views(read_splat_ply(ply), transforms, out, background)
+        if transforms is not None and not ground_truth:
+            _render_dataset_views(gaussians, transforms, out, background)
             return
-        frames, count = _render_orbit(
-            ply, out, views, resolution, distance, elevation, fovy, background, ground_truth,
-            up, target,
-        )  # fmt: skip
-        from plantdreamer.pipeline import outputs
+        scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
+        if transforms is not None:
+            from plantdreamer.pipeline.rerender import scene_cameras
 
-        outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
-    click.echo(f"wrote {len(frames)} views of {count} Gaussians to {out}")
+            cameras = scene_cameras(transforms, transform)
+        else:
+            from plantdreamer.cameras import orbit_ring
+
+            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+        frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
+        if transforms is None:
+            from plantdreamer.pipeline import outputs
+
+            outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
+    click.echo(f"wrote {len(frames)} views of {len(gaussians)} Gaussians to {out}")
+
+
+def _given(ctx: click.Context, name: str) -> bool:
+    from click.core import ParameterSource
+
+    return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
 
 
 def parse_center(value: str) -> tuple[float, float, float]:
@@ -140,47 +181,49 @@ def parse_center(value: str) -> tuple[float, float, float]:
     return (xyz[0], xyz[1], xyz[2])
 
 
-def _render_orbit(
-    ply, out, views, resolution, distance, elevation, fovy, background, ground_truth, up, center
-):
-    """Renders the orbit into ``out`` (with ``ground_truth``, in generate's dataset layout);
-    returns the frames and the Gaussian count."""
+def _scene(gaussians, frame, own_frame: bool, up: str, center):
+    """The model in the frame it is rendered in, and the transform from the PLY's frame:
+    generate's (a PLY beside its run.json), the PLY's own (cameras of a transforms.json),
+    or a robust framing for the orbit."""
+    from plantdreamer.pipeline import outputs
+    from plantdreamer.pipeline.rerender import IDENTITY, scene_gaussians
+
+    if frame is not None:
+        return frame.to_scene(gaussians), frame.transform
+    if own_frame:
+        return scene_gaussians(gaussians, gaussians.means.astype("float64"), IDENTITY), IDENTITY
+    return outputs.to_scene_frame(gaussians, up=up, center=center)
+
+
+def _render_views(scene, transform, cameras, out, background, ground_truth, ply):
+    """Renders ``cameras`` into ``out`` (with ``ground_truth``, in generate's dataset layout,
+    with the label files); returns the frames."""
     import torch
 
-    from plantdreamer.errors import InputError
-    from plantdreamer.io import read_splat_ply
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
 
-    gaussians = read_splat_ply(ply)
-    if ground_truth and gaussians.labels is None:
-        raise InputError(f"{ply} has no label or instance property to render masks from")
-    scene, transform = outputs.to_scene_frame(gaussians, up=up, center=center)
     model = GaussianModel(scene)
     with torch.no_grad():
-        if ground_truth:  # the dataset layout: images in renders/, masks beside them
-            from plantdreamer.cameras import orbit_ring
-            from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
-
-            def render_view(camera):
-                image, _, meta = model.render([camera], background)
-                return outputs.to_uint8(image[0].numpy()), meta
-
-            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
-            writer = ground_truth_writer(out, model, transform)
-            frames = render_views(model, writer, cameras, render_view)
-            outputs.write_renders(out / "renders", frames)
-        else:
-            frames = outputs.render_orbit(
-                lambda cam: model.render([cam], background)[0][0].numpy(),
-                views,
-                distance,
-                elevation,
-                fovy,
-                resolution,
-            )
+        if not ground_truth:
+            frames = [
+                outputs.to_uint8(model.render([cam], background)[0][0].numpy()) for cam in cameras
+            ]
             outputs.write_renders(out, frames)
-    return frames, len(model)
+            return frames
+        from plantdreamer.exports.plant import write_plant_exports
+        from plantdreamer.exports.points import read_class_names
+        from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+
+        def render_view(camera):
+            image, _, meta = model.render([camera], background)
+            return outputs.to_uint8(image[0].numpy()), meta
+
+        writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
+        frames = render_views(model, writer, cameras, render_view)
+        outputs.write_renders(out / "renders", frames)
+    write_plant_exports(out)
+    return frames
 
 
 def _render_dataset_views(gaussians, transforms: str, out: Path, background: float) -> None:

@@ -29,6 +29,7 @@ from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.spec import Plant
 from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
 from plantdreamer.errors import PlantDreamerError
+from plantdreamer.exports.dataset import DatasetLabels, LabelOptions, write_dataset_exports
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
@@ -49,6 +50,7 @@ class RunOptions:
     resources: dict[str, float] = field(default_factory=dict)  # custom, per plant
     max_retries: int = 3  # re-runs of a plant whose worker died
     show_progress: bool = True
+    labels: LabelOptions = field(default_factory=LabelOptions)  # splits, COCO, YOLO, gallery
 
 
 @dataclass
@@ -60,6 +62,7 @@ class DatasetReport:
     interrupted: int
     seconds: float
     failures: dict[str, str]
+    labels: DatasetLabels | None = None  # None: no plant finished
 
     @property
     def ok(self) -> bool:
@@ -122,6 +125,9 @@ class _DatasetRun:
         ]
         if self.options.show_progress:
             print_summary(totals(records), len(skipped), len(results), seconds)
+        labels = None
+        if counts["done"] or skipped:
+            labels = write_dataset_exports(self.out_dir, self.options.labels)
         return DatasetReport(
             self.out_dir,
             counts["done"],
@@ -130,6 +136,7 @@ class _DatasetRun:
             counts["interrupted"],
             seconds,
             {i: r["error"] for i, r in results.items() if r["status"] == "failed"},
+            labels,
         )
 
     # -- planning ----------------------------------------------------------------------

@@ -159,6 +159,14 @@ class GenerateConfig:
         return _build(cls, data)
 
 
+def from_record(data: dict[str, Any]) -> GenerateConfig:
+    """The config a run.json or checkpoint recorded, of this version (sections) or an
+    earlier one (flat)."""
+    if "source" in data:
+        return GenerateConfig.from_dict(data)
+    return from_flat_dict(data)
+
+
 def from_flat_dict(data: dict[str, Any]) -> GenerateConfig:
     """A config from the flat records of earlier versions (top-level fields, ``densify``,
     ``cull``, ``lr`` and ``cameras`` nested once): each old key maps to one name."""

@@ -13,11 +13,15 @@ import torch
 
 from plantdreamer import _core
 from plantdreamer.cameras import orbit_ring
+from plantdreamer.exports import write_plant_exports
+from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.versions import package_versions
 
@@ -40,18 +44,22 @@ def export_run(
     """Writes every output of a finished run into ``out``."""
     final = state.model.to_gaussians()
     timer, oc = state.timer, cfg.outputs
+    class_names = _class_names(cfg)
     with timer("export"):
         ply_path = out / "plant.ply"
         offset = outputs.export_offset(state.transform, cfg.source.scene_size)
         export_offset = None if offset is None else [float(v) for v in offset]
-        comments = () if offset is None else (outputs.offset_comment(offset),)
-        outputs.export_ply(
-            ply_path,
-            outputs.to_input_frame(final, state.transform, offset),
-            oc.sh_degree_export,
-            oc.labels,
-            comments,
-        )
+        comments: tuple[str, ...] = ()
+        if offset is not None:
+            comments = (outputs.offset_comment(offset),)
+        comments += class_comments(class_names) if oc.labels else ()
+        exported = outputs.to_input_frame(final, state.transform, offset)
+        outputs.export_ply(ply_path, exported, oc.sh_degree_export, oc.labels, comments)
+        # Views and ground truth of what plant.ply holds (positions as float32 in the
+        # input frame, its SH degree), so `render` remakes them exactly.
+        if oc.sh_degree_export is not None:
+            exported = exported.with_sh_degree(oc.sh_degree_export)
+        view_model = GaussianModel(exported_scene(exported, state.transform, offset))
     with timer("renders"), torch.no_grad():
         # Each view's render, then its ground truth (which reuses the render's footprints).
         cameras = orbit_ring(
@@ -62,18 +70,18 @@ def export_run(
             resolution,
             resolution,
         )
-        writer = ground_truth_writer(
-            out, state.model, state.transform, oc.labels, _class_names(cfg)
-        )
+        writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
         def render(camera):
-            image, _, meta = state.model.render([camera], cfg.train.background)
+            image, _, meta = view_model.render([camera], cfg.train.background)
             return outputs.to_uint8(image[0].numpy()), meta
 
-        frames = render_views(state.model, writer, cameras, render)
+        frames = render_views(view_model, writer, cameras, render)
         outputs.write_renders(out / "renders", frames)
         outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
+    with timer("label files"):
+        write_plant_exports(out)
     summary = _summary(cfg, state, final, device, export_offset)
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
@@ -111,6 +119,7 @@ def _summary(
         "source_points": state.source_counts,
         "gaussians": {"initial": len(state.initial), "final": len(final)},
         "labels": state.label_summary(final, cfg.outputs.labels),
+        "class_names": _class_names(cfg) if cfg.outputs.labels else None,
         "timings_s": dict(totals),
         "per_step_s": per_step,
         "events": state.events,

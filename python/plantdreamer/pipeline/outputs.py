@@ -41,7 +41,10 @@ class OutputsConfig:
         choices=TURNTABLE_FORMATS,
     )
     sh_degree_export: int | None = setting(
-        None, "Pad or cut SH in plant.ply (3 for strict viewers).", range=(0, 3)
+        3,
+        "SH degree of plant.ply, zero-padded or cut (3: what INRIA's loader and strict "
+        "viewers accept).",
+        range=(0, 3),
     )
     labels: bool = setting(
         True, "Write label/instance into plant.ply and the class and instance masks."

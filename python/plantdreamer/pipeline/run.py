@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.exports.plant import LABEL_FILES
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
@@ -34,6 +35,7 @@ FINAL_OUTPUTS = (
     "instances",
     "depth",
     "transforms.json",
+    *LABEL_FILES,
 )
 # Everything a run writes.
 RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", CHECKPOINT_NAME)

@@ -1,0 +1,8 @@
+"""Torch datasets of what plantdreamer writes: ``PlantViews`` reads the labelled views of a
+plant or dataset folder in the dtypes torchvision's detection models take."""
+
+from __future__ import annotations
+
+from plantdreamer.data.views import PlantViews, collate
+
+__all__ = ["PlantViews", "collate"]

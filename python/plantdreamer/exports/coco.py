@@ -1,0 +1,75 @@
+"""COCO instance segmentation JSON, written with pycocotools (the library that defines the
+format's masks).
+
+One image per labelled view; one annotation per object above the area limit
+(``exports.instances``), with its mask as compressed RLE (``pycocotools.mask.encode``), its
+box ``[x, y, width, height]`` and area from the same library, ``iscrowd`` 0. Category ids
+are the class pixel values of ``labels/`` (1..255; 0 is background), so a COCO category, a
+class map pixel and a YOLO class (id - 1 in ``data.yaml``'s order) name the same thing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from plantdreamer import atomic
+from plantdreamer.exports.instances import ViewObjects
+
+
+@dataclass
+class CocoBuilder:
+    """Collects images and annotations; ``image_root``-relative file names."""
+
+    categories: dict[int, str]
+    images: list[dict[str, Any]] = field(default_factory=list)
+    annotations: list[dict[str, Any]] = field(default_factory=list)
+    dropped: int = 0
+
+    def add(self, file_name: str, objects: ViewObjects, **extra: Any) -> None:
+        """One image and its objects (``extra``: more keys of the image record)."""
+        from pycocotools import mask as mask_utils
+
+        h, w = objects.shape
+        image_id = len(self.images) + 1
+        self.images.append(
+            {"id": image_id, "file_name": file_name, "height": h, "width": w, **extra}
+        )
+        self.dropped += objects.dropped
+        if not len(objects.masks):
+            return
+        # [K, W, H] in C order is [H, W, K] in Fortran order, as encode wants it.
+        columns = np.ascontiguousarray(objects.masks.view(np.uint8).transpose(0, 2, 1))
+        rles = mask_utils.encode(columns.transpose(2, 1, 0))
+        boxes = mask_utils.toBbox(rles)
+        areas = mask_utils.area(rles)
+        for k, rle in enumerate(rles):
+            self.annotations.append(
+                {
+                    "id": len(self.annotations) + 1,
+                    "image_id": image_id,
+                    "category_id": int(objects.categories[k]),
+                    "segmentation": {"size": [h, w], "counts": rle["counts"].decode()},
+                    "area": int(areas[k]),
+                    "bbox": [float(v) for v in boxes[k]],
+                    "iscrowd": 0,
+                    "instance_id": int(objects.instance_ids[k]),
+                }
+            )
+
+    def to_dict(self, info: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "info": info,
+            "images": self.images,
+            "annotations": self.annotations,
+            "categories": [
+                {"id": v, "name": name, "supercategory": "plant"}
+                for v, name in sorted(self.categories.items())
+            ],
+        }
+
+    def write(self, path: Path, info: dict[str, Any]) -> None:
+        atomic.write_json(path, self.to_dict(info))

@@ -1,0 +1,24 @@
+"""A small generated bean (labelled views and label files), shared by the label tests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from plantdreamer.pipeline import GenerateConfig, generate
+
+SETTINGS = dict(
+    species="bean",
+    seed=3,
+    points=3000,
+    resolution=96,
+    eval_views=3,
+    turntable_frames=2,
+    turntable="none",
+    steps=0,
+    guidance="none",
+)
+
+
+def make_plant(out: Path, **settings) -> Path:
+    generate(GenerateConfig.of(**{**SETTINGS, **settings}), out, show_progress=False)
+    return out
