@@ -178,6 +178,26 @@ def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
     assert not (tmp_path / "o" / "plant.ply").exists()
 
 
+def test_the_finite_gradient_check_is_exact_when_a_finite_sum_overflows():
+    from types import SimpleNamespace
+
+    from plantdreamer.pipeline.run import _check_finite_gradients
+
+    def model(grad):
+        p = torch.nn.Parameter(torch.zeros_like(grad))
+        p.grad = grad
+        return SimpleNamespace(params={"means": p, "quats": torch.nn.Parameter(torch.zeros(1))})
+
+    big = torch.full((4, 3), 3e38)
+    assert not torch.isfinite(big.sum())  # the fast path cannot decide: the exact test runs
+    _check_finite_gradients(model(big), 0)
+    for bad in (float("inf"), float("-inf"), float("nan")):
+        g = torch.ones(4, 3)
+        g[2, 1] = bad
+        with pytest.raises(PlantDreamerError, match=r"means \(1 values\) at step 5"):
+            _check_finite_gradients(model(g), 5)
+
+
 # -- the GPU bench's loop --------------------------------------------------------------------
 
 
