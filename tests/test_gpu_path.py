@@ -265,6 +265,31 @@ def test_half_precision_networks_give_finite_render_gradients(dtype):
     assert not (torch.isfinite(loss16) and bool(torch.isfinite(grad16).all()))
 
 
+@pytest.mark.parametrize("name", ["float32", "bfloat16", "float16"])
+def test_vae_dtype_setting_reaches_the_guidance(monkeypatch, name):
+    from plantdreamer.guidance import sds
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.run import build_guidance
+
+    # The guidance resolves the name to that dtype, and the VAE runs in it.
+    guidance = _large_posterior_guidance(torch.float32, name)
+    assert guidance.vae_dtype == getattr(torch, name)
+    assert next(guidance.parts.vae.parameters()).dtype == getattr(torch, name)
+    # The config's setting is what generate builds its guidance with.
+    seen = {}
+    monkeypatch.setattr(sds, "StableDiffusionDepthGuidance", lambda **kw: seen.update(kw))
+    build_guidance(GenerateConfig(guidance="sds", vae_dtype=name))
+    assert seen["vae_dtype"] == name
+
+
+def test_sds_random_draws_come_from_a_generator_on_the_guidance_device():
+    guidance = _large_posterior_guidance(torch.float32, torch.float32)
+    assert guidance.generator.device == guidance.device
+    # The timesteps come out where the networks run (no copy before the noise is added).
+    t = guidance.schedule.sample_timestep(0, guidance.generator, 2)
+    assert t.device == guidance.device and t.dtype == torch.long
+
+
 def test_graphed_call_runs_eagerly_off_cuda():
     from plantdreamer.guidance.cuda_graph import GraphedCall
 

@@ -14,6 +14,8 @@ SCHEDULES = ("paper", "released")
 # Depth normalisation rules (``guidance/depth.py``) and control-image resampling.
 DEPTH_RULES = ("stretch", "released", "stretch-lift")
 RESIZE_MODES = ("bilinear", "nearest")
+# Precisions the VAE may run in (encode and its backward, which makes the render gradients).
+VAE_DTYPES = ("float32", "bfloat16", "float16")
 
 PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
 RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"
@@ -41,6 +43,8 @@ class SdsConfig:
     negative_prompt: str = RELEASED_NEGATIVE_PROMPT  # the unconditional CFG branch
     prompt_template: str = DEFAULT_PROMPT_TEMPLATE  # with a {species} field
     control_resize: str = "bilinear"  # of the depth control image: bilinear or nearest
+    # float32 on every device until GPU figures choose otherwise (docs/full_size_models.md).
+    vae_dtype: str = "float32"
 
 
 SDS_DEFAULTS = SdsConfig()

@@ -15,7 +15,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import DEPTH_RULES, RESIZE_MODES, SCHEDULES, SDS_DEFAULTS
+from plantdreamer.guidance.config import (
+    DEPTH_RULES,
+    RESIZE_MODES,
+    SCHEDULES,
+    SDS_DEFAULTS,
+    VAE_DTYPES,
+)
 from plantdreamer.settings import check_choices, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 
@@ -192,6 +198,11 @@ class GenerateConfig:
         "auto",
         "UNet and ControlNet precision (auto: float16 on CUDA).",
         choices=("auto", "float32", "float16"),
+    )
+    vae_dtype: str = setting(
+        SDS_DEFAULTS.vae_dtype,
+        "VAE precision (its backward pass makes the render gradients).",
+        choices=VAE_DTYPES,
     )
     device: str | None = setting(
         None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."

@@ -92,6 +92,7 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         prompt_template=cfg.prompt_template or lora_template(cfg.lora),
         control_resize=cfg.control_resize,
         dtype=None if cfg.network_dtype == "auto" else cfg.network_dtype,
+        vae_dtype=cfg.vae_dtype,
         device=cfg.device,
     )
 
