@@ -206,7 +206,7 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
     proc = subprocess.run(
         [sys.executable, str(ROOT / "benches" / "bench_gpu.py"), "--steps", "3",
          "--tiny", "--points", "1500", "--render", "128", "--sds", "128", "--compare-depth", "0",
-         "--json", str(out), "--md", str(tmp_path / "gpu.md")],
+         "--profile", "5", "--json", str(out), "--md", str(tmp_path / "gpu.md")],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -222,10 +222,18 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
         "raster backward",
         "vae backward",
         "optimizer",
+        "guidance other",
+        "rest (in no phase)",
     ):
         assert phase in report["per_step_ms"], phase
+    # Every millisecond of the mean step is in one row (the rest by construction).
+    total = sum(report["per_step_ms"].values())
+    assert total == pytest.approx(report["step_ms_mean"], rel=1e-9)
+    assert "usable cores" in report["host"] and report["torch"] == torch.__version__
+    assert report["profile"].count("\n| `") == 5
     assert report["projected_3600_steps_s"] > 0
-    assert (tmp_path / "gpu.md").read_text().startswith("## SDS loop per phase")
+    md = (tmp_path / "gpu.md").read_text()
+    assert md.startswith("## SDS loop per phase") and "usable cores" in md
 
 
 def _large_posterior_guidance(dtype, vae_dtype):
