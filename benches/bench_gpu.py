@@ -14,7 +14,9 @@ ahead, the wait for the worker), transfer (host -> device copies), text, unet+co
 vae encode, guidance other (the guidance call less its timed parts: control image, noise,
 loss, statistics), rasterizer backward, vae backward (the rest of `loss.backward()`),
 optimiser, densify and cull when they ran, and the rest: the mean step less every phase
-(the camera draw, the gradient checks, density statistics, logging: time in no phase);
+(the camera draw, the gradient checks, density statistics, logging: time in no phase).
+Phases and steps are those between the first and the last step's end (steps 2..n; the
+first also waits for the first depth map and, on CUDA, the graph captures);
 the wall time per step; on CUDA the peak GPU memory. The report names the host's CPU
 model and usable cores beside the GPU (CPU phases move with the host). `--profile N` adds
 the N functions of most own time per step (cProfile over the timed steps). Each timed call is bracketed by
@@ -61,6 +63,7 @@ GUIDANCE_PARTS = ("text", "unet+controlnet", "vae encode", "transfer")
 # split into the parts above.
 LOOP_PHASES = ("render", "depth", "optimizer", "densify", "cull")
 REST = "rest (in no phase)"
+LOOP_PREFIX = "loop:"
 
 
 class PhaseClock:
@@ -70,6 +73,9 @@ class PhaseClock:
         self.cuda = cuda
         self.enabled = True  # off: no syncs, no timing (the plain step time)
         self.totals: dict[str, float] = defaultdict(float)
+        # (start, phase, seconds) of every timed call, the loop's own phases included, so
+        # that the phases of the steps between two step stamps can be summed.
+        self.events: list[tuple[float, str, float]] = []
 
     @contextmanager
     def __call__(self, name: str):
@@ -84,7 +90,17 @@ class PhaseClock:
         finally:
             if self.cuda:
                 torch.cuda.synchronize()
-            self.totals[name] += time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
+            self.totals[name] += seconds
+            self.events.append((t0, name, seconds))
+
+    def since(self, start: float) -> dict[str, float]:
+        """Seconds per phase of the calls that began at or after ``start``."""
+        totals: dict[str, float] = defaultdict(float)
+        for t0, name, seconds in self.events:
+            if t0 >= start:
+                totals[name] += seconds
+        return totals
 
     def wrap(self, name: str, fn: Callable) -> Callable:
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -94,11 +110,29 @@ class PhaseClock:
         return timed
 
 
+def record_loop_phases(clock: PhaseClock) -> None:
+    """Adds every phase the generate loop times itself (render, depth, guidance, backward,
+    optimizer, densify, ...) to the clock's events, with its start time."""
+    from plantdreamer.pipeline import run as loop
+
+    timed_phase = loop.PhaseTimer.__call__
+
+    @contextmanager
+    def recorded(self: Any, name: str):
+        t0 = time.perf_counter()
+        with timed_phase(self, name):
+            yield
+        clock.events.append((t0, LOOP_PREFIX + name, time.perf_counter() - t0))
+
+    loop.PhaseTimer.__call__ = recorded  # type: ignore[method-assign]
+
+
 def instrument(guidance: Any, clock: PhaseClock) -> None:
     """Times the guidance's parts and the rasterizer's backward (bench only)."""
     from plantdreamer import rasterizer
     from plantdreamer.guidance import sds
 
+    record_loop_phases(clock)
     guidance.text_embedding = clock.wrap("text", guidance.text_embedding)
     guidance.noise_prediction = clock.wrap("unet+controlnet", guidance.noise_prediction)
     guidance.encode = clock.wrap("vae encode", guidance.encode)
@@ -147,6 +181,7 @@ def run_once(
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
+    clock.events.clear()
     cfg = GenerateConfig(
         species="bean",
         seed=0,
@@ -166,7 +201,7 @@ def run_once(
         t0 = time.perf_counter()
         if profiler is not None:
             profiler.enable()
-        result = generate(
+        generate(
             cfg,
             tmp,
             guidance=guidance,
@@ -179,18 +214,24 @@ def run_once(
         wall = time.perf_counter() - t0
     steps = len(stamps)
     step_s = [b - a for a, b in itertools.pairwise(stamps)]
-    phases = {k: v for k, v in clock.totals.items() if k != "raster backward"}
-    phases["guidance other"] = result.timings.get("guidance", 0.0) - sum(
-        clock.totals.get(p, 0.0) for p in GUIDANCE_PARTS
+    # Phases of steps 2..n, the steps between the first and the last stamp (the first
+    # step also waits for the first depth map and, on CUDA, graph captures).
+    timed = clock.since(stamps[0]) if stamps else {}
+    loop_phase = {
+        k.removeprefix(LOOP_PREFIX): v for k, v in timed.items() if k.startswith(LOOP_PREFIX)
+    }
+    parts = {k: v for k, v in timed.items() if not k.startswith(LOOP_PREFIX)}
+    phases = {k: v for k, v in parts.items() if k != "raster backward"}
+    phases["guidance other"] = loop_phase.get("guidance", 0.0) - sum(
+        parts.get(p, 0.0) for p in GUIDANCE_PARTS
     )
-    phases["raster backward"] = clock.totals.get("raster backward", 0.0)
-    phases["vae backward"] = result.timings.get("backward", 0.0) - phases["raster backward"]
+    phases["raster backward"] = parts.get("raster backward", 0.0)
+    phases["vae backward"] = loop_phase.get("backward", 0.0) - phases["raster backward"]
     for name in LOOP_PHASES:
-        if name in result.timings or name in ("render", "depth", "optimizer"):
-            phases[name] = result.timings.get(name, 0.0)
-    per_step_ms = {k: 1000 * v / max(steps, 1) for k, v in phases.items()}
-    # The first step's stamp starts the differences, so the mean covers steps 2..n; the
-    # phases' means cover all n (with --warmup the two agree closely).
+        if name in loop_phase or name in ("render", "depth", "optimizer"):
+            phases[name] = loop_phase.get(name, 0.0)
+    intervals = max(len(step_s), 1)
+    per_step_ms = {k: 1000 * v / intervals for k, v in phases.items()}
     mean_step_ms = 1000 * statistics.fmean(step_s) if step_s else float("nan")
     per_step_ms[REST] = mean_step_ms - sum(per_step_ms.values())
     median_step = statistics.median(step_s) if step_s else float("nan")
