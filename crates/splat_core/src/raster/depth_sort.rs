@@ -1,11 +1,12 @@
 //! Visible splats in depth order: a parallel, stable LSD radix sort of (depth, index) words.
 //!
-//! The work is cut into fixed chunks of the input (their number depends on the length
-//! alone, never on the thread count). Each pass counts its digit per chunk in parallel,
-//! turns the counts into output offsets (digit-major, chunk order within a digit) and
-//! scatters every chunk in parallel to its own offsets. Chunk c's elements of a digit land
-//! after those of chunks before it and in their input order, so each pass is the stable
-//! counting sort a single thread would do: the result is the same on any number of threads.
+//! The work is cut into chunks of the input. Each pass counts its digit per chunk in
+//! parallel, turns the counts into output offsets (digit-major, chunk order within a digit)
+//! and scatters every chunk in parallel to its own offsets. Chunk c's elements of a digit
+//! land after those of chunks before it and in their input order, so each pass is the
+//! stable counting sort a single thread would do. The words are distinct (the index is in
+//! them), so their sorted order is unique: the chunking, which follows the thread count,
+//! cannot change the result, and one thread runs the sequential sort with no chunks.
 #![allow(unsafe_code)]
 
 use rayon::prelude::*;
@@ -18,8 +19,9 @@ const BITS: u32 = 12;
 const MASK: u64 = (1 << BITS) - 1;
 const BUCKETS: usize = 1 << BITS;
 /// Elements per chunk at least (smaller inputs are one chunk: the offsets cost
-/// `BUCKETS` per chunk and pass), and chunks at most.
+/// `BUCKETS` per chunk and pass), chunks per thread (for balance), and chunks at most.
 const MIN_CHUNK: usize = 16_384;
+const CHUNKS_PER_THREAD: usize = 4;
 const MAX_CHUNKS: usize = 64;
 
 /// Visible splats ordered front to back; ties broken by index, so the order is unique.
@@ -27,12 +29,14 @@ pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
     // Depths of visible splats are >= near_plane > 0, so their bit patterns sort like the
     // values. Collected in index order (rayon keeps it), a stable sort by depth breaks ties
     // by index.
-    let pairs = splats
-        .par_iter()
-        .enumerate()
-        .filter(|(_, s)| s.visible())
-        .map(|(g, s)| pair(s.depth.to_bits(), g as u32))
-        .collect();
+    let visible = |(g, s): (usize, &Splat)| {
+        let depth = s.depth.to_bits();
+        s.visible().then_some(pair(depth, g as u32))
+    };
+    if rayon::current_num_threads() == 1 {
+        return radix_sort_pairs(splats.iter().enumerate().filter_map(visible).collect());
+    }
+    let pairs = splats.par_iter().enumerate().filter_map(visible).collect();
     radix_sort_pairs(pairs)
 }
 
@@ -47,9 +51,10 @@ fn key(p: u64) -> u32 {
     (p >> 32) as u32
 }
 
-/// Elements per chunk for `n` elements.
+/// Elements per chunk for `n` elements on the current pool.
 fn chunk_len(n: usize) -> usize {
-    n.div_ceil(MAX_CHUNKS).max(MIN_CHUNK)
+    let chunks = (CHUNKS_PER_THREAD * rayon::current_num_threads()).min(MAX_CHUNKS);
+    n.div_ceil(chunks).max(MIN_CHUNK)
 }
 
 /// Stable LSD radix sort of (key, id) `pair`s by key; returns the ids. Linear, and ~4x
@@ -62,6 +67,10 @@ pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
         return Vec::new();
     }
     let chunk = chunk_len(n);
+    if chunk >= n || rayon::current_num_threads() == 1 {
+        // The same order (a stable sort's is unique), with one read for every histogram.
+        return sort_on_one_thread(pairs);
+    }
     let (min, max) = pairs
         .par_chunks(chunk)
         .map(|c| {
@@ -73,21 +82,35 @@ pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
     let span = max - min;
     let passes = (u32::BITS - span.leading_zeros()).div_ceil(BITS);
     let offset = pair(min, 0);
-    pairs.par_iter_mut().for_each(|p| *p -= offset);
     let mut out = vec![0u64; n];
     for d in 0..passes {
         let shift = 32 + d * BITS;
         let digit = move |p: u64| ((p >> shift) & MASK) as usize;
-        let mut offsets: Vec<[u32; BUCKETS]> = pairs
-            .par_chunks(chunk)
-            .map(|c| {
-                let mut h = [0u32; BUCKETS];
-                for &p in c {
-                    h[digit(p)] += 1;
-                }
-                h
-            })
-            .collect();
+        let mut offsets: Vec<[u32; BUCKETS]> = if d == 0 {
+            // The first count also takes the smallest key off (one read less).
+            pairs
+                .par_chunks_mut(chunk)
+                .map(|c| {
+                    let mut h = [0u32; BUCKETS];
+                    for p in c {
+                        *p -= offset;
+                        h[digit(*p)] += 1;
+                    }
+                    h
+                })
+                .collect()
+        } else {
+            pairs
+                .par_chunks(chunk)
+                .map(|c| {
+                    let mut h = [0u32; BUCKETS];
+                    for &p in c {
+                        h[digit(p)] += 1;
+                    }
+                    h
+                })
+                .collect()
+        };
         let first = digit(pairs[0]);
         if offsets.iter().map(|h| h[first] as usize).sum::<usize>() == n {
             continue;
@@ -116,6 +139,42 @@ pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
         std::mem::swap(&mut pairs, &mut out);
     }
     pairs.par_iter().map(|&p| p as u32).collect()
+}
+
+/// `radix_sort_pairs` on the calling thread: the key range in one read, every pass's
+/// histogram in one more, then the passes.
+fn sort_on_one_thread(mut pairs: Vec<u64>) -> Vec<u32> {
+    let n = pairs.len();
+    let (min, max) = pairs.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
+        (lo.min(key(p)), hi.max(key(p)))
+    });
+    let passes = (u32::BITS - (max - min).leading_zeros()).div_ceil(BITS) as usize;
+    let mut hist = vec![[0u32; BUCKETS]; passes];
+    let offset = pair(min, 0);
+    for p in pairs.iter_mut() {
+        *p -= offset;
+        for (d, h) in hist.iter_mut().enumerate() {
+            h[((*p >> (32 + d as u32 * BITS)) & MASK) as usize] += 1;
+        }
+    }
+    let mut out = vec![0u64; n];
+    for (d, offsets) in hist.iter_mut().enumerate() {
+        if offsets.iter().any(|&c| c as usize == n) {
+            continue;
+        }
+        let mut at = 0;
+        for o in offsets.iter_mut() {
+            (*o, at) = (at, at + *o);
+        }
+        let shift = 32 + d as u32 * BITS;
+        for &p in &pairs {
+            let slot = &mut offsets[((p >> shift) & MASK) as usize];
+            out[*slot as usize] = p;
+            *slot += 1;
+        }
+        std::mem::swap(&mut pairs, &mut out);
+    }
+    pairs.iter().map(|&p| p as u32).collect()
 }
 
 /// The output array of a scatter, written by many threads at disjoint positions.
@@ -153,8 +212,8 @@ mod tests {
             (1000, 7),
             (50_000, u32::MAX),
             (3000, 1 << 20),
-            // Several chunks: many ties, and keys whose low digit is constant (a skipped
-            // pass between two real ones).
+            // Several chunks on 2 and 5 threads: many ties, and keys whose low digit is
+            // constant (a skipped pass before a real one).
             (3 * MIN_CHUNK + 17, 5),
             (5 * MIN_CHUNK + 3, 1 << 30),
             (MAX_CHUNKS * MIN_CHUNK + 999, 1 << 24),
