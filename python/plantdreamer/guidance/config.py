@@ -17,6 +17,8 @@ RESIZE_MODES = ("bilinear", "nearest")
 # What picks the depth erosion kernel: the camera distance, or the released code's
 # Frobenius norm of the 4x4 camera-to-world matrix (``guidance/depth.py``).
 EROSION_DISTANCES = ("camera", "c2w-norm")
+# Precisions the VAE may run in (encode and its backward, which makes the render gradients).
+VAE_DTYPES = ("float32", "bfloat16", "float16")
 
 PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
 RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"
@@ -44,6 +46,8 @@ class SdsConfig:
     negative_prompt: str = RELEASED_NEGATIVE_PROMPT  # the unconditional CFG branch
     prompt_template: str = DEFAULT_PROMPT_TEMPLATE  # with a {species} field
     control_resize: str = "bilinear"  # of the depth control image: bilinear or nearest
+    # float32 on every device until GPU figures choose otherwise (docs/full_size_models.md).
+    vae_dtype: str = "float32"
 
 
 SDS_DEFAULTS = SdsConfig()

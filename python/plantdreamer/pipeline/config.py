@@ -21,6 +21,7 @@ from plantdreamer.guidance.config import (
     RESIZE_MODES,
     SCHEDULES,
     SDS_DEFAULTS,
+    VAE_DTYPES,
 )
 from plantdreamer.settings import check_choices, check_types, option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
@@ -226,6 +227,11 @@ class GenerateConfig:
         "auto",
         "UNet and ControlNet precision (auto: float16 on CUDA).",
         choices=("auto", "float32", "float16"),
+    )
+    vae_dtype: str = setting(
+        SDS_DEFAULTS.vae_dtype,
+        "VAE precision (its backward pass makes the render gradients).",
+        choices=VAE_DTYPES,
     )
     device: str | None = setting(
         None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."
