@@ -11,8 +11,15 @@ CPU-only machine it runs the same loop with the tiny models at 512 (`--tiny`).
 
 Per step it reports render (rasterizer forward), depth (ControlNet conditioning: with depth
 ahead, the wait for the worker), transfer (host -> device copies), text, unet+controlnet,
-vae encode, rasterizer backward, vae backward (the rest of `loss.backward()`), optimiser,
-and the wall time per step; on CUDA the peak GPU memory. Each timed call is bracketed by
+vae encode, guidance other (the guidance call less its timed parts: control image, noise,
+loss, statistics), rasterizer backward, vae backward (the rest of `loss.backward()`),
+optimiser, densify and cull when they ran, and the rest: the mean step less every phase
+(the camera draw, the gradient checks, density statistics, logging: time in no phase).
+Phases and steps are those between the first and the last step's end (steps 2..n; the
+first also waits for the first depth map and, on CUDA, the graph captures);
+the wall time per step; on CUDA the peak GPU memory. The report names the host's CPU
+model and usable cores beside the GPU (CPU phases move with the host). `--profile N` adds
+the N functions of most own time per step (cProfile over the timed steps). Each timed call is bracketed by
 `torch.cuda.synchronize()` on CUDA, so phases do not hide each other's GPU time. The
 phase rows are means over the timed steps, after ``--warmup`` untimed steps (on CUDA, the
 graph captures and the first prompt encodes); the step row is the median. The
@@ -25,8 +32,11 @@ ahead and reports min and median of each (for a shared machine).
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
 import itertools
 import json
+import pstats
 import statistics
 import sys
 import tempfile
@@ -39,9 +49,21 @@ from typing import Any
 
 import torch
 
-RESULTS = Path(__file__).resolve().parent / "results"
+BENCHES = Path(__file__).resolve().parent
+RESULTS = BENCHES / "results"
+sys.path.insert(0, str(BENCHES))
+
+from host import host_line  # noqa: E402
+
 GOAL_3600_S = 300.0  # the issue's target: 3600 steps in 5 minutes on one H100
 NETWORK_PHASES = ("text", "unet+controlnet", "vae encode", "vae backward")
+# Timed inside the guidance call; what the call spends beyond them is "guidance other".
+GUIDANCE_PARTS = ("text", "unet+controlnet", "vae encode", "transfer")
+# The loop's own timers (pipeline/run.py) reported as phases; "guidance" and "backward" are
+# split into the parts above.
+LOOP_PHASES = ("render", "depth", "optimizer", "densify", "cull")
+REST = "rest (in no phase)"
+LOOP_PREFIX = "loop:"
 
 
 class PhaseClock:
@@ -51,6 +73,9 @@ class PhaseClock:
         self.cuda = cuda
         self.enabled = True  # off: no syncs, no timing (the plain step time)
         self.totals: dict[str, float] = defaultdict(float)
+        # (start, phase, seconds) of every timed call, the loop's own phases included, so
+        # that the phases of the steps between two step stamps can be summed.
+        self.events: list[tuple[float, str, float]] = []
 
     @contextmanager
     def __call__(self, name: str):
@@ -65,7 +90,17 @@ class PhaseClock:
         finally:
             if self.cuda:
                 torch.cuda.synchronize()
-            self.totals[name] += time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
+            self.totals[name] += seconds
+            self.events.append((t0, name, seconds))
+
+    def since(self, start: float) -> dict[str, float]:
+        """Seconds per phase of the calls that began at or after ``start``."""
+        totals: dict[str, float] = defaultdict(float)
+        for t0, name, seconds in self.events:
+            if t0 >= start:
+                totals[name] += seconds
+        return totals
 
     def wrap(self, name: str, fn: Callable) -> Callable:
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -75,11 +110,29 @@ class PhaseClock:
         return timed
 
 
+def record_loop_phases(clock: PhaseClock) -> None:
+    """Adds every phase the generate loop times itself (render, depth, guidance, backward,
+    optimizer, densify, ...) to the clock's events, with its start time."""
+    from plantdreamer.pipeline import progress as loop
+
+    timed_phase = loop.PhaseTimer.__call__
+
+    @contextmanager
+    def recorded(self: Any, name: str):
+        t0 = time.perf_counter()
+        with timed_phase(self, name):
+            yield
+        clock.events.append((t0, LOOP_PREFIX + name, time.perf_counter() - t0))
+
+    loop.PhaseTimer.__call__ = recorded  # type: ignore[method-assign]
+
+
 def instrument(guidance: Any, clock: PhaseClock) -> None:
     """Times the guidance's parts and the rasterizer's backward (bench only)."""
     from plantdreamer import rasterizer
     from plantdreamer.guidance import sds
 
+    record_loop_phases(clock)
     guidance.text_embedding = clock.wrap("text", guidance.text_embedding)
     guidance.noise_prediction = clock.wrap("unet+controlnet", guidance.noise_prediction)
     guidance.encode = clock.wrap("vae encode", guidance.encode)
@@ -99,13 +152,36 @@ def build_guidance(tiny: bool, device: str, sds_resolution: int) -> Any:
     )
 
 
+def top_functions(profiler: cProfile.Profile, steps: int, n: int) -> str:
+    """The n functions of most own time, in ms per step (cProfile's table, rescaled)."""
+    stream = io.StringIO()
+    stats = pstats.Stats(profiler, stream=stream)
+    rows = sorted(stats.stats.items(), key=lambda kv: -kv[1][2])[:n]  # type: ignore[attr-defined]
+    lines = [
+        "| function | calls / step | own ms / step | with callees ms / step |",
+        "|---|---|---|---|",
+    ]
+    for (path, line, name), (_, calls, own, cumulative, _) in rows:
+        where = f"{Path(path).name}:{line}({name})" if line else name
+        lines.append(
+            f"| `{where}` | {calls / max(steps, 1):.1f} | {1000 * own / max(steps, 1):.2f} | "
+            f"{1000 * cumulative / max(steps, 1):.2f} |"
+        )
+    return "\n".join(lines)
+
+
 def run_once(
-    args: argparse.Namespace, guidance: Any, clock: PhaseClock, depth_ahead: bool
+    args: argparse.Namespace,
+    guidance: Any,
+    clock: PhaseClock,
+    depth_ahead: bool,
+    profile: int = 0,
 ) -> dict[str, Any]:
     from plantdreamer.pipeline import GenerateConfig, generate
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
+    clock.events.clear()
     cfg = GenerateConfig.of(
         species="bean",
         seed=0,
@@ -120,9 +196,12 @@ def run_once(
     stamps: list[float] = []
     if cuda:
         torch.cuda.reset_peak_memory_stats(guidance.device)
+    profiler = cProfile.Profile() if profile else None
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = generate(
+        if profiler is not None:
+            profiler.enable()
+        generate(
             cfg,
             tmp,
             guidance=guidance,
@@ -130,19 +209,39 @@ def run_once(
             on_step=lambda step: stamps.append(time.perf_counter()),
             depth_ahead=depth_ahead,
         )
+        if profiler is not None:
+            profiler.disable()
         wall = time.perf_counter() - t0
     steps = len(stamps)
     step_s = [b - a for a, b in itertools.pairwise(stamps)]
-    phases = dict(clock.totals)
-    for name in ("render", "depth", "optimizer", "backward"):
-        phases[name] = result.timings.get(name, 0.0)
-    phases["vae backward"] = phases.pop("backward") - phases.get("raster backward", 0.0)
-    per_step_ms = {k: 1000 * v / max(steps, 1) for k, v in phases.items()}
+    # Phases of steps 2..n, the steps between the first and the last stamp (the first
+    # step also waits for the first depth map and, on CUDA, graph captures).
+    timed = clock.since(stamps[0]) if stamps else {}
+    loop_phase = {
+        k.removeprefix(LOOP_PREFIX): v for k, v in timed.items() if k.startswith(LOOP_PREFIX)
+    }
+    parts = {k: v for k, v in timed.items() if not k.startswith(LOOP_PREFIX)}
+    phases = {k: v for k, v in parts.items() if k != "raster backward"}
+    phases["guidance other"] = loop_phase.get("guidance", 0.0) - sum(
+        parts.get(p, 0.0) for p in GUIDANCE_PARTS
+    )
+    phases["raster backward"] = parts.get("raster backward", 0.0)
+    phases["vae backward"] = loop_phase.get("backward", 0.0) - phases["raster backward"]
+    for name in LOOP_PHASES:
+        if name in loop_phase or name in ("render", "depth", "optimizer"):
+            phases[name] = loop_phase.get(name, 0.0)
+    intervals = max(len(step_s), 1)
+    per_step_ms = {k: 1000 * v / intervals for k, v in phases.items()}
+    mean_step_ms = 1000 * statistics.fmean(step_s) if step_s else float("nan")
+    per_step_ms[REST] = mean_step_ms - sum(per_step_ms.values())
     median_step = statistics.median(step_s) if step_s else float("nan")
     network_ms = sum(per_step_ms.get(p, 0.0) for p in NETWORK_PHASES)
     return {
         "device": str(guidance.device),
         "device_name": torch.cuda.get_device_name(guidance.device) if cuda else "cpu",
+        "host": host_line(),
+        "torch": torch.__version__,
+        "profile": None if profiler is None else top_functions(profiler, steps, profile),
         "models": "tiny" if args.tiny else "full size (random weights)",
         "dtypes": {
             "unet": str(guidance.dtype),
@@ -156,6 +255,7 @@ def run_once(
         "steps": steps,
         "depth_ahead": depth_ahead,
         "per_step_ms": per_step_ms,
+        "step_ms_mean": mean_step_ms,
         "step_ms_median": 1000 * median_step,
         "step_ms_min": 1000 * min(step_s) if step_s else float("nan"),
         "non_network_ms": 1000 * median_step - network_ms,
@@ -168,13 +268,14 @@ def run_once(
 def table(report: dict[str, Any]) -> str:
     rows = [f"| {k} | {v:.1f} |" for k, v in report["per_step_ms"].items()]
     lines = [
-        f"{report['models']} on {report['device_name']}, render {report['render']}, "
-        f"SDS {report['sds']}, {report['points']} points, {report['steps']} steps, "
-        f"depth ahead: {report['depth_ahead']}",
+        f"{report['models']} on {report['device_name']} (host: {report['host']}; torch "
+        f"{report['torch']}), render {report['render']}, SDS {report['sds']}, "
+        f"{report['points']} points, {report['steps']} steps, depth ahead: {report['depth_ahead']}",
         "",
         "| phase | ms / step |",
         "|---|---|",
         *rows,
+        f"| **step (mean wall)** | {report['step_ms_mean']:.1f} |",
         f"| **step (median wall)** | {report['step_ms_median']:.1f} |",
         f"| non-network part (step - text - UNet/ControlNet - VAE) | "
         f"{report['non_network_ms']:.1f} |",
@@ -191,6 +292,8 @@ def table(report: dict[str, Any]) -> str:
     ]
     if report["peak_gpu_gib"] is not None:
         lines.append(f"Peak GPU memory: {report['peak_gpu_gib']:.2f} GiB.")
+    if report.get("profile"):
+        lines += ["", "Functions of most own time (cProfile, timed steps):", "", report["profile"]]
     return "\n".join(lines)
 
 
@@ -220,7 +323,11 @@ def compare_depth(args: argparse.Namespace, guidance: Any, clock: PhaseClock) ->
             )
             + " |"
         )
-    for key, label in (("step_ms_median", "step (wall)"), ("non_network_ms", "non-network part")):
+    for key, label in (
+        ("step_ms_mean", "step (mean wall)"),
+        ("step_ms_median", "step (median wall)"),
+        ("non_network_ms", "non-network part"),
+    ):
         lines.append(
             f"| **{label}** | "
             + " | ".join(cell([r[key] for r in runs[a]]) for a in (False, True))
@@ -269,6 +376,9 @@ def main(argv: list[str] | None = None) -> int:
         help="untimed steps first (CUDA graph capture, first prompt encodes)",
     )
     p.add_argument("--compare-depth", type=int, default=0 if cuda else 3, metavar="ROUNDS")
+    p.add_argument(
+        "--profile", type=int, default=0, metavar="N", help="list the N costliest functions"
+    )
     p.add_argument("--json", type=Path, help="also write the report as JSON here")
     p.add_argument(
         "--md", type=Path, help="markdown section (default: results/gpu.md, gpu_cuda.md)"
@@ -276,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.steps < 2:
         p.error("--steps must be at least 2 (step times are differences)")
+    if args.device.startswith("cuda") and not cuda:
+        p.error("no CUDA GPU here: run without --device (tiny models on the CPU, --tiny)")
 
     guidance = build_guidance(args.tiny, args.device, args.sds)
     if args.md is None:
@@ -288,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         text = compare_depth(args, guidance, clock)
         report: dict[str, Any] = {"compare_depth": text}
     else:
-        report = run_once(args, guidance, clock, depth_ahead=True)
+        report = run_once(args, guidance, clock, depth_ahead=True, profile=args.profile)
         if report["device"].startswith("cuda"):
             # The per-phase syncs serialise the host and the GPU; a second run without them
             # gives the step time a user sees, and the projection.

@@ -2,6 +2,7 @@
 
     python scripts/gpu_checks.py tests OUT                 # the CUDA tests (pytest)
     python scripts/gpu_checks.py resume OUT --steps 300    # Ctrl-C and --resume on CUDA
+    python scripts/gpu_checks.py scaling OUT --binary BIN  # rasterizer stages vs threads
     python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
     python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8
 
@@ -13,6 +14,11 @@ loading code, then runs ``generate --guidance sds`` three times: once straight t
 stopped with SIGINT (Ctrl-C) after its first checkpoint, and that run continued with
 ``--resume``. It reports each run's wall time and whether plant.ply and every rendered view
 and mask of the resumed run are byte-identical to the straight run's (``OUT/resume.json``).
+
+``scaling`` runs a prebuilt ``raster_timing`` binary (the host needs no cargo) at 1, 2, 4, 8
+and 16 threads on 100k Gaussians at 512 and 768 and 1M at 768, forward and backward, and
+writes each stage's time and the image and gradient hashes to ``OUT/scaling.json`` and
+``OUT/scaling.md`` (``benches/thread_scaling.py``; about a minute on a 16-core host).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import time
 from pathlib import Path
 
 PYTHON = [sys.executable, "-m", "plantdreamer"]
+ROOT = Path(__file__).resolve().parent.parent
 # Ground truth and renders compared byte for byte; run.json and log.csv hold timings.
 COMPARED = ("plant.ply", "transforms.json")
 COMPARED_GLOBS = ("renders/*.png", "labels/*.png", "instances/*.png", "depth/*.png")
@@ -144,9 +151,26 @@ def run_resume(args: argparse.Namespace, out: Path) -> int:
     return 0 if report["identical"] else 1
 
 
+def thread_scaling():
+    """benches/thread_scaling.py, which is not part of the package."""
+    sys.path.insert(0, str(ROOT / "benches"))
+    import thread_scaling
+
+    return thread_scaling
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["scaling"]:
+        scaling = thread_scaling()
+        sp = argparse.ArgumentParser(description="rasterizer stages against threads")
+        sp.add_argument("out", type=Path, help="folder for scaling.json and scaling.md")
+        scaling.add_arguments(sp)
+        args = sp.parse_args(argv[1:])
+        report = scaling.run_from_args(args.out, args)
+        return 0 if report["identical_across_threads"] else 1
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("check", choices=("tests", "resume", "throughput"))
+    p.add_argument("check", choices=("tests", "resume", "scaling", "throughput"))
     p.add_argument("out", type=Path, help="folder for logs and the JSON report")
     p.add_argument("--steps", type=int, help="steps per run (resume: 300, throughput: 40)")
     p.add_argument("--species", default="bean")

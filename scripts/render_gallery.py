@@ -26,7 +26,7 @@ def main() -> int:
         root = Path(tmp)
         for species in ("bean", "mint", "kale"):
             for seed in (0, 1):
-                cfg = GenerateConfig(
+                cfg = GenerateConfig.of(
                     species=species, seed=seed, guidance="none", steps=0, resolution=192,
                     eval_views=4, turntable="none",
                 )  # fmt: skip

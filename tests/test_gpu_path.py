@@ -178,6 +178,26 @@ def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
     assert not (tmp_path / "o" / "plant.ply").exists()
 
 
+def test_the_finite_gradient_check_is_exact_when_a_finite_sum_overflows():
+    from types import SimpleNamespace
+
+    from plantdreamer.pipeline.trainer import check_finite_gradients as _check_finite_gradients
+
+    def model(grad):
+        p = torch.nn.Parameter(torch.zeros_like(grad))
+        p.grad = grad
+        return SimpleNamespace(params={"means": p, "quats": torch.nn.Parameter(torch.zeros(1))})
+
+    big = torch.full((4, 3), 3e38)
+    assert not torch.isfinite(big.sum())  # the fast path cannot decide: the exact test runs
+    _check_finite_gradients(model(big), 0)
+    for bad in (float("inf"), float("-inf"), float("nan")):
+        g = torch.ones(4, 3)
+        g[2, 1] = bad
+        with pytest.raises(PlantDreamerError, match=r"means \(1 values\) at step 5"):
+            _check_finite_gradients(model(g), 5)
+
+
 # -- the GPU bench's loop --------------------------------------------------------------------
 
 
@@ -186,7 +206,7 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
     proc = subprocess.run(
         [sys.executable, str(ROOT / "benches" / "bench_gpu.py"), "--steps", "3",
          "--tiny", "--points", "1500", "--render", "128", "--sds", "128", "--compare-depth", "0",
-         "--json", str(out), "--md", str(tmp_path / "gpu.md")],
+         "--profile", "5", "--json", str(out), "--md", str(tmp_path / "gpu.md")],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -202,10 +222,18 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
         "raster backward",
         "vae backward",
         "optimizer",
+        "guidance other",
+        "rest (in no phase)",
     ):
         assert phase in report["per_step_ms"], phase
+    # Every millisecond of the mean step is in one row (the rest by construction).
+    total = sum(report["per_step_ms"].values())
+    assert total == pytest.approx(report["step_ms_mean"], rel=1e-9)
+    assert "usable cores" in report["host"] and report["torch"] == torch.__version__
+    assert report["profile"].count("\n| `") == 5
     assert report["projected_3600_steps_s"] > 0
-    assert (tmp_path / "gpu.md").read_text().startswith("## SDS loop per phase")
+    md = (tmp_path / "gpu.md").read_text()
+    assert md.startswith("## SDS loop per phase") and "usable cores" in md
 
 
 def _large_posterior_guidance(dtype, vae_dtype):
@@ -243,6 +271,31 @@ def test_half_precision_networks_give_finite_render_gradients(dtype):
     # The naive all-float16 path overflows on the same scene.
     loss16, grad16 = _sds_render_gradient(_large_posterior_guidance(torch.float16, torch.float16))
     assert not (torch.isfinite(loss16) and bool(torch.isfinite(grad16).all()))
+
+
+@pytest.mark.parametrize("name", ["float32", "bfloat16", "float16"])
+def test_vae_dtype_setting_reaches_the_guidance(monkeypatch, name):
+    from plantdreamer.guidance import sds
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.runtime import build_guidance
+
+    # The guidance resolves the name to that dtype, and the VAE runs in it.
+    guidance = _large_posterior_guidance(torch.float32, name)
+    assert guidance.vae_dtype == getattr(torch, name)
+    assert next(guidance.parts.vae.parameters()).dtype == getattr(torch, name)
+    # The config's setting is what generate builds its guidance with.
+    seen = {}
+    monkeypatch.setattr(sds, "StableDiffusionDepthGuidance", lambda **kw: seen.update(kw))
+    build_guidance(GenerateConfig.of(guidance="sds", vae_dtype=name))
+    assert seen["vae_dtype"] == name
+
+
+def test_sds_random_draws_come_from_a_generator_on_the_guidance_device():
+    guidance = _large_posterior_guidance(torch.float32, torch.float32)
+    assert guidance.generator.device == guidance.device
+    # The timesteps come out where the networks run (no copy before the noise is added).
+    t = guidance.schedule.sample_timestep(0, guidance.generator, 2)
+    assert t.device == guidance.device and t.dtype == torch.long
 
 
 def test_graphed_call_runs_eagerly_off_cuda():

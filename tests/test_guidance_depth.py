@@ -15,6 +15,7 @@ from plantdreamer.guidance.depth import (
     kernel_size,
     max_filter,
     normalise_depth,
+    quantile,
     save_depth_png,
 )
 
@@ -92,6 +93,31 @@ def test_normalisation_near_is_bright_and_background_halo_and_tail_are_removed()
     # Released-code contrast lift: the nearest pixel saturates, the farthest is 0.175.
     assert n[disc].max() == pytest.approx(1.0)
     assert n[disc].min() == pytest.approx(0.1 * 1.75, abs=1e-3)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 101, 4097, 100_003])
+def test_quantile_is_torch_quantile_bit_for_bit(n):
+    g = torch.Generator().manual_seed(n)
+    spread = 1.0 + 4.0 * torch.rand(n, generator=g, dtype=torch.float64)
+    ties = torch.round(spread * 10) / 10
+    flat = torch.full((n,), 2.5, dtype=torch.float64)
+    for values in (spread, ties, flat):
+        for q in (0.0, 0.25, 0.5, 0.9, 0.99, 0.999, 1 / 3, 1.0):
+            want = torch.quantile(values, q)
+            got = quantile(values, q)
+            assert got.dtype == want.dtype and got.shape == want.shape
+            assert got.item() == want.item(), (n, q)
+
+
+def test_normalisation_is_the_same_map_as_with_torch_quantile(monkeypatch):
+    from plantdreamer.guidance import depth as depth_module
+
+    d, a, _ = synthetic_plant()
+    cfg = DepthCleaning()
+    fast = normalise_depth(d[0, ..., 0], a[0, ..., 0], cfg)
+    monkeypatch.setattr(depth_module, "quantile", torch.quantile)
+    slow = normalise_depth(d[0, ..., 0], a[0, ..., 0], cfg)
+    assert torch.equal(fast, slow) and bool((fast > 0).any())
 
 
 def test_accumulated_depth_gives_the_same_map():

@@ -19,6 +19,8 @@ RESIZE_MODES = ("bilinear", "nearest")
 # What picks the depth erosion kernel: the camera distance, or the released code's
 # Frobenius norm of the 4x4 camera-to-world matrix (``guidance/depth.py``).
 EROSION_DISTANCES = ("camera", "c2w-norm")
+# Precisions the VAE may run in (encode and its backward, which makes the render gradients).
+VAE_DTYPES = ("float32", "bfloat16", "float16")
 
 PAPER_PROMPT_TEMPLATE = "a {species} plant in a pot"
 RELEASED_PROMPT_TEMPLATE = "A photo of {species} plants"
@@ -80,6 +82,12 @@ class SdsConfig:
     )
     network_dtype: str = setting(
         "auto", "UNet and ControlNet precision (auto: float16 on CUDA).", choices=NETWORK_DTYPES
+    )
+    # float32 on every device until GPU figures choose otherwise (docs/full_size_models.md).
+    vae_dtype: str = setting(
+        "float32",
+        "VAE precision (its backward pass makes the render gradients).",
+        choices=VAE_DTYPES,
     )
     device: str | None = setting(
         None, "Where the networks run: cpu, cuda or cuda:N (default: CUDA when usable, else CPU)."

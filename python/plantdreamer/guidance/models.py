@@ -142,7 +142,7 @@ def deterministic_attention(device: torch.device):  # type: ignore[no-untyped-de
 
 # The VAE encoder is the one network SDS backpropagates through; its backward pass in fp16
 # can overflow into the render gradients (tests/test_half_precision.py shows a case).
-DEFAULT_VAE_DTYPE = torch.float32
+DEFAULT_VAE_DTYPE: torch.dtype = getattr(torch, SDS_DEFAULTS.vae_dtype)
 
 
 def network_dtypes(device: torch.device) -> dict[str, torch.dtype]:

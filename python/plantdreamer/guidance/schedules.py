@@ -95,9 +95,12 @@ class TimestepSchedule:
         batch_size: int = 1,
         num_train_timesteps: int = 1000,
     ) -> torch.Tensor:
-        """``batch_size`` timesteps (int64, CPU) drawn uniformly from ``bounds(step)``."""
+        """``batch_size`` timesteps (int64, on ``rng``'s device) drawn uniformly from
+        ``bounds(step)``."""
         lo, hi = self.bounds(step, num_train_timesteps)
-        return torch.randint(lo, hi + 1, (batch_size,), generator=rng, dtype=torch.long)
+        return torch.randint(
+            lo, hi + 1, (batch_size,), generator=rng, dtype=torch.long, device=rng.device
+        )
 
     def scaled(self, total_steps: int, reference_steps: int = REFERENCE_STEPS) -> TimestepSchedule:
         """The same table with its boundaries stretched from ``reference_steps`` to ``total_steps``."""

@@ -142,7 +142,10 @@ class StableDiffusionDepthGuidance:
         if self.prediction_type not in ("epsilon", "v_prediction"):
             raise InputError(f"unsupported prediction type {self.prediction_type!r}")
         self.alphas_cumprod = scheduler.alphas_cumprod.to(self.device, torch.float32)
-        self.generator = torch.Generator().manual_seed(seed)
+        # On the guidance's device: the posterior sample, the timesteps and the SDS noise are
+        # drawn where they are used, so no draw waits for the device to copy it over (on
+        # CUDA a copy from pageable host memory stalls the host until the GPU catches up).
+        self.generator = torch.Generator(self.device).manual_seed(seed)
         self._embeddings = PromptEmbeddings(
             self.parts.tokenizer, self.parts.text_encoder, self.device, self.dtype
         )
@@ -267,12 +270,12 @@ class StableDiffusionDepthGuidance:
         latents = self.encode(rgb)
 
         t = self.schedule.sample_timestep(step, self.generator, batch, self.num_train_timesteps)
-        noise = torch.randn(latents.shape, generator=self.generator).to(self.device)
+        noise = torch.randn(latents.shape, generator=self.generator, device=self.device)
         text = torch.cat([self.text_embedding(p) for p in self.prompts_for(cameras)])
         uncond = self.text_embedding(self.negative_prompt).expand(batch, -1, -1)
-        grad = self.sds_gradient(latents, noise, t.to(self.device), text, uncond, control)
+        grad = self.sds_gradient(latents, noise, t, text, uncond, control)
 
-        nonfinite = int((~torch.isfinite(grad)).sum())
+        nonfinite = (~torch.isfinite(grad)).sum()
         grad = torch.nan_to_num(grad)
         clip = self.clip_value(step)
         if clip is not None:
@@ -281,13 +284,23 @@ class StableDiffusionDepthGuidance:
         target = (latents - grad).detach()
         loss = 0.5 * F.mse_loss(latents, target, reduction="sum") / batch
         lo, hi = self.schedule.bounds(step, self.num_train_timesteps)
+        # One copy to the host for all device-side figures (each float() would wait for the
+        # device on its own). The count is exact in float64.
+        loss_v, grad_norm, timestep, nonfinite_v = torch.stack(
+            [
+                loss.detach().double(),
+                grad.norm().double(),
+                t.float().mean().double(),
+                nonfinite.double(),
+            ]
+        ).tolist()
         stats = {
-            "loss": float(loss.detach()),
-            "grad_norm": float(grad.norm()),
-            "timestep": float(t.float().mean()),
+            "loss": loss_v,
+            "grad_norm": grad_norm,
+            "timestep": timestep,
             "t_min": float(lo),
             "t_max": float(hi),
             "grad_clip": float("nan") if clip is None else clip,
-            "nonfinite_grad": float(nonfinite),
+            "nonfinite_grad": nonfinite_v,
         }
         return GuidanceOutput(loss=loss, stats=stats)

@@ -77,5 +77,6 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
         prompt_template=sds.prompt_template or lora_template(sds.lora),
         control_resize=sds.control_resize,
         dtype=None if sds.network_dtype == "auto" else sds.network_dtype,
+        vae_dtype=sds.vae_dtype,
         device=sds.device,
     )

@@ -13,7 +13,7 @@ use super::project::Splat;
 use super::scene::Scene;
 use super::tile_binning::{self, TileBins};
 use super::tile_geometry::{blend_records, BlendRecord};
-use super::{features, project_avx2};
+use super::{depth_sort, features, project_avx2};
 use crate::{CoreError, CoreResult};
 
 /// Seconds spent in each stage, summed over cameras.
@@ -122,10 +122,10 @@ pub fn forward(
         let t0 = Instant::now();
         let splats = project_avx2::project_all(&scene, cam, &opts);
         let t1 = Instant::now();
-        // The depth sort runs on one thread; the colour features, the blend's per-splat
-        // records and the per-Gaussian outputs are computed beside it.
+        // The depth sort (itself parallel) runs beside the colour features, the blend's
+        // per-splat records and the per-Gaussian outputs.
         let (order, (feats, records)) = rayon::join(
-            || tile_binning::depth_order(&splats),
+            || depth_sort::depth_order(&splats),
             || {
                 out.radii[2 * ci * n..2 * (ci + 1) * n]
                     .par_chunks_mut(2)

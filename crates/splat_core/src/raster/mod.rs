@@ -4,7 +4,8 @@
 //! Pipeline per camera (`forward_pass`): `project_batch` (EWA splats, eight Gaussians at a
 //! time, built for AVX2 by `project_avx2` where the CPU has it; `project` is the
 //! per-Gaussian reference) -> `features` (SH colour / depth)
-//! -> `tile_binning` (depth order, tile lists) -> `forward_blend` (per-tile compositing).
+//! -> `depth_sort` (visible splats front to back, a parallel radix sort) -> `tile_binning`
+//! (tile lists) -> `forward_blend` (per-tile compositing).
 //! `backward_pass` orders the intersections by splat (`backward_index`), walks the same
 //! lists back to front (`backward_blend`) and chains to the 3D parameters
 //! (`backward_chain`, through `project_backward_batch`, eight Gaussians at a time).
@@ -23,6 +24,8 @@
 //! backward_index                       intersections in splat order
 //! tile_walk                            per-tile state, front-to-back / back-to-front walkers
 //! tile_geometry                        tile rectangles, footprints, per-tile splat lists
+//! tile_binning, depth_sort             tile lists; the depth order they start from
+//!                                      (depth_sort unsafe: the parallel scatter)
 //! lanes, options, project, ...         lane arithmetic, settings, projection
 //! project_backward_batch, batch_lanes  project's backward on eight Gaussians at a time
 //!                                      (AVX build; unsafe: the call)
@@ -45,6 +48,7 @@ mod batch_lanes;
 mod blend_avx2;
 mod buffers;
 pub mod camera;
+mod depth_sort;
 mod eval_count;
 pub mod features;
 mod forward_blend;

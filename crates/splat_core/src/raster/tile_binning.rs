@@ -1,6 +1,6 @@
 //! Which tiles each splat touches, and the per-tile lists sorted by depth.
 //!
-//! 1. Visible splats are ordered by (depth, index) once (radix sort).
+//! 1. Visible splats are ordered by (depth, index) once (`depth_sort`, a radix sort).
 //! 2. Each splat lists the tiles of its footprint box that its footprint ellipse really
 //!    touches (optional, `tile_ellipse`); fixed chunks of the depth-ordered splats do this
 //!    in parallel and sort their pairs by tile (stable counting sort).
@@ -226,73 +226,6 @@ fn push_footprint(
     }
 }
 
-/// Visible splats ordered front to back; ties broken by index, so the order is unique.
-pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
-    // Depths of visible splats are >= near_plane > 0, so their bit patterns sort like the
-    // values. Collected in index order, a stable sort by depth breaks ties by index.
-    let pairs = splats
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| s.visible())
-        .map(|(g, s)| pair(s.depth.to_bits(), g as u32))
-        .collect();
-    radix_sort_pairs(pairs)
-}
-
-/// A key and an id in one word: key in the high half.
-#[inline(always)]
-fn pair(key: u32, id: u32) -> u64 {
-    (u64::from(key) << 32) | u64::from(id)
-}
-
-/// Stable LSD radix sort of (key, id) `pair`s by key; returns the ids. Linear, and ~4x
-/// faster than a comparison sort at 100k splats even against two threads. The keys are
-/// sorted as offsets from the smallest one, in 12-bit digits (a 16 KiB histogram, in L1),
-/// so only the bits that vary cost passes: depths of one scene span a few binades, which
-/// take two passes instead of three of the raw bits. One read of the keys gives their
-/// range, one more all histograms; passes whose digit is the same for every key are
-/// skipped. Key and id travel as one word, so that a pass scatters into one array, not two.
-fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
-    const BITS: u32 = 12;
-    const MASK: u64 = (1 << BITS) - 1;
-    let key = |p: u64| (p >> 32) as u32;
-    let n = pairs.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    let (min, max) = pairs.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
-        (lo.min(key(p)), hi.max(key(p)))
-    });
-    let span = max - min;
-    let passes = (u32::BITS - span.leading_zeros()).div_ceil(BITS) as usize;
-    let mut hist = vec![[0u32; 1 << BITS]; passes];
-    let offset = pair(min, 0);
-    for p in pairs.iter_mut() {
-        *p -= offset;
-        for (d, h) in hist.iter_mut().enumerate() {
-            h[((*p >> (32 + d as u32 * BITS)) & MASK) as usize] += 1;
-        }
-    }
-    let mut out = vec![0u64; n];
-    for (d, offsets) in hist.iter_mut().enumerate() {
-        if offsets.iter().any(|&c| c as usize == n) {
-            continue;
-        }
-        let mut at = 0;
-        for o in offsets.iter_mut() {
-            (*o, at) = (at, at + *o);
-        }
-        let shift = 32 + d as u32 * BITS;
-        for &p in &pairs {
-            let slot = &mut offsets[((p >> shift) & MASK) as usize];
-            out[*slot as usize] = p;
-            *slot += 1;
-        }
-        std::mem::swap(&mut pairs, &mut out);
-    }
-    pairs.iter().map(|&p| p as u32).collect()
-}
-
 /// Splats per chunk of the binning pass: at least `MIN_CHUNK`, and at most `MAX_CHUNKS`
 /// chunks; each chunk holds an offset per tile, so chunks x tiles is also capped (tiny tiles
 /// on a huge image get fewer, larger chunks).
@@ -416,6 +349,7 @@ pub fn bin(
 
 #[cfg(test)]
 mod tests {
+    use super::super::depth_sort::depth_order;
     use super::*;
     use crate::test_rng::Lcg;
 
@@ -484,29 +418,6 @@ mod tests {
             .n_intersections();
         assert!(with < without / 2, "{with} vs {without}");
         assert!(with >= 8);
-    }
-
-    #[test]
-    fn radix_sort_matches_a_comparison_sort() {
-        let mut rng = Lcg::new(3);
-        let mut next = move || rng.u31();
-        for (n, spread) in [
-            (0usize, 1u32),
-            (1, 1),
-            (1000, 7),
-            (50_000, u32::MAX),
-            (3000, 1 << 20),
-        ] {
-            // Few distinct keys (many ties), full-range keys, keys differing only in low bits.
-            let keys: Vec<u32> = (0..n).map(|_| next() % spread.max(1)).collect();
-            let ids: Vec<u32> = (0..n as u32).map(|i| i * 3 + 1).collect();
-            let mut sorted: Vec<(u32, u32)> =
-                keys.iter().copied().zip(ids.iter().copied()).collect();
-            sorted.sort();
-            let want: Vec<u32> = sorted.into_iter().map(|(_, id)| id).collect();
-            let pairs = keys.iter().zip(&ids).map(|(&k, &i)| pair(k, i)).collect();
-            assert_eq!(radix_sort_pairs(pairs), want, "n {n} spread {spread}");
-        }
     }
 
     #[test]
