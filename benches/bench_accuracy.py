@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import statistics
 import sys
 import tempfile
@@ -77,7 +78,12 @@ def build(seed_cache: tuple[int, str, int]) -> str:
 
 
 def measure(
-    seeds: list[int], jobs: int, cache: str, partial: Path | None = None, build_threads: int = 1
+    seeds: list[int],
+    jobs: int,
+    cache: str,
+    partial: Path | None = None,
+    build_threads: int = 1,
+    configs: list[str] | None = None,
 ) -> list[dict[str, Any]]:
     """Every curve; each finished one is also appended to ``partial`` (JSON lines)."""
     from concurrent.futures import as_completed
@@ -86,7 +92,8 @@ def measure(
     with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
         list(pool.map(build, [(s, cache, build_threads) for s in seeds]))
     print("models built", file=sys.stderr, flush=True)
-    work = [(s, name, cache, threads, build_threads) for name, _, _ in CONFIGS for s in seeds]
+    names = [n for n, _, _ in CONFIGS if configs is None or n in configs]
+    work = [(s, name, cache, threads, build_threads) for name in names for s in seeds]
     results = []
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for future in as_completed([pool.submit(one_curve, w) for w in work]):
@@ -192,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cache", default=None)
     p.add_argument("--json", type=Path, help="Also write the raw results here.")
     p.add_argument("--partial", type=Path, help="Append each finished curve here.")
+    p.add_argument("--configs", help="Only these runs (names as in the table, ';'-separated).")
     p.add_argument(
         "--build-threads",
         type=int,
@@ -209,8 +217,12 @@ def main(argv: list[str] | None = None) -> int:
 
     seeds = [int(s) for s in args.seeds.split(",")]
     cache = args.cache or str(default_cache())
-    results = measure(seeds, args.jobs, cache, args.partial, args.build_threads)
-    command = "python benches/bench_accuracy.py " + " ".join(argv or sys.argv[1:])
+    configs = None if args.configs is None else [c.strip() for c in args.configs.split(";")]
+    unknown = set(configs or []) - {n for n, _, _ in CONFIGS}
+    if unknown:
+        p.error(f"unknown runs: {', '.join(sorted(unknown))}")
+    results = measure(seeds, args.jobs, cache, args.partial, args.build_threads, configs)
+    command = shlex.join(["python", "benches/bench_accuracy.py", *(argv or sys.argv[1:])])
     if args.json is not None:
         args.json.write_text(
             json.dumps({"machine": machine_line(), "command": command, "results": results})

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer import views
 from plantdreamer.known_answer.build import model_dirs
@@ -46,7 +47,7 @@ class Truth:
     """The plant's true Gaussians and its held-out views."""
 
     gaussians: Gaussians
-    frames: list[Any] = field(default_factory=list)
+    frames: list[Frame] = field(default_factory=list)
 
     @classmethod
     def of(cls, spec: KnownAnswerSpec, work_dir: Path) -> Truth:
@@ -69,7 +70,7 @@ def run_generate(
     out: Path,
     steps: int,
     schedule: str,
-    **settings: object,
+    **settings: Any,
 ) -> tuple[Path, float, int]:
     """One ``generate`` run; (plant.ply, seconds, Gaussians). ``models=None``: no guidance."""
     from plantdreamer.pipeline import generate
@@ -92,7 +93,7 @@ def step_curve(
     work_dir: Path,
     curve: Sequence[int],
     schedule_name: str = "paper",
-    **settings: object,
+    **settings: Any,
 ) -> list[RunScore]:
     """Masked PSNR after each number of steps in ``curve`` (0 = the initial Gaussians)."""
     table = schedule_table(schedule_name, max(curve))
@@ -118,7 +119,7 @@ def known_answer(
     steps: int = 100,
     curve: Sequence[int] = (),
     with_true_colours: bool = True,
-    **settings: object,
+    **settings: Any,
 ) -> dict[str, Any]:
     """The check's figures: from noise colours with the trained and the untrained models, and
     (``with_true_colours``) from the true colours with the trained ones."""

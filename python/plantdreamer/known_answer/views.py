@@ -15,8 +15,10 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
+from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer.spec import KnownAnswerSpec
+from plantdreamer.pipeline.config import GenerateConfig
 
 # Offsets of the camera streams: training views, held-out views (generate uses ``seed``).
 TRAIN_STREAM = 1_000_000
@@ -24,10 +26,8 @@ HELD_OUT_STREAM = 2_000_000
 HELD_OUT_VIEWS = 16
 
 
-def generate_config(spec: KnownAnswerSpec, **settings: object):  # type: ignore[no-untyped-def]
+def generate_config(spec: KnownAnswerSpec, **settings: object) -> GenerateConfig:
     """The ``generate`` config of this plant at this size; ``settings`` override fields."""
-    from plantdreamer.pipeline import GenerateConfig
-
     values: dict[str, object] = {
         "species": spec.species,
         "seed": spec.seed,
@@ -64,7 +64,6 @@ def render(
     gaussians: Gaussians, cameras: list[Camera], colors: np.ndarray | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """RGB [C, H, W, 3] over the pipeline's grey, expected depth and alpha [C, H, W, 1]."""
-    from plantdreamer.pipeline.config import GenerateConfig
     from plantdreamer.rasterizer import rasterization
 
     def t(a: np.ndarray) -> torch.Tensor:
@@ -107,7 +106,6 @@ def depth_conditioning(
 ) -> torch.Tensor:
     """The pipeline's depth cleaning with generate's default rule and resize."""
     from plantdreamer.guidance.depth import DepthCleaning, camera_distance, clean_depth
-    from plantdreamer.pipeline.config import GenerateConfig
 
     cleaning = DepthCleaning(rule=GenerateConfig.depth_rule, resize=GenerateConfig.control_resize)
     distances = [camera_distance(c) for c in cameras]
@@ -131,7 +129,6 @@ def recolour(gaussians: Gaussians, rng: np.random.Generator) -> np.ndarray:
 
 def training_views(spec: KnownAnswerSpec, gaussians: Gaussians) -> ViewSet:
     from plantdreamer.guidance.prompts import camera_prompt
-    from plantdreamer.pipeline.config import GenerateConfig
 
     template = GenerateConfig.prompt_template or _default_template()
     cameras = sample_cameras(spec, spec.train_views, TRAIN_STREAM)
@@ -162,11 +159,9 @@ def _default_template() -> str:
     return DEFAULT_PROMPT_TEMPLATE
 
 
-def held_out_frames(spec: KnownAnswerSpec, gaussians: Gaussians) -> list:  # type: ignore[type-arg]
+def held_out_frames(spec: KnownAnswerSpec, gaussians: Gaussians) -> list[Frame]:
     """True views from cameras no model trained on, with the plant's mask (alpha > 0.5),
     saved to 8 bits as a photograph would be."""
-    from plantdreamer.eval import Frame
-
     cameras = sample_cameras(spec, HELD_OUT_VIEWS, HELD_OUT_STREAM)
     rgb, _, alpha = render(gaussians, cameras)
     frames = []
