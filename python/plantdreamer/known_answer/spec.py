@@ -11,7 +11,7 @@ from typing import Any
 from plantdreamer.errors import InputError
 
 # Bumped whenever the generator's code changes what it makes (it is part of the cache key).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -25,8 +25,8 @@ class KnownAnswerSpec:
     points: int = 100_000  # Gaussians the plant starts from (generate's --points)
     train_views: int = 400
     recoloured_views: int = 100  # wrong-colour renders the unconditional branch also sees
-    vae_steps: int = 600
-    denoiser_steps: int = 3000
+    vae_steps: int = 400
+    denoiser_steps: int = 2000
     batch: int = 16
     uncond_prob: float = 0.2  # the negative prompt, as classifier-free guidance is trained
     recoloured_prob: float = 0.5  # of the unconditional samples
