@@ -124,7 +124,8 @@ def table(results: list[dict[str, Any]]) -> str:
                 cells.append("-")
             else:
                 spread = (max(values) - min(values)) / 2
-                cells.append(f"{statistics.mean(values):.2f} ± {spread:.2f}")
+                shown = f"{statistics.mean(values):.2f}"
+                cells.append(shown if len(values) == 1 else f"{shown} ± {spread:.2f}")
         per100 = [
             p["seconds"] * 100 / p["steps"] for r in rows for p in r["curve"] if p["steps"] == 100
         ]
@@ -175,7 +176,9 @@ def write(results: list[dict[str, Any]], machine: str, command: str) -> None:
 true views of each plant (bean, seeds {", ".join(map(str, seeds))}: mean ± half the range
 over seeds), each run scored by `plantdreamer eval`'s metric; models from
 `scripts/known_answer.py` (docs/known_answer.md). Seconds are whole `generate` runs
-(model loading and export included) with the machine shared by parallel runs.
+(model loading and export included) with the machine shared by parallel runs. Runs,
+seeds and sizes missing from the table were not measured in this run (the command says
+which were asked for); docs/known_answer.md says what these models can and cannot show.
 
 {table(results)}
 
