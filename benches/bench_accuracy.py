@@ -1,0 +1,242 @@
+"""Time against error for the main job: masked PSNR of the real ``generate`` against the
+known answer (docs/known_answer.md), over steps and seconds.
+
+    python benches/bench_accuracy.py [--seeds 0,1,2] [--jobs N] [--cache DIR]
+    python benches/bench_accuracy.py --from-json benches/results/accuracy.json
+
+For each plant seed, the known-answer models are built (or reused from the cache), then
+``generate`` runs from each colour init (noise, black, white, original) at CFG 100, from
+noise at CFG 7.5 and 20, and from noise for 400 steps with and without densification.
+Each curve point is its own run (explicit schedule table: a shorter run is the first steps
+of a longer one), so its seconds are a whole run's wall time. Writes
+benches/results/accuracy.md, accuracy.json and docs/images/known_answer_accuracy.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benches" / "results"
+PLOT = ROOT / "docs" / "images" / "known_answer_accuracy.png"
+
+SHORT = [0, 25, 50, 100]
+LONG = [0, 100, 200, 300, 400]
+# (name, settings, curve)
+CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [
+    ("noise, CFG 100", {"color_init": "noise"}, SHORT),
+    ("black, CFG 100", {"color_init": "black"}, SHORT),
+    ("white, CFG 100", {"color_init": "white"}, SHORT),
+    ("original, CFG 100", {"color_init": "original"}, SHORT),
+    ("noise, CFG 20", {"color_init": "noise", "guidance_scale": 20.0}, SHORT),
+    ("noise, CFG 7.5", {"color_init": "noise", "guidance_scale": 7.5}, SHORT),
+    ("noise, CFG 100, untrained models", {"color_init": "noise", "untrained": True}, SHORT),
+    ("noise, CFG 100, densify", {"color_init": "noise"}, LONG),
+    ("noise, CFG 100, no densify", {"color_init": "noise", "densify_until": 0}, LONG),
+]
+
+
+def one_curve(job: tuple[int, str, str, int, int]) -> dict[str, Any]:
+    seed, name, cache, threads, build_threads = job
+    import torch
+
+    torch.set_num_threads(threads)
+    from plantdreamer.known_answer.build import cached_models, untrained_models
+    from plantdreamer.known_answer.check import Truth, step_curve
+    from plantdreamer.known_answer.spec import KnownAnswerSpec
+    from plantdreamer.pipeline.config import DensifyConfig
+
+    settings, curve = next((dict(s), c) for n, s, c in CONFIGS if n == name)
+    if "densify_until" in settings:
+        settings["densify"] = DensifyConfig(until=settings.pop("densify_until"))
+    spec = KnownAnswerSpec(seed=seed)
+    if settings.pop("untrained", False):
+        models = untrained_models(spec, Path(cache))
+    else:
+        models = cached_models(spec, Path(cache), threads=build_threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        truth = Truth.of(spec, Path(tmp))
+        scores = step_curve(spec, truth, models, Path(tmp), curve, **settings)
+    return {"seed": seed, "config": name, "curve": [vars(s) for s in scores]}
+
+
+def build(seed_cache: tuple[int, str, int]) -> str:
+    from plantdreamer.known_answer.build import cached_models
+    from plantdreamer.known_answer.spec import KnownAnswerSpec
+
+    seed, cache, threads = seed_cache
+    return str(cached_models(KnownAnswerSpec(seed=seed), Path(cache), threads=threads))
+
+
+def measure(
+    seeds: list[int],
+    jobs: int,
+    cache: str,
+    partial: Path | None = None,
+    build_threads: int = 1,
+    configs: list[str] | None = None,
+) -> list[dict[str, Any]]:
+    """Every curve; each finished one is also appended to ``partial`` (JSON lines)."""
+    from concurrent.futures import as_completed
+
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
+        list(pool.map(build, [(s, cache, build_threads) for s in seeds]))
+    print("models built", file=sys.stderr, flush=True)
+    names = [n for n, _, _ in CONFIGS if configs is None or n in configs]
+    work = [(s, name, cache, threads, build_threads) for name in names for s in seeds]
+    results = []
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for future in as_completed([pool.submit(one_curve, w) for w in work]):
+            result = future.result()
+            results.append(result)
+            print(json.dumps(result), file=sys.stderr, flush=True)
+            if partial is not None:
+                with partial.open("a") as f:
+                    f.write(json.dumps(result) + "\n")
+    return results
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    lines = [
+        "| run | seeds | "
+        + " | ".join(f"step {s}" for s in sorted({*SHORT, *LONG}))
+        + " | s/100 steps |",
+        "|---|---|" + "---|" * (len({*SHORT, *LONG}) + 1),
+    ]
+    for name, _, _ in CONFIGS:
+        rows = [r for r in results if r["config"] == name]
+        if not rows:
+            continue
+        cells = []
+        for step in sorted({*SHORT, *LONG}):
+            values = [p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == step]
+            if not values:
+                cells.append("-")
+            else:
+                spread = (max(values) - min(values)) / 2
+                shown = f"{statistics.mean(values):.2f}"
+                cells.append(shown if len(values) == 1 else f"{shown} ± {spread:.2f}")
+        per100 = [
+            p["seconds"] * 100 / p["steps"] for r in rows for p in r["curve"] if p["steps"] == 100
+        ]
+        cells.append(f"{statistics.median(per100):.1f}" if per100 else "-")
+        lines.append(f"| {name} | {len(rows)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot(results: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(11, 4))
+    for name, _, _ in CONFIGS:
+        rows = [r for r in results if r["config"] == name]
+        if not rows:
+            continue
+        steps = sorted({p["steps"] for r in rows for p in r["curve"]})
+        mean = [
+            statistics.mean(p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == s)
+            for s in steps
+        ]
+        secs = [
+            statistics.median(p["seconds"] for r in rows for p in r["curve"] if p["steps"] == s)
+            for s in steps
+        ]
+        by_step.plot(steps, mean, marker="o", label=name)
+        by_time.plot(secs, mean, marker="o", label=name)
+    # The true colours score 100 dB (exact) before any step; the axis is cut below that
+    # so that the runs from wrong colours stay readable.
+    for ax in (by_step, by_time):
+        ax.set_ylim(top=min(ax.get_ylim()[1], 45.0))
+    by_step.set(xlabel="SDS steps", ylabel="masked PSNR (dB), mean over seeds (cut at 45)")
+    by_time.set(xlabel="seconds (whole run)", ylabel="masked PSNR (dB)")
+    by_step.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+def write(results: list[dict[str, Any]], machine: str, command: str) -> None:
+    from plantdreamer.atomic import write_text
+
+    seeds = sorted({r["seed"] for r in results})
+    write_text(RESULTS / "accuracy.json", json.dumps({"machine": machine, "results": results}))
+    plot(results, PLOT)
+    text = f"""## Accuracy: the known answer over steps and seconds (`bench_accuracy.py`)
+
+`{command}`, on {machine}. Masked PSNR (dB) of `generate` at 64 px against 16 held-out
+true views of each plant (bean, seeds {", ".join(map(str, seeds))}: mean ± half the range
+over seeds), each run scored by `plantdreamer eval`'s metric; models from
+`scripts/known_answer.py` (docs/known_answer.md). Seconds are whole `generate` runs
+(model loading and export included) with the machine shared by parallel runs. Runs,
+seeds and sizes missing from the table were not measured in this run (the command says
+which were asked for); docs/known_answer.md says what these models can and cannot show.
+
+{table(results)}
+
+![masked PSNR against steps and seconds](../docs/images/known_answer_accuracy.png)
+"""
+    write_text(RESULTS / "accuracy.md", text)
+
+
+def machine_line() -> str:
+    import platform
+
+    import torch
+
+    return f"{os.cpu_count()} CPU cores ({platform.machine()}), torch {torch.__version__}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 2) // 2))
+    p.add_argument("--cache", default=None)
+    p.add_argument("--json", type=Path, help="Also write the raw results here.")
+    p.add_argument("--partial", type=Path, help="Append each finished curve here.")
+    p.add_argument("--configs", help="Only these runs (names as in the table, ';'-separated).")
+    p.add_argument(
+        "--build-threads",
+        type=int,
+        default=1,
+        help="CPU threads per model build (1: the "
+        "bits scripts/known_answer.py makes; more: faster, other bits).",
+    )
+    p.add_argument("--from-json", type=Path, help="Only rewrite the table and plot from this.")
+    args = p.parse_args(argv)
+    if args.from_json is not None:
+        data = json.loads(args.from_json.read_text())
+        write(data["results"], data["machine"], data["command"])
+        return 0
+    from plantdreamer.known_answer.build import default_cache
+
+    seeds = [int(s) for s in args.seeds.split(",")]
+    cache = args.cache or str(default_cache())
+    configs = None if args.configs is None else [c.strip() for c in args.configs.split(";")]
+    unknown = set(configs or []) - {n for n, _, _ in CONFIGS}
+    if unknown:
+        p.error(f"unknown runs: {', '.join(sorted(unknown))}")
+    results = measure(seeds, args.jobs, cache, args.partial, args.build_threads, configs)
+    command = shlex.join(["python", "benches/bench_accuracy.py", *(argv or sys.argv[1:])])
+    if args.json is not None:
+        args.json.write_text(
+            json.dumps({"machine": machine_line(), "command": command, "results": results})
+        )
+    write(results, machine_line(), command)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,151 @@
+"""Training the tiny models on a plant's true views: the VAE as an autoencoder, then the
+UNet and depth ControlNet as a conditional noise predictor with classifier-free guidance.
+
+The shipped tiny VAE is random: its latents are mostly posterior noise, so SDS through it
+cannot see colour. Trained here as an autoencoder (its posterior's variance penalised, so
+it stays narrow), its ``scaling_factor`` is then set to 1 / std of the latents, as Stable
+Diffusion's 0.18215 was chosen. The UNet and ControlNet learn epsilon on those latents;
+with probability ``uncond_prob`` a sample gets the pipeline's negative prompt, and half of
+those show wrong colours, so that conditional minus unconditional points at the truth.
+
+Everything runs on the CPU on a pinned number of threads (one unless asked) from seeded
+generators: same spec, thread count and library versions, same bits.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from plantdreamer.known_answer.spec import KnownAnswerSpec
+from plantdreamer.known_answer.views import ViewSet
+
+# Weight of the posterior's variance in the VAE loss: it keeps the posterior narrow, so an
+# encoding carries the image rather than sampling noise. (A KL term to N(0, I) lets the
+# channels the decoder ignores fall back to unit noise: posterior std 0.85 of the latents'
+# spread, and SDS through it barely moved a plant's colours.)
+VARIANCE_WEIGHT = 1.0
+LEARNING_RATE = 1e-3
+
+
+@contextmanager
+def pinned_threads(threads: int = 1) -> Iterator[None]:
+    """Intra-op parallelism splits reductions differently per thread count: a fixed count
+    (one, by default) gives the same sums on every machine size."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _schedule(optimizer: torch.optim.Optimizer, steps: int) -> Any:
+    return torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda i: 0.5 * (1.0 + math.cos(math.pi * i / steps))
+    )
+
+
+def train_vae(vae: Any, images: torch.Tensor, spec: KnownAnswerSpec) -> dict[str, float]:
+    """Autoencoder training of ``vae`` in place on [N, 3, R, R] images in [0, 1]."""
+    from diffusers.models.autoencoders.vae import DiagonalGaussianDistribution
+
+    gen = torch.Generator().manual_seed(spec.seed * 7919 + 1)
+    vae.train().requires_grad_(True)
+    optimizer = torch.optim.Adam(vae.parameters(), lr=LEARNING_RATE)
+    schedule = _schedule(optimizer, max(spec.vae_steps, 1))
+    x_all = images * 2.0 - 1.0
+    recon = float("nan")
+    for _ in range(spec.vae_steps):
+        idx = torch.randint(len(x_all), (spec.batch,), generator=gen)
+        x = x_all[idx]
+        posterior = DiagonalGaussianDistribution(vae.encode(x).latent_dist.parameters)
+        z = posterior.sample(generator=gen)
+        loss_recon = F.mse_loss(vae.decode(z).sample, x)
+        loss = loss_recon + VARIANCE_WEIGHT * posterior.var.mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        recon = float(loss_recon.detach())
+    vae.eval().requires_grad_(False)
+    with torch.no_grad():
+        dist = vae.encode(x_all).latent_dist
+        scale = 1.0 / float(dist.mean.std())
+    vae.register_to_config(scaling_factor=scale)
+    return {
+        "vae_recon_mse": recon,
+        "vae_scaling_factor": scale,
+        "vae_posterior_std": float(dist.std.mean()) * scale,
+    }
+
+
+def _latent_moments(vae: Any, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    with torch.no_grad():
+        dist = vae.encode(images * 2.0 - 1.0).latent_dist
+    scale = vae.config.scaling_factor
+    return dist.mean * scale, dist.std * scale
+
+
+def train_denoiser(
+    parts: Any, views: ViewSet, spec: KnownAnswerSpec, negative_prompt: str
+) -> dict[str, float]:
+    """Epsilon training of ``parts.unet`` and ``parts.controlnet`` in place."""
+    from plantdreamer.guidance.text import PromptEmbeddings
+
+    gen = torch.Generator().manual_seed(spec.seed * 7919 + 2)
+    embed = PromptEmbeddings(parts.tokenizer, parts.text_encoder, "cpu")
+    text = embed.batch(views.prompts)
+    negative = embed(negative_prompt)
+    mean, std = _latent_moments(parts.vae, views.images)
+    wrong_mean, wrong_std = _latent_moments(parts.vae, views.recoloured)
+    control = views.depth.repeat(1, 3, 1, 1)
+    alphas = parts.scheduler.alphas_cumprod
+    steps = int(parts.scheduler.config.num_train_timesteps)
+    params = [*parts.unet.parameters(), *parts.controlnet.parameters()]
+    for model in (parts.unet, parts.controlnet):
+        model.train().requires_grad_(True)
+    optimizer = torch.optim.Adam(params, lr=LEARNING_RATE)
+    schedule = _schedule(optimizer, max(spec.denoiser_steps, 1))
+    loss_value = float("nan")
+    b = spec.batch
+    for _ in range(spec.denoiser_steps):
+        idx = torch.randint(len(mean), (b,), generator=gen)
+        z = mean[idx] + std[idx] * torch.randn(mean[idx].shape, generator=gen)
+        emb = text[idx].clone()
+        uncond = torch.rand(b, generator=gen) < spec.uncond_prob
+        wrong = uncond & (torch.rand(b, generator=gen) < spec.recoloured_prob)
+        emb[uncond] = negative[0]
+        if wrong.any():
+            pick = torch.randint(len(wrong_mean), (int(wrong.sum()),), generator=gen)
+            noise_z = torch.randn(wrong_mean[pick].shape, generator=gen)
+            z[wrong] = wrong_mean[pick] + wrong_std[pick] * noise_z
+            idx[wrong] = views.recoloured_view[pick]  # the depth of the view it shows
+        t = torch.randint(steps, (b,), generator=gen)
+        eps = torch.randn(z.shape, generator=gen)
+        a = alphas[t].view(-1, 1, 1, 1)
+        z_t = a.sqrt() * z + (1.0 - a).sqrt() * eps
+        down, mid = parts.controlnet(
+            z_t, t, encoder_hidden_states=emb, controlnet_cond=control[idx], return_dict=False
+        )
+        pred = parts.unet(
+            z_t,
+            t,
+            encoder_hidden_states=emb,
+            down_block_additional_residuals=down,
+            mid_block_additional_residual=mid,
+        ).sample
+        loss = F.mse_loss(pred, eps)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        loss_value = float(loss.detach())
+    for model in (parts.unet, parts.controlnet):
+        model.eval().requires_grad_(False)
+    return {"denoiser_loss": loss_value}
