@@ -53,11 +53,9 @@ def one_curve(job: tuple[int, str, str, int, int]) -> dict[str, Any]:
     from plantdreamer.known_answer.build import cached_models, untrained_models
     from plantdreamer.known_answer.check import Truth, step_curve
     from plantdreamer.known_answer.spec import KnownAnswerSpec
-    from plantdreamer.pipeline.config import DensifyConfig
 
     settings, curve = next((dict(s), c) for n, s, c in CONFIGS if n == name)
-    if "densify_until" in settings:
-        settings["densify"] = DensifyConfig(until=settings.pop("densify_until"))
+    # Settings go to generate by name (densify_until is --densify-until).
     spec = KnownAnswerSpec(seed=seed)
     if settings.pop("untrained", False):
         models = untrained_models(spec, Path(cache))

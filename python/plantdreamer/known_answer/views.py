@@ -27,11 +27,11 @@ HELD_OUT_VIEWS = 16
 
 
 def generate_config(spec: KnownAnswerSpec, **settings: object) -> GenerateConfig:
-    """The ``generate`` config of this plant at this size; ``settings`` override fields."""
+    """The ``generate`` config of this plant at this size; ``settings`` (by name) override."""
     values: dict[str, object] = {
         "species": spec.species,
         "seed": spec.seed,
-        "n_points": spec.points,
+        "points": spec.points,
         "resolution": spec.resolution,
         "sds_resolution": spec.resolution,
         "eval_views": 0,
@@ -39,7 +39,7 @@ def generate_config(spec: KnownAnswerSpec, **settings: object) -> GenerateConfig
         "device": "cpu",
         **settings,
     }
-    return GenerateConfig(**values)  # type: ignore[arg-type]
+    return GenerateConfig.of(**values)
 
 
 def true_gaussians(spec: KnownAnswerSpec, work_dir: Path) -> Gaussians:
@@ -53,8 +53,8 @@ def true_gaussians(spec: KnownAnswerSpec, work_dir: Path) -> Gaussians:
 
 
 def sample_cameras(spec: KnownAnswerSpec, n: int, stream: int) -> list[Camera]:
-    from plantdreamer.pipeline.config import CameraRanges
     from plantdreamer.pipeline.sampler import CameraSampler
+    from plantdreamer.pipeline.train_config import CameraRanges
 
     sampler = CameraSampler(CameraRanges(), spec.resolution, spec.seed + stream)
     return [sampler.sample() for _ in range(n)]
@@ -71,7 +71,7 @@ def render(
 
     viewmats, ks = stack(cameras)
     sh = gaussians.sh if colors is None else colors[:, None, :]
-    grey = GenerateConfig.background
+    grey = GenerateConfig().train.background
     with torch.no_grad():
         out, alpha, _ = rasterization(
             t(gaussians.means),
@@ -107,7 +107,8 @@ def depth_conditioning(
     """The pipeline's depth cleaning with generate's default rule and resize."""
     from plantdreamer.guidance.depth import DepthCleaning, camera_distance, clean_depth
 
-    cleaning = DepthCleaning(rule=GenerateConfig.depth_rule, resize=GenerateConfig.control_resize)
+    sds = GenerateConfig().sds
+    cleaning = DepthCleaning(rule=sds.depth_rule, resize=sds.control_resize)
     distances = [camera_distance(c) for c in cameras]
     return clean_depth(depth, alpha, distances, size, cleaning)
 
@@ -130,7 +131,7 @@ def recolour(gaussians: Gaussians, rng: np.random.Generator) -> np.ndarray:
 def training_views(spec: KnownAnswerSpec, gaussians: Gaussians) -> ViewSet:
     from plantdreamer.guidance.prompts import camera_prompt
 
-    template = GenerateConfig.prompt_template or _default_template()
+    template = GenerateConfig().sds.prompt_template or _default_template()
     cameras = sample_cameras(spec, spec.train_views, TRAIN_STREAM)
     images, depths = [], []
     for chunk in range(0, len(cameras), 32):
