@@ -85,6 +85,32 @@ def train_vae(vae: Any, images: torch.Tensor, spec: KnownAnswerSpec) -> dict[str
     }
 
 
+def denoiser(width: int, seed: int) -> tuple[Any, Any]:
+    """A UNet and depth ControlNet of the shipped tiny structure at ``width`` channels (then
+    2 * width), cross-attending to the tiny text encoder; the ControlNet's output
+    convolutions start at zero, as ControlNet training starts."""
+    from diffusers import ControlNetModel, UNet2DConditionModel
+
+    from plantdreamer.guidance.tiny import TINY_TEXT_DIM
+
+    torch.manual_seed(seed)
+    unet = UNet2DConditionModel(
+        sample_size=8,
+        in_channels=4,
+        out_channels=4,
+        layers_per_block=1,
+        block_out_channels=(width, 2 * width),
+        down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+        up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
+        cross_attention_dim=TINY_TEXT_DIM,
+        attention_head_dim=(max(2, width // 16), max(4, width // 8)),
+        norm_num_groups=8,
+        use_linear_projection=True,
+    )
+    controlnet = ControlNetModel.from_unet(unet, conditioning_embedding_out_channels=(8, 8, 16, 16))
+    return unet, controlnet
+
+
 def _latent_moments(vae: Any, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     with torch.no_grad():
         dist = vae.encode(images * 2.0 - 1.0).latent_dist
