@@ -11,7 +11,7 @@ from typing import Any
 from plantdreamer.errors import InputError
 
 # Bumped whenever the generator's code changes what it makes (it is part of the cache key).
-GENERATOR_VERSION = 3
+GENERATOR_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,9 @@ class KnownAnswerSpec:
     batch: int = 16
     uncond_prob: float = 0.2  # the negative prompt, as classifier-free guidance is trained
     recoloured_prob: float = 0.5  # of the unconditional samples
+    # Of the conditional samples: a wrong-colour render with the true latent's noise as the
+    # target (0 = plain epsilon training).
+    corrected_prob: float = 0.0
 
     def __post_init__(self) -> None:
         if self.resolution <= 0 or self.resolution % 8:
@@ -44,7 +47,9 @@ class KnownAnswerSpec:
             )
         if min(counts) <= 0 or min(self.vae_steps, self.denoiser_steps) < 0:
             raise InputError("points, views, batch must be positive and steps not negative")
-        if not (0.0 <= self.uncond_prob <= 1.0 and 0.0 <= self.recoloured_prob <= 1.0):
+        if not all(
+            0.0 <= p <= 1.0 for p in (self.uncond_prob, self.recoloured_prob, self.corrected_prob)
+        ):
             raise InputError("probabilities must be in [0, 1]")
 
     def to_dict(self) -> dict[str, Any]:

@@ -152,10 +152,25 @@ def train_denoiser(
             noise_z = torch.randn(wrong_mean[pick].shape, generator=gen)
             z[wrong] = wrong_mean[pick] + wrong_std[pick] * noise_z
             idx[wrong] = views.recoloured_view[pick]  # the depth of the view it shows
+        shift = torch.zeros_like(z)  # z - z_true of the samples shown with a corrected target
+        if spec.corrected_prob > 0.0:
+            fix = ~uncond & (torch.rand(b, generator=gen) < spec.corrected_prob)
+            if fix.any():
+                pick = torch.randint(len(wrong_mean), (int(fix.sum()),), generator=gen)
+                view = views.recoloured_view[pick]
+                noise_z = torch.randn(wrong_mean[pick].shape, generator=gen)
+                z[fix] = wrong_mean[pick] + wrong_std[pick] * noise_z
+                shift[fix] = z[fix] - mean[view]
+                emb[fix] = text[view]
+                idx[fix] = view
         t = torch.randint(steps, (b,), generator=gen)
         eps = torch.randn(z.shape, generator=gen)
         a = alphas[t].view(-1, 1, 1, 1)
         z_t = a.sqrt() * z + (1.0 - a).sqrt() * eps
+        # The noise that would make z_t from the *true* latent: the conditional branch then
+        # learns to point a wrong-colour latent at the truth (weight 1 - a keeps it bounded).
+        target = eps + (a / (1.0 - a)).sqrt() * shift
+        weight = torch.where(shift.flatten(1).any(1).view(-1, 1, 1, 1), 1.0 - a, 1.0)
         down, mid = parts.controlnet(
             z_t, t, encoder_hidden_states=emb, controlnet_cond=control[idx], return_dict=False
         )
@@ -166,7 +181,7 @@ def train_denoiser(
             down_block_additional_residuals=down,
             mid_block_additional_residual=mid,
         ).sample
-        loss = F.mse_loss(pred, eps)
+        loss = (weight * (pred - target) ** 2).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
