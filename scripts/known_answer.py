@@ -7,7 +7,8 @@ plant's true views, runs ``generate`` from noise colours with them and with the 
 models, and scores both with ``plantdreamer eval``'s masked PSNR on held-out true views.
 ``--models DIR`` uses a model folder as it is (the test data); ``--build DIR`` only builds
 the models into DIR; ``--verify DIR`` rebuilds DIR's models from its manifest and checks
-that every file is bit for bit the same. See docs/known_answer.md.
+that every file is bit for bit the same; ``--gate DIR`` prints the cheap CFG-direction gate
+of DIR's models (``plantdreamer.known_answer.gate``). See docs/known_answer.md.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--work-dir", type=Path, help="Keep the runs' outputs here.")
     p.add_argument("--build", type=Path, help="Only build the models into this folder.")
     p.add_argument("--verify", type=Path, help="Rebuild this folder's models; compare bits.")
+    p.add_argument("--gate", type=Path, help="Print this folder's CFG-direction cosines.")
     return p.parse_args(argv)
 
 
@@ -75,6 +77,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: rebuilt models differ in {', '.join(differ)}", file=sys.stderr)
             return 1
         print(f"{len(rebuilt['sha256'])} files rebuilt bit for bit")
+        return 0
+
+    if args.gate is not None:
+        from plantdreamer.known_answer.gate import gate_on_unseen_views
+
+        spec = KnownAnswerSpec(**json.loads((args.gate / MANIFEST).read_text())["spec"])
+        with tempfile.TemporaryDirectory() as tmp:
+            gate = gate_on_unseen_views(args.gate, spec, Path(tmp))
+        print(json.dumps([vars(g) for g in gate], indent=2))
         return 0
 
     spec = KnownAnswerSpec(species=args.species, seed=args.seed, resolution=args.resolution)

@@ -1,6 +1,7 @@
 """The known-answer machinery (docs/known_answer.md): a model set's spec, its cache key,
 the schedule table that makes a short run the prefix of a long one, and a bit-for-bit
-rebuild of a tiny spec loaded through ``generate``'s real loader. The accuracy gate itself
+rebuild of a tiny spec loaded through ``generate``'s real loader, the CFG-direction gate's sign
+convention on stub models. The accuracy gate itself
 (>= 3 dB from noise in 100 steps) is not here yet: docs/known_answer.md, "Status".
 """
 
@@ -9,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.known_answer.build import MANIFEST, build_models, cached_models, file_hashes
@@ -63,3 +65,72 @@ def test_cache_reuses_a_built_folder(tmp_path: Path) -> None:
     stamp = (folder / MANIFEST).stat().st_mtime_ns
     assert cached_models(TINY, tmp_path) == folder
     assert (folder / MANIFEST).stat().st_mtime_ns == stamp
+
+
+def test_corrected_targets_change_the_denoiser(tmp_path: Path) -> None:
+    """corrected_prob > 0 trains on wrong-colour latents with the true latent's noise."""
+    import dataclasses
+
+    plain = build_models(TINY, tmp_path / "plain")["sha256"]
+    fixed = build_models(dataclasses.replace(TINY, corrected_prob=1.0), tmp_path / "fix")
+    unet = "base/unet/diffusion_pytorch_model.safetensors"
+    assert fixed["sha256"][unet] != plain[unet]
+    assert (
+        fixed["sha256"]["base/vae/diffusion_pytorch_model.safetensors"]
+        == plain["base/vae/diffusion_pytorch_model.safetensors"]
+    )
+
+
+class _Encoded:
+    def __init__(self, mean: torch.Tensor) -> None:
+        self.latent_dist = type("Dist", (), {"mean": mean})()
+
+
+class _PoolVae:
+    """An 'encoder' that averages 8 x 8 pixels: latents are the image, scale 1."""
+
+    config = type("Config", (), {"scaling_factor": 1.0})()
+
+    def encode(self, x: torch.Tensor) -> _Encoded:
+        return _Encoded(torch.nn.functional.avg_pool2d(x, 8))
+
+
+class _ScaledUnet:
+    """eps_text = k * z_t, eps_uncond = 0: the CFG direction is k * z_t."""
+
+    def __init__(self, k: float, negative: torch.Tensor) -> None:
+        self.k, self.negative = k, negative
+
+    def __call__(
+        self, z_t: torch.Tensor, t: torch.Tensor, encoder_hidden_states: torch.Tensor, **_: object
+    ) -> object:
+        text = (encoder_hidden_states != self.negative).flatten(1).any(1).view(-1, 1, 1, 1)
+        return type("Out", (), {"sample": self.k * z_t * text})()
+
+
+@pytest.mark.parametrize("k", [1.0, -1.0])
+def test_gate_sign_follows_the_direction_sds_descends(k: float) -> None:
+    """True views grey (latent 0), wrong ones white (latent 1): a CFG direction along +z_t
+    makes SDS pull the latent back to 0, the gate's cosine near +1; the flipped one near -1."""
+    from plantdreamer.guidance.config import SDS_DEFAULTS
+    from plantdreamer.guidance.text import PromptEmbeddings
+    from plantdreamer.guidance.tiny import tiny_models
+    from plantdreamer.known_answer.gate import cfg_direction
+    from plantdreamer.known_answer.views import ViewSet
+
+    parts = tiny_models(0)
+    negative = PromptEmbeddings(parts.tokenizer, parts.text_encoder, "cpu")(
+        SDS_DEFAULTS.negative_prompt
+    )
+    parts.vae = _PoolVae()
+    parts.controlnet = lambda *a, **kw: ([], None)
+    parts.unet = _ScaledUnet(k, negative)
+    data = ViewSet(
+        images=torch.full((4, 3, 64, 64), 0.5),
+        recoloured=torch.ones(4, 3, 64, 64),
+        recoloured_view=torch.arange(4),
+        depth=torch.zeros(4, 1, 64, 64),
+        prompts=["a bean plant, front view"] * 4,
+    )
+    gate = cfg_direction(parts, data, SDS_DEFAULTS.negative_prompt, timesteps=(100,))
+    assert gate[0].cosine * k > 0.8

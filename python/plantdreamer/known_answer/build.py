@@ -64,6 +64,7 @@ def build_models(
             figures["views_seconds"] = time.perf_counter() - t0
             say(f"rendered {len(data.images)} true views in {figures['views_seconds']:.0f} s")
             parts = tiny_models(spec.seed)
+            parts.unet, parts.controlnet = training.denoiser(spec.denoiser_width, spec.seed)
             t0 = time.perf_counter()
             figures.update(training.train_vae(parts.vae, data.images, spec))
             figures["vae_seconds"] = time.perf_counter() - t0

@@ -85,6 +85,32 @@ def train_vae(vae: Any, images: torch.Tensor, spec: KnownAnswerSpec) -> dict[str
     }
 
 
+def denoiser(width: int, seed: int) -> tuple[Any, Any]:
+    """A UNet and depth ControlNet of the shipped tiny structure at ``width`` channels (then
+    2 * width), cross-attending to the tiny text encoder; the ControlNet's output
+    convolutions start at zero, as ControlNet training starts."""
+    from diffusers import ControlNetModel, UNet2DConditionModel
+
+    from plantdreamer.guidance.tiny import TINY_TEXT_DIM
+
+    torch.manual_seed(seed)
+    unet = UNet2DConditionModel(
+        sample_size=8,
+        in_channels=4,
+        out_channels=4,
+        layers_per_block=1,
+        block_out_channels=(width, 2 * width),
+        down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+        up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
+        cross_attention_dim=TINY_TEXT_DIM,
+        attention_head_dim=(max(2, width // 16), max(4, width // 8)),
+        norm_num_groups=8,
+        use_linear_projection=True,
+    )
+    controlnet = ControlNetModel.from_unet(unet, conditioning_embedding_out_channels=(8, 8, 16, 16))
+    return unet, controlnet
+
+
 def _latent_moments(vae: Any, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     with torch.no_grad():
         dist = vae.encode(images * 2.0 - 1.0).latent_dist
@@ -126,10 +152,25 @@ def train_denoiser(
             noise_z = torch.randn(wrong_mean[pick].shape, generator=gen)
             z[wrong] = wrong_mean[pick] + wrong_std[pick] * noise_z
             idx[wrong] = views.recoloured_view[pick]  # the depth of the view it shows
+        shift = torch.zeros_like(z)  # z - z_true of the samples shown with a corrected target
+        if spec.corrected_prob > 0.0:
+            fix = ~uncond & (torch.rand(b, generator=gen) < spec.corrected_prob)
+            if fix.any():
+                pick = torch.randint(len(wrong_mean), (int(fix.sum()),), generator=gen)
+                view = views.recoloured_view[pick]
+                noise_z = torch.randn(wrong_mean[pick].shape, generator=gen)
+                z[fix] = wrong_mean[pick] + wrong_std[pick] * noise_z
+                shift[fix] = z[fix] - mean[view]
+                emb[fix] = text[view]
+                idx[fix] = view
         t = torch.randint(steps, (b,), generator=gen)
         eps = torch.randn(z.shape, generator=gen)
         a = alphas[t].view(-1, 1, 1, 1)
         z_t = a.sqrt() * z + (1.0 - a).sqrt() * eps
+        # The noise that would make z_t from the *true* latent: the conditional branch then
+        # learns to point a wrong-colour latent at the truth (weight 1 - a keeps it bounded).
+        target = eps + (a / (1.0 - a)).sqrt() * shift
+        weight = torch.where(shift.flatten(1).any(1).view(-1, 1, 1, 1), 1.0 - a, 1.0)
         down, mid = parts.controlnet(
             z_t, t, encoder_hidden_states=emb, controlnet_cond=control[idx], return_dict=False
         )
@@ -140,7 +181,7 @@ def train_denoiser(
             down_block_additional_residuals=down,
             mid_block_additional_residual=mid,
         ).sample
-        loss = F.mse_loss(pred, eps)
+        loss = (weight * (pred - target) ** 2).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

@@ -23,6 +23,7 @@ from plantdreamer.pipeline.config import GenerateConfig
 # Offsets of the camera streams: training views, held-out views (generate uses ``seed``).
 TRAIN_STREAM = 1_000_000
 HELD_OUT_STREAM = 2_000_000
+GATE_STREAM = 3_000_000  # unseen views the CFG-direction gate measures on
 HELD_OUT_VIEWS = 16
 
 
@@ -128,11 +129,14 @@ def recolour(gaussians: Gaussians, rng: np.random.Generator) -> np.ndarray:
     return np.ascontiguousarray(rgb_to_sh_dc(rgb), dtype=np.float32)
 
 
-def training_views(spec: KnownAnswerSpec, gaussians: Gaussians) -> ViewSet:
+def training_views(
+    spec: KnownAnswerSpec, gaussians: Gaussians, stream: int = TRAIN_STREAM
+) -> ViewSet:
+    """The spec's training views (another ``stream``: as many views no model saw)."""
     from plantdreamer.guidance.prompts import camera_prompt
 
     template = GenerateConfig().sds.prompt_template or _default_template()
-    cameras = sample_cameras(spec, spec.train_views, TRAIN_STREAM)
+    cameras = sample_cameras(spec, spec.train_views, stream)
     images, depths = [], []
     for chunk in range(0, len(cameras), 32):
         part = cameras[chunk : chunk + 32]
