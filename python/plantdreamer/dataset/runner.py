@@ -29,11 +29,15 @@ from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.spec import Plant
 from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
 from plantdreamer.errors import PlantDreamerError
-from plantdreamer.exports.dataset import DatasetLabels, LabelOptions, write_dataset_exports
+from plantdreamer.exports.dataset import (
+    PLANTS_DIR,
+    DatasetLabels,
+    LabelOptions,
+    write_dataset_exports,
+)
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
-PLANTS_DIR = "plants"
 # After Ctrl-C or SIGTERM, how long running plants get to write their checkpoint and stop.
 STOP_GRACE_S = 60.0
 STOPPED = "stopped by Ctrl-C or SIGTERM"

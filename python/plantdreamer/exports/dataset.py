@@ -25,7 +25,7 @@ from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, plant_views, write_plant_exports
 from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED, SPLITS, split_plants
 
-PLANTS_DIR = "plants"
+PLANTS_DIR = "plants"  # a dataset's plant folders (dataset/runner.py writes them)
 SPLITS_FILE = "splits.json"
 
 
