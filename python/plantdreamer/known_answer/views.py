@@ -100,6 +100,7 @@ class ViewSet:
     recoloured_view: torch.Tensor  # [M] index of the view each recoloured image shows
     depth: torch.Tensor  # [N, 1, R, R] cleaned conditioning in [0, 1]
     prompts: list[str]
+    alpha: torch.Tensor  # [N, 1, R, R] the plant's coverage of each pixel
 
 
 def depth_conditioning(
@@ -137,11 +138,12 @@ def training_views(
 
     template = GenerateConfig().sds.prompt_template or _default_template()
     cameras = sample_cameras(spec, spec.train_views, stream)
-    images, depths = [], []
+    images, depths, alphas = [], [], []
     for chunk in range(0, len(cameras), 32):
         part = cameras[chunk : chunk + 32]
         rgb, depth, alpha = render(gaussians, part)
         images.append(rgb.permute(0, 3, 1, 2))
+        alphas.append(alpha.permute(0, 3, 1, 2))
         depths.append(depth_conditioning(depth, alpha, part, spec.resolution))
     rng = np.random.default_rng([spec.seed, 0x2EC0])
     which = rng.integers(len(cameras), size=spec.recoloured_views)
@@ -155,6 +157,7 @@ def training_views(
         recoloured_view=torch.from_numpy(which),
         depth=torch.cat(depths),
         prompts=[camera_prompt(spec.species, c, template) for c in cameras],
+        alpha=torch.cat(alphas),
     )
 
 
