@@ -1,5 +1,5 @@
 """Label files read the way their consumers read them: Ultralytics' own YOLO-seg parser
-(offline, its settings in a temporary folder), nerfstudio's camera, depth and point-cloud
+(offline, in a process of its own: tests/ultralytics_reader.py), nerfstudio's camera, depth and point-cloud
 conventions (written out from its dataparser and docs: nerfstudio itself is too heavy for
 CI) and Open3D called as nerfstudio calls it for splatfacto's initial points."""
 
@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
+import pickle
 import shutil
-import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +19,8 @@ import pytest
 
 from plantdreamer.exports import LabelOptions, write_dataset_exports
 from plantdreamer.exports.splits import SPLITS, parse_ratios
+
+READER = Path(__file__).with_name("ultralytics_reader.py")
 
 
 def read_png(path):
@@ -26,46 +31,30 @@ def read_png(path):
 
 # --- Ultralytics ------------------------------------------------------------------------
 
+DATASET_PLANTS = ("bean-a", "bean-b", "bean-c")
+
 
 @pytest.fixture(scope="module")
-def ultralytics_offline(tmp_path_factory):
-    """Ultralytics imported with its settings in a temporary folder, its online check off
-    and the network closed. Yields the list of network calls it tried (tests want none)."""
+def ultralytics_read(bean, tmp_path_factory):
+    """A plant's YOLO files and a three-plant dataset's, read by tests/ultralytics_reader.py."""
     if importlib.util.find_spec("ultralytics") is None:
         pytest.skip("ultralytics is not installed (the dev extra has it)")
-    config = tmp_path_factory.mktemp("ultralytics")
-    attempts: list[tuple] = []
-
-    def no_network(*args, **kwargs):
-        attempts.append(args)
-        raise OSError("the network is closed in the tests")
-
-    with pytest.MonkeyPatch.context() as mp:
-        # Both are read when ultralytics is imported, so they are set before.
-        mp.setenv("YOLO_CONFIG_DIR", str(config))
-        mp.setenv("YOLO_OFFLINE", "1")
-        mp.setattr(socket, "getaddrinfo", no_network)
-        mp.setattr(socket, "create_connection", no_network)
-        mp.setattr(socket.socket, "connect", no_network)
-        from matplotlib import font_manager
-        from ultralytics.utils import USER_CONFIG_DIR
-
-        assert Path(USER_CONFIG_DIR).is_relative_to(config), USER_CONFIG_DIR
-        # check_det_dataset looks for its plotting font here before it downloads one.
-        shutil.copyfile(font_manager.findfont("DejaVu Sans"), USER_CONFIG_DIR / "Arial.ttf")
-        yield attempts
-
-
-def yolo_views(data, split):
-    from ultralytics.cfg import get_cfg
-    from ultralytics.data import YOLODataset
-
-    # Masks at image resolution (mask_ratio 1), one per polygon (no overlap encoding).
-    hyp = get_cfg(overrides={"mask_ratio": 1, "overlap_mask": False})
-    size = read_png(next(Path(data[split]).glob("*.png"))).shape[0]
-    return YOLODataset(
-        img_path=data[split], imgsz=size, augment=False, hyp=hyp, data=data, task="segment"
-    )
+    root = tmp_path_factory.mktemp("yolo")
+    plant_yaml = shutil.copytree(bean / "yolo", root / "plant") / "data.yaml"  # labels.cache
+    for plant_id in DATASET_PLANTS:
+        shutil.copytree(bean, root / "dataset" / "plants" / plant_id)
+    options = LabelOptions(ratios=parse_ratios("1,1,1"), seed=0)
+    splits = write_dataset_exports(root / "dataset", options).splits
+    pairs = [(plant_yaml, "train")] + [(root / "dataset/yolo/data.yaml", s) for s in SPLITS]
+    out = root / "read.pkl"
+    env = {**os.environ, "YOLO_CONFIG_DIR": str(root / "settings"), "YOLO_OFFLINE": "1"}
+    args = [sys.executable, str(READER), str(out), *[str(x) for pair in pairs for x in pair]]
+    done = subprocess.run(args, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    read = pickle.loads(out.read_bytes())
+    assert read["network_calls"] == []
+    results = {(Path(y).parent.name, split): r for (y, split), r in read["results"].items()}
+    return results, splits
 
 
 def written_polygons(label_file):
@@ -87,70 +76,58 @@ def polygon_pixels(polygons, shape):
 
 
 def grown(mask):
-    """The mask and its 8 neighbours of each pixel."""
+    """The mask and the 8 neighbours of each of its pixels."""
     padded = np.pad(mask, 1)
     h, w = mask.shape
     return np.logical_or.reduce([padded[y : y + h, x : x + w] for y in range(3) for x in range(3)])
 
 
-def test_ultralytics_reads_a_plants_labels_with_its_classes_and_polygons(
-    bean, tmp_path, ultralytics_offline
-):
-    from ultralytics.data.utils import check_det_dataset
-
-    yolo_dir = shutil.copytree(bean / "yolo", tmp_path / "yolo")  # it writes labels.cache
-    data = check_det_dataset(str(yolo_dir / "data.yaml"), autodownload=False)
-    assert data["nc"] == 4 and data["names"] == {0: "leaf", 1: "stem", 2: "pot", 3: "soil"}
-    assert data["train"] == data["val"] == str((yolo_dir / "images").resolve())
-    views = yolo_views(data, "train")
+@pytest.mark.slow  # Ultralytics' import and a three-plant dataset: ~10 s
+def test_ultralytics_reads_a_plants_labels_with_its_classes_and_polygons(bean, ultralytics_read):
+    plant = ultralytics_read[0][("plant", "train")]
+    assert plant["nc"] == 4 and plant["names"] == {0: "leaf", 1: "stem", 2: "pot", 3: "soil"}
+    assert Path(plant["folder"]).name == "images"
     renders = sorted((bean / "renders").glob("*.png"))
-    assert sorted(Path(lab["im_file"]).name for lab in views.labels) == [p.name for p in renders]
+    assert sorted(Path(im["file"]).name for im in plant["images"]) == [p.name for p in renders]
     coco = json.loads((bean / "coco.json").read_text())
-    for i, label in enumerate(views.labels):
-        name = Path(label["im_file"]).name
-        classes, polygons = written_polygons(yolo_dir / "labels" / f"{Path(name).stem}.txt")
-        assert label["cls"].reshape(-1).tolist() == classes and set(classes) == {0}  # leaves
-        assert len(label["segments"]) == len(polygons) > 0
-        for got, ours in zip(label["segments"], polygons, strict=True):
+    for view in plant["images"]:
+        name = Path(view["file"]).name
+        classes, polygons = written_polygons(bean / "yolo" / "labels" / f"{Path(name).stem}.txt")
+        assert view["classes"] == classes and set(classes) == {0}  # leaves
+        assert len(view["polygons"]) == len(polygons) > 0
+        for got, ours in zip(view["polygons"], polygons, strict=True):
             np.testing.assert_allclose(got, ours, atol=1e-6)
-        item = views[i]
-        np.testing.assert_array_equal(
-            item["img"].numpy().transpose(1, 2, 0), read_png(bean / "renders" / name)[..., :3]
-        )
+        np.testing.assert_array_equal(view["image"], read_png(bean / "renders" / name)[..., :3])
         image = next(im for im in coco["images"] if im["file_name"].endswith(name))
         instance = read_png(bean / "instances" / name).astype(np.int64)
         truth = np.zeros(instance.shape, bool)
         for a in coco["annotations"]:
             if a["image_id"] == image["id"]:
                 truth |= instance == a["instance_id"] + 1
-        masks = item["masks"].numpy().astype(bool)
-        assert masks.shape == (len(polygons), *truth.shape)
-        got = masks.any(0)
+        assert view["masks"].shape == (len(polygons), *truth.shape)
+        got = view["masks"].any(0)
         # Ultralytics' masks hold every object pixel and reach at most one pixel beyond
         # the polygons it read: its rasteriser truncates vertices to whole pixels and fills
         # the outline too (a polygon's own pixels are those whose centre it contains).
         assert (got & truth).sum() >= 0.99 * truth.sum()
-        assert not (got & ~grown(polygon_pixels(label["segments"], truth.shape))).any()
-    assert not ultralytics_offline
+        assert not (got & ~grown(polygon_pixels(view["polygons"], truth.shape))).any()
 
 
-def test_ultralytics_reads_each_split_of_a_dataset(bean, tmp_path, ultralytics_offline):
-    from ultralytics.data.utils import check_det_dataset
-
-    for plant_id in ("bean-a", "bean-b", "bean-c"):
-        shutil.copytree(bean, tmp_path / "plants" / plant_id)
-    labels = write_dataset_exports(tmp_path, LabelOptions(ratios=parse_ratios("1,1,1"), seed=0))
-    data = check_det_dataset(str(tmp_path / "yolo" / "data.yaml"), autodownload=False)
-    assert data["nc"] == 4 and data["names"][0] == "leaf"
+@pytest.mark.slow
+def test_ultralytics_reads_each_split_of_a_dataset(bean, ultralytics_read):
+    results, splits = ultralytics_read
     n_views = len(list((bean / "renders").glob("*.png")))
+    assert sorted(p for ids in splits.values() for p in ids) == list(DATASET_PLANTS)
     for split in SPLITS:
-        views = yolo_views(data, split)
-        plants = [Path(lab["im_file"]).name.split("__")[0] for lab in views.labels]
-        assert sorted(plants) == sorted(labels.splits[split] * n_views)
-        for label in views.labels:
-            label_file = tmp_path / "yolo" / "labels" / split / f"{Path(label['im_file']).stem}.txt"
-            assert len(label["segments"]) == len(written_polygons(label_file)[1]) > 0
-    assert not ultralytics_offline
+        read = results[("yolo", split)]
+        assert read["nc"] == 4 and read["names"][0] == "leaf"
+        assert Path(read["folder"]).parts[-2:] == ("images", split)
+        plants = [Path(im["file"]).name.split("__")[0] for im in read["images"]]
+        assert sorted(plants) == sorted(splits[split] * n_views)
+        for view in read["images"]:
+            image = Path(view["file"]).stem.split("__")[1]  # <plant id>__<view>
+            classes, polygons = written_polygons(bean / "yolo" / "labels" / f"{image}.txt")
+            assert view["classes"] == classes and len(view["polygons"]) == len(polygons) > 0
 
 
 # --- nerfstudio -------------------------------------------------------------------------
