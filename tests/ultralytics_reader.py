@@ -61,7 +61,7 @@ def main(out: str, pairs: list[tuple[str, str]]) -> None:
     assert os.environ.get("YOLO_OFFLINE") == "1"
     socket.getaddrinfo = no_network
     socket.create_connection = no_network
-    socket.socket.connect = no_network  # type: ignore[method-assign]
+    socket.socket.connect = no_network
     from matplotlib import font_manager
     from ultralytics.cfg import get_cfg
     from ultralytics.utils import USER_CONFIG_DIR
