@@ -11,7 +11,7 @@ STAMP := $(VENV)/.installed-dev
 BENCH_STAMP := $(VENV)/.installed-bench
 PYTEST_ARGS ?=
 
-.PHONY: help setup build test test-rust test-python test-wheel wheel browser demo bench lint format clean
+.PHONY: help setup build test test-rust test-python test-wheel wheel browser system-libs demo bench lint format clean
 
 help: ## List the developer commands
 	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | \
@@ -27,7 +27,7 @@ $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
 	touch $@
 
-setup: $(STAMP) ## Create .venv with plantdreamer (editable), its dev and viewer extras
+setup: $(STAMP) system-libs ## Create .venv with plantdreamer (editable), its dev and viewer extras, and the Debian libraries they load
 
 build: $(STAMP) ## Rebuild the native module in place (release profile)
 	@# The module is _core.abi3.so; a version-specific one left by an older build would
@@ -38,7 +38,7 @@ build: $(STAMP) ## Rebuild the native module in place (release profile)
 test-rust: ## Run the Rust tests (no Python needed)
 	cargo test --workspace
 
-test-python: build browser ## Run the Python tests
+test-python: build browser system-libs ## Run the Python tests
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
@@ -46,6 +46,20 @@ browser: ## Install Debian's chromium for the viewer's browser test (when run as
 	@if ! command -v chromium >/dev/null; then \
 		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
 		else echo "note: install Debian's chromium for the viewer's browser test"; fi; fi
+
+# The shared libraries that Open3D (open3d-cpu) and OpenCV (Ultralytics') load: soname and
+# the Debian package that ships it. A fresh Debian 12 image lacks only libusb-1.0-0.
+# (grep reads all of ldconfig's list: with -q it could stop early, and pipefail would
+# count the broken pipe as a missing library.)
+SYSTEM_LIBS := libusb-1.0.so.0:libusb-1.0-0 libgomp.so.1:libgomp1 libGL.so.1:libgl1 \
+	libEGL.so.1:libegl1 libgthread-2.0.so.0:libglib2.0-0
+
+system-libs: ## Install Debian's libraries that Open3D and OpenCV load (when run as root)
+	@missing=""; for lib in $(SYSTEM_LIBS); do \
+		ldconfig -p | grep "$${lib%%:*}" >/dev/null || missing="$$missing $${lib#*:}"; done; \
+	if [ -n "$$missing" ]; then \
+		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $$missing; \
+		else echo "note: install Debian's$$missing for the Open3D and Ultralytics tests"; fi; fi
 
 WHEEL_FLAGS ?= --release --zig --compatibility manylinux2014
 
@@ -67,11 +81,7 @@ demo: build ## Run the main job on its built-in defaults (bean, no diffusion wei
 	$(VENV)/bin/plantdreamer info
 	$(VENV)/bin/plantdreamer generate --species bean --guidance none --out $(DEMO_OUT)
 
-$(BENCH_STAMP): $(STAMP)
-	@# Open3D (comparison peer) needs these shared libraries; install them when we can.
-	@if ! ldconfig -p | grep -q libgomp.so.1 || ! ldconfig -p | grep -q libusb-1.0.so.0; then \
-		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1; \
-		else echo "note: install libusb-1.0-0 and libgomp1 for the Open3D comparison"; fi; fi
+$(BENCH_STAMP): $(STAMP) | system-libs
 	$(PY) -m pip install --progress-bar off -e '.[dev,bench]'
 	touch $@
 
