@@ -131,6 +131,7 @@ def test_gate_sign_follows_the_direction_sds_descends(k: float) -> None:
         recoloured_view=torch.arange(4),
         depth=torch.zeros(4, 1, 64, 64),
         prompts=["a bean plant, front view"] * 4,
+        alpha=torch.ones(4, 1, 64, 64),
     )
     gate = cfg_direction(parts, data, SDS_DEFAULTS.negative_prompt, timesteps=(100,))
     assert gate[0].cosine * k > 0.8

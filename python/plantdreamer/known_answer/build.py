@@ -66,7 +66,7 @@ def build_models(
             parts = tiny_models(spec.seed)
             parts.unet, parts.controlnet = training.denoiser(spec.denoiser_width, spec.seed)
             t0 = time.perf_counter()
-            figures.update(training.train_vae(parts.vae, data.images, spec))
+            figures.update(training.train_vae(parts.vae, data, spec))
             figures["vae_seconds"] = time.perf_counter() - t0
             say(f"trained the VAE in {figures['vae_seconds']:.0f} s")
             t0 = time.perf_counter()

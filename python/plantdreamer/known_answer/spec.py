@@ -11,7 +11,7 @@ from typing import Any
 from plantdreamer.errors import InputError
 
 # Bumped whenever the generator's code changes what it makes (it is part of the cache key).
-GENERATOR_VERSION = 4
+GENERATOR_VERSION = 5
 
 
 @dataclass(frozen=True)
@@ -24,8 +24,14 @@ class KnownAnswerSpec:
     resolution: int = 64  # training render size and SDS image size (one latent per 8 px)
     points: int = 100_000  # Gaussians the plant starts from (generate's --points)
     train_views: int = 600
-    recoloured_views: int = 100  # wrong-colour renders the unconditional branch also sees
-    vae_steps: int = 400
+    recoloured_views: int = 300  # wrong-colour renders (the VAE and the unconditional branch)
+    vae_steps: int = 800
+    # The plant covers about 1.4% of a 64 px view: its pixels weigh 1 + vae_mask_weight in the
+    # VAE's loss, or the VAE learns the grey background and blurs the plant away.
+    vae_mask_weight: float = 20.0
+    # Of each VAE batch, wrong-colour renders: trained on true colours only, the encoder
+    # needs no colour to encode a view and maps wrong colours near the true latent.
+    vae_recoloured_share: float = 0.5
     denoiser_steps: int = 1800
     # UNet channels (ControlNet alike): 48 gives 2.7M parameters together; the shipped
     # tiny width (16, 318k) barely told the view prompt from the negative prompt.
@@ -47,9 +53,11 @@ class KnownAnswerSpec:
             )
         if min(counts) <= 0 or min(self.vae_steps, self.denoiser_steps) < 0:
             raise InputError("points, views, batch must be positive and steps not negative")
-        if not all(
-            0.0 <= p <= 1.0 for p in (self.uncond_prob, self.recoloured_prob, self.corrected_prob)
-        ):
+        shares = (self.uncond_prob, self.recoloured_prob, self.corrected_prob,
+                  self.vae_recoloured_share)  # fmt: skip
+        if self.vae_mask_weight < 0.0:
+            raise InputError(f"vae_mask_weight must not be negative, got {self.vae_mask_weight}")
+        if not all(0.0 <= p <= 1.0 for p in shares):
             raise InputError("probabilities must be in [0, 1]")
 
     def to_dict(self) -> dict[str, Any]:

@@ -3,8 +3,9 @@ UNet and depth ControlNet as a conditional noise predictor with classifier-free 
 
 The shipped tiny VAE is random: its latents are mostly posterior noise, so SDS through it
 cannot see colour. Trained here as an autoencoder (its posterior's variance penalised, so
-it stays narrow), its ``scaling_factor`` is then set to 1 / std of the latents, as Stable
-Diffusion's 0.18215 was chosen. The UNet and ControlNet learn epsilon on those latents;
+it stays narrow; the plant's pixels weighted up; half of each batch wrong-colour renders, so
+the encoder must carry colour), its ``scaling_factor`` is then set to 1 / std of the true
+views' latents, as Stable Diffusion's 0.18215 was chosen. The UNet and ControlNet learn epsilon on those latents;
 with probability ``uncond_prob`` a sample gets the pipeline's negative prompt, and half of
 those show wrong colours, so that conditional minus unconditional points at the truth.
 
@@ -20,7 +21,6 @@ from contextlib import contextmanager
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 
 from plantdreamer.known_answer.spec import KnownAnswerSpec
 from plantdreamer.known_answer.views import ViewSet
@@ -30,6 +30,7 @@ from plantdreamer.known_answer.views import ViewSet
 # channels the decoder ignores fall back to unit noise: posterior std 0.85 of the latents'
 # spread, and SDS through it barely moved a plant's colours.)
 VARIANCE_WEIGHT = 1.0
+VAE_LEARNING_RATE = 2e-3
 LEARNING_RATE = 1e-3
 
 
@@ -51,22 +52,26 @@ def _schedule(optimizer: torch.optim.Optimizer, steps: int) -> Any:
     )
 
 
-def train_vae(vae: Any, images: torch.Tensor, spec: KnownAnswerSpec) -> dict[str, float]:
-    """Autoencoder training of ``vae`` in place on [N, 3, R, R] images in [0, 1]."""
+def train_vae(vae: Any, data: ViewSet, spec: KnownAnswerSpec) -> dict[str, float]:
+    """Autoencoder training of ``vae`` in place on ``data``'s true and wrong-colour views."""
     from diffusers.models.autoencoders.vae import DiagonalGaussianDistribution
 
     gen = torch.Generator().manual_seed(spec.seed * 7919 + 1)
     vae.train().requires_grad_(True)
-    optimizer = torch.optim.Adam(vae.parameters(), lr=LEARNING_RATE)
+    optimizer = torch.optim.Adam(vae.parameters(), lr=VAE_LEARNING_RATE)
     schedule = _schedule(optimizer, max(spec.vae_steps, 1))
-    x_all = images * 2.0 - 1.0
+    true_x, wrong_x = data.images * 2.0 - 1.0, data.recoloured * 2.0 - 1.0
+    true_w = 1.0 + spec.vae_mask_weight * data.alpha
+    wrong_w = true_w[data.recoloured_view]
+    n_wrong = round(spec.batch * spec.vae_recoloured_share)
     recon = float("nan")
     for _ in range(spec.vae_steps):
-        idx = torch.randint(len(x_all), (spec.batch,), generator=gen)
-        x = x_all[idx]
+        i = torch.randint(len(true_x), (spec.batch - n_wrong,), generator=gen)
+        j = torch.randint(len(wrong_x), (n_wrong,), generator=gen)
+        x, w = torch.cat([true_x[i], wrong_x[j]]), torch.cat([true_w[i], wrong_w[j]])
         posterior = DiagonalGaussianDistribution(vae.encode(x).latent_dist.parameters)
         z = posterior.sample(generator=gen)
-        loss_recon = F.mse_loss(vae.decode(z).sample, x)
+        loss_recon = (w * (vae.decode(z).sample - x) ** 2).mean() / w.mean()
         loss = loss_recon + VARIANCE_WEIGHT * posterior.var.mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -75,7 +80,7 @@ def train_vae(vae: Any, images: torch.Tensor, spec: KnownAnswerSpec) -> dict[str
         recon = float(loss_recon.detach())
     vae.eval().requires_grad_(False)
     with torch.no_grad():
-        dist = vae.encode(x_all).latent_dist
+        dist = vae.encode(true_x).latent_dist
         scale = 1.0 / float(dist.mean.std())
     vae.register_to_config(scaling_factor=scale)
     return {
