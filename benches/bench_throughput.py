@@ -11,6 +11,13 @@ do not change with B).
 
     python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 6 steps; 3 repeats
     python benches/bench_throughput.py --groups 1 2 --steps 4 --repeats 1 --render 64
+    python benches/bench_throughput.py --loading 8     # model loading per plant vs per worker
+
+``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
+plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
+plant, as one Ray task per plant did) and once per worker (one cache for all N, as a
+``PlantWorker`` does). Tiny models saved to disk in the hub's layout, so the load is a
+real ``from_pretrained``; the two ways alternate over the repeats.
 """
 
 from __future__ import annotations
@@ -59,6 +66,59 @@ def one_group(b: int, args: argparse.Namespace) -> dict[str, float]:
     return out
 
 
+def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
+    """Seconds to build each of ``n`` plants' guidance (tiny models from ``folder``)."""
+    from plantdreamer.dataset.worker import ModelCache
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.runtime import resolve_runtime
+
+    cache, times = ModelCache(), []
+    for seed in range(n):
+        cfg = GenerateConfig.of(
+            species="bean", seed=seed, base_model=str(folder / "base"),
+            controlnet=str(folder / "controlnet"), device="cpu", sds_resolution=64,
+        )  # fmt: skip
+        resolve_runtime(cfg)
+        if not shared:
+            cache = ModelCache()
+        t0 = time.perf_counter()
+        cache.guidance_for(cfg)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def loading(args: argparse.Namespace) -> list[str]:
+    from plantdreamer.guidance.tiny import save_tiny_models
+
+    runs: dict[str, list[float]] = {"per plant": [], "once per worker": []}
+    totals: dict[str, list[float]] = {k: [] for k in runs}
+    with tempfile.TemporaryDirectory() as tmp:
+        save_tiny_models(tmp)
+        guidance_times(1, Path(tmp), shared=False)  # imports and file cache warm
+        for _ in range(args.repeats):
+            for name in runs:
+                times = guidance_times(args.loading, Path(tmp), shared=name != "per plant")
+                runs[name] += times
+                totals[name].append(sum(times))
+    command = "python benches/bench_throughput.py " + " ".join(sys.argv[1:])
+    lines = [
+        "## Model loading per plant and per worker (`benches/bench_throughput.py --loading`)",
+        "",
+        f"Command: `{command.strip()}`, on {os.cpu_count()} shared CPU cores, no CUDA GPU on "
+        f"the benchmark machine. Building the guidance of {args.loading} plants (tiny "
+        "random-weight models saved in the hub's layout, CPU, float32), the two ways "
+        f"alternating over {args.repeats} repeats; min / median.",
+        "",
+        f"| models loaded | per plant, ms | all {args.loading} plants, s |",
+        "|---|---|---|",
+    ]
+    for name, times in runs.items():
+        per = f"{1000 * min(times):.1f} / {1000 * statistics.median(times):.1f}"
+        total = f"{min(totals[name]):.2f} / {statistics.median(totals[name]):.2f}"
+        lines.append(f"| {name} | {per} | {total} |")
+    return lines
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--groups", type=int, nargs="+", default=[1, 2, 4, 8])
@@ -67,8 +127,14 @@ def main() -> int:
     parser.add_argument("--points", type=int, default=10_000)
     parser.add_argument("--render", type=int, default=128)
     parser.add_argument("--sds", type=int, default=64)
+    parser.add_argument("--loading", type=int, metavar="N", help="plants of the loading bench")
     parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
     args = parser.parse_args()
+    if args.loading:
+        lines = loading(args)
+        args.out.with_name("throughput_loading.md").write_text("\n".join(lines) + "\n")
+        print("\n".join(lines))
+        return 0
     runs: dict[int, list[dict[str, float]]] = {b: [] for b in args.groups}
     for _ in range(args.repeats):  # interleaved: each repeat runs every B once
         for b in args.groups:
