@@ -7,10 +7,10 @@ For each B of ``--groups`` (default 1 and 4), a dataset of ``--plants`` L-System
 every GPU of the machine. The report gives each run's exit status and wall time (Ray
 start, model loading and exports included), every plant's status, the worker processes
 that ran them (one per GPU: the models loaded once each), and plants per hour per GPU,
-projected to 3600-step plants from the training phases the manifest records (a packed group's phases
-once; units one after another on the GPU). With SDS a plant made in a group is not the
-plant made alone, so the runs are compared by their statuses only. Writes
-``OUT/dataset.json``.
+projected to 3600-step plants from the training phases the manifest records (a packed
+group's phases once; units one after another on the GPU). With SDS a plant made in a
+group is not the plant made alone, so the runs are compared by their statuses only.
+Writes ``OUT/dataset.json``.
 """
 
 from __future__ import annotations
