@@ -175,3 +175,52 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         assert ours == fresh.ply_path.read_bytes(), seed
     run = json.loads((out / "plants" / "p1" / "run.json").read_text())
     assert run["config"]["sds"]["base_model"] == tiny_model_folders[0]
+
+
+def _interrupt_at(stop_step):
+    """What a worker does when the driver asks it to stop: Ctrl-C in its own main thread."""
+    import _thread
+
+    def hook(step):
+        if step == stop_step:
+            _thread.interrupt_main()
+
+    return hook
+
+
+def _group_outputs(out, ids):
+    skip = {"run.json", "generate.log"}
+    return {
+        f"{i}/{p.relative_to(out / 'plants' / i)}": p.read_bytes()
+        for i in ids
+        for p in sorted((out / "plants" / i).rglob("*"))
+        if p.is_file() and p.name not in skip
+    }
+
+
+@pytest.mark.slow
+def test_a_stopped_sds_group_resumes_in_a_later_run_byte_identical(tiny_model_folders, tmp_path):
+    base, controlnet = tiny_model_folders
+    spec = {
+        "group": [{"species": "mint", "count": 2, "base-model": base, "controlnet": controlnet,
+                   "device": "cpu", "sds-resolution": 64, "checkpoint-every": 2,
+                   **{**SMALL, "steps": 6}}]
+    }  # fmt: skip
+    (group,) = pack(expand(spec), 2)
+    ids = [p.id for p in group]
+    outs = {}
+    for name in ("straight", "stopped"):
+        out = outs[name] = tmp_path / name
+        (out / "plants").mkdir(parents=True)
+        (out / LOCK_NAME).touch()
+    straight = run_group(_request(outs["straight"], group), FakeBoard(), ModelCache().guidance_for,
+                         None)  # fmt: skip
+    assert {r["status"] for r in straight.values()} == {"done"}
+    stopped = run_group(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
+                        _interrupt_at(2))  # fmt: skip
+    assert {r["error"] for r in stopped.values()} == {"interrupted at step 3"}
+    assert (outs["stopped"] / "groups" / ids[0] / "group.json").is_file()  # kept for the rerun
+    resumed = run_group(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
+                        None)  # fmt: skip
+    assert [resumed[i]["resumed_from_step"] for i in ids] == [3, 3]
+    assert _group_outputs(outs["stopped"], ids) == _group_outputs(outs["straight"], ids)
