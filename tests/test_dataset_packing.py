@@ -14,8 +14,9 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.dataset import expand
+from plantdreamer.dataset.group_task import run_group
 from plantdreamer.dataset.packing import pack, packing_from
-from plantdreamer.dataset.tasks import run_group, run_plant
+from plantdreamer.dataset.tasks import run_plant
 from plantdreamer.dataset.worker import ModelCache
 from plantdreamer.errors import InputError
 from plantdreamer.output_folder import LOCK_NAME

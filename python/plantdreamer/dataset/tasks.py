@@ -1,22 +1,20 @@
-"""What a dataset worker runs: one plant as one `generate`, or a packed group as one
-`generate_group`, and the board workers report to.
+"""What a dataset worker runs: one plant as one `generate` (a packed group is
+``group_task.py``), the records both return, and the board workers report to.
 
 These are plain functions and classes; the runner wraps them with ``ray.remote`` so this
-module imports without Ray. Neither function raises for a plant's own errors: they come
-back as a ``failed`` record with one line, and in a group a plant fails alone.
+module imports without Ray. A plant's own errors never raise: they come back as a
+``failed`` record with one line.
 """
 
 from __future__ import annotations
 
 import copy
-import io
 import os
-import shutil
 import socket
 import time
 import traceback
 from collections.abc import Callable
-from contextlib import ExitStack, redirect_stderr, redirect_stdout
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
@@ -78,18 +76,18 @@ def run_plant(
     from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
 
     plant_id, plant_dir = request["id"], Path(request["plant_dir"])
-    threads = _set_threads(request)
+    threads = set_threads(request)
     info = worker_info()
     board.started.remote(plant_id, info)
-    hidden = _folder_not_visible(plant_dir, info)
+    hidden = folder_not_visible(plant_dir, info)
     if hidden is not None:
-        return _failed(info, hidden)
+        return failed_record(info, hidden)
     plant_dir.mkdir(parents=True, exist_ok=True)
     resume = (plant_dir / CHECKPOINT_NAME).is_file()
     t0 = time.perf_counter()
     with open(plant_dir / LOG_NAME, "a") as log, redirect_stdout(log), redirect_stderr(log):
         print(f"== plant {plant_id}, pid {info['pid']}, threads {threads}")
-        on_steps = [on_step, _hold_hook(plant_id, plant_dir, log)]
+        on_steps = [on_step, hold_hook(plant_id, plant_dir, log)]
         saved, resumed_from = None, None
         try:
             if resume:
@@ -97,7 +95,7 @@ def run_plant(
                 resumed_from = int(saved["step"])
                 print(f"resuming from the checkpoint at step {resumed_from}")
             cfg = GenerateConfig.from_dict(request["config"])
-            guidance = guidance_for(_resolved(cfg, saved))
+            guidance = guidance_for(resolved_config(cfg, saved))
             # The plant folder is the dataset's (it holds this log): a fresh start replaces
             # whatever an earlier, incomplete attempt left there.
             result = generate(
@@ -107,122 +105,18 @@ def run_plant(
                 resume=resume,
                 overwrite=not resume,
                 show_progress=True,
-                on_step=_chain(on_steps),
+                on_step=chain_hooks(on_steps),
             )
         except RunInterrupted as stop:
             return {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
         except Exception as exc:  # the plant's own failure: record it, keep the others going
             traceback.print_exc()
-            return _failed(info, f"{type(exc).__name__}: {exc}")
+            return failed_record(info, f"{type(exc).__name__}: {exc}")
         print(f"done: {result.gaussians} Gaussians in {time.perf_counter() - t0:.1f} s")
-    return _done(info, t0, resumed_from, plant_dir, result)
+    return done_record(info, t0, resumed_from, plant_dir, result)
 
 
-def run_group(
-    request: dict[str, Any], board: Any, guidance_for: GuidanceFor, on_step: StepHook | None
-) -> dict[str, dict[str, Any]]:
-    """Trains a packed group's plants together (``pipeline.group``), each in its own
-    dataset folder; returns each plant's record. Plants with checkpoints resume; plants
-    stopped at different steps (or fresh beside resumed ones) train as separate groups,
-    one after another, so each continues exactly where it stopped."""
-    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
-
-    plants = request["plants"]
-    threads = _set_threads(request)
-    info = worker_info()
-    for plant in plants:
-        board.started.remote(plant["id"], info)
-    dirs = [Path(p["plant_dir"]) for p in plants]
-    hidden = _folder_not_visible(dirs[0], info)
-    if hidden is not None:
-        return {p["id"]: _failed(info, hidden) for p in plants}
-    by_start: dict[int | None, list[int]] = {}
-    saved: dict[int, dict[str, Any]] = {}
-    for i, folder in enumerate(dirs):
-        folder.mkdir(parents=True, exist_ok=True)
-        start = None
-        if (folder / CHECKPOINT_NAME).is_file():
-            try:
-                saved[i] = load_checkpoint(folder)
-                start = int(saved[i]["step"])
-            except Exception:  # damaged: the group's start fails this plant alone
-                start = -1
-        by_start.setdefault(start, []).append(i)
-    results: dict[str, dict[str, Any]] = {}
-    with ExitStack() as stack:
-        logs = [stack.enter_context(open(d / LOG_NAME, "a")) for d in dirs]
-        tee = _Tee(logs)
-        stack.enter_context(redirect_stdout(tee))
-        stack.enter_context(redirect_stderr(tee))
-        ids = ", ".join(p["id"] for p in plants)
-        print(f"== group of {len(plants)} ({ids}), pid {info['pid']}, threads {threads}")
-        hold = next((h for p, d in zip(plants, dirs, strict=True)
-                     if (h := _hold_hook(p["id"], d, tee)) is not None), None)  # fmt: skip
-        for start, members in by_start.items():
-            part = [plants[i] for i in members]
-            first_saved = saved.get(members[0])
-            results.update(
-                _train_part(part, request["group_dir"], start, first_saved, info, guidance_for,
-                            _chain([on_step, hold]))
-            )  # fmt: skip
-            if any(r["status"] == "interrupted" for r in results.values()):
-                break
-    stopped = {p["id"] for p in plants} - set(results)
-    for plant_id in stopped:  # a stop came before this part of the group started
-        results[plant_id] = {**info, "status": "interrupted", "error": "interrupted before start"}
-    if not stopped and all(r["status"] != "interrupted" for r in results.values()):
-        shutil.rmtree(request["group_dir"], ignore_errors=True)
-    return results
-
-
-def _train_part(
-    part: list[dict[str, Any]],
-    group_dir: str,
-    start: int | None,
-    first_saved: dict[str, Any] | None,
-    info: dict[str, Any],
-    guidance_for: GuidanceFor,
-    on_step: StepHook | None,
-) -> dict[str, dict[str, Any]]:
-    from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-    from plantdreamer.pipeline.group import generate_group
-
-    t0 = time.perf_counter()
-    ids = [p["id"] for p in part]
-    try:
-        cfgs = [GenerateConfig.from_dict(p["config"]) for p in part]
-        guidance = guidance_for(_resolved(cfgs[0], first_saved))
-        if start is not None:
-            print(f"resuming {', '.join(ids)} from their checkpoints at step {start}")
-        result = generate_group(
-            cfgs,
-            group_dir,
-            guidance=guidance,
-            resume=start is not None,
-            overwrite=True,
-            show_progress=True,
-            on_step=on_step,
-            plant_dirs=[Path(p["plant_dir"]) for p in part],
-        )
-    except RunInterrupted as stop:
-        error = f"interrupted at step {stop.step}"
-        return {i: {**info, "status": "interrupted", "error": error} for i in ids}
-    except Exception as exc:  # the group could not start (models, settings): each plant fails
-        traceback.print_exc()
-        return {i: _failed(info, f"{type(exc).__name__}: {exc}") for i in ids}
-    out: dict[str, dict[str, Any]] = {}
-    for p in part:
-        if p["id"] in result.done:
-            resumed = None if start is None or start < 0 else start
-            record = _done(info, t0, resumed, Path(p["plant_dir"]), result.done[p["id"]])
-            out[p["id"]] = {**record, "trained_with": ids}
-        else:
-            out[p["id"]] = _failed(info, result.failed.get(p["id"], "unknown error"))
-    print(f"done: {len(result.done)} of {len(part)} plants in {time.perf_counter() - t0:.1f} s")
-    return out
-
-
-def _resolved(cfg: Any, saved: dict[str, Any] | None) -> Any:
+def resolved_config(cfg: Any, saved: dict[str, Any] | None) -> Any:
     """The config the run will use (a checkpoint's, or ``cfg`` with the machine's choices
     filled), which decides the guidance."""
     from plantdreamer.pipeline import GenerateConfig
@@ -235,7 +129,7 @@ def _resolved(cfg: Any, saved: dict[str, Any] | None) -> Any:
     return cfg
 
 
-def _set_threads(request: dict[str, Any]) -> int:
+def set_threads(request: dict[str, Any]) -> int:
     import torch
 
     threads = int(request["threads"])
@@ -243,7 +137,7 @@ def _set_threads(request: dict[str, Any]) -> int:
     return threads
 
 
-def _folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:
+def folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:
     from plantdreamer.dataset.lock import LOCK_NAME
 
     if plant_dir.parent.parent.joinpath(LOCK_NAME).exists():
@@ -254,7 +148,7 @@ def _folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:
     )
 
 
-def _done(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, Any]:
+def done_record(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, Any]:
     from plantdreamer import _core
 
     return {
@@ -270,7 +164,7 @@ def _done(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, Any]:
     }
 
 
-def _failed(info: dict[str, Any], message: str) -> dict[str, Any]:
+def failed_record(info: dict[str, Any], message: str) -> dict[str, Any]:
     lines = message.strip().splitlines() or ["unknown error"]
     return {**info, "status": "failed", "error": lines[0], "finished": time.time()}
 
@@ -282,7 +176,7 @@ def _gaussian_counts(plant_dir: Path, final: int) -> dict[str, int]:
     return {"initial": int(run["gaussians"]["initial"]), "final": final}
 
 
-def _chain(hooks: list[StepHook | None]) -> StepHook | None:
+def chain_hooks(hooks: list[StepHook | None]) -> StepHook | None:
     present = [h for h in hooks if h is not None]
     if not present:
         return None
@@ -294,26 +188,7 @@ def _chain(hooks: list[StepHook | None]) -> StepHook | None:
     return each
 
 
-class _Tee(io.TextIOBase):
-    """A group's output, written to every plant's log."""
-
-    def __init__(self, files: list[Any]) -> None:
-        self.files = files
-
-    def isatty(self) -> bool:
-        return False
-
-    def write(self, text: str) -> int:  # type: ignore[override]
-        for f in self.files:
-            f.write(text)
-        return len(text)
-
-    def flush(self) -> None:
-        for f in self.files:
-            f.flush()
-
-
-def _hold_hook(plant_id: str, plant_dir: Path, log: Any) -> StepHook | None:
+def hold_hook(plant_id: str, plant_dir: Path, log: Any) -> StepHook | None:
     target = os.environ.get(HOLD_ENV, "")
     marker = plant_dir / ".held"  # the plant held once: its retry runs through
     if marker.exists() or not target.startswith(f"{plant_id}:"):

@@ -22,7 +22,8 @@ import _thread
 import time
 from typing import Any
 
-from plantdreamer.dataset.tasks import run_group, run_plant
+from plantdreamer.dataset.group_task import run_group
+from plantdreamer.dataset.tasks import run_plant
 
 STOP_POLL_S = 0.5
 
