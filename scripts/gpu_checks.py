@@ -5,8 +5,10 @@
     python scripts/gpu_checks.py scaling OUT --binary BIN  # rasterizer stages vs threads
     python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
     python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8
+    python scripts/gpu_checks.py dataset OUT --steps 40    # `dataset --plants-per-gpu 4`
 
 ``throughput`` is ``scripts/gpu_throughput.py``: several plants in one trainer.
+``dataset`` is ``scripts/gpu_dataset.py``: the same through `plantdreamer dataset` on Ray.
 
 ``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
 layout (``save_full_size_models``), so ``plantdreamer generate`` loads them through the real
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         report = scaling.run_from_args(args.out, args)
         return 0 if report["identical_across_threads"] else 1
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("check", choices=("tests", "resume", "scaling", "throughput"))
+    p.add_argument("check", choices=("tests", "resume", "scaling", "throughput", "dataset"))
     p.add_argument("out", type=Path, help="folder for logs and the JSON report")
     p.add_argument("--steps", type=int, help="steps per run (resume: 300, throughput: 40)")
     p.add_argument("--species", default="bean")
@@ -184,18 +186,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tiny", action="store_true", help="tiny models (a dry run on the CPU)")
     p.add_argument("--models", type=Path, default=Path("/tmp/plantdreamer-full-size"))
     p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
-    p.add_argument("--groups", type=int, nargs="+", default=[1, 4, 8], help="throughput: B")
+    p.add_argument("--groups", type=int, nargs="+", help="B (throughput: 1 4 8; dataset: 1 4)")
+    p.add_argument("--plants", type=int, default=8, help="dataset: plants per run")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
     if args.check == "tests":
         return run_tests(args.out)
-    if args.check == "throughput":
-        from gpu_throughput import run_throughput
-
+    if args.check in ("throughput", "dataset"):
         args.steps = args.steps or 40
         args.resolution = args.resolution or (128 if args.tiny else 768)
         args.sds_resolution = args.sds_resolution or (64 if args.tiny else 512)
+        if args.tiny and args.device == "cuda":
+            args.device = "cpu"
+        if args.check == "dataset":
+            from gpu_dataset import run_dataset_check
+
+            args.groups = args.groups or [1, 4]
+            return run_dataset_check(args, args.out)
+        from gpu_throughput import run_throughput
+
+        args.groups = args.groups or [1, 4, 8]
         return run_throughput(args, args.out)
     args.steps = args.steps or 300
     return run_resume(args, args.out)

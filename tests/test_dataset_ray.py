@@ -228,3 +228,83 @@ def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path):
         shapes[signum] = {i: (r["status"], sorted(r)) for i, r in records.items()}
     assert shapes[signal.SIGINT] == shapes[signal.SIGTERM]
     assert {s for s, _ in shapes[signal.SIGTERM].values()} == {"interrupted"}
+
+
+# -- --plants-per-gpu: packed groups ------------------------------------------------------
+
+PACKED = ["dataset", "--species", "bean", "--count", "3", "--plants-per-gpu", "2",
+          "--local-cpus", "2", *SMALL_FLAGS]  # fmt: skip
+
+
+def _files(folder):
+    """Every file of a dataset folder by content, but those holding times and pids."""
+    skip = {"run.json", "generate.log", "manifest.jsonl", "dataset.json"}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name not in skip
+    }
+
+
+@pytest.fixture(scope="module")
+def packed_twice(tmp_path_factory):
+    runs = []
+    for name in ("first", "second"):
+        out = tmp_path_factory.mktemp(name)
+        runs.append((out, CliRunner().invoke(main, [*PACKED, "--out", str(out)])))
+    return runs
+
+
+def test_packed_plants_get_every_folder_record_and_export_and_the_same_bytes_twice(
+    packed_twice, tmp_path
+):
+    (first, result), (second, again) = packed_twice
+    assert result.exit_code == 0 and again.exit_code == 0, result.output + again.output
+    records = manifest(first)
+    assert {i: r["status"] for i, r in records.items()} == {
+        f"bean-s000{i}": "done" for i in range(3)
+    }
+    assert records["bean-s0000"]["trained_with"] == ["bean-s0000", "bean-s0001"]
+    assert "trained_with" not in records["bean-s0002"]  # a group of one: a plant alone
+    assert records["bean-s0000"]["raster_threads"] == 2  # the group's two CPUs
+    assert json.loads((first / "dataset.json").read_text())["plants_per_gpu"] == 2
+    assert not (first / "groups").exists()
+    files = _files(first)
+    assert files == _files(second)
+    for split in ("coco/train.json", "yolo/data.yaml", "splits.json"):
+        assert split in files
+    for seed in range(3):  # without guidance, a plant of a group is the plant made alone
+        ply = f"plants/bean-s000{seed}/plant.ply"
+        assert files[ply] == direct_ply(tmp_path, species="bean", seed=seed), seed
+
+
+def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical(tmp_path):
+    out = tmp_path / "out"
+    env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
+    cmd = [sys.executable, "-m", "plantdreamer.cli", *PACKED, "--set", "checkpoint-every=5",
+           "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        log = out / "plants" / "bean-s0001" / "generate.log"
+        deadline = time.time() + 300
+        while not (log.is_file() and "holding after step 12" in log.read_text()):
+            assert proc.poll() is None and time.time() < deadline, "the group never reached step 12"
+            time.sleep(0.5)
+        pid = manifest(out)["bean-s0001"]["pid"]
+        os.kill(pid, signal.SIGKILL)
+        output, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=120)
+    assert proc.returncode == 0, output
+    records = manifest(out)
+    for plant_id in ("bean-s0000", "bean-s0001"):  # the group ran again, from step 10
+        record = records[plant_id]
+        assert record["status"] == "done" and record["attempt"] == 2 and record["pid"] != pid
+        assert record["resumed_from_step"] == 10
+        seed = int(plant_id[-1])
+        expected = direct_ply(tmp_path, species="bean", seed=seed)
+        assert (out / "plants" / plant_id / "plant.ply").read_bytes() == expected

@@ -97,9 +97,12 @@ def test_resources_follow_guidance_and_overrides():
     assert (sds.gpus, none.gpus) == (1.0, 0.0) and none.threads == 1
     custom = plant_demand(GenerateConfig.of(species="bean"), 3.5, 0.5, {"slot": 1})
     assert (custom.cpus, custom.gpus, custom.threads) == (3.5, 0.5, 3)
-    options = custom.ray_options(max_retries=2, extra_env={})
-    assert options["resources"] == {"slot": 1} and options["max_retries"] == 2
+    options = custom.actor_options(max_retries=2, extra_env={})
+    assert options["resources"] == {"slot": 1} and options["max_task_retries"] == 2
     assert options["runtime_env"]["env_vars"]["RAYON_NUM_THREADS"] == "3"
+    # A packed group: one plant's GPU, every plant's CPUs (its renders run in parallel).
+    group = plant_demand(GenerateConfig.of(species="bean"), None, None, {}, plants_per_gpu=4)
+    assert (group.cpus, group.gpus, group.threads) == (8.0, 1.0, 8)
 
 
 def test_a_second_process_on_the_same_folder_is_refused(tmp_path):

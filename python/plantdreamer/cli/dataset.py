@@ -7,6 +7,7 @@ import click
 from plantdreamer.cli.label_options import label_options
 from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
+from plantdreamer.dataset.packing import PackingConfig
 from plantdreamer.pipeline.config import GenerateConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
@@ -73,6 +74,7 @@ def _toml_value(text: str) -> object:
     metavar="NAME=AMOUNT",
     help="A custom Ray resource every plant needs.",
 )
+@config_options(PackingConfig, with_defaults=False, note=" [spec's, else 1]")
 @click.option(
     "--max-retries",
     type=click.IntRange(0),
@@ -112,6 +114,7 @@ def dataset(
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
+    from plantdreamer.dataset.packing import packing_from
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.errors import InputError
 
@@ -125,6 +128,7 @@ def dataset(
         spec = {"group": [{"species": s, "count": count, "seed_start": seed_start} for s in groups]}
     else:
         raise InputError("give a spec file or --species")
+    packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
@@ -138,6 +142,7 @@ def dataset(
         gpus_per_plant=gpus_per_plant,
         resources=custom,
         max_retries=max_retries,
+        plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
         labels=make_label_options(split_ratios, split_seed, min_instance_area),
     )

@@ -1,7 +1,10 @@
-"""Datasets of many plants: a spec of groups, one `generate` per plant, scheduled on Ray.
+"""Datasets of many plants: a spec of groups, one `generate` per plant (or one trainer per
+packed group of plants), run by long-lived workers on Ray.
 
-``spec`` parses the TOML spec into plants, ``runner`` plans and schedules them, ``tasks``
-is what runs on a worker, ``manifest`` records every plant, ``engine`` talks to Ray.
+``spec`` parses the TOML spec into plants, ``packing`` groups them B per GPU, ``runner``
+plans and records them, ``scheduler`` hands them to the workers (``worker``: the actor that
+keeps the models loaded), ``tasks`` and ``group_task`` are what runs on a worker,
+``manifest`` records every plant, ``engine`` talks to Ray.
 """
 
 from plantdreamer.dataset.runner import DatasetReport, RunOptions, run_dataset

@@ -38,7 +38,8 @@ def import_ray() -> Any:
 
 @dataclass(frozen=True)
 class Demand:
-    """Ray resources of one plant; its rasterizer and torch get ``threads`` threads."""
+    """Ray resources of one worker (a plant, or a packed group of plants); its rasterizer
+    and torch get ``threads`` threads."""
 
     cpus: float
     gpus: float
@@ -48,14 +49,17 @@ class Demand:
     def threads(self) -> int:
         return max(1, math.floor(self.cpus))
 
-    def ray_options(self, max_retries: int, extra_env: dict[str, str]) -> dict[str, Any]:
+    def actor_options(self, max_retries: int, extra_env: dict[str, str]) -> dict[str, Any]:
+        """A worker actor's options: a lost worker is restarted and its unit run again (up
+        to ``max_retries`` times, resuming from the checkpoints); a plant's own error never
+        is."""
         env = {"RAYON_NUM_THREADS": str(self.threads), "OMP_NUM_THREADS": str(self.threads)}
         return {
             "num_cpus": self.cpus,
             "num_gpus": self.gpus,
             "resources": dict(self.custom),
-            "max_retries": max_retries,
-            "retry_exceptions": False,  # only a lost worker is retried, never a plant's error
+            "max_restarts": -1,
+            "max_task_retries": max_retries,
             "runtime_env": {"env_vars": {**env, **extra_env}},
         }
 
@@ -97,12 +101,15 @@ def plant_demand(
     cpus_per_plant: float | None,
     gpus_per_plant: float | None,
     custom: dict[str, float],
+    plants_per_gpu: int = 1,
 ) -> Demand:
+    """What one worker asks for: a plant's GPUs and ``plants_per_gpu`` plants' CPUs (a
+    packed group renders its plants in parallel on the host)."""
     cpus = cpus_per_plant if cpus_per_plant is not None else DEFAULT_CPUS[cfg.sds.guidance]
     gpus = gpus_per_plant if gpus_per_plant is not None else DEFAULT_GPUS[cfg.sds.guidance]
     if not (math.isfinite(cpus) and math.isfinite(gpus)) or cpus < 1 or gpus < 0:
         raise InputError("a plant needs at least 1 CPU and a non-negative number of GPUs")
-    return Demand(cpus, gpus, tuple(sorted(custom.items())))
+    return Demand(cpus * plants_per_gpu, gpus, tuple(sorted(custom.items())))
 
 
 def connect(address: str | None, local_cpus: int | None) -> bool:
@@ -138,17 +145,30 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
 
 
 def check_feasible(demands: set[Demand]) -> None:
-    """Fails now, with the reason, if no node could ever run a plant (Ray would wait)."""
-    ray = import_ray()
-    nodes = [n["Resources"] for n in ray.nodes() if n.get("Alive")]
+    """Fails now, with the reason, if no node could ever run a worker (Ray would wait)."""
+    nodes = _alive_nodes()
     for demand in demands:
-        need = {"CPU": demand.cpus, "GPU": demand.gpus, **dict(demand.custom)}
-        if not any(all(node.get(k, 0.0) >= v for k, v in need.items() if v) for node in nodes):
+        if not any(_fits(demand, node) for node in nodes):
             raise InputError(
-                f"no Ray node can run a plant needing {demand.describe()} (nodes have: "
+                f"no Ray node can run a worker needing {demand.describe()} (nodes have: "
                 + "; ".join(_node_text(n) for n in nodes)
-                + "); use --cpus-per-plant / --gpus-per-plant or add nodes"
+                + "); use --cpus-per-plant / --gpus-per-plant / --plants-per-gpu or add nodes"
             )
+
+
+def capacity(demand: Demand) -> int:
+    """How many workers of ``demand`` the cluster's live nodes hold at once."""
+    return sum(_fits(demand, node) for node in _alive_nodes())
+
+
+def _alive_nodes() -> list[dict[str, float]]:
+    return [n["Resources"] for n in import_ray().nodes() if n.get("Alive")]
+
+
+def _fits(demand: Demand, node: dict[str, float]) -> int:
+    """Workers of ``demand`` that fit on a node with these resources."""
+    need = {"CPU": demand.cpus, "GPU": demand.gpus, **dict(demand.custom)}
+    return min((math.floor(node.get(k, 0.0) / v + 1e-9) for k, v in need.items() if v), default=1)
 
 
 def _node_text(resources: dict[str, float]) -> str:

@@ -1,6 +1,10 @@
-"""Runs a dataset: plan (skip, resume, redo), schedule plants as Ray tasks, record results.
+"""Runs a dataset: plan (skip, resume, redo), hand plants to Ray workers, record results.
 
-Every plant is one `generate` run into ``DIR/plants/<id>/``. A plant is complete when the
+Every plant is one `generate` run into ``DIR/plants/<id>/``; with ``plants_per_gpu`` B > 1,
+plants that share their settings train B at a time in one trainer (``packing.py``), each
+still in its own folder with its own record, and a plant that fails, fails alone. The
+units go to long-lived worker actors that keep the models loaded (``scheduler.py``,
+``worker.py``). A plant is complete when the
 manifest says ``done`` with the same config hash and its files (``plant.ply``, ``run.json``)
 exist; those are skipped. A plant folder left by an earlier run with the same config keeps
 its checkpoint, so the plant resumes; any other leftover folder is cleared first, after its
@@ -26,8 +30,10 @@ from plantdreamer.dataset import engine
 from plantdreamer.dataset.display import DatasetProgress, print_summary
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
+from plantdreamer.dataset.packing import pack
+from plantdreamer.dataset.scheduler import Dispatcher, Unit
 from plantdreamer.dataset.spec import Plant
-from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line, run_plant
+from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.exports.dataset import (
     PLANTS_DIR,
@@ -43,6 +49,7 @@ STOP_GRACE_S = 60.0
 STOPPED = "stopped by Ctrl-C or SIGTERM"
 # A plant's files that make it complete (with a `done` record of the same config).
 COMPLETE_FILES = ("plant.ply", "run.json")
+GROUPS_DIR = "groups"  # DIR/groups/<first plant>/group.json while a packed group trains
 
 
 @dataclass
@@ -53,6 +60,7 @@ class RunOptions:
     gpus_per_plant: float | None = None
     resources: dict[str, float] = field(default_factory=dict)  # custom, per plant
     max_retries: int = 3  # re-runs of a plant whose worker died
+    plants_per_gpu: int = 1  # plants trained together in one trainer (packing.py)
     show_progress: bool = True
     labels: LabelOptions = field(default_factory=LabelOptions)  # splits, COCO, YOLO, gallery
 
@@ -103,6 +111,7 @@ class _DatasetRun:
                 self.options.cpus_per_plant,
                 self.options.gpus_per_plant,
                 self.options.resources,
+                self.options.plants_per_gpu,
             )
             for p in self.plants
         }
@@ -181,47 +190,62 @@ class _DatasetRun:
 
     # -- scheduling --------------------------------------------------------------------
 
+    def _units(self, todo: list[Plant], demands: dict[str, engine.Demand]) -> list[Unit]:
+        """The packed groups' unfinished plants, in plan order (``packing.py``)."""
+        wanted = {p.id for p in todo}
+        units = []
+        for group in pack(self.plants, self.options.plants_per_gpu):
+            plants = [p for p in group if p.id in wanted]
+            if not plants:
+                continue
+            demand = demands[plants[0].id]
+            request = {
+                "plants": [
+                    {"id": p.id, "config": p.config.to_dict(), "plant_dir": str(self._plant_dir(p))}
+                    for p in plants
+                ],
+                "threads": demand.threads,
+                # group.json of a group in training; named by the packed group's first plant
+                "group_dir": str(self.out_dir / GROUPS_DIR / group[0].id),
+            }
+            units.append(Unit(plants, demand, request))
+        return units
+
     def _run_on_ray(
         self, todo: list[Plant], demands: dict[str, engine.Demand]
     ) -> dict[str, dict[str, Any]]:
         ray = engine.import_ray()
         started_ray = engine.connect(self.options.address, self.options.local_cpus)
         try:
-            engine.check_feasible({demands[p.id] for p in todo})
+            units = self._units(todo, demands)
+            engine.check_feasible({u.demand for u in units})
             self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
             board = ray.remote(num_cpus=0)(StatusBoard).remote()
-            task = ray.remote(run_plant)
             extra_env = {HOLD_ENV: os.environ[HOLD_ENV]} if HOLD_ENV in os.environ else {}
-            pending = {}
-            for plant in todo:
-                options = demands[plant.id].ray_options(self.options.max_retries, extra_env)
-                request = {
-                    "id": plant.id,
-                    "config": plant.config.to_dict(),
-                    "plant_dir": str(self._plant_dir(plant)),
-                    "threads": demands[plant.id].threads,
-                }
-                pending[task.options(**options).remote(request, board)] = plant
-            return self._follow(ray, pending, board, [p.id for p in todo])
+            workers = Dispatcher(ray, units, board, self.options.max_retries, extra_env)
+            return self._follow(ray, workers, board, [p.id for p in todo])
         finally:
             if started_ray:
                 ray.shutdown()
+            groups = self.out_dir / GROUPS_DIR
+            if groups.is_dir() and not any(groups.iterdir()):
+                groups.rmdir()
 
-    def _follow(self, ray, pending, board, ids: list[str]) -> dict[str, dict[str, Any]]:
+    def _follow(self, ray, workers: Dispatcher, board, ids: list[str]) -> dict[str, dict[str, Any]]:
         results: dict[str, dict[str, Any]] = {}
         progress = DatasetProgress(len(ids), self.options.show_progress)
         try:
-            while pending:
-                ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+            while workers.busy():
+                finished = workers.wait(timeout=0.5)
                 self._record_starts(ray.get(board.drain.remote()), set(results))
-                for ref in ready:
-                    plant = pending.pop(ref)
-                    results[plant.id] = self._record_result(ray, plant, ref)
-                    progress.finished(plant.id, results[plant.id])
+                for unit, ref in finished:
+                    for plant, result in self._record_unit(ray, unit, ref).items():
+                        results[plant] = result
+                        progress.finished(plant, result)
                 progress.update(self.manifest.counts(ids))
         except KeyboardInterrupt:
             progress.close()
-            self._stop(ray, pending, board, results)
+            self._stop(ray, workers, board, results)
             raise
         finally:
             progress.close()
@@ -237,32 +261,31 @@ class _DatasetRun:
                 plant.id, {**self._base_record(plant), **event, "status": "running"}
             )
 
-    def _record_result(self, ray, plant: Plant, ref) -> dict[str, Any]:
+    def _record_unit(self, ray, unit: Unit, ref) -> dict[str, dict[str, Any]]:
         try:
-            result = ray.get(ref)
+            results = ray.get(ref)
         except ray.exceptions.RayError as exc:  # the worker died more often than retried
-            result = {"status": "failed", "error": first_line(exc)}
-        record = self.manifest.get(plant.id)
-        if record is None or record.get("status") != "running":  # its start report is late
-            record = self._base_record(plant)
-        record = {"finished": time.time(), **record, **result}
-        self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
-        return result
+            results = {p.id: {"status": "failed", "error": first_line(exc)} for p in unit.plants}
+        for plant in unit.plants:
+            record = self.manifest.get(plant.id)
+            if record is None or record.get("status") != "running":  # a late start report
+                record = self._base_record(plant)
+            record = {"finished": time.time(), **record, **results[plant.id]}
+            self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
+        return {p.id: results[p.id] for p in unit.plants}
 
-    def _stop(self, ray, pending, board, results) -> None:
-        """Ctrl-C or SIGTERM: ask running plants to checkpoint and stop, then record what
-        happened."""
-        for ref in pending:
-            ray.cancel(ref, force=False)
+    def _stop(self, ray, workers: Dispatcher, board, results) -> None:
+        """Ctrl-C or SIGTERM: ask the running units to checkpoint and stop (the workers
+        poll the board), start no other, then record what happened."""
+        board.stop.remote()
+        workers.drop_queued()
         deadline = time.time() + STOP_GRACE_S
         try:
-            while pending and time.time() < deadline:
-                ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+            while workers.busy() and time.time() < deadline:
+                finished = workers.wait(timeout=0.5)
                 self._record_starts(ray.get(board.drain.remote()), set(results))
-                for ref in ready:
-                    plant = pending.pop(ref)
-                    if self._status(plant.id) == "running":
-                        results[plant.id] = self._record_result(ray, plant, ref)
+                for unit, ref in finished:
+                    results.update(self._record_unit(ray, unit, ref))
         except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
             pass
 
@@ -291,6 +314,7 @@ class _DatasetRun:
                 "spec": self.spec,
                 "plants": len(self.plants),
                 "skipped": len(skipped),
+                "plants_per_gpu": self.options.plants_per_gpu,
                 "totals": totals(records),
                 "started": self.t0,
                 "seconds": round(time.time() - self.t0, 3),

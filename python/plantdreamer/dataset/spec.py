@@ -2,6 +2,8 @@
 
 A spec is a TOML file::
 
+    plants-per-gpu = 4      # plants trained together on one GPU (dataset.packing)
+
     [defaults]              # any `generate` setting, by its option name (`--points`: points)
     steps = 20
     guidance = "none"
@@ -39,10 +41,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from plantdreamer.dataset import packing
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.presets import resolve_config
-from plantdreamer.settings import canonical
+from plantdreamer.settings import by_name, canonical
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -112,10 +115,11 @@ def with_settings(spec: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
 
 def expand(spec: dict[str, Any]) -> list[Plant]:
     """The plants of a spec, in spec order; ids are unique or this fails."""
-    unknown = set(spec) - {"defaults", "group", "base_dir"}
+    unknown = set(spec) - {"defaults", "group", "base_dir", *packing.spec_keys()}
     if unknown:
         raise InputError(
-            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults] and [[group]])"
+            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults] and [[group]]"
+            f", and {', '.join(sorted(by_name(packing.PackingConfig)))} at the top)"
         )
     defaults = _settings(spec.get("defaults", {}), "[defaults]")
     groups = spec.get("group", [])

@@ -1,37 +1,46 @@
-"""What runs on a Ray worker: one plant as one `generate`, and the board workers report to.
+"""What a dataset worker runs: one plant as one `generate` (a packed group is
+``group_task.py``), the records both return, and the board workers report to.
 
 These are plain functions and classes; the runner wraps them with ``ray.remote`` so this
-module imports without Ray.
+module imports without Ray. A plant's own errors never raise: they come back as a
+``failed`` record with one line.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import socket
 import time
 import traceback
+from collections.abc import Callable
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
 LOG_NAME = "generate.log"
-# Test hook: "PLANT_ID:STEP" makes that plant stop after STEP, once, and wait to be killed,
-# so tests can SIGKILL a worker at a known point of its run.
+# Test hook: "PLANT_ID:STEP" makes that plant (or its group) stop after STEP, once, and
+# wait to be killed, so tests can SIGKILL a worker at a known point of its run.
 HOLD_ENV = "PLANTDREAMER_DATASET_HOLD"
+
+# Builds the guidance of a resolved config (a worker's model cache, or `build_guidance`).
+GuidanceFor = Callable[[Any], Any]
+StepHook = Callable[[int], None]
 
 
 class StatusBoard:
-    """Collects "plant started on this worker" reports for the driver (a Ray actor).
+    """Collects "plant started on this worker" reports for the driver, and carries the
+    driver's request to stop back to the workers (a Ray actor).
 
-    Counting starts per plant gives the attempt number: Ray runs a task again after its
+    Counting starts per plant gives the attempt number: Ray runs a call again after its
     worker dies, and the retry reports a second start. Workers report without waiting for
-    an answer: a task blocked in ``ray.get`` lends its CPU back to Ray, which then starts
-    another worker process for the next plant.
+    an answer.
     """
 
     def __init__(self) -> None:
         self.events: list[dict[str, Any]] = []
         self.attempts: dict[str, int] = {}
+        self.stop_requested = False
 
     def started(self, plant_id: str, info: dict[str, Any]) -> None:
         attempt = self.attempts.get(plant_id, 0) + 1
@@ -42,66 +51,106 @@ class StatusBoard:
         events, self.events = self.events, []
         return events
 
+    def stop(self) -> None:
+        self.stop_requested = True
 
-def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
-    """Runs (or resumes, when its folder holds a checkpoint) one plant; never raises for
-    the plant's own errors: they come back as a ``failed`` record with one line."""
-    import ray
-    import torch
+    def stopping(self) -> bool:
+        return self.stop_requested
 
-    from plantdreamer import _core
-    from plantdreamer.dataset.lock import LOCK_NAME
+
+def worker_info() -> dict[str, Any]:
+    try:
+        import ray
+
+        node = ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
+    except ImportError:
+        node = None
+    return {"pid": os.getpid(), "node": node, "host": socket.gethostname(), "started": time.time()}
+
+
+def run_plant(
+    request: dict[str, Any], board: Any, guidance_for: GuidanceFor, on_step: StepHook | None
+) -> dict[str, Any]:
+    """Runs (or resumes, when its folder holds a checkpoint) one plant."""
     from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
-    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
+    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
 
     plant_id, plant_dir = request["id"], Path(request["plant_dir"])
-    threads = int(request["threads"])
-    torch.set_num_threads(threads)
-    context = ray.get_runtime_context()
-    info = {
-        "pid": os.getpid(),
-        "node": context.get_node_id(),
-        "host": socket.gethostname(),
-        "started": time.time(),
-    }
+    threads = set_threads(request)
+    info = worker_info()
     board.started.remote(plant_id, info)
-    if not plant_dir.parent.parent.joinpath(LOCK_NAME).exists():
-        return _failed(
-            info,
-            f"output folder {plant_dir.parent.parent} is not visible on this node "
-            f"({info['host']}); a cluster needs it on a shared filesystem",
-        )
+    hidden = folder_not_visible(plant_dir, info)
+    if hidden is not None:
+        return failed_record(info, hidden)
     plant_dir.mkdir(parents=True, exist_ok=True)
     resume = (plant_dir / CHECKPOINT_NAME).is_file()
-    resumed_from = None
-    if resume:
-        from plantdreamer.pipeline.checkpoint import load_checkpoint
-
-        resumed_from = int(load_checkpoint(plant_dir)["step"])
     t0 = time.perf_counter()
     with open(plant_dir / LOG_NAME, "a") as log, redirect_stdout(log), redirect_stderr(log):
         print(f"== plant {plant_id}, pid {info['pid']}, threads {threads}")
-        if resumed_from is not None:
-            print(f"resuming from the checkpoint at step {resumed_from}")
-        on_step = _hold_hook(plant_id, plant_dir, log)
+        on_steps = [on_step, hold_hook(plant_id, plant_dir, log)]
+        saved, resumed_from = None, None
         try:
-            cfg = None if resume else GenerateConfig.from_dict(request["config"])
+            if resume:
+                saved = load_checkpoint(plant_dir)
+                resumed_from = int(saved["step"])
+                print(f"resuming from the checkpoint at step {resumed_from}")
+            cfg = GenerateConfig.from_dict(request["config"])
+            guidance = guidance_for(resolved_config(cfg, saved))
             # The plant folder is the dataset's (it holds this log): a fresh start replaces
             # whatever an earlier, incomplete attempt left there.
             result = generate(
-                cfg,
+                None if resume else cfg,
                 plant_dir,
+                guidance=guidance,
                 resume=resume,
                 overwrite=not resume,
                 show_progress=True,
-                on_step=on_step,
+                on_step=chain_hooks(on_steps),
             )
         except RunInterrupted as stop:
             return {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
         except Exception as exc:  # the plant's own failure: record it, keep the others going
             traceback.print_exc()
-            return _failed(info, f"{type(exc).__name__}: {exc}")
+            return failed_record(info, f"{type(exc).__name__}: {exc}")
         print(f"done: {result.gaussians} Gaussians in {time.perf_counter() - t0:.1f} s")
+    return done_record(info, t0, resumed_from, plant_dir, result)
+
+
+def resolved_config(cfg: Any, saved: dict[str, Any] | None) -> Any:
+    """The config the run will use (a checkpoint's, or ``cfg`` with the machine's choices
+    filled), which decides the guidance."""
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.runtime import resolve_runtime
+
+    if saved is not None:
+        return GenerateConfig.from_dict(saved["config"])
+    cfg = copy.deepcopy(cfg)
+    resolve_runtime(cfg)
+    return cfg
+
+
+def set_threads(request: dict[str, Any]) -> int:
+    import torch
+
+    threads = int(request["threads"])
+    torch.set_num_threads(threads)
+    return threads
+
+
+def folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:
+    from plantdreamer.dataset.lock import LOCK_NAME
+
+    if plant_dir.parent.parent.joinpath(LOCK_NAME).exists():
+        return None
+    return (
+        f"output folder {plant_dir.parent.parent} is not visible on this node "
+        f"({info['host']}); a cluster needs it on a shared filesystem"
+    )
+
+
+def done_record(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, Any]:
+    from plantdreamer import _core
+
     return {
         **info,
         "status": "done",
@@ -115,7 +164,7 @@ def run_plant(request: dict[str, Any], board: Any) -> dict[str, Any]:
     }
 
 
-def _failed(info: dict[str, Any], message: str) -> dict[str, Any]:
+def failed_record(info: dict[str, Any], message: str) -> dict[str, Any]:
     lines = message.strip().splitlines() or ["unknown error"]
     return {**info, "status": "failed", "error": lines[0], "finished": time.time()}
 
@@ -127,7 +176,19 @@ def _gaussian_counts(plant_dir: Path, final: int) -> dict[str, int]:
     return {"initial": int(run["gaussians"]["initial"]), "final": final}
 
 
-def _hold_hook(plant_id: str, plant_dir: Path, log: Any):
+def chain_hooks(hooks: list[StepHook | None]) -> StepHook | None:
+    present = [h for h in hooks if h is not None]
+    if not present:
+        return None
+
+    def each(step: int) -> None:
+        for hook in present:
+            hook(step)
+
+    return each
+
+
+def hold_hook(plant_id: str, plant_dir: Path, log: Any) -> StepHook | None:
     target = os.environ.get(HOLD_ENV, "")
     marker = plant_dir / ".held"  # the plant held once: its retry runs through
     if marker.exists() or not target.startswith(f"{plant_id}:"):

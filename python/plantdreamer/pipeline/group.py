@@ -75,16 +75,20 @@ def generate_group(
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
     depth_ahead: bool = True,
+    plant_dirs: list[Path] | None = None,
 ) -> GroupResult:
     """Trains ``cfgs`` together into ``out_dir`` (or, with ``resume``, continues the group
-    there). ``guidance`` overrides the one the configs name (tests inject tiny models)."""
+    there). ``guidance`` overrides the one the configs name (tests inject tiny models).
+    ``plant_dirs`` puts the plants in these folders (named by them) rather than in
+    ``out_dir``, which then holds only ``group.json`` (a dataset's plant folders); the
+    record is then made from ``cfgs`` with or without ``resume``."""
     out = Path(out_dir)
-    if resume:
+    if resume and plant_dirs is None:
         record = _read_record(out)
     else:
         if not cfgs:
             raise InputError("a group needs at least one plant")
-        record = _new_record(cfgs)
+        record = _new_record(cfgs, plant_dirs)
     names = [p["name"] for p in record["plants"]]
     with claim_folder(out, overwrite=overwrite and not resume, owned=(GROUP_FILE, *names),
                       allow_existing=resume):  # fmt: skip
@@ -97,7 +101,7 @@ def generate_group(
         outputs.write_json(out / GROUP_FILE, record)
         for entry in record["plants"]:
             if entry["status"] == "done" and entry["name"] not in result.done:
-                plant_dir = out / entry["name"]
+                plant_dir = Path(entry.get("dir", out / entry["name"]))
                 run = json.loads((plant_dir / "run.json").read_text())
                 ply = plant_dir / "plant.ply"
                 result.done[entry["name"]] = RunResult(
@@ -107,7 +111,7 @@ def generate_group(
         return result
 
 
-def _new_record(cfgs: list[GenerateConfig]) -> dict[str, Any]:
+def _new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str, Any]:
     shared = [{k: v for k, v in c.settings().items() if k not in PER_PLANT} for c in cfgs]
     if any(s != shared[0] for s in shared[1:]):
         differ = sorted({k for s in shared[1:] for k in s if s[k] != shared[0][k]})
@@ -115,13 +119,15 @@ def _new_record(cfgs: list[GenerateConfig]) -> dict[str, Any]:
             f"plants of one group share every setting but {' and '.join(PER_PLANT)}; "
             f"these differ: {', '.join(differ)}"
         )
-    names = [plant_name(c) for c in cfgs]
+    names = [plant_name(c) for c in cfgs] if dirs is None else [d.name for d in dirs]
     if len(set(names)) != len(names):
         raise InputError("two plants of the group have the same name (species or file, seed)")
     plants = [
         {"name": n, "config": c.to_dict(), "status": "running"}
         for n, c in zip(names, cfgs, strict=True)
     ]
+    for entry, folder in zip(plants, dirs or [], strict=False):
+        entry["dir"] = str(folder)
     return {"plants": plants}
 
 
@@ -145,7 +151,7 @@ def _start(record, out, resume, result, stack, show_progress) -> list[tuple[Plan
             if entry["status"].startswith("failed"):
                 result.failed[entry["name"]] = entry["status"].removeprefix("failed: ")
             continue
-        plant_dir = out / entry["name"]
+        plant_dir = Path(entry.get("dir", out / entry["name"]))
         try:
             stack.enter_context(
                 claim_folder(plant_dir, overwrite=not resume, owned=RUN_OUTPUTS,
@@ -175,7 +181,7 @@ def _start(record, out, resume, result, stack, show_progress) -> list[tuple[Plan
 
 
 def _train(started, record, out, guidance, result, show_progress, on_step, depth_ahead) -> None:
-    entries = {e["name"]: e for e in record["plants"]}
+    entries = {Path(e.get("dir", out / e["name"])): e for e in record["plants"]}
     plants, saved = [p for p, _ in started], started[0][1]
     guidance = guidance if guidance is not None else build_guidance(plants[0].cfg)
     if saved is not None and saved.get("guidance") is not None:
@@ -187,7 +193,7 @@ def _train(started, record, out, guidance, result, show_progress, on_step, depth
     trainer.run(show_progress, on_step)
     device = str(getattr(guidance, "device", "cpu"))
     for p in plants:
-        entry = entries[p.out_dir.name]
+        entry = entries[p.out_dir]
         if p.error is not None:
             _fail(entry, result, PlantDreamerFailure(p.error))
             continue

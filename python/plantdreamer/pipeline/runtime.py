@@ -9,6 +9,7 @@ import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import Guidance
+from plantdreamer.guidance.models import DiffusionComponents
 from plantdreamer.pipeline.config import GenerateConfig
 
 
@@ -53,9 +54,11 @@ def lora_template(lora: str | None) -> str:
     return recorded or DEFAULT_PROMPT_TEMPLATE
 
 
-def build_guidance(cfg: GenerateConfig) -> Guidance:
+def build_guidance(cfg: GenerateConfig, components: DiffusionComponents | None = None) -> Guidance:
     """The guidance a config asks for; missing weights raise ModelNotFoundError here,
-    before anything is written."""
+    before anything is written. ``components``: the networks of this config's base model,
+    ControlNet and LoRA, already loaded (LoRA applied) by an earlier guidance of a worker
+    that keeps them between plants (``guidance.parts``)."""
     from plantdreamer.guidance.base import NoGuidance
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 
@@ -65,7 +68,8 @@ def build_guidance(cfg: GenerateConfig) -> Guidance:
     return StableDiffusionDepthGuidance(
         base_model=sds.base_model,
         controlnet=sds.controlnet,
-        lora=sds.lora,
+        lora=sds.lora if components is None else None,
+        components=components,
         species=cfg.plant_name(),
         guidance_scale=sds.guidance_scale,
         conditioning_scale=sds.conditioning_scale,

@@ -1,0 +1,96 @@
+"""The long-lived worker of a dataset run: one Ray actor per plant slot (with SDS, per GPU),
+which keeps its diffusion models loaded from one plant (or packed group) to the next.
+
+A ``PlantWorker`` holds its CPUs and GPU for the whole run and trains the units the driver
+hands it, one at a time. ``ModelCache`` keeps the networks of the last guidance it built
+(base model, ControlNet and LoRA, on the worker's device) and builds each later unit's
+guidance on them when the config names the same models, so the weights are read, moved
+and LoRA-merged once per worker instead of once per plant. Every unit still gets a
+guidance of its own (its seed's noise generator, its timestep schedule, its prompts), so a
+plant's bytes do not depend on what the worker ran before. One set of networks is kept:
+a unit naming other models replaces it.
+
+Ray cannot interrupt an actor's running call, so a unit asks the status board whether the
+driver wants to stop (from its step hook, at most every ``STOP_POLL_S``) and, if so,
+interrupts its own main thread as Ctrl-C would: the trainer writes its checkpoints at the
+next step boundary and stops.
+"""
+
+from __future__ import annotations
+
+import _thread
+import time
+from typing import Any
+
+from plantdreamer.dataset.group_task import run_group
+from plantdreamer.dataset.tasks import run_plant
+
+STOP_POLL_S = 0.5
+
+
+class ModelCache:
+    """The networks of the last SDS guidance built, and how often they were loaded."""
+
+    def __init__(self) -> None:
+        self.key: tuple[Any, ...] | None = None
+        self.parts: Any = None
+        self.loads = 0
+
+    def guidance_for(self, cfg: Any) -> Any:
+        """The guidance of a resolved config (``runtime.resolve_runtime``)."""
+        from plantdreamer.pipeline.runtime import build_guidance
+
+        if cfg.sds.guidance == "none":
+            return build_guidance(cfg)
+        key = model_key(cfg)
+        if key == self.key:
+            return build_guidance(cfg, components=self.parts)
+        self.key = self.parts = None  # the old networks go before the new ones load
+        guidance = build_guidance(cfg)
+        self.key, self.parts = key, guidance.parts  # type: ignore[attr-defined]
+        self.loads += 1
+        return guidance
+
+
+def model_key(cfg: Any) -> tuple[Any, ...]:
+    """What the loaded networks depend on: which weights, their precision and device."""
+    sds = cfg.sds
+    return (sds.base_model, sds.controlnet, sds.lora, sds.network_dtype, sds.vae_dtype,
+            sds.device)  # fmt: skip
+
+
+class StopCheck:
+    """A step hook that turns the driver's stop request into Ctrl-C in this process."""
+
+    def __init__(self, board: Any) -> None:
+        self.board = board
+        self.next_poll = 0.0
+
+    def __call__(self, step: int) -> None:
+        now = time.monotonic()
+        if now < self.next_poll:
+            return
+        self.next_poll = now + STOP_POLL_S
+        import ray
+
+        if ray.get(self.board.stopping.remote()):
+            _thread.interrupt_main()  # the trainer's Ctrl-C handler: checkpoint, then stop
+
+
+class PlantWorker:
+    """Trains units (one plant, or a packed group) one after another (a Ray actor)."""
+
+    def __init__(self) -> None:
+        self.cache = ModelCache()
+
+    def run(self, unit: dict[str, Any], board: Any) -> dict[str, dict[str, Any]]:
+        """Each plant's record, by plant id."""
+        stop = StopCheck(board)
+        plants = unit["plants"]
+        if len(plants) == 1:
+            request = {**plants[0], "threads": unit["threads"]}
+            return {plants[0]["id"]: run_plant(request, board, self.cache.guidance_for, stop)}
+        return run_group(unit, board, self.cache.guidance_for, stop)
+
+    def loads(self) -> int:
+        return self.cache.loads
