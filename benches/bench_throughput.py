@@ -7,10 +7,12 @@ density control), not a GPU's. Each B runs as one group of B plants (L-System be
 seeds 0..B-1) for a few steps; the B values are interleaved over the repeats, and the
 min and median are reported. "plants per hour" projects the measured training time per
 plant-step to 3600-step plants (preparation and export excluded: they are per plant and
-do not change with B).
+do not change with B). ``--overlap`` adds rows of those B trained as two halves in flight
+(``overlap on``; the other rows are ``off``), interleaved with the rest.
 
     python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 6 steps; 3 repeats
     python benches/bench_throughput.py --groups 1 2 --steps 4 --repeats 1 --render 64
+    python benches/bench_throughput.py --groups 4 --overlap 4   # overlap off / on, B = 4
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ PHASES = ("render", "depth", "guidance", "backward", "optimizer")
 STEPS_PER_PLANT = 3600
 
 
-def one_group(b: int, args: argparse.Namespace) -> dict[str, float]:
+def one_group(b: int, args: argparse.Namespace, overlap: str = "off") -> dict[str, float]:
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.guidance.tiny import tiny_models
     from plantdreamer.pipeline import GenerateConfig
@@ -39,6 +41,7 @@ def one_group(b: int, args: argparse.Namespace) -> dict[str, float]:
         GenerateConfig.of(
             species="bean", seed=s, steps=args.steps, points=args.points,
             resolution=args.render, eval_views=1, turntable_frames=1, turntable="none",
+            overlap=overlap,
         )
         for s in range(b)
     ]  # fmt: skip
@@ -67,15 +70,18 @@ def main() -> int:
     parser.add_argument("--points", type=int, default=10_000)
     parser.add_argument("--render", type=int, default=128)
     parser.add_argument("--sds", type=int, default=64)
+    parser.add_argument("--overlap", type=int, nargs="*", default=[4], help="B with overlap on")
     parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
     args = parser.parse_args()
-    runs: dict[int, list[dict[str, float]]] = {b: [] for b in args.groups}
-    for _ in range(args.repeats):  # interleaved: each repeat runs every B once
-        for b in args.groups:
-            runs[b].append(one_group(b, args))
-    rows = []
-    for b, results in runs.items():
-        row: dict[str, object] = {"B": b}
+    variants = [(b, "off") for b in args.groups] + [(b, "on") for b in args.overlap]
+    runs: dict[tuple[int, str], list[dict[str, float]]] = {v: [] for v in variants}
+    for _ in range(args.repeats):  # interleaved: each repeat runs every variant once
+        for b, overlap in variants:
+            runs[b, overlap].append(one_group(b, args, overlap))
+    rows, results_of = [], {}
+    for (b, overlap), results in runs.items():
+        row: dict[str, object] = {"B": b if overlap == "off" else f"{b}, overlap on"}
+        results_of[row["B"]] = results
         for key in results[0]:
             values = [r[key] for r in results]
             row[key] = (min(values), statistics.median(values))
@@ -99,13 +105,16 @@ def main() -> int:
     for row in rows:
         cells = [f"{row[f'{p}_ms'][0]:.1f} / {row[f'{p}_ms'][1]:.1f}" for p in PHASES]
         step = row["step_ms"]
-        per_hour = [r["plants_per_hour"] for r in runs[row["B"]]]
+        per_hour = [r["plants_per_hour"] for r in results_of[row["B"]]]
         lines.append(
             f"| {row['B']} | {step[0]:.1f} / {step[1]:.1f} | " + " | ".join(cells)
             + f" | {statistics.median(per_hour):.2f} (best {max(per_hour):.2f}) |"
         )  # fmt: skip
     args.out.write_text("\n".join(lines) + "\n")
-    record = {"args": {**vars(args), "out": str(args.out)}, "runs": runs}
+    record = {
+        "args": {**vars(args), "out": str(args.out)},
+        "runs": results_of,
+    }
     args.out.with_suffix(".json").write_text(json.dumps(record, indent=2))
     print("\n".join(lines))
     return 0
