@@ -126,3 +126,26 @@ def test_a_plant_whose_training_goes_non_finite_fails_alone_in_an_overlapped_gro
     assert sorted(result.done) == [NAMES[0], NAMES[2], NAMES[3]]
     assert list(result.failed) == [NAMES[1]]
     assert not (tmp_path / "g" / NAMES[1] / "plant.ply").exists()
+
+
+def test_an_sds_launch_leaves_its_figures_on_the_device_until_read_back():
+    """``launch`` reads nothing back (a read would make the host wait for the GPU); the
+    figures read back later are the plain call's, with the same draws."""
+    from plantdreamer.cameras import orbit
+    from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+
+    def run(launch):
+        guidance = StableDiffusionDepthGuidance(components=tiny_models(), resolution=64, seed=0)
+        images = torch.full((2, 64, 64, 3), 0.75)
+        depth = torch.rand(2, 1, 64, 64, generator=torch.Generator().manual_seed(0))
+        cameras = [orbit(4.0, 15.0, a, 50.0, 64, 64) for a in (0.0, 90.0)]
+        if launch:
+            pending = guidance.launch(images, depth, cameras, 0)
+            on_device = {k for k, v in pending.stats.items() if isinstance(v, torch.Tensor)}
+            assert on_device == {"loss", "grad_norm", "timestep", "nonfinite_grad"}
+            return pending.result()
+        return guidance(images, depth, cameras, 0)
+
+    launched, called = run(True), run(False)
+    assert list(launched.stats) == list(called.stats)  # log.csv's column order
+    assert launched.stats == called.stats and torch.equal(launched.loss, called.loss)
