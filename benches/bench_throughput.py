@@ -7,7 +7,8 @@ density control), not a GPU's. Each B runs as one group of B plants (L-System be
 seeds 0..B-1) for a few steps; the B values are interleaved over the repeats, and the
 min and median are reported. "plants per hour" projects the measured training time per
 plant-step to 3600-step plants (preparation and export excluded: they are per plant and
-do not change with B).
+do not change with B). ``--overlap`` adds rows of those B trained as two halves in flight
+(``overlap on``; the other rows are ``off``), interleaved with the rest.
 
     python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 6 steps; 3 repeats
     python benches/bench_throughput.py --groups 1 2 --steps 4 --repeats 1 --render 64
@@ -25,6 +26,7 @@ plants: with the models loaded for every plant (a new ``dataset.worker.ModelCach
 plant, as one Ray task per plant did) and once per worker (one cache for all N, as a
 ``PlantWorker`` does). Tiny models saved to disk in the hub's layout, so the load is a
 real ``from_pretrained``; the two ways alternate over the repeats.
+    python benches/bench_throughput.py --groups 4 --overlap 4   # overlap off / on, B = 4
 """
 
 from __future__ import annotations
@@ -45,9 +47,12 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parent / "results"
 PHASES = ("render", "depth", "guidance", "backward", "optimizer")
 STEPS_PER_PLANT = 3600
+OVERLAPPED = "one trainer, two halves in flight"
 
 
-def one_group(b: int, args: argparse.Namespace, first_seed: int = 0) -> dict[str, float]:
+def one_group(
+    b: int, args: argparse.Namespace, first_seed: int = 0, overlap: str = "off"
+) -> dict[str, float]:
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.guidance.tiny import tiny_models
     from plantdreamer.pipeline import GenerateConfig
@@ -57,6 +62,7 @@ def one_group(b: int, args: argparse.Namespace, first_seed: int = 0) -> dict[str
         GenerateConfig.of(
             species="bean", seed=s, steps=args.steps, points=args.points,
             resolution=args.render, eval_views=1, turntable_frames=1, turntable="none",
+            overlap=overlap,
         )
         for s in range(first_seed, first_seed + b)
     ]  # fmt: skip
@@ -196,6 +202,7 @@ def main() -> int:
     parser.add_argument("--sds", type=int, default=64)
     parser.add_argument("--loading", type=int, metavar="N", help="plants of the loading bench")
     parser.add_argument("--separate", action="store_true", help="also B processes of 1 plant")
+    parser.add_argument("--overlap", type=int, nargs="*", default=[4], help="B with overlap on")
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)  # one plant, JSON out
     parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
     args = parser.parse_args()
@@ -208,12 +215,16 @@ def main() -> int:
         print(json.dumps(one_group(1, args, first_seed=args.child)))
         return 0
     modes = ["one trainer", *(["B processes"] if args.separate else [])]
-    runs: dict[tuple[int, str], list[dict[str, float]]] = {
-        (b, m): [] for b in args.groups for m in modes
-    }
+    variants = [(b, m) for b in args.groups for m in modes]
+    variants += [(b, OVERLAPPED) for b in args.overlap]
+    runs: dict[tuple[int, str], list[dict[str, float]]] = {v: [] for v in variants}
     for _ in range(args.repeats):  # interleaved: each repeat runs every B and mode once
         for b, mode in runs:
-            runs[b, mode].append(one_group(b, args) if mode == "one trainer" else separate(b, args))
+            if mode == "B processes":
+                runs[b, mode].append(separate(b, args))
+            else:
+                overlap = "on" if mode == OVERLAPPED else "off"
+                runs[b, mode].append(one_group(b, args, overlap=overlap))
     rows = []
     for (b, mode), results in runs.items():
         row: dict[str, object] = {"B": b, "mode": mode}

@@ -4,7 +4,8 @@
     python scripts/gpu_checks.py resume OUT --steps 300    # Ctrl-C and --resume on CUDA
     python scripts/gpu_checks.py scaling OUT --binary BIN  # rasterizer stages vs threads
     python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
-    python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8
+    python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8,
+                                                           # overlap off / on for B = 4, 8
     python scripts/gpu_checks.py dataset OUT --steps 40    # `dataset --plants-per-gpu 4`
 
 ``throughput`` is ``scripts/gpu_throughput.py``: several plants in one trainer.
@@ -188,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
     p.add_argument("--groups", type=int, nargs="+", help="B (throughput: 1 4 8; dataset: 1 4)")
     p.add_argument("--plants", type=int, default=8, help="dataset: plants per run")
+    p.add_argument(
+        "--overlap", type=int, nargs="*", default=[4, 8], help="throughput: B also overlapped"
+    )
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")

@@ -181,7 +181,9 @@ def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
 def test_the_finite_gradient_check_is_exact_when_a_finite_sum_overflows():
     from types import SimpleNamespace
 
-    from plantdreamer.pipeline.trainer import check_finite_gradients as _check_finite_gradients
+    from plantdreamer.pipeline.step_schedule import (
+        check_finite_gradients as _check_finite_gradients,
+    )
 
     def model(grad):
         p = torch.nn.Parameter(torch.zeros_like(grad))
@@ -305,7 +307,7 @@ def test_graphed_call_runs_eagerly_off_cuda():
     graphed = GraphedCall(lambda a, b: calls.append(1) or a * b)
     x = torch.arange(4.0)
     assert torch.equal(graphed(x, x), x * x) and torch.equal(graphed(x, 2 * x), 2 * x * x)
-    assert len(calls) == 2 and graphed.graph is None
+    assert len(calls) == 2 and not graphed.graphs
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
@@ -330,7 +332,7 @@ def test_graph_replay_equals_the_eager_networks():  # pragma: no cover - no GPU 
         out = graphed.noise_prediction(x, ts, emb, control)
         assert torch.equal(out, eager.noise_prediction(x, ts, emb, control))
         outputs.append(out)
-    assert graphed._networks.graph is not None
+    assert len(graphed._networks.graphs) == 1
     assert not torch.equal(outputs[0], outputs[1])
 
 
@@ -354,7 +356,53 @@ def test_graphed_vae_gives_the_eager_latents_and_gradients():  # pragma: no cove
             (latents * latents).sum().backward()
             grads.append((latents.detach(), image.grad))
         assert torch.equal(grads[0][0], grads[1][0]) and torch.equal(grads[0][1], grads[1][1])
-    assert graphed._vae_moments.graphed is not None
+    assert len(graphed._vae_moments.graphs) == 1
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_graphs_of_two_half_sizes_are_each_captured_once():  # pragma: no cover - no GPU on CI
+    """An odd group in two halves alternates two batch sizes: one graph each, kept."""
+    from plantdreamer.guidance.cuda_graph import GraphedCall
+
+    calls = []
+    graphed = GraphedCall(lambda a: calls.append(1) or a * 2 + 1, warmup=1)
+    sizes = (3, 2, 3, 2, 3)
+    for i, n in enumerate(sizes):
+        x = torch.full((n, 4), float(i), device="cuda")
+        assert torch.equal(graphed(x), x * 2 + 1)
+    assert len(graphed.graphs) == 2 and len(calls) == 2 * 2  # warm-up + capture per size
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):  # pragma: no cover
+    """Each half's launch (copies, networks, backward, copies back) queues its work and
+    returns: under CUDA's sync debug mode "error" any host sync in it raises. The first
+    launches capture the graphs and the view prompts are encoded beforehand (one-off syncs)."""
+    from plantdreamer.guidance.prompts import VIEWS, base_prompt
+    from plantdreamer.pipeline import step_schedule
+    from plantdreamer.pipeline.group import generate_group
+
+    guidance = tiny_sds(device="cuda")
+    for view in VIEWS:
+        guidance.text_embedding(f"{base_prompt(guidance.species, guidance.prompt_template)}, "
+                                f"{view} view")  # fmt: skip
+    guidance.text_embedding(guidance.negative_prompt)
+    launch, launches = step_schedule.launch_guidance, []
+
+    def strict_launch(*args, **kwargs):
+        launches.append(1)
+        if len(launches) <= 2:
+            return launch(*args, **kwargs)
+        torch.cuda.set_sync_debug_mode("error")
+        try:
+            return launch(*args, **kwargs)
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+
+    monkeypatch.setattr(step_schedule, "launch_guidance", strict_launch)
+    cfgs = [small_sds(seed=s, steps=4, overlap="on", device="cuda") for s in range(4)]
+    result = generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
+    assert not result.failed and len(launches) == 8
 
 
 def test_gpu_checks_script_resume_dry_run_on_the_cpu(tmp_path):

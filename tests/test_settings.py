@@ -188,10 +188,12 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     """Checkpoints hold plain data only, so they load with weights_only=True."""
     from plantdreamer.guidance.base import PhotometricGuidance
 
-    # Every value a run decides itself when left open is given (resolution, precision, prompt).
+    # Every value a run decides itself when left open is given (resolution, precision,
+    # prompt, overlap).
     cfg = GenerateConfig.of(
         species="mint", points=1500, resolution=32, eval_views=1, turntable_frames=1,
         steps=3, checkpoint_every=2, network_dtype="float32", prompt_template="{species}",
+        overlap="off",
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     with pytest.raises(_Stop):

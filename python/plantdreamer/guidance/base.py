@@ -10,6 +10,11 @@ with ``images`` [B, H, W, 3] float32 in [0, 1] (requiring grad), ``depth_cond`` 
 [B, 1, h, w] depth conditioning in [0, 1] (or None when ``needs_depth`` is False), the
 ``Camera`` of each image, and the optimisation step (schedules depend on it).
 
+A guidance that runs on a GPU may also offer ``launch`` (same arguments), which queues the
+same work and returns a ``PendingOutput`` without waiting for the device: its figures stay
+on the device until ``result()`` (or the trainer's one read-back) copies them over. The
+trainer launches one half of a group while the host renders the other (``guidance/in_flight.py``).
+
 Besides the call, the loop reads three attributes: ``needs_depth`` (whether to render depth
 conditioning), ``resolution`` (the square size of that conditioning; None when no depth is
 needed) and ``generator`` (the guidance's own random generator, whose state checkpoints
@@ -34,6 +39,33 @@ class GuidanceOutput:
 
     loss: torch.Tensor
     stats: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class PendingOutput:
+    """A guidance call whose device work may still be running. ``loss`` as in
+    ``GuidanceOutput``; ``stats`` in their logged order, each a number or a 0-dim tensor
+    still on the device (read back together, by ``result`` or by the caller)."""
+
+    loss: torch.Tensor
+    stats: dict[str, float | torch.Tensor] = field(default_factory=dict)
+
+    def device_figures(self) -> torch.Tensor | None:
+        """The figures still on the device as one float64 vector (exact for counts), or
+        None when every figure is already a number."""
+        figures = [v.detach().double() for v in self.stats.values() if isinstance(v, torch.Tensor)]
+        return torch.stack(figures) if figures else None
+
+    def with_figures(self, values: Sequence[float]) -> GuidanceOutput:
+        """The output, with ``values`` (``device_figures``'s, read back) in their places."""
+        read = iter(values)
+        stats = {k: next(read) if isinstance(v, torch.Tensor) else v for k, v in self.stats.items()}
+        return GuidanceOutput(loss=self.loss, stats=stats)
+
+    def result(self) -> GuidanceOutput:
+        """The output; waits for the device (one copy for all figures)."""
+        figures = self.device_figures()
+        return self.with_figures([] if figures is None else figures.tolist())
 
 
 @runtime_checkable

@@ -3,7 +3,8 @@ together: the trainer hands it the renders and their cameras; the depth maps the
 needs are made here, one source per plant (a ``render_depth(camera)`` callback over that
 plant's initial Gaussians), cleaned by the section's ``depth_rule`` / ``control_resize`` at
 the guidance's own ``resolution``, and computed one step ahead on a worker thread per plant
-(``depth_ahead.py``). The guidance itself is called once per step on the whole batch.
+(``depth_ahead.py``). The guidance itself is called once per step on each batch the trainer
+hands it: the whole group, or one half of it (``guidance/in_flight.py``).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import torch
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.base import Guidance, GuidanceOutput
+from plantdreamer.guidance.base import Guidance, PendingOutput
 from plantdreamer.guidance.depth import DepthCleaning, DepthConditioner
 from plantdreamer.guidance.depth_ahead import DepthAhead
 
@@ -56,7 +57,12 @@ class ConditionedGuidance:
                 conditioner = DepthConditioner(render_depth, out_size=size, config=cleaning)
                 self._depth.append(DepthAhead(conditioner, next_camera, ahead))
 
-    def __call__(
+    @property
+    def device(self) -> torch.device:
+        """Where the guidance's networks run (the CPU for guidances without networks)."""
+        return torch.device(getattr(self.guidance, "device", "cpu"))
+
+    def launch(
         self,
         images: torch.Tensor,
         plants: Sequence[int],
@@ -64,9 +70,10 @@ class ConditionedGuidance:
         step: int,
         more: bool,
         timer: Timer | None = None,
-    ) -> GuidanceOutput:
+    ) -> PendingOutput:
         """The guidance of ``images`` [B, H, W, 3] (plant ``plants[b]`` rendered from
-        ``cameras[b]``) at ``step``; ``more``: another step follows."""
+        ``cameras[b]``) at ``step``, launched (``Guidance.launch``) where the guidance
+        offers it, else called; ``more``: another step follows."""
         timed = timer or (lambda name: nullcontext())
         depth = None
         if self._depth:
@@ -76,7 +83,11 @@ class ConditionedGuidance:
                 ]
                 depth = maps[0] if len(maps) == 1 else torch.cat(maps)
         with timed("guidance"):
-            return self.guidance(images, depth, list(cameras), step)
+            launch = getattr(self.guidance, "launch", None)
+            if launch is not None:
+                return launch(images, depth, list(cameras), step)
+            out = self.guidance(images, depth, list(cameras), step)
+            return PendingOutput(out.loss, dict(out.stats))
 
     def close(self) -> None:
         for depth in self._depth:

@@ -7,18 +7,30 @@ into a CUDA graph, each later call is a copy of the inputs into fixed buffers an
 
 The graph is captured on the first call of each input signature (shapes, dtypes, device) and
 replayed for calls with the same one; the same kernels run in the same order, so replays are
-as deterministic as the eager call. If capture fails (an operation that synchronises with the
-host, say), the call falls back to running eagerly, with one warning.
+as deterministic as the eager call. The last ``KEPT_SIGNATURES`` graphs are kept: a group
+trained as two half-batches of different sizes (an odd group) alternates two signatures
+every step, and must not capture again on each call. If capture fails (an operation that
+synchronises with the host, say), the call falls back to running eagerly, with one warning.
 """
 
 from __future__ import annotations
 
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable
+from typing import Any
 
 import torch
 
 Signature = tuple[tuple[tuple[int, ...], torch.dtype, torch.device], ...]
+# Two: the halves of a group in flight; a third (a plant failed) evicts the least recent.
+KEPT_SIGNATURES = 2
+
+
+def _make_room(graphs: OrderedDict[Any, Any]) -> None:
+    """Drops the least recent graphs (freeing their memory pools) before a new capture."""
+    while len(graphs) >= KEPT_SIGNATURES:
+        graphs.popitem(last=False)
 
 
 class GraphedCall:
@@ -27,29 +39,32 @@ class GraphedCall:
     def __init__(self, fn: Callable[..., torch.Tensor], warmup: int = 2) -> None:
         self.fn = fn
         self.warmup = warmup
-        self.signature: Signature | None = None
-        self.graph: torch.cuda.CUDAGraph | None = None
-        self.inputs: tuple[torch.Tensor, ...] = ()
-        self.output: torch.Tensor | None = None
+        # signature -> (graph, input buffers, output buffer), least recently used first
+        self.graphs: OrderedDict[
+            Signature, tuple[torch.cuda.CUDAGraph, tuple[torch.Tensor, ...], torch.Tensor]
+        ] = OrderedDict()
         self.failed = False
 
     def __call__(self, *args: torch.Tensor) -> torch.Tensor:
         if self.failed or not all(a.is_cuda for a in args):
             return self.fn(*args)
         signature = tuple((tuple(a.shape), a.dtype, a.device) for a in args)
-        if signature != self.signature:
+        if signature in self.graphs:
+            self.graphs.move_to_end(signature)
+        else:
             self._capture(args, signature)
             if self.failed:
                 return self.fn(*args)
-        assert self.graph is not None and self.output is not None
-        for buffer, value in zip(self.inputs, args, strict=True):
+        graph, inputs, output = self.graphs[signature]
+        for buffer, value in zip(inputs, args, strict=True):
             buffer.copy_(value)
-        self.graph.replay()
-        return self.output.clone()
+        graph.replay()
+        # A copy: the next replay (the other half's) overwrites the buffer.
+        return output.clone()
 
     @torch.no_grad()
     def _capture(self, args: tuple[torch.Tensor, ...], signature: Signature) -> None:
-        self.graph, self.output, self.signature = None, None, None  # free the old pool first
+        _make_room(self.graphs)
         inputs = tuple(a.detach().clone() for a in args)
         try:
             side = torch.cuda.Stream(device=args[0].device)
@@ -67,7 +82,7 @@ class GraphedCall:
                 f"CUDA graph capture failed ({exc}); running the networks eagerly", stacklevel=3
             )
             return
-        self.graph, self.inputs, self.output, self.signature = graph, inputs, output, signature
+        self.graphs[signature] = (graph, inputs, output)
 
 
 class GraphedAutogradCall:
@@ -79,8 +94,7 @@ class GraphedAutogradCall:
     def __init__(self, fn: Callable[..., torch.Tensor], warmup: int = 3) -> None:
         self.fn = fn
         self.warmup = warmup
-        self.signature: tuple | None = None
-        self.graphed: Callable[..., torch.Tensor] | None = None
+        self.graphs: OrderedDict[tuple, Callable[..., torch.Tensor]] = OrderedDict()
         self.failed = False
 
     def __call__(self, *args: torch.Tensor) -> torch.Tensor:
@@ -88,8 +102,10 @@ class GraphedAutogradCall:
         if self.failed or not usable or not all(a.is_cuda for a in args):
             return self.fn(*args)
         signature = tuple((tuple(a.shape), a.dtype, a.device, a.requires_grad) for a in args)
-        if signature != self.signature:
-            self.graphed, self.signature = None, None
+        if signature in self.graphs:
+            self.graphs.move_to_end(signature)
+        else:
+            _make_room(self.graphs)
             samples = tuple(a.detach().clone().requires_grad_(a.requires_grad) for a in args)
             try:
                 graphed = torch.cuda.make_graphed_callables(
@@ -101,6 +117,7 @@ class GraphedAutogradCall:
                     f"CUDA graph capture failed ({exc}); running the VAE eagerly", stacklevel=2
                 )
                 return self.fn(*args)
-            self.graphed, self.signature = graphed, signature  # type: ignore[assignment]
-        assert self.graphed is not None
-        return self.graphed(*args)
+            self.graphs[signature] = graphed  # type: ignore[assignment]
+        # The replayed backward writes the input gradient into a fixed buffer: the caller
+        # must consume it (queue its next use) before the next call, as SDS's backward does.
+        return self.graphs[signature](*args)

@@ -31,7 +31,7 @@ import torch.nn.functional as F
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.base import GuidanceOutput, check_images
+from plantdreamer.guidance.base import GuidanceOutput, PendingOutput, check_images
 from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE, RESIZE_MODES, SDS_DEFAULTS
 from plantdreamer.guidance.cuda_graph import GraphedAutogradCall, GraphedCall
 from plantdreamer.guidance.depth import resize_control
@@ -254,6 +254,17 @@ class StableDiffusionDepthGuidance:
         cameras: Sequence[Camera],
         step: int,
     ) -> GuidanceOutput:
+        return self.launch(images, depth_cond, cameras, step).result()
+
+    def launch(
+        self,
+        images: torch.Tensor,
+        depth_cond: torch.Tensor | None,
+        cameras: Sequence[Camera],
+        step: int,
+    ) -> PendingOutput:
+        """The call's work queued on the device, nothing waiting for it: no figure is read
+        back here (the draws, the networks and the loss stay on the device)."""
         check_images(images, cameras)
         if depth_cond is None:
             raise InputError("Stable Diffusion depth guidance needs depth conditioning")
@@ -284,23 +295,15 @@ class StableDiffusionDepthGuidance:
         target = (latents - grad).detach()
         loss = 0.5 * F.mse_loss(latents, target, reduction="sum") / batch
         lo, hi = self.schedule.bounds(step, self.num_train_timesteps)
-        # One copy to the host for all device-side figures (each float() would wait for the
-        # device on its own). The count is exact in float64.
-        loss_v, grad_norm, timestep, nonfinite_v = torch.stack(
-            [
-                loss.detach().double(),
-                grad.norm().double(),
-                t.float().mean().double(),
-                nonfinite.double(),
-            ]
-        ).tolist()
-        stats = {
-            "loss": loss_v,
-            "grad_norm": grad_norm,
-            "timestep": timestep,
+        # Device-side figures stay there: they are read back in one copy, after the device
+        # is done (each float() would wait for it on its own). The count is exact in float64.
+        stats: dict[str, float | torch.Tensor] = {
+            "loss": loss.detach(),
+            "grad_norm": grad.norm(),
+            "timestep": t.float().mean(),
             "t_min": float(lo),
             "t_max": float(hi),
             "grad_clip": float("nan") if clip is None else clip,
-            "nonfinite_grad": nonfinite_v,
+            "nonfinite_grad": nonfinite,
         }
-        return GuidanceOutput(loss=loss, stats=stats)
+        return PendingOutput(loss=loss, stats=stats)

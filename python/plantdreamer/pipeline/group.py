@@ -1,7 +1,7 @@
 """Several plants trained together in one trainer: ``OUT/<species>-s<seed>/`` per plant.
 
 The plants share every setting but their seed and point cloud (one guidance serves them
-all: one batched network call per step), and keep their own cameras, optimiser, density
+all: one batched network call per step, or one per half with ``overlap``), and keep their own cameras, optimiser, density
 control, labels, checkpoint and outputs. ``OUT/group.json`` lists the plants and their
 status (``running``, ``done`` or ``failed: <error>``); a plant that fails is recorded there
 and the others go on. The same group (same plants, same order) gives the same bytes run

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from plantdreamer.settings import option_prefix, setting
 
 ELEVATION_SAMPLINGS = ("uniform", "mixed", "mixed-full")
+OVERLAP_CHOICES = ("auto", "on", "off")
 
 
 @dataclass
@@ -56,5 +57,14 @@ class TrainConfig:
         choices=ELEVATION_SAMPLINGS,
     )
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
+    overlap: str = setting(
+        "auto",
+        "Plants trained together (--seeds) as two halves in flight: one half renders and "
+        "back-propagates on the host while the other's networks run on the GPU. auto: on "
+        "for two plants or more with a CUDA guidance, off otherwise (on the CPU nothing "
+        "overlaps). The halves draw their SDS noise in turn, so a group's plants differ "
+        "with it on and off (docs/scaling.md).",
+        choices=OVERLAP_CHOICES,
+    )
     lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))
     cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))

@@ -2,36 +2,34 @@
 run state: model, optimiser, cameras, density control, log and folder) and one guidance that
 owns their depth conditioning, and calls each at fixed points of a step:
 
-    cameras -> renders (one thread per plant) -> one guidance call on the batch
+    cameras -> renders (one thread per plant) -> the guidance call on the batch
     -> backward to the renders -> rasterizer backwards (one thread per plant)
     -> per plant: density.after_backward, Adam, density.step_end -> checkpoints when due
 
-One plant is a batch of one. In a group a plant that fails (NaN, ...) is recorded and
-dropped; the others go on.
+The step itself (``step_schedule.py``) runs the group as one batch or, with ``overlap``, as
+two halves in flight, one half's host work beside the other's device work. One plant is a
+batch of one. In a group a plant that fails (NaN, ...) is recorded and dropped; the others
+go on.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import save_checkpoint
-from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
-from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
 from plantdreamer.stop_signals import stop_signals_handled
+
+__all__ = ["PlantRun", "RunInterrupted", "Trainer"]
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -40,16 +38,6 @@ class RunInterrupted(KeyboardInterrupt):
     def __init__(self, step: int, out_dir: Path) -> None:
         super().__init__(f"interrupted at step {step}")
         self.step, self.out_dir = step, out_dir
-
-
-@dataclass
-class PlantRun:
-    """One plant of a trainer: its settings, state and folder; ``error`` once it failed."""
-
-    cfg: GenerateConfig
-    state: RunState
-    out_dir: Path
-    error: str | None = None
 
 
 class Trainer:
@@ -81,7 +69,18 @@ class Trainer:
             erosion_distance=self.cfg.sds.erosion_distance,
             ahead=depth_ahead,
         )
-        self._pool = ThreadPoolExecutor(len(plants)) if len(plants) > 1 else None
+        # ``auto`` decided here, where the guidance's device is known; run.json and the
+        # checkpoints record the value used, so a resume keeps it.
+        overlap = resolve_overlap(self.cfg.train.overlap, self.guidance.device, len(plants))
+        for p in plants:
+            p.cfg.train.overlap = "on" if overlap else "off"
+        self.schedule = StepSchedule(
+            plants,
+            self.guidance,
+            overlap=overlap,
+            isolate_failures=isolate_failures,
+            run_ahead=self._may_run_ahead,
+        )
         self._stop_requested = False
 
     def _depth_renderer(self, initial: GaussianModel):
@@ -93,7 +92,14 @@ class Trainer:
         return render_depth
 
     def alive(self) -> list[int]:
-        return [i for i, p in enumerate(self.plants) if p.error is None]
+        return self.schedule.alive()
+
+    def _may_run_ahead(self, step: int) -> bool:
+        """Whether step + 1 may start during ``step``: not at a checkpoint (which must hold
+        no work in flight), a requested stop or the end."""
+        nxt = step + 1
+        every = self.cfg.train.checkpoint_every
+        return nxt < self.cfg.train.steps and nxt % every != 0 and not self._stop_requested
 
     def run(self, show_progress: bool = True, on_step: Callable[[int], None] | None = None) -> None:
         """Steps from the plants' step to the last; Ctrl-C (or SIGTERM) writes a checkpoint
@@ -109,13 +115,15 @@ class Trainer:
         try:
             with stop_signals_handled(self._request_stop):
                 for step in range(first.step, steps):
-                    if self._stop_requested:
+                    # With a half in flight the stop waits a step: the run ahead stops.
+                    if self._stop_requested and self.schedule.pending is None:
                         self.checkpoint(step)
                         raise RunInterrupted(step, self.out_dir)
-                    loss = self.train_step(step) if self.trains else None
-                    for i in self.alive():
-                        st = self.plants[i].state
-                        st.events += st.density.step_end(step, st.model, st.timer)
+                    if self.trains:
+                        loss: float | None = self.schedule.train_step(step)
+                    else:
+                        loss = None
+                        self.schedule.step_end(step, self.alive())
                     progress.update(
                         step, loss, sum(len(self.plants[i].state.model) for i in self.alive())
                     )
@@ -131,80 +139,12 @@ class Trainer:
         finally:
             progress.close()
             self.guidance.close()
-            if self._pool is not None:
-                self._pool.shutdown()
+            self.schedule.close()
 
     def _request_stop(self, signum, frame) -> None:
         if self._stop_requested:  # a second Ctrl-C or SIGTERM: stop now
             raise KeyboardInterrupt
         self._stop_requested = True
-
-    @contextmanager
-    def _timed(self, name: str, plants: list[int]) -> Iterator[None]:
-        """One phase of the step, its wall time added to every plant in it."""
-        first = self.plants[plants[0]].state.timer.totals
-        before = first[name]
-        with self.plants[plants[0]].state.timer(name):
-            yield
-        for i in plants[1:]:
-            self.plants[i].state.timer.totals[name] += first[name] - before
-
-    def _map(self, fn: Callable[[int], Any], plants: list[int]) -> list[Any]:
-        if self._pool is None or len(plants) == 1:
-            return [fn(i) for i in plants]
-        return list(self._pool.map(fn, plants))
-
-    def train_step(self, step: int) -> float:
-        plants = self.alive()
-        group = [self.plants[i] for i in plants]
-        cameras = [p.state.sampler.sample() for p in group]
-        background = self.cfg.train.background
-
-        def render(k: int):
-            return group[k].state.model.render([cameras[k]], background)
-
-        with self._timed("render", plants):
-            renders = self._map(render, list(range(len(group))))
-        images = [r[0] for r in renders]
-        batch = images[0] if len(images) == 1 else torch.cat(images)
-        leaf = batch.detach().requires_grad_(True)
-        more = step + 1 < self.cfg.train.steps
-        out = self.guidance(leaf, plants, cameras, step, more, lambda n: self._timed(n, plants))
-        with self._timed("backward", plants):
-            for p in group:
-                optimizer = p.state.model.optimizer
-                assert optimizer is not None  # the models are built with learning rates
-                optimizer.zero_grad(set_to_none=True)
-            # The guidance's loss is a mean over the batch: each plant gets its own gradient.
-            (out.loss if len(group) == 1 else out.loss * len(group)).backward()
-            grads = leaf.grad
-            assert grads is not None
-            self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
-        loss = float(out.loss.detach())
-        # A non-finite loss fails the plants whose renders got non-finite gradients (all of
-        # them when none did): one plant's NaN must not stop the others.
-        culprits = set()
-        if not math.isfinite(loss):
-            culprits = {k for k in range(len(group)) if not bool(grads[k].isfinite().all())}
-            culprits = culprits or set(range(len(group)))
-        with self._timed("optimizer", plants):  # per-plant checks and Adam, the group's time
-            for k, p in enumerate(group):
-                try:
-                    check_finite_gradients(p.state.model, step)
-                    if k in culprits:
-                        raise PlantDreamerError(
-                            f"loss became {loss} at step {step}; stopping (no output written)"
-                        )
-                except PlantDreamerError as exc:
-                    if not self.isolate:
-                        raise
-                    p.error = str(exc)
-                    continue
-                p.state.density.after_backward(step, renders[k][2], cameras[k])
-                p.state.model.optimizer.step()  # type: ignore[union-attr]
-                row = {"step": step, "loss": loss, "gaussians": len(p.state.model), **out.stats}
-                p.state.log_rows.append(row)
-        return loss
 
     def checkpoint(self, step: int) -> None:
         """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``."""
@@ -222,19 +162,3 @@ class Trainer:
                 }
                 save_checkpoint(p.out_dir, record)
                 outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
-
-
-def check_finite_gradients(model: GaussianModel, step: int) -> None:
-    """Stops before a NaN or Inf gradient reaches the Gaussians through Adam (whose moments
-    it would poison for every later step)."""
-    for name, p in model.params.items():
-        # A finite sum proves every value finite (one reduction, no mask); only a non-finite
-        # one (a bad value, or rarely an overflowing sum) runs the exact test.
-        if p.grad is None or math.isfinite(float(p.grad.sum())):
-            continue
-        if not bool(torch.isfinite(p.grad).all()):
-            bad = int((~torch.isfinite(p.grad)).sum())
-            raise PlantDreamerError(
-                f"non-finite gradient on the Gaussians' {name} ({bad} values) at step {step}; "
-                "stopping (no output written)"
-            )
