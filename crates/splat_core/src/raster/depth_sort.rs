@@ -7,7 +7,14 @@
 //! stable counting sort a single thread would do. The words are distinct (the index is in
 //! them), so their sorted order is unique: the chunking, which follows the thread count,
 //! cannot change the result, and one thread runs the sequential sort with no chunks.
+//!
+//! On several threads the splats are read twice in all before the passes: once for each
+//! chunk's count of visible splats and key range, once to write every chunk's words at
+//! its own place while counting the first pass's digits. The last pass writes the ids
+//! (not the words), which is the sort's output.
 #![allow(unsafe_code)]
+
+use std::ops::Range;
 
 use rayon::prelude::*;
 
@@ -24,20 +31,68 @@ const MIN_CHUNK: usize = 16_384;
 const CHUNKS_PER_THREAD: usize = 4;
 const MAX_CHUNKS: usize = 64;
 
+type Histogram = [u32; BUCKETS];
+
 /// Visible splats ordered front to back; ties broken by index, so the order is unique.
 pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
     // Depths of visible splats are >= near_plane > 0, so their bit patterns sort like the
-    // values. Collected in index order (rayon keeps it), a stable sort by depth breaks ties
-    // by index.
-    let visible = |(g, s): (usize, &Splat)| {
-        let depth = s.depth.to_bits();
-        s.visible().then_some(pair(depth, g as u32))
-    };
-    if rayon::current_num_threads() == 1 {
-        return radix_sort_pairs(splats.iter().enumerate().filter_map(visible).collect());
+    // values. Collected in index order, a stable sort by depth breaks ties by index.
+    let chunk = chunk_len(splats.len());
+    if chunk >= splats.len() || rayon::current_num_threads() == 1 {
+        let visible =
+            |(g, s): (usize, &Splat)| s.visible().then_some(pair(s.depth.to_bits(), g as u32));
+        return sort_on_one_thread(splats.iter().enumerate().filter_map(visible).collect());
     }
-    let pairs = splats.par_iter().enumerate().filter_map(visible).collect();
-    radix_sort_pairs(pairs)
+    // Per chunk of splats: visible count and key range.
+    let counts: Vec<(usize, u32, u32)> = splats
+        .par_chunks(chunk)
+        .map(|c| {
+            c.iter()
+                .filter(|s| s.visible())
+                .fold((0, u32::MAX, 0), |(k, lo, hi), s| {
+                    let d = s.depth.to_bits();
+                    (k + 1, lo.min(d), hi.max(d))
+                })
+        })
+        .collect();
+    let n: usize = counts.iter().map(|c| c.0).sum();
+    if n == 0 {
+        return Vec::new();
+    }
+    let min = counts.iter().map(|c| c.1).min().unwrap_or(0);
+    let max = counts.iter().map(|c| c.2).max().unwrap_or(0);
+    let passes = passes_for(max - min);
+    let mut ranges = Vec::with_capacity(counts.len());
+    let mut at = 0;
+    for c in &counts {
+        ranges.push(at..at + c.0);
+        at += c.0;
+    }
+    // Every chunk's visible words (key less the smallest) at its own range, in index
+    // order, with the first pass's digit counts of that range.
+    let mut pairs = vec![0u64; n];
+    let dst = SharedOut(pairs.as_mut_ptr());
+    let first: Vec<Histogram> = splats
+        .par_chunks(chunk)
+        .zip(ranges.par_iter())
+        .enumerate()
+        .map(|(ci, (c, range))| {
+            let mut h = [0u32; BUCKETS];
+            let mut i = range.start;
+            for (j, s) in c.iter().enumerate() {
+                if s.visible() {
+                    let p = pair(s.depth.to_bits() - min, (ci * chunk + j) as u32);
+                    h[digit(p, 0)] += 1;
+                    // SAFETY: chunk ci writes exactly its visible count of positions,
+                    // range.start.., and the ranges tile 0..n = pairs.len().
+                    unsafe { dst.write(i, p) };
+                    i += 1;
+                }
+            }
+            h
+        })
+        .collect();
+    sort_passes(pairs, passes, ranges, first)
 }
 
 /// A key and an id in one word: key in the high half.
@@ -51,16 +106,36 @@ fn key(p: u64) -> u32 {
     (p >> 32) as u32
 }
 
+/// Pass `d`'s digit of a word.
+#[inline(always)]
+fn digit(p: u64, d: u32) -> usize {
+    ((p >> (32 + d * BITS)) & MASK) as usize
+}
+
+/// Passes that cover keys spanning `span`.
+fn passes_for(span: u32) -> u32 {
+    (u32::BITS - span.leading_zeros()).div_ceil(BITS)
+}
+
 /// Elements per chunk for `n` elements on the current pool.
 fn chunk_len(n: usize) -> usize {
     let chunks = (CHUNKS_PER_THREAD * rayon::current_num_threads()).min(MAX_CHUNKS);
     n.div_ceil(chunks).max(MIN_CHUNK)
 }
 
+/// Fixed-size chunks of 0..n.
+fn chunk_ranges(n: usize, chunk: usize) -> Vec<Range<usize>> {
+    (0..n)
+        .step_by(chunk)
+        .map(|a| a..(a + chunk).min(n))
+        .collect()
+}
+
 /// Stable LSD radix sort of (key, id) `pair`s by key; returns the ids. Linear, and ~4x
 /// faster than a comparison sort at 100k splats. Only the bits in which the keys differ
 /// from the smallest one cost passes, and a pass whose digit is the same for every key is
 /// skipped. Key and id travel as one word, so a pass scatters into one array, not two.
+#[cfg(test)]
 pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
     let n = pairs.len();
     if n == 0 {
@@ -79,96 +154,152 @@ pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
             })
         })
         .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
-    let span = max - min;
-    let passes = (u32::BITS - span.leading_zeros()).div_ceil(BITS);
     let offset = pair(min, 0);
-    let mut out = vec![0u64; n];
-    for d in 0..passes {
-        let shift = 32 + d * BITS;
-        let digit = move |p: u64| ((p >> shift) & MASK) as usize;
-        let mut offsets: Vec<[u32; BUCKETS]> = if d == 0 {
-            // The first count also takes the smallest key off (one read less).
-            pairs
-                .par_chunks_mut(chunk)
-                .map(|c| {
-                    let mut h = [0u32; BUCKETS];
-                    for p in c {
-                        *p -= offset;
-                        h[digit(*p)] += 1;
-                    }
-                    h
-                })
-                .collect()
-        } else {
-            pairs
-                .par_chunks(chunk)
-                .map(|c| {
-                    let mut h = [0u32; BUCKETS];
-                    for &p in c {
-                        h[digit(p)] += 1;
-                    }
-                    h
-                })
-                .collect()
-        };
-        let first = digit(pairs[0]);
-        if offsets.iter().map(|h| h[first] as usize).sum::<usize>() == n {
-            continue;
-        }
-        let mut at = 0u32;
-        for b in 0..BUCKETS {
-            for h in offsets.iter_mut() {
-                (h[b], at) = (at, at + h[b]);
+    // The first count also takes the smallest key off (one read less).
+    let first = pairs
+        .par_chunks_mut(chunk)
+        .map(|c| {
+            let mut h = [0u32; BUCKETS];
+            for p in c {
+                *p -= offset;
+                h[digit(*p, 0)] += 1;
             }
-        }
-        let dst = SharedOut(out.as_mut_ptr());
-        pairs
-            .par_chunks(chunk)
-            .zip(offsets.par_iter_mut())
-            .for_each(|(c, slots)| {
-                for &p in c {
-                    let slot = &mut slots[digit(p)];
-                    // SAFETY: the offsets give every (chunk, digit) its own range of
-                    // `out`, of exactly the chunk's count of that digit, and the ranges
-                    // tile 0..n; each chunk writes only its own ranges, once per slot, so
-                    // no two writes alias and all stay in bounds (n = out.len()).
-                    unsafe { dst.write(*slot as usize, p) };
-                    *slot += 1;
+            h
+        })
+        .collect();
+    sort_passes(pairs, passes_for(max - min), chunk_ranges(n, chunk), first)
+}
+
+/// The passes of the parallel sort on words whose smallest key is 0. The first pass runs
+/// on `ranges` with their digit counts `first`; later passes count on fixed-size chunks.
+/// The last pass that moves anything writes the ids.
+fn sort_passes(
+    mut pairs: Vec<u64>,
+    passes: u32,
+    mut ranges: Vec<Range<usize>>,
+    first: Vec<Histogram>,
+) -> Vec<u32> {
+    let n = pairs.len();
+    let chunk = chunk_len(n);
+    let mut counts = Some(first);
+    let mut out = Vec::new();
+    for d in 0..passes {
+        let mut offsets = counts.take().unwrap_or_else(|| {
+            ranges
+                .par_iter()
+                .map(|r| {
+                    let mut h = [0u32; BUCKETS];
+                    for &p in &pairs[r.clone()] {
+                        h[digit(p, d)] += 1;
+                    }
+                    h
+                })
+                .collect()
+        });
+        let lead = digit(pairs[0], d);
+        let moves = offsets.iter().map(|h| h[lead] as usize).sum::<usize>() != n;
+        if moves {
+            let mut at = 0u32;
+            for b in 0..BUCKETS {
+                for h in offsets.iter_mut() {
+                    (h[b], at) = (at, at + h[b]);
                 }
-            });
-        std::mem::swap(&mut pairs, &mut out);
+            }
+            // The top pass always moves (it holds the span's top bit, and the smallest
+            // key is 0): it is the last, and writes the ids.
+            if d + 1 == passes {
+                return scatter_ids(&pairs, &ranges, offsets, d);
+            }
+            if out.len() != n {
+                out = vec![0u64; n];
+            }
+            let dst = SharedOut(out.as_mut_ptr());
+            ranges
+                .par_iter()
+                .zip(offsets.par_iter_mut())
+                .for_each(|(r, slots)| {
+                    for &p in &pairs[r.clone()] {
+                        let slot = &mut slots[digit(p, d)];
+                        // SAFETY: the offsets give every (chunk, digit) its own range of
+                        // `out`, of exactly the chunk's count of that digit, and the ranges
+                        // tile 0..n; each chunk writes only its own ranges, once per slot,
+                        // so no two writes alias and all stay in bounds (n = out.len()).
+                        unsafe { dst.write(*slot as usize, p) };
+                        *slot += 1;
+                    }
+                });
+            std::mem::swap(&mut pairs, &mut out);
+        }
+        if d == 0 {
+            ranges = chunk_ranges(n, chunk);
+        }
     }
     pairs.par_iter().map(|&p| p as u32).collect()
 }
 
+/// The last pass's scatter, writing the ids of the words.
+fn scatter_ids(
+    pairs: &[u64],
+    ranges: &[Range<usize>],
+    mut offsets: Vec<Histogram>,
+    d: u32,
+) -> Vec<u32> {
+    let mut ids = vec![0u32; pairs.len()];
+    let dst = SharedIds(ids.as_mut_ptr());
+    ranges
+        .par_iter()
+        .zip(offsets.par_iter_mut())
+        .for_each(|(r, slots)| {
+            for &p in &pairs[r.clone()] {
+                let slot = &mut slots[digit(p, d)];
+                // SAFETY: as in the word scatter of `sort_passes`, into ids.len() = n.
+                unsafe { dst.write(*slot as usize, p as u32) };
+                *slot += 1;
+            }
+        });
+    ids
+}
+
 /// `radix_sort_pairs` on the calling thread: the key range in one read, every pass's
-/// histogram in one more, then the passes.
+/// histogram in one more, then the passes; the last one that moves anything writes ids.
 fn sort_on_one_thread(mut pairs: Vec<u64>) -> Vec<u32> {
     let n = pairs.len();
+    if n == 0 {
+        return Vec::new();
+    }
     let (min, max) = pairs.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
         (lo.min(key(p)), hi.max(key(p)))
     });
-    let passes = (u32::BITS - (max - min).leading_zeros()).div_ceil(BITS) as usize;
+    let passes = passes_for(max - min) as usize;
     let mut hist = vec![[0u32; BUCKETS]; passes];
     let offset = pair(min, 0);
     for p in pairs.iter_mut() {
         *p -= offset;
         for (d, h) in hist.iter_mut().enumerate() {
-            h[((*p >> (32 + d as u32 * BITS)) & MASK) as usize] += 1;
+            h[digit(*p, d as u32)] += 1;
         }
     }
-    let mut out = vec![0u64; n];
-    for (d, offsets) in hist.iter_mut().enumerate() {
-        if offsets.iter().any(|&c| c as usize == n) {
-            continue;
-        }
+    let moving: Vec<usize> = (0..passes)
+        .filter(|&d| hist[d].iter().all(|&c| c as usize != n))
+        .collect();
+    let mut out = vec![0u64; if moving.len() > 1 { n } else { 0 }];
+    for (i, &d) in moving.iter().enumerate() {
+        let offsets = &mut hist[d];
         let mut at = 0;
         for o in offsets.iter_mut() {
             (*o, at) = (at, at + *o);
         }
-        let shift = 32 + d as u32 * BITS;
+        if i + 1 == moving.len() {
+            let mut ids = vec![0u32; n];
+            for &p in &pairs {
+                let slot = &mut offsets[digit(p, d as u32)];
+                ids[*slot as usize] = p as u32;
+                *slot += 1;
+            }
+            return ids;
+        }
         for &p in &pairs {
-            let slot = &mut offsets[((p >> shift) & MASK) as usize];
+            let slot = &mut offsets[digit(p, d as u32)];
             out[*slot as usize] = p;
             *slot += 1;
         }
@@ -191,6 +322,24 @@ impl SharedOut {
     /// `i` is in bounds and no other thread reads or writes position `i` meanwhile.
     #[inline(always)]
     unsafe fn write(self, i: usize, v: u64) {
+        // SAFETY: the caller's contract.
+        unsafe { self.0.add(i).write(v) }
+    }
+}
+
+/// The ids array of the last pass, written like `SharedOut`.
+#[derive(Clone, Copy)]
+struct SharedIds(*mut u32);
+
+// SAFETY: as for `SharedOut`.
+unsafe impl Send for SharedIds {}
+unsafe impl Sync for SharedIds {}
+
+impl SharedIds {
+    /// # Safety
+    /// `i` is in bounds and no other thread reads or writes position `i` meanwhile.
+    #[inline(always)]
+    unsafe fn write(self, i: usize, v: u32) {
         // SAFETY: the caller's contract.
         unsafe { self.0.add(i).write(v) }
     }
@@ -238,6 +387,37 @@ mod tests {
                 let pairs: Vec<u64> = keys.iter().zip(&ids).map(|(&k, &i)| pair(k, i)).collect();
                 let got = with_threads(Some(threads), || Ok(radix_sort_pairs(pairs))).unwrap();
                 assert_eq!(got, want, "n {n} spread {spread} threads {threads}");
+            }
+        }
+    }
+
+    #[test]
+    fn depth_order_is_a_comparison_sort_of_the_visible_on_any_thread_count() {
+        let mut rng = Lcg::new(11);
+        // Several chunks on 2 and 5 threads; depths with ties, a few binades apart (two or
+        // three passes), a third of the splats hidden, and one chunk with none visible.
+        for (n, spread) in [(5 * MIN_CHUNK + 17, 1u32 << 26), (3 * MIN_CHUNK + 5, 7)] {
+            let splats: Vec<Splat> = (0..n)
+                .map(|i| {
+                    let hidden =
+                        rng.u31().is_multiple_of(3) || (MIN_CHUNK..2 * MIN_CHUNK).contains(&i);
+                    let depth = f32::from_bits(1.0f32.to_bits() + rng.u31() % spread);
+                    Splat {
+                        depth,
+                        radius: if hidden { [0.0, 0.0] } else { [1.0, 3.0] },
+                        ..Splat::default()
+                    }
+                })
+                .collect();
+            let mut want: Vec<(u32, u32)> = (0..n)
+                .filter(|&i| splats[i].visible())
+                .map(|i| (splats[i].depth.to_bits(), i as u32))
+                .collect();
+            want.sort();
+            let want: Vec<u32> = want.into_iter().map(|(_, i)| i).collect();
+            for threads in [1, 2, 5] {
+                let got = with_threads(Some(threads), || Ok(depth_order(&splats))).unwrap();
+                assert_eq!(got, want, "n {n} threads {threads}");
             }
         }
     }
