@@ -8,20 +8,19 @@
 //! them), so their sorted order is unique: the chunking, which follows the thread count,
 //! cannot change the result, and one thread runs the sequential sort with no chunks.
 //!
-//! On several threads the splats are read twice in all before the passes: once for each
-//! chunk's count of visible splats and key range, once to write every chunk's words at
-//! its own place while counting the first pass's digits. The last pass writes the ids
-//! (not the words), which is the sort's output.
+//! On several threads the splats are read once: each chunk collects its visible words,
+//! their key range and the first pass's digit counts, and the first pass scatters from
+//! the chunks' own vectors (no concatenation). Only the bits above which the smallest and
+//! largest keys agree are sorted (the keys agree on the rest), and the last pass writes
+//! the ids rather than words to be narrowed after.
 #![allow(unsafe_code)]
-
-use std::ops::Range;
 
 use rayon::prelude::*;
 
 use super::project::Splat;
 
-/// Bits per digit: a 16 KiB histogram, in L1. Depths of one scene span a few binades and
-/// are sorted as offsets from the smallest one, so two passes usually cover them.
+/// Bits per digit: a 16 KiB histogram, in L1. Depths of one scene span a few binades, so
+/// their bit patterns differ in the low 24-26 bits and two or three passes cover them.
 const BITS: u32 = 12;
 const MASK: u64 = (1 << BITS) - 1;
 const BUCKETS: usize = 1 << BITS;
@@ -43,56 +42,30 @@ pub fn depth_order(splats: &[Splat]) -> Vec<u32> {
             |(g, s): (usize, &Splat)| s.visible().then_some(pair(s.depth.to_bits(), g as u32));
         return sort_on_one_thread(splats.iter().enumerate().filter_map(visible).collect());
     }
-    // Per chunk of splats: visible count and key range.
-    let counts: Vec<(usize, u32, u32)> = splats
+    let parts: Vec<(Vec<u64>, Histogram, u32, u32)> = splats
         .par_chunks(chunk)
-        .map(|c| {
-            c.iter()
-                .filter(|s| s.visible())
-                .fold((0, u32::MAX, 0), |(k, lo, hi), s| {
-                    let d = s.depth.to_bits();
-                    (k + 1, lo.min(d), hi.max(d))
-                })
-        })
-        .collect();
-    let n: usize = counts.iter().map(|c| c.0).sum();
-    if n == 0 {
-        return Vec::new();
-    }
-    let min = counts.iter().map(|c| c.1).min().unwrap_or(0);
-    let max = counts.iter().map(|c| c.2).max().unwrap_or(0);
-    let passes = passes_for(max - min);
-    let mut ranges = Vec::with_capacity(counts.len());
-    let mut at = 0;
-    for c in &counts {
-        ranges.push(at..at + c.0);
-        at += c.0;
-    }
-    // Every chunk's visible words (key less the smallest) at its own range, in index
-    // order, with the first pass's digit counts of that range.
-    let mut pairs = vec![0u64; n];
-    let dst = SharedOut(pairs.as_mut_ptr());
-    let first: Vec<Histogram> = splats
-        .par_chunks(chunk)
-        .zip(ranges.par_iter())
         .enumerate()
-        .map(|(ci, (c, range))| {
+        .map(|(ci, c)| {
+            let mut words = Vec::with_capacity(c.len());
             let mut h = [0u32; BUCKETS];
-            let mut i = range.start;
+            let (mut lo, mut hi) = (u32::MAX, 0);
             for (j, s) in c.iter().enumerate() {
                 if s.visible() {
-                    let p = pair(s.depth.to_bits() - min, (ci * chunk + j) as u32);
+                    let k = s.depth.to_bits();
+                    (lo, hi) = (lo.min(k), hi.max(k));
+                    let p = pair(k, (ci * chunk + j) as u32);
                     h[digit(p, 0)] += 1;
-                    // SAFETY: chunk ci writes exactly its visible count of positions,
-                    // range.start.., and the ranges tile 0..n = pairs.len().
-                    unsafe { dst.write(i, p) };
-                    i += 1;
+                    words.push(p);
                 }
             }
-            h
+            (words, h, lo, hi)
         })
         .collect();
-    sort_passes(pairs, passes, ranges, first)
+    let lo = parts.iter().map(|p| p.2).min().unwrap_or(u32::MAX);
+    let hi = parts.iter().map(|p| p.3).max().unwrap_or(0);
+    let sources: Vec<&[u64]> = parts.iter().map(|p| p.0.as_slice()).collect();
+    let first = parts.iter().map(|p| p.1).collect();
+    sort_passes(&sources, first, passes_for(lo, hi))
 }
 
 /// A key and an id in one word: key in the high half.
@@ -112,9 +85,13 @@ fn digit(p: u64, d: u32) -> usize {
     ((p >> (32 + d * BITS)) & MASK) as usize
 }
 
-/// Passes that cover keys spanning `span`.
-fn passes_for(span: u32) -> u32 {
-    (u32::BITS - span.leading_zeros()).div_ceil(BITS)
+/// Passes that sort keys in [lo, hi]: those below the highest bit in which they differ
+/// (every key in the range has the bits above it). 0 for no keys or one key value.
+fn passes_for(lo: u32, hi: u32) -> u32 {
+    if lo > hi {
+        return 0;
+    }
+    (u32::BITS - (lo ^ hi).leading_zeros()).div_ceil(BITS)
 }
 
 /// Elements per chunk for `n` elements on the current pool.
@@ -123,141 +100,110 @@ fn chunk_len(n: usize) -> usize {
     n.div_ceil(chunks).max(MIN_CHUNK)
 }
 
-/// Fixed-size chunks of 0..n.
-fn chunk_ranges(n: usize, chunk: usize) -> Vec<Range<usize>> {
-    (0..n)
-        .step_by(chunk)
-        .map(|a| a..(a + chunk).min(n))
-        .collect()
+/// Pass `d`'s digit counts of one chunk.
+fn histogram(words: &[u64], d: u32) -> Histogram {
+    let mut h = [0u32; BUCKETS];
+    for &p in words {
+        h[digit(p, d)] += 1;
+    }
+    h
 }
 
-/// Stable LSD radix sort of (key, id) `pair`s by key; returns the ids. Linear, and ~4x
-/// faster than a comparison sort at 100k splats. Only the bits in which the keys differ
-/// from the smallest one cost passes, and a pass whose digit is the same for every key is
-/// skipped. Key and id travel as one word, so a pass scatters into one array, not two.
-#[cfg(test)]
-pub(super) fn radix_sort_pairs(mut pairs: Vec<u64>) -> Vec<u32> {
-    let n = pairs.len();
-    if n == 0 {
-        return Vec::new();
+/// Counts to offsets: digit-major, chunk order within a digit.
+fn prefix(offsets: &mut [Histogram]) {
+    let mut at = 0u32;
+    for b in 0..BUCKETS {
+        for h in offsets.iter_mut() {
+            (h[b], at) = (at, at + h[b]);
+        }
     }
-    let chunk = chunk_len(n);
-    if chunk >= n || rayon::current_num_threads() == 1 {
-        // The same order (a stable sort's is unique), with one read for every histogram.
+}
+
+/// Stable LSD radix sort of (key, id) `pair`s by key on the current pool; returns the ids.
+/// (The sort of `depth_order` on words already collected, for the tests.)
+#[cfg(test)]
+pub(super) fn radix_sort_pairs(pairs: Vec<u64>) -> Vec<u32> {
+    let chunk = chunk_len(pairs.len());
+    if chunk >= pairs.len() || rayon::current_num_threads() == 1 {
         return sort_on_one_thread(pairs);
     }
-    let (min, max) = pairs
-        .par_chunks(chunk)
-        .map(|c| {
-            c.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
-                (lo.min(key(p)), hi.max(key(p)))
-            })
-        })
-        .reduce(|| (u32::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
-    let offset = pair(min, 0);
-    // The first count also takes the smallest key off (one read less).
-    let first = pairs
-        .par_chunks_mut(chunk)
-        .map(|c| {
-            let mut h = [0u32; BUCKETS];
-            for p in c {
-                *p -= offset;
-                h[digit(*p, 0)] += 1;
-            }
-            h
-        })
-        .collect();
-    sort_passes(pairs, passes_for(max - min), chunk_ranges(n, chunk), first)
+    let lo = pairs.iter().map(|&p| key(p)).min().unwrap_or(u32::MAX);
+    let hi = pairs.iter().map(|&p| key(p)).max().unwrap_or(0);
+    let sources: Vec<&[u64]> = pairs.chunks(chunk).collect();
+    let first = sources.iter().map(|c| histogram(c, 0)).collect();
+    sort_passes(&sources, first, passes_for(lo, hi))
 }
 
-/// The passes of the parallel sort on words whose smallest key is 0. The first pass runs
-/// on `ranges` with their digit counts `first`; later passes count on fixed-size chunks.
-/// The last pass that moves anything writes the ids.
-fn sort_passes(
-    mut pairs: Vec<u64>,
-    passes: u32,
-    mut ranges: Vec<Range<usize>>,
-    first: Vec<Histogram>,
-) -> Vec<u32> {
-    let n = pairs.len();
-    let chunk = chunk_len(n);
-    let mut counts = Some(first);
-    let mut out = Vec::new();
-    for d in 0..passes {
-        let mut offsets = counts.take().unwrap_or_else(|| {
-            ranges
-                .par_iter()
-                .map(|r| {
-                    let mut h = [0u32; BUCKETS];
-                    for &p in &pairs[r.clone()] {
-                        h[digit(p, d)] += 1;
-                    }
-                    h
-                })
-                .collect()
-        });
-        let lead = digit(pairs[0], d);
-        let moves = offsets.iter().map(|h| h[lead] as usize).sum::<usize>() != n;
-        if moves {
-            let mut at = 0u32;
-            for b in 0..BUCKETS {
-                for h in offsets.iter_mut() {
-                    (h[b], at) = (at, at + h[b]);
-                }
-            }
-            // The top pass always moves (it holds the span's top bit, and the smallest
-            // key is 0): it is the last, and writes the ids.
-            if d + 1 == passes {
-                return scatter_ids(&pairs, &ranges, offsets, d);
-            }
-            if out.len() != n {
-                out = vec![0u64; n];
-            }
-            let dst = SharedOut(out.as_mut_ptr());
-            ranges
-                .par_iter()
-                .zip(offsets.par_iter_mut())
-                .for_each(|(r, slots)| {
-                    for &p in &pairs[r.clone()] {
-                        let slot = &mut slots[digit(p, d)];
-                        // SAFETY: the offsets give every (chunk, digit) its own range of
-                        // `out`, of exactly the chunk's count of that digit, and the ranges
-                        // tile 0..n; each chunk writes only its own ranges, once per slot,
-                        // so no two writes alias and all stay in bounds (n = out.len()).
-                        unsafe { dst.write(*slot as usize, p) };
-                        *slot += 1;
-                    }
-                });
-            std::mem::swap(&mut pairs, &mut out);
-        }
-        if d == 0 {
-            ranges = chunk_ranges(n, chunk);
-        }
+/// The passes of the parallel sort. The first scatters `sources` (the words in chunks, in
+/// order) with their digit counts `first`; later passes count on fixed-size chunks. The
+/// top pass always moves something (the smallest and largest keys differ in its digit)
+/// and writes the ids; a pass below it whose digit is the same for every word is skipped.
+fn sort_passes(sources: &[&[u64]], mut first: Vec<Histogram>, passes: u32) -> Vec<u32> {
+    let n: usize = sources.iter().map(|s| s.len()).sum();
+    if passes == 0 {
+        // One key value (or none): index order, which is the chunks' order.
+        return sources
+            .iter()
+            .flat_map(|s| s.iter().map(|&p| p as u32))
+            .collect();
     }
-    pairs.par_iter().map(|&p| p as u32).collect()
+    prefix(&mut first);
+    if passes == 1 {
+        let mut ids = vec![0u32; n];
+        scatter(sources, &mut first, 0, &mut ids, |p| p as u32);
+        return ids;
+    }
+    let mut words = vec![0u64; n];
+    scatter(sources, &mut first, 0, &mut words, |p| p);
+    let mut spare = vec![0u64; n];
+    let chunk = chunk_len(n);
+    for d in 1..passes {
+        let chunks: Vec<&[u64]> = words.chunks(chunk).collect();
+        let mut offsets: Vec<Histogram> = chunks.par_iter().map(|c| histogram(c, d)).collect();
+        let lead = digit(words[0], d);
+        let top = d + 1 == passes;
+        if !top && offsets.iter().map(|h| h[lead] as usize).sum::<usize>() == n {
+            continue;
+        }
+        prefix(&mut offsets);
+        if top {
+            let mut ids = vec![0u32; n];
+            scatter(&chunks, &mut offsets, d, &mut ids, |p| p as u32);
+            return ids;
+        }
+        scatter(&chunks, &mut offsets, d, &mut spare, |p| p);
+        drop(chunks);
+        std::mem::swap(&mut words, &mut spare);
+    }
+    unreachable!("the top pass returns")
 }
 
-/// The last pass's scatter, writing the ids of the words.
-fn scatter_ids(
-    pairs: &[u64],
-    ranges: &[Range<usize>],
-    mut offsets: Vec<Histogram>,
+/// One pass's scatter: every chunk of `sources` writes `f(word)` at its offsets of the
+/// word's digit, in parallel.
+fn scatter<T: Copy + Send + Sync>(
+    sources: &[&[u64]],
+    offsets: &mut [Histogram],
     d: u32,
-) -> Vec<u32> {
-    let mut ids = vec![0u32; pairs.len()];
-    let dst = SharedIds(ids.as_mut_ptr());
-    ranges
+    out: &mut [T],
+    f: impl Fn(u64) -> T + Sync,
+) {
+    let n = out.len();
+    let dst = Shared(out.as_mut_ptr());
+    sources
         .par_iter()
         .zip(offsets.par_iter_mut())
-        .for_each(|(r, slots)| {
-            for &p in &pairs[r.clone()] {
+        .for_each(|(src, slots)| {
+            for &p in *src {
                 let slot = &mut slots[digit(p, d)];
-                // SAFETY: as in the word scatter of `sort_passes`, into ids.len() = n.
-                unsafe { dst.write(*slot as usize, p as u32) };
+                debug_assert!((*slot as usize) < n);
+                // SAFETY: the offsets give every (chunk, digit) its own range of `out`, of
+                // exactly the chunk's count of that digit, and the ranges tile 0..n; each
+                // chunk writes only its own ranges, once per slot, so no two writes alias
+                // and all stay in bounds (n = out.len()).
+                unsafe { dst.write(*slot as usize, f(p)) };
                 *slot += 1;
             }
         });
-    ids
 }
 
 /// `radix_sort_pairs` on the calling thread: the key range in one read, every pass's
@@ -270,7 +216,7 @@ fn sort_on_one_thread(mut pairs: Vec<u64>) -> Vec<u32> {
     let (min, max) = pairs.iter().fold((u32::MAX, 0), |(lo, hi), &p| {
         (lo.min(key(p)), hi.max(key(p)))
     });
-    let passes = passes_for(max - min) as usize;
+    let passes = passes_for(0, max - min) as usize;
     let mut hist = vec![[0u32; BUCKETS]; passes];
     let offset = pair(min, 0);
     for p in pairs.iter_mut() {
@@ -309,37 +255,26 @@ fn sort_on_one_thread(mut pairs: Vec<u64>) -> Vec<u32> {
 }
 
 /// The output array of a scatter, written by many threads at disjoint positions.
-#[derive(Clone, Copy)]
-struct SharedOut(*mut u64);
+struct Shared<T>(*mut T);
 
-// SAFETY: the pointer is only written through at positions that one thread alone owns
-// (see the scatter), while the array it points into outlives the parallel pass.
-unsafe impl Send for SharedOut {}
-unsafe impl Sync for SharedOut {}
-
-impl SharedOut {
-    /// # Safety
-    /// `i` is in bounds and no other thread reads or writes position `i` meanwhile.
-    #[inline(always)]
-    unsafe fn write(self, i: usize, v: u64) {
-        // SAFETY: the caller's contract.
-        unsafe { self.0.add(i).write(v) }
+impl<T> Clone for Shared<T> {
+    fn clone(&self) -> Self {
+        *self
     }
 }
 
-/// The ids array of the last pass, written like `SharedOut`.
-#[derive(Clone, Copy)]
-struct SharedIds(*mut u32);
+impl<T> Copy for Shared<T> {}
 
-// SAFETY: as for `SharedOut`.
-unsafe impl Send for SharedIds {}
-unsafe impl Sync for SharedIds {}
+// SAFETY: the pointer is only written through at positions that one thread alone owns
+// (see `scatter`), while the array it points into outlives the parallel pass.
+unsafe impl<T: Send> Send for Shared<T> {}
+unsafe impl<T: Send> Sync for Shared<T> {}
 
-impl SharedIds {
+impl<T> Shared<T> {
     /// # Safety
     /// `i` is in bounds and no other thread reads or writes position `i` meanwhile.
     #[inline(always)]
-    unsafe fn write(self, i: usize, v: u32) {
+    unsafe fn write(self, i: usize, v: T) {
         // SAFETY: the caller's contract.
         unsafe { self.0.add(i).write(v) }
     }
