@@ -297,15 +297,17 @@ def report(runs: dict[str, list[dict[str, Any]]], argv: list[str], args: argpars
     for key, label in series:
         cells = [cell([x for r in runs[n] for x in r["alone"][key]]) for n in names]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    # The kernels' best call plus the Python side's best: two noisy calls' ratio would not be.
     ratios = []
     for n in names:
-        pairs = [
-            (min(r["alone"]["model_render_ms"]), min(r["alone"]["native_forward_ms"]))
-            for r in runs[n]
-        ]
-        best = min(a for a, _ in pairs) / min(b for _, b in pairs)
-        ratios.append(f"{best:.2f}")
-    lines.append("| model render / native forward (min / min) | " + " | ".join(ratios) + " |")
+        native = min(x for r in runs[n] for x in r["alone"]["native_forward_ms"])
+        beyond = min(x for r in runs[n] for x in r["alone"]["beyond_native_ms"])
+        ratios.append(f"{(native + beyond) / native:.2f}")
+    lines.append(
+        "| (native forward + render less native) / native forward, best calls | "
+        + " | ".join(ratios)
+        + " |"
+    )
     gaussians = {r["alone"]["gaussians"] for rs in runs.values() for r in rs}
     lines += ["", f"Gaussians at the end of the loop: {', '.join(map(str, sorted(gaussians)))}."]
     return "\n".join(lines) + "\n"
