@@ -22,6 +22,8 @@ and mask of the resumed run are byte-identical to the straight run's (``OUT/resu
 and 16 threads on 100k Gaussians at 512 and 768 and 1M at 768, forward and backward, and
 writes each stage's time and the image and gradient hashes to ``OUT/scaling.json`` and
 ``OUT/scaling.md`` (``benches/thread_scaling.py``; about a minute on a 16-core host).
+``--baseline OLD_BINARY`` interleaves a second build (before and after a change) and
+``--rounds R`` repeats every run, alternating, for a host shared with other work.
 """
 
 from __future__ import annotations

@@ -77,3 +77,26 @@ def test_gpu_checks_scaling_on_one_and_two_threads(tmp_path):
     assert "usable cores" in report["host"]
     md = (tmp_path / "scaling.md").read_text()
     assert "| 3,000 @ 128 | 2 |" in md and "bit-identical across thread counts: yes" in md
+
+
+def test_rounds_merge_to_the_min_of_mins_and_differing_hashes_are_flagged():
+    def one(sort_min: float, image: str) -> dict:
+        r = thread_scaling.parse_run(
+            SAMPLE.replace("sort ms: min 0.72", f"sort ms: min {sort_min}")
+        )
+        r["hashes"]["image"] = image
+        return {**r, "load": [1.0]}
+
+    merged = thread_scaling.merge([one(0.9, "a"), one(0.7, "a"), one(0.8, "a")])
+    assert merged["stages_ms"]["sort"] == [0.7, 0.8]
+    assert merged["load"] == [1.0, 1.0, 1.0]
+    assert merged["hashes"]["image"] == "a"
+    flagged = thread_scaling.merge([one(0.9, "a"), one(0.7, "b")])
+    assert flagged["hashes"]["image"] == "differ"
+    run = {"scene": "s", **flagged}
+    assert not thread_scaling.identical_across_threads([run])
+    before = {"scene": "s", "threads": 2, **merged}
+    after = {"scene": "s", "threads": 2, **thread_scaling.merge([one(0.35, "a")])}
+    assert "| s | sort | 2 | 0.70 / 0.80 | 0.35 / 0.35 | 0.50 |" in thread_scaling.before_after(
+        [before], [after]
+    )

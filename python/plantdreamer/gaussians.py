@@ -31,6 +31,25 @@ def sh_dc_to_rgb(dc: np.ndarray) -> np.ndarray:
     return (0.5 + SH_C0 * np.asarray(dc, dtype=np.float32)).astype(np.float32)
 
 
+# The activations, the one definition of how stored parameters become what the rasterizer
+# reads (training, ground truth and evaluation renders use these). float32 numpy on one
+# thread: a torch op on [N] arrays is an OpenMP region, whose wait for its workers cost
+# milliseconds per call on a loaded host (BENCHMARKS.md, "The step's phases on the CPU").
+
+
+def activate_scales(log_scales: np.ndarray) -> np.ndarray:
+    """Standard deviations exp(s) (float32, a new array)."""
+    return np.exp(np.asarray(log_scales, dtype=np.float32))
+
+
+def activate_opacities(logits: np.ndarray) -> np.ndarray:
+    """Opacities 1 / (1 + exp(-x)) (float32, a new array)."""
+    out = np.negative(np.asarray(logits, dtype=np.float32))
+    np.exp(out, out=out)
+    out += np.float32(1.0)
+    return np.reciprocal(out, out=out)
+
+
 @dataclass
 class Gaussians:
     """N Gaussians. Arrays are float32.
@@ -100,10 +119,10 @@ class Gaussians:
             raise InputError(f"labels must be an int32 [{n}, 2] array (label, instance), got {got}")
 
     def scales(self) -> np.ndarray:
-        return np.exp(self.log_scales)
+        return activate_scales(self.log_scales)
 
     def opacities(self) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-self.opacity_logits))
+        return activate_opacities(self.opacity_logits)
 
     def base_colors(self) -> np.ndarray:
         """RGB of the degree-0 term (the colour seen from every direction)."""

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
+from plantdreamer.gaussians import activate_opacities, activate_scales
 from plantdreamer.labels import NO_CLASS, NO_INSTANCE
 from plantdreamer.pipeline.model import GaussianModel
 
@@ -87,8 +88,8 @@ class Splats:
             return cls(
                 p["means"].detach(),
                 p["quats"].detach(),
-                torch.exp(p["log_scales"].detach()),
-                torch.sigmoid(p["opacity_logits"].detach()),
+                torch.from_numpy(activate_scales(p["log_scales"].detach().numpy())),
+                torch.from_numpy(activate_opacities(p["opacity_logits"].detach().numpy())),
             )
 
     def __len__(self) -> int:

@@ -8,15 +8,47 @@ and the labels (not trained) aligned with both.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
-from plantdreamer.gaussians import Gaussians
+from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scales
 from plantdreamer.pipeline.train_config import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+
+
+class _Activations(torch.autograd.Function):
+    """(log scales, opacity logits) -> (scales, opacities), one node, in numpy on one thread
+    (``gaussians.activate_*``). The gradients are torch's own formulas in its order:
+    exp's ``v * y`` and sigmoid's ``(v * (1 - y)) * y``."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any, log_scales: torch.Tensor, logits: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        scales = activate_scales(log_scales.detach().cpu().numpy())
+        opacities = activate_opacities(logits.detach().cpu().numpy())
+        ctx.set_materialize_grads(False)
+        ctx.activated = scales, opacities
+        return torch.from_numpy(scales), torch.from_numpy(opacities)
+
+    @staticmethod
+    def backward(ctx: Any, v_scales: Any, v_opacities: Any) -> tuple[Any, Any]:
+        scales, opacities = ctx.activated
+        g_scales = g_logits = None
+        if v_scales is not None and ctx.needs_input_grad[0]:
+            g_scales = torch.from_numpy(_array(v_scales) * scales)
+        if v_opacities is not None and ctx.needs_input_grad[1]:
+            g = _array(v_opacities) * (np.float32(1.0) - opacities)
+            g_logits = torch.from_numpy(np.multiply(g, opacities, out=g))
+        return g_scales, g_logits
+
+
+def _array(t: torch.Tensor) -> np.ndarray:
+    return t.detach().to(torch.float32).contiguous().numpy()
 
 
 class GaussianModel:
@@ -88,11 +120,12 @@ class GaussianModel:
             colors = p["sh_dc"]
         else:
             colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
+        scales, opacities = _Activations.apply(p["log_scales"], p["opacity_logits"])
         return rasterization(
             p["means"],
             p["quats"],
-            torch.exp(p["log_scales"]),
-            torch.sigmoid(p["opacity_logits"]),
+            scales,
+            opacities,
             colors,
             torch.from_numpy(viewmats),
             torch.from_numpy(ks),

@@ -1,0 +1,80 @@
+"""The training model's render: activations off torch's thread pool, the same bits for any
+torch thread count, and the ground truth drawn from the same activated Gaussians."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from plantdreamer.cameras import orbit
+from plantdreamer.gaussians import activate_opacities, activate_scales
+from plantdreamer.pipeline.ground_truth import Splats
+from plantdreamer.pipeline.model import GaussianModel
+
+# Not a multiple of torch's vector width: torch.sigmoid's bits at its chunk edges depend on
+# how many threads split the array, which is what the render must not inherit.
+N = 100_003
+
+
+@pytest.fixture
+def model(random_gaussians) -> GaussianModel:
+    return GaussianModel(random_gaussians(N, degree=1, seed=3))
+
+
+def render_and_grads(model: GaussianModel) -> list[np.ndarray]:
+    for p in model.params.values():
+        p.grad = None
+    camera = orbit(4.0, 20.0, 30.0, 50.0, 48, 40)
+    image, alpha, _ = model.render([camera], 0.5)
+    weights = torch.linspace(-1.0, 1.0, image.numel()).reshape(image.shape)
+    ((image * weights).sum() + alpha.sum()).backward()
+    grads = [model.params[k].grad for k in ("log_scales", "opacity_logits", "means")]
+    assert all(g is not None for g in grads)
+    return [image.detach().numpy(), alpha.detach().numpy(), *(g.numpy() for g in grads)]
+
+
+def test_render_and_gradients_are_the_same_bits_for_any_torch_thread_count(model):
+    before = torch.get_num_threads()
+    try:
+        runs = []
+        for threads in (1, 2, 4):
+            torch.set_num_threads(threads)
+            runs.append(render_and_grads(model))
+    finally:
+        torch.set_num_threads(before)
+    for other in runs[1:]:
+        for a, b in zip(runs[0], other, strict=True):
+            assert a.tobytes() == b.tobytes()
+
+
+def test_activation_gradients_follow_torchs_formulas(model):
+    ls = model.params["log_scales"].detach().clone().requires_grad_(True)
+    lo = model.params["opacity_logits"].detach().clone().requires_grad_(True)
+    from plantdreamer.pipeline.model import _Activations
+
+    scales, opacities = _Activations.apply(ls, lo)
+    s_ref = activate_scales(ls.detach().numpy())
+    o_ref = activate_opacities(lo.detach().numpy())
+    assert scales.detach().numpy().tobytes() == s_ref.tobytes()
+    assert opacities.detach().numpy().tobytes() == o_ref.tobytes()
+    # Within float32 rounding of torch's own exp and sigmoid.
+    np.testing.assert_allclose(s_ref, torch.exp(ls).detach().numpy(), rtol=1e-6)
+    np.testing.assert_allclose(o_ref, torch.sigmoid(lo).detach().numpy(), rtol=1e-6)
+    rng = np.random.default_rng(0)
+    vs = torch.from_numpy(rng.normal(size=s_ref.shape).astype(np.float32))
+    vo = torch.from_numpy(rng.normal(size=o_ref.shape).astype(np.float32))
+    torch.autograd.backward([scales, opacities], [vs, vo])
+    s, o = torch.from_numpy(s_ref), torch.from_numpy(o_ref)
+    assert torch.equal(ls.grad, vs * s)  # exp's backward
+    assert torch.equal(lo.grad, vo * (1 - o) * o)  # sigmoid's backward, torch's order
+
+
+def test_ground_truth_reads_the_renders_activated_gaussians(model):
+    splats = Splats.of(model)
+    p = model.params
+    assert splats.scales.numpy().tobytes() == activate_scales(p["log_scales"].detach()).tobytes()
+    assert (
+        splats.opacities.numpy().tobytes()
+        == activate_opacities(p["opacity_logits"].detach()).tobytes()
+    )
