@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benches" / "results"
 PLOT = ROOT / "docs" / "images" / "known_answer_accuracy.png"
 
-SHORT = [0, 25, 50, 100]
+SHORT = [0, 50, 100, 200]
 LONG = [0, 100, 200, 300, 400]
 # (name, settings, curve)
 CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [

@@ -1,6 +1,6 @@
 """The known answer for SDS: does the real ``generate`` recover a plant's true colours?
 
-    python scripts/known_answer.py --species bean --seed 0 --steps 100 --json ka.json
+    python scripts/known_answer.py --species bean --seed 0 --steps 200 --json ka.json
 
 builds (or reuses, from ~/.cache/plantdreamer/known_answer) tiny models trained on the
 plant's true views, runs ``generate`` from noise colours with them and with the untrained
@@ -20,13 +20,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from plantdreamer.known_answer.check import CHECK_STEPS
+
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--species", default="bean")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resolution", type=int, default=64)
-    p.add_argument("--steps", type=int, default=100, help="Steps of the scored runs.")
+    p.add_argument("--steps", type=int, default=CHECK_STEPS, help="Steps of the scored runs.")
     p.add_argument("--curve", default="", help="More step counts to score, e.g. 25,50.")
     p.add_argument("--guidance-scale", type=float, default=None)
     p.add_argument("--json", type=Path, help="Write the figures here.")
@@ -84,8 +86,8 @@ def run(args: argparse.Namespace) -> int:
 
         spec = KnownAnswerSpec(**json.loads((args.gate / MANIFEST).read_text())["spec"])
         with tempfile.TemporaryDirectory() as tmp:
-            gate = gate_on_unseen_views(args.gate, spec, Path(tmp))
-        print(json.dumps([vars(g) for g in gate], indent=2))
+            gap, gate = gate_on_unseen_views(args.gate, spec, Path(tmp))
+        print(json.dumps({"colour_gap": gap, "cfg_direction": [vars(g) for g in gate]}, indent=2))
         return 0
 
     spec = KnownAnswerSpec(species=args.species, seed=args.seed, resolution=args.resolution)

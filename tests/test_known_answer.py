@@ -81,6 +81,33 @@ def test_corrected_targets_change_the_denoiser(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.parametrize("change", [{"vae_mask_weight": 0.0}, {"vae_recoloured_share": 0.0}])
+def test_vae_recipe_settings_reach_the_vae(tmp_path: Path, change: dict) -> None:
+    """The plant's pixel weight and the wrong-colour share are what make the encoder see
+    colour (docs/known_answer.md): each changes the trained VAE."""
+    import dataclasses
+
+    vae = "base/vae/diffusion_pytorch_model.safetensors"
+    plain = build_models(TINY, tmp_path / "plain")["sha256"][vae]
+    other = build_models(dataclasses.replace(TINY, **change), tmp_path / "other")["sha256"][vae]
+    assert other != plain
+
+
+def test_colour_gap_is_the_relative_latent_distance() -> None:
+    from plantdreamer.known_answer.gate import colour_gap
+    from plantdreamer.known_answer.views import ViewSet
+
+    data = ViewSet(
+        images=torch.full((2, 3, 16, 16), 0.75),  # latent 0.5
+        recoloured=torch.full((2, 3, 16, 16), 0.5),  # latent 0: gap 0.5 / 0.5
+        recoloured_view=torch.arange(2),
+        depth=torch.zeros(2, 1, 16, 16),
+        prompts=["p"] * 2,
+        alpha=torch.ones(2, 1, 16, 16),
+    )
+    assert colour_gap(_PoolVae(), data) == pytest.approx(1.0)
+
+
 class _Encoded:
     def __init__(self, mean: torch.Tensor) -> None:
         self.latent_dist = type("Dist", (), {"mean": mean})()
