@@ -40,6 +40,9 @@ CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [
     ("noise, CFG 20", {"color_init": "noise", "guidance_scale": 20.0}, SHORT),
     ("noise, CFG 7.5", {"color_init": "noise", "guidance_scale": 7.5}, SHORT),
     ("noise, CFG 100, untrained models", {"color_init": "noise", "untrained": True}, SHORT),
+    # The VAE's precision (--vae-dtype): its backward makes the render gradients.
+    ("noise, CFG 100, VAE bfloat16", {"color_init": "noise", "vae_dtype": "bfloat16"}, SHORT),
+    ("noise, CFG 100, VAE float16", {"color_init": "noise", "vae_dtype": "float16"}, SHORT),
     ("noise, CFG 100, densify", {"color_init": "noise"}, LONG),
     ("noise, CFG 100, no densify", {"color_init": "noise", "densify_until": 0}, LONG),
 ]

@@ -1,8 +1,8 @@
 """The known-answer machinery (docs/known_answer.md): a model set's spec, its cache key,
-the schedule table that makes a short run the prefix of a long one, and a bit-for-bit
-rebuild of a tiny spec loaded through ``generate``'s real loader, the CFG-direction gate's sign
-convention on stub models. The accuracy gate itself
-(>= 3 dB from noise in 100 steps) is not here yet: docs/known_answer.md, "Status".
+the schedule table that makes a short run the prefix of a long one, a bit-for-bit rebuild
+of a tiny spec loaded through ``generate``'s real loader, the whole check on every species,
+and the gate's conventions on stub models. The accuracy itself is
+tests/test_known_answer_accuracy.py.
 """
 
 from __future__ import annotations
@@ -58,6 +58,25 @@ def test_models_are_made_bit_for_bit_and_load_through_the_real_loader(tmp_path: 
     scale = parts.vae.config.scaling_factor
     assert scale != pytest.approx(0.18215)
     assert scale == pytest.approx(first["figures"]["vae_scaling_factor"], rel=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("species", ["kale", "mint"])
+def test_the_check_runs_for_every_species(tmp_path: Path, species: str) -> None:
+    """Build, both runs and the scores end to end (a tiny spec: machinery, not accuracy)."""
+    import dataclasses
+
+    from plantdreamer.known_answer.build import untrained_models
+    from plantdreamer.known_answer.check import known_answer
+
+    spec = dataclasses.replace(TINY, species=species)
+    models = cached_models(spec, tmp_path / "cache")
+    untrained = untrained_models(spec, tmp_path / "cache")
+    figures = known_answer(spec, models, untrained, tmp_path / "runs", steps=2, curve=[1])
+    assert [p["steps"] for p in figures["curve"]] == [0, 1, 2]
+    assert figures["psnr_true_init"] == 100.0  # the truth scores exactly on its own views
+    for key in ("psnr_init", "psnr_final", "psnr_control_final", "psnr_true_final"):
+        assert 0.0 < figures[key] <= 100.0, (key, figures)
 
 
 def test_cache_reuses_a_built_folder(tmp_path: Path) -> None:
