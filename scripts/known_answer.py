@@ -20,7 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from plantdreamer.known_answer.check import CHECK_STEPS
+# spec.py imports nothing heavy: --help stays fast.
+from plantdreamer.known_answer.spec import CHECK_STEPS
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -27,8 +27,7 @@ from pathlib import Path
 import pytest
 
 from plantdreamer.known_answer.build import MANIFEST
-from plantdreamer.known_answer.check import CHECK_STEPS
-from plantdreamer.known_answer.spec import KnownAnswerSpec
+from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
 STEPS = CHECK_STEPS
