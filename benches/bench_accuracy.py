@@ -6,7 +6,8 @@ known answer (docs/known_answer.md), over steps and seconds.
 
 For each plant seed, the known-answer models are built (or reused from the cache), then
 ``generate`` runs from each colour init (noise, black, white, original) at CFG 100, from
-noise at CFG 7.5 and 20, and from noise for 400 steps with and without densification.
+noise at CFG 7.5 and 20, with the VAE in bfloat16 and float16, in a group of two plants
+(with and without overlap), and from noise for 400 steps with and without densification.
 Each curve point is its own run (explicit schedule table: a shorter run is the first steps
 of a longer one), so its seconds are a whole run's wall time. Writes
 benches/results/accuracy.md, accuracy.json and docs/images/known_answer_accuracy.png.
@@ -43,6 +44,14 @@ CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [
     # The VAE's precision (--vae-dtype): its backward makes the render gradients.
     ("noise, CFG 100, VAE bfloat16", {"color_init": "noise", "vae_dtype": "bfloat16"}, SHORT),
     ("noise, CFG 100, VAE float16", {"color_init": "noise", "vae_dtype": "float16"}, SHORT),
+    # Trained first in a group with one companion (generate --seeds): one guidance call
+    # for both plants per step, or one per plant with overlap (docs/scaling.md).
+    ("noise, CFG 100, group of 2", {"color_init": "noise", "group": 2}, SHORT),
+    (
+        "noise, CFG 100, group of 2, overlap",
+        {"color_init": "noise", "group": 2, "overlap": "on"},
+        SHORT,
+    ),
     ("noise, CFG 100, densify", {"color_init": "noise"}, LONG),
     ("noise, CFG 100, no densify", {"color_init": "noise", "densify_until": 0}, LONG),
 ]

@@ -32,6 +32,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--steps", type=int, default=CHECK_STEPS, help="Steps of the scored runs.")
     p.add_argument("--curve", default="", help="More step counts to score, e.g. 25,50.")
     p.add_argument("--guidance-scale", type=float, default=None)
+    p.add_argument(
+        "--group",
+        type=int,
+        default=1,
+        help="Train the plant first in a group of this many (generate --seeds) and score it.",
+    )
     p.add_argument("--json", type=Path, help="Write the figures here.")
     p.add_argument("--models", type=Path, help="A known-answer model folder to use as it is.")
     p.add_argument("--cache", type=Path, help="Model cache (default ~/.cache/plantdreamer/...).")
@@ -101,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
     trained = args.models or cached_models(spec, args.cache, say)
     untrained = untrained_models(spec, args.cache)
     curve = [int(s) for s in args.curve.split(",") if s.strip()]
-    settings = {} if args.guidance_scale is None else {"guidance_scale": args.guidance_scale}
+    settings: dict[str, object] = {"group": args.group} if args.group > 1 else {}
+    if args.guidance_scale is not None:
+        settings["guidance_scale"] = args.guidance_scale
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work_dir or Path(tmp)

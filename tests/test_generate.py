@@ -145,6 +145,31 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     )
 
 
+@pytest.mark.parametrize("saved_on", ["recorded", "older checkpoint"])
+def test_noise_drawn_on_cuda_does_not_resume_on_the_cpu(tmp_path, saved_on):
+    """A checkpoint whose SDS noise came from a CUDA generator, resumed where the guidance
+    draws on the CPU, stops with one line naming both devices, not torch's state error.
+    Checkpoints from before the device was recorded are told by the state's size."""
+    import torch
+
+    from plantdreamer.errors import CheckpointError
+
+    cfg = dict(species="mint", steps=6, checkpoint_every=100, seed=3)
+    assert run_stopped_by(signal.SIGINT, 2, cfg, tmp_path / "cut", tiny_sds_guidance()) == 3
+    path = tmp_path / "cut" / "checkpoint.pt"
+    state = torch.load(path, weights_only=True)
+    assert state["guidance_device"] == "cpu"
+    state["guidance"] = torch.zeros(16, dtype=torch.uint8)  # a Philox (CUDA) state's size
+    if saved_on == "recorded":
+        state["guidance_device"] = "cuda"
+    else:
+        del state["guidance_device"]
+    torch.save(state, path)
+    with pytest.raises(CheckpointError, match=r"drawn on cuda.*draws on cpu.*--device"):
+        generate(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
+                 show_progress=False)  # fmt: skip
+
+
 def _as_format_3(state):
     """A format-4 checkpoint written the way format 3 was: one flat config (``densify``,
     ``cull``, ``lr``, ``cameras`` nested once; ``n_points``, ``sds_resolution``) and density

@@ -22,6 +22,9 @@ from plantdreamer.known_answer import views
 from plantdreamer.known_answer.build import model_dirs
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
+# Companions' seeds are the plant's plus multiples of this (no model set is made for them).
+COMPANION_SEED_OFFSET = 1000
+
 
 def schedule_table(name: str, steps: int) -> str:
     """The built-in schedule ``name`` as ``steps`` long a run uses it, written as a table."""
@@ -64,16 +67,26 @@ class Truth:
         return float(value)
 
 
+def companion_seeds(spec: KnownAnswerSpec, group: int) -> list[int]:
+    """The seeds trained beside the scored plant in a group of ``group``: other plants of
+    the species, far from the seeds known-answer models are made for."""
+    return [spec.seed + COMPANION_SEED_OFFSET * k for k in range(1, group)]
+
+
 def run_generate(
     spec: KnownAnswerSpec,
     models: Path | None,
     out: Path,
     steps: int,
     schedule: str,
+    group: int = 1,
     **settings: Any,
 ) -> tuple[Path, float, int]:
-    """One ``generate`` run; (plant.ply, seconds, Gaussians). ``models=None``: no guidance."""
+    """One ``generate`` run; (plant.ply, seconds, Gaussians). ``models=None``: no guidance.
+    ``group`` > 1: the plant is trained first in a group (``generate --seeds``) with
+    ``group - 1`` companions guided by the same models; only the plant is returned."""
     from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline.group import generate_group, plant_name
 
     if models is None:
         settings = {"guidance": "none", **settings}
@@ -82,8 +95,19 @@ def run_generate(
         settings = {"base_model": str(base), "controlnet": str(control), **settings}
     cfg = views.generate_config(spec, steps=steps, schedule=schedule, **settings)
     t0 = time.perf_counter()
-    result = generate(cfg, out, overwrite=True, show_progress=False)
-    return Path(result.ply_path), time.perf_counter() - t0, int(result.gaussians)
+    if group <= 1 or models is None:
+        result = generate(cfg, out, overwrite=True, show_progress=False)
+        return Path(result.ply_path), time.perf_counter() - t0, int(result.gaussians)
+    cfgs = [cfg] + [
+        views.generate_config(spec, steps=steps, schedule=schedule, seed=s, **settings)
+        for s in companion_seeds(spec, group)
+    ]
+    done = generate_group(cfgs, out, overwrite=True, show_progress=False)
+    seconds = time.perf_counter() - t0
+    if done.failed:
+        raise RuntimeError(f"group run failed: {done.failed}")
+    plant = done.done[plant_name(cfg)]
+    return Path(plant.ply_path), seconds, int(plant.gaussians)
 
 
 def step_curve(

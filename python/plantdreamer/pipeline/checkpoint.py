@@ -44,6 +44,44 @@ def load_checkpoint(out_dir: Path) -> dict[str, Any]:
     return state
 
 
+def noise_state(generator: Any) -> dict[str, Any]:
+    """The checkpoint's entries for the guidance's noise generator (``None``: it has none)."""
+    if generator is None:
+        return {"guidance": None}
+    return {"guidance": generator.get_state(), "guidance_device": generator.device.type}
+
+
+def restore_noise_state(generator: Any, saved: dict[str, Any], where: Path) -> None:
+    """Sets the guidance's noise generator to the checkpoint's state, so the resumed run draws
+    the same noise. A state drawn on another kind of device (a CPU run resumed on CUDA, or a
+    checkpoint from before the CUDA generator moved onto the GPU) cannot go on with the
+    same noise: one line says so rather than torch's error."""
+    state = saved.get("guidance")
+    if state is None:
+        return
+    if generator is None:
+        raise InputError(
+            f"{where}: the checkpoint holds a guidance's noise state; this one has none"
+        )
+    here = generator.device.type
+    # Checkpoints without the device name are told apart by the state's size: torch's CPU
+    # generator (Mersenne Twister) saves 5056 bytes, its CUDA generator (Philox) 16.
+    saved_on = saved.get("guidance_device") or _STATE_BYTES.get(int(state.numel()), "unknown")
+    if saved_on != here:
+        raise CheckpointError(
+            f"{where}: its SDS noise was drawn on {saved_on} and this run's guidance draws on "
+            f"{here}; resume with the device it was made on (--device), or start again with "
+            "--overwrite"
+        )
+    try:
+        generator.set_state(state)
+    except (RuntimeError, TypeError) as exc:
+        raise CheckpointError(f"{where}: damaged guidance noise state ({exc})") from exc
+
+
+_STATE_BYTES = {5056: "cpu", 16: "cuda"}
+
+
 def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:
     from plantdreamer.pipeline.config import from_flat_dict
 

@@ -24,7 +24,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import load_checkpoint
+from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, restore_noise_state
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
 from plantdreamer.pipeline.run import RUN_OUTPUTS, remove_final_outputs, resumed_config
@@ -184,10 +184,8 @@ def _train(started, record, out, guidance, result, show_progress, on_step, depth
     entries = {Path(e.get("dir", out / e["name"])): e for e in record["plants"]}
     plants, saved = [p for p, _ in started], started[0][1]
     guidance = guidance if guidance is not None else build_guidance(plants[0].cfg)
-    if saved is not None and saved.get("guidance") is not None:
-        if guidance.generator is None:
-            raise InputError("the checkpoints hold a guidance's noise state; this one has none")
-        guidance.generator.set_state(saved["guidance"])
+    if saved is not None:
+        restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
     trainer = Trainer(plants, guidance, depth_ahead=depth_ahead, isolate_failures=True,
                       out_dir=out)  # fmt: skip
     trainer.run(show_progress, on_step)

@@ -13,7 +13,11 @@ from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.exports.plant import LABEL_FILES
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
-from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
+from plantdreamer.pipeline.checkpoint import (
+    CHECKPOINT_NAME,
+    load_checkpoint,
+    restore_noise_state,
+)
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
 from plantdreamer.pipeline.run_state import RunState
@@ -125,10 +129,7 @@ def _restore(
             f"{out / CHECKPOINT_NAME}: damaged or incompatible checkpoint "
             f"({type(exc).__name__}: {exc})"
         ) from exc
-    if saved.get("guidance") is not None:
-        if guidance.generator is None:
-            raise InputError("the checkpoint holds a guidance's noise state; this one has none")
-        guidance.generator.set_state(saved["guidance"])
+    restore_noise_state(guidance.generator, saved, out / CHECKPOINT_NAME)
     return state
 
 

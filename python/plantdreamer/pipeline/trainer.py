@@ -23,7 +23,7 @@ import torch
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import save_checkpoint
+from plantdreamer.pipeline.checkpoint import noise_state, save_checkpoint
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
@@ -148,8 +148,7 @@ class Trainer:
 
     def checkpoint(self, step: int) -> None:
         """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``."""
-        generator = self.raw_guidance.generator
-        noise = None if generator is None else generator.get_state()
+        noise = noise_state(self.raw_guidance.generator)
         for i in self.alive():
             p = self.plants[i]
             with p.state.timer("checkpoint"):
@@ -158,7 +157,7 @@ class Trainer:
                     "config": p.cfg.to_dict(),
                     **p.state.state_dict(),
                     # The guidance's noise generator, so a resumed run draws the same noise.
-                    "guidance": noise,
+                    **noise,
                 }
                 save_checkpoint(p.out_dir, record)
                 outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
