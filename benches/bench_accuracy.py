@@ -57,8 +57,8 @@ CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [
 ]
 
 
-def one_curve(job: tuple[int, str, str, int, int]) -> dict[str, Any]:
-    seed, name, cache, threads, build_threads = job
+def one_curve(job: tuple[int, int, str, str, int, int]) -> dict[str, Any]:
+    resolution, seed, name, cache, threads, build_threads = job
     import torch
 
     torch.set_num_threads(threads)
@@ -68,7 +68,7 @@ def one_curve(job: tuple[int, str, str, int, int]) -> dict[str, Any]:
 
     settings, curve = next((dict(s), c) for n, s, c in CONFIGS if n == name)
     # Settings go to generate by name (densify_until is --densify-until).
-    spec = KnownAnswerSpec(seed=seed)
+    spec = KnownAnswerSpec(seed=seed, resolution=resolution)
     if settings.pop("untrained", False):
         models = untrained_models(spec, Path(cache))
     else:
@@ -76,18 +76,21 @@ def one_curve(job: tuple[int, str, str, int, int]) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         truth = Truth.of(spec, Path(tmp))
         scores = step_curve(spec, truth, models, Path(tmp), curve, **settings)
-    return {"seed": seed, "config": name, "curve": [vars(s) for s in scores]}
+    curve_points = [vars(s) for s in scores]
+    return {"seed": seed, "resolution": resolution, "config": name, "curve": curve_points}
 
 
-def build(seed_cache: tuple[int, str, int]) -> str:
+def build(job: tuple[int, int, str, int]) -> str:
     from plantdreamer.known_answer.build import cached_models
     from plantdreamer.known_answer.spec import KnownAnswerSpec
 
-    seed, cache, threads = seed_cache
-    return str(cached_models(KnownAnswerSpec(seed=seed), Path(cache), threads=threads))
+    resolution, seed, cache, threads = job
+    spec = KnownAnswerSpec(seed=seed, resolution=resolution)
+    return str(cached_models(spec, Path(cache), threads=threads))
 
 
 def measure(
+    resolution: int,
     seeds: list[int],
     jobs: int,
     cache: str,
@@ -100,10 +103,10 @@ def measure(
 
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
-        list(pool.map(build, [(s, cache, build_threads) for s in seeds]))
+        list(pool.map(build, [(resolution, s, cache, build_threads) for s in seeds]))
     print("models built", file=sys.stderr, flush=True)
     names = [n for n, _, _ in CONFIGS if configs is None or n in configs]
-    work = [(s, name, cache, threads, build_threads) for name in names for s in seeds]
+    work = [(resolution, s, name, cache, threads, build_threads) for name in names for s in seeds]
     results = []
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for future in as_completed([pool.submit(one_curve, w) for w in work]):
@@ -116,17 +119,29 @@ def measure(
     return results
 
 
+def resolution_of(result: dict[str, Any]) -> int:
+    return int(result.get("resolution", 64))  # results before --resolution were all 64 px
+
+
+def grouped(results: list[dict[str, Any]]) -> list[tuple[str, int, list[dict[str, Any]]]]:
+    """(run name, px, its seeds' results), in CONFIGS order within each size."""
+    out = []
+    for px in sorted({resolution_of(r) for r in results}):
+        for name, _, _ in CONFIGS:
+            rows = [r for r in results if r["config"] == name and resolution_of(r) == px]
+            if rows:
+                out.append((name, px, rows))
+    return out
+
+
 def table(results: list[dict[str, Any]]) -> str:
     lines = [
-        "| run | seeds | "
+        "| run | px | seeds | "
         + " | ".join(f"step {s}" for s in sorted({*SHORT, *LONG}))
         + " | s/100 steps |",
-        "|---|---|" + "---|" * (len({*SHORT, *LONG}) + 1),
+        "|---|---|---|" + "---|" * (len({*SHORT, *LONG}) + 1),
     ]
-    for name, _, _ in CONFIGS:
-        rows = [r for r in results if r["config"] == name]
-        if not rows:
-            continue
+    for name, px, rows in grouped(results):
         cells = []
         for step in sorted({*SHORT, *LONG}):
             values = [p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == step]
@@ -140,7 +155,7 @@ def table(results: list[dict[str, Any]]) -> str:
             p["seconds"] * 100 / p["steps"] for r in rows for p in r["curve"] if p["steps"] == 100
         ]
         cells.append(f"{statistics.median(per100):.1f}" if per100 else "-")
-        lines.append(f"| {name} | {len(rows)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | {px} | {len(rows)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -151,10 +166,9 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(11, 4))
-    for name, _, _ in CONFIGS:
-        rows = [r for r in results if r["config"] == name]
-        if not rows:
-            continue
+    sizes = {resolution_of(r) for r in results}
+    for name, px, rows in grouped(results):
+        label = name if len(sizes) == 1 else f"{name}, {px} px"
         steps = sorted({p["steps"] for r in rows for p in r["curve"]})
         mean = [
             statistics.mean(p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == s)
@@ -164,8 +178,8 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
             statistics.median(p["seconds"] for r in rows for p in r["curve"] if p["steps"] == s)
             for s in steps
         ]
-        by_step.plot(steps, mean, marker="o", label=name)
-        by_time.plot(secs, mean, marker="o", label=name)
+        by_step.plot(steps, mean, marker="o", label=label)
+        by_time.plot(secs, mean, marker="o", label=label)
     # The true colours score 100 dB (exact) before any step; the axis is cut below that
     # so that the runs from wrong colours stay readable.
     for ax in (by_step, by_time):
@@ -186,7 +200,7 @@ def write(results: list[dict[str, Any]], machine: str, command: str) -> None:
     plot(results, PLOT)
     text = f"""## Accuracy: the known answer over steps and seconds (`bench_accuracy.py`)
 
-`{command}`, on {machine}. Masked PSNR (dB) of `generate` at 64 px against 16 held-out
+`{command}`, on {machine}. Masked PSNR (dB) of `generate` at the size given (px) against 16 held-out
 true views of each plant (bean, seeds {", ".join(map(str, seeds))}: mean ± half the range
 over seeds), each run scored by `plantdreamer eval`'s metric; models from
 `scripts/known_answer.py` (docs/known_answer.md). Seconds are whole `generate` runs
@@ -212,6 +226,7 @@ def machine_line() -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--resolution", type=int, default=64, help="Render and SDS size (px).")
     p.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 2) // 2))
     p.add_argument("--cache", default=None)
     p.add_argument("--json", type=Path, help="Also write the raw results here.")
@@ -238,7 +253,9 @@ def main(argv: list[str] | None = None) -> int:
     unknown = set(configs or []) - {n for n, _, _ in CONFIGS}
     if unknown:
         p.error(f"unknown runs: {', '.join(sorted(unknown))}")
-    results = measure(seeds, args.jobs, cache, args.partial, args.build_threads, configs)
+    results = measure(
+        args.resolution, seeds, args.jobs, cache, args.partial, args.build_threads, configs
+    )
     command = shlex.join(["python", "benches/bench_accuracy.py", *(argv or sys.argv[1:])])
     if args.json is not None:
         args.json.write_text(
