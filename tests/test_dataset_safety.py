@@ -9,9 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from plantdreamer.cli import main
-from plantdreamer.dataset import RunOptions, expand, run_dataset, runner
+from plantdreamer.dataset import RunOptions, expand, plan, run_dataset, runner
 from plantdreamer.dataset.manifest import Manifest
-from plantdreamer.dataset.spec import Plant
+from plantdreamer.dataset.plant import Plant
 from plantdreamer.errors import InputError, PlantDreamerError
 
 FAST = ["--guidance", "none", "--steps", "0", "--eval-views", "0", "--quiet"]
@@ -65,10 +65,9 @@ def test_point_cloud_file_names_become_safe_folder_names(tmp_path):
 
 def test_a_plant_folder_outside_the_plants_folder_is_refused(tmp_path):
     (plant,) = expand({"group": [{"species": "bean", "guidance": "none"}]})
-    run = runner._DatasetRun({}, [], tmp_path, RunOptions())
     bad = Plant("../escape", plant.group, plant.config, plant.config_hash)
     with pytest.raises(PlantDreamerError, match="not a folder name"):
-        run._plant_dir(bad)
+        plan.plant_dir(tmp_path, bad)
 
 
 # -- cause 2: a record changes before its files -------------------------------------------
@@ -118,16 +117,16 @@ def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
     no longer `done`."""
     spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
     _finished_dataset(tmp_path, expand(spec))
-    real_rmtree, seen = runner.shutil.rmtree, []
+    real_rmtree, seen = plan.shutil.rmtree, []
 
     def checked_rmtree(folder, *args, **kwargs):
         assert Manifest(tmp_path).get(folder.name)["status"] == "pending"
         seen.append(folder.name)
         real_rmtree(folder, *args, **kwargs)
 
-    monkeypatch.setattr(runner.shutil, "rmtree", checked_rmtree)
+    monkeypatch.setattr(plan.shutil, "rmtree", checked_rmtree)
     changed = {**spec, "defaults": {"steps": 7}}
-    todo, skipped = runner._DatasetRun(changed, expand(changed), tmp_path, RunOptions())._plan()
+    todo, skipped = plan.plan(expand(changed), Manifest(tmp_path), tmp_path)
     assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
 
 
@@ -140,7 +139,7 @@ def test_a_clearing_cut_short_is_finished_by_the_next_run(tmp_path):
     folder.mkdir(parents=True)
     (folder / "checkpoint.pt").write_text("the old config's")
     Manifest(tmp_path).replace(plant.id, {"status": "pending", "config_hash": plant.config_hash})
-    todo, _ = runner._DatasetRun(spec, [plant], tmp_path, RunOptions())._plan()
+    todo, _ = plan.plan([plant], Manifest(tmp_path), tmp_path)
     assert todo == [plant] and not folder.exists()
 
 
@@ -149,7 +148,7 @@ def test_a_done_plant_missing_a_file_runs_again(tmp_path):
     plants = expand(spec)
     _finished_dataset(tmp_path, plants)
     (tmp_path / "plants" / "bean-s0001" / "run.json").unlink()
-    todo, skipped = runner._DatasetRun(spec, plants, tmp_path, RunOptions())._plan()
+    todo, skipped = plan.plan(plants, Manifest(tmp_path), tmp_path)
     assert [p.id for p in skipped] == ["bean-s0000"] and [p.id for p in todo] == ["bean-s0001"]
     assert (tmp_path / "plants" / "bean-s0001" / "checkpoint.pt").is_file()  # same config
 
