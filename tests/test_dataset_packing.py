@@ -164,7 +164,7 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         request = {"id": f"p{seed}", "config": cfg.to_dict(),
                    "plant_dir": str(out / "plants" / f"p{seed}"), "threads": 1}  # fmt: skip
         result = run_plant(request, board, cache.guidance_for, None)
-        assert result["status"] == "done", result
+        assert result["status"] == "done" and result["trained_with"] == [f"p{seed}"], result
     assert cache.loads == 1  # the second plant used the first one's networks
     for seed in (0, 1):  # ... and got the bytes of a guidance loaded from disk for it
         cfg = _sds_config(tiny_model_folders, seed)

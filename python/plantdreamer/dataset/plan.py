@@ -24,8 +24,15 @@ COMPLETE_FILES = ("plant.ply", "run.json")
 GROUPS_DIR = "groups"  # DIR/groups/<first plant>/group.json while a packed group trains
 
 
-def plan(plants: list[Plant], manifest: Manifest, out_dir: Path) -> tuple[list[Plant], list[Plant]]:
-    """The plants to run and the plants to skip, in spec order; stale folders cleared."""
+def plan(
+    plants: list[Plant], manifest: Manifest, out_dir: Path, plants_per_gpu: int
+) -> tuple[list[Plant], list[Plant]]:
+    """The plants to run and the plants to skip, in spec order; stale folders cleared.
+
+    ``plants_per_gpu`` is no part of the config hash: a finished plant is a valid plant
+    whatever group made it (its record says which), so it is kept when B changes. An
+    unfinished one started under another B starts again, so that its bytes are those of
+    the group it is made in (an SDS plant's bytes depend on its group)."""
     todo, skipped = [], []
     for plant in plants:
         record = manifest.get(plant.id)
@@ -35,13 +42,20 @@ def plan(plants: list[Plant], manifest: Manifest, out_dir: Path) -> tuple[list[P
         if done and all((folder / name).is_file() for name in COMPLETE_FILES):
             skipped.append(plant)
             continue
-        # Another config's record and files, or a `pending` plant (no worker started
-        # it: its folder holds only what a clearing cut short left).
-        stale = not same_config or (record is not None and record["status"] == "pending")
+        # Another config's record and files, a `pending` plant (no worker started it: its
+        # folder holds only what a clearing cut short left), or a checkpoint of another B
+        # (records older than this key resume as before).
+        stale = not same_config or (
+            record is not None
+            and (
+                record["status"] == "pending"
+                or record.get("plants_per_gpu", plants_per_gpu) != plants_per_gpu
+            )
+        )
         if stale and (record is not None or folder.exists()):
             # The record changes first, so a stop while the files go never leaves a
             # `done` that has none.
-            manifest.replace(plant.id, {**base_record(plant), "status": "pending"})
+            manifest.replace(plant.id, {**base_record(plant, plants_per_gpu), "status": "pending"})
             if folder.exists():
                 shutil.rmtree(folder)
         todo.append(plant)
@@ -58,8 +72,9 @@ def plant_dir(out_dir: Path, plant: Plant) -> Path:
     return folder
 
 
-def base_record(plant: Plant) -> dict[str, Any]:
-    """A plant's manifest record before any worker reports on it."""
+def base_record(plant: Plant, plants_per_gpu: int) -> dict[str, Any]:
+    """A plant's manifest record before any worker reports on it; ``plants_per_gpu`` is
+    the B of the run that makes it (a finished record adds ``trained_with``)."""
     folder = f"{PLANTS_DIR}/{plant.id}"
     return {
         "group": plant.group,
@@ -67,6 +82,7 @@ def base_record(plant: Plant) -> dict[str, Any]:
         "source": plant.source,
         "seed": plant.config.seed,
         "config_hash": plant.config_hash,
+        "plants_per_gpu": plants_per_gpu,
         "plant_dir": folder,
         "log": f"{folder}/{LOG_NAME}",
     }

@@ -105,7 +105,7 @@ class _DatasetRun:
             )
             for p in self.plants
         }
-        todo, skipped = plan(self.plants, self.manifest, self.out_dir)
+        todo, skipped = plan(self.plants, self.manifest, self.out_dir, self.options.plants_per_gpu)
         self._write_summary("running", skipped)
         results: dict[str, dict[str, Any]] = {}
         state = "stopped"
@@ -196,7 +196,10 @@ class _DatasetRun:
             if plant.id in finished:  # the report came after the result: keep the result
                 self.manifest.update(plant.id, attempt=event["attempt"])
                 continue
-            self.manifest.replace(plant.id, {**base_record(plant), **event, "status": "running"})
+            self.manifest.replace(
+                plant.id,
+                {**base_record(plant, self.options.plants_per_gpu), **event, "status": "running"},
+            )
 
     def _record_unit(self, ray, unit: Unit, ref) -> dict[str, dict[str, Any]]:
         try:
@@ -206,7 +209,7 @@ class _DatasetRun:
         for plant in unit.plants:
             record = self.manifest.get(plant.id)
             if record is None or record.get("status") != "running":  # a late start report
-                record = base_record(plant)
+                record = base_record(plant, self.options.plants_per_gpu)
             record = {"finished": time.time(), **record, **results[plant.id]}
             self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
         return {p.id: results[p.id] for p in unit.plants}
