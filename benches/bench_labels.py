@@ -56,9 +56,8 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
         LabelSet,
         Splats,
         _blend,
-        _one_hot,
-        _share_channels,
     )
+    from plantdreamer.pipeline.label_channels import one_hot, share_channels
     from plantdreamer.pipeline.model import GaussianModel
     from plantdreamer.pipeline.source import initial_gaussians, load_source
 
@@ -69,12 +68,12 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
     if baseline is not None:
         times["baseline"], old_ls = [], baseline.LabelSet.of(g.labels)
     channels = []
-    all_instances = _one_hot(ls.instance_channel, 0, len(ls.instances) + 1)
+    all_instances = one_hot(ls.instance_channel, 0, len(ls.instances) + 1)
     with torch.no_grad():
         ground_truth, splats = GroundTruthRenderer(model, ls), Splats.of(model)
         for cam in orbit_ring(VIEWS, 4.0, 15.0, 70.0, 512, 512):
             meta = model.render([cam], 0.75)[2]
-            channels.append(int(_share_channels(ls, meta, cam)[0].max()) + 1)
+            channels.append(int(share_channels(ls, meta, cam)[0].max()) + 1)
             for _ in range(REPEATS):
                 times["rgb"].append(timed(lambda cam=cam: model.render([cam], 0.75)))
                 times["gt"].append(timed(lambda cam=cam, meta=meta: ground_truth(cam, meta)))

@@ -164,7 +164,7 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         request = {"id": f"p{seed}", "config": cfg.to_dict(),
                    "plant_dir": str(out / "plants" / f"p{seed}"), "threads": 1}  # fmt: skip
         result = run_plant(request, board, cache.guidance_for, None)
-        assert result["status"] == "done", result
+        assert result["status"] == "done" and result["trained_with"] == [f"p{seed}"], result
     assert cache.loads == 1  # the second plant used the first one's networks
     for seed in (0, 1):  # ... and got the bytes of a guidance loaded from disk for it
         cfg = _sds_config(tiny_model_folders, seed)
@@ -225,3 +225,22 @@ def test_a_stopped_sds_group_resumes_in_a_later_run_byte_identical(tiny_model_fo
                         None)  # fmt: skip
     assert [resumed[i]["resumed_from_step"] for i in ids] == [3, 3]
     assert _group_outputs(outs["stopped"], ids) == _group_outputs(outs["straight"], ids)
+
+
+def test_a_plant_failed_before_a_stop_is_recorded_failed_not_interrupted(tmp_path):
+    _clouds(tmp_path / "clouds")
+    spec = {
+        "base_dir": str(tmp_path),
+        "group": [{"pointclouds": "clouds/*.ply", "species": "bean", "guidance": "none",
+                   **{**SMALL, "steps": 4}}],
+    }  # fmt: skip
+    (group,) = pack(expand(spec), 3)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / LOCK_NAME).touch()
+    results = run_group(_request(out, group), FakeBoard(), ModelCache().guidance_for,
+                        _interrupt_at(1))  # fmt: skip
+    assert {i: r["status"] for i, r in results.items()} == {
+        "a-s0000": "interrupted", "b-s0000": "failed", "c-s0000": "interrupted"
+    }  # fmt: skip
+    assert "PlyError" in results["b-s0000"]["error"]

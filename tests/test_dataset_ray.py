@@ -265,7 +265,8 @@ def test_packed_plants_get_every_folder_record_and_export_and_the_same_bytes_twi
         f"bean-s000{i}": "done" for i in range(3)
     }
     assert records["bean-s0000"]["trained_with"] == ["bean-s0000", "bean-s0001"]
-    assert "trained_with" not in records["bean-s0002"]  # a group of one: a plant alone
+    assert records["bean-s0002"]["trained_with"] == ["bean-s0002"]  # a group of one
+    assert {r["plants_per_gpu"] for r in records.values()} == {2}
     assert records["bean-s0000"]["raster_threads"] == 2  # the group's two CPUs
     assert json.loads((first / "dataset.json").read_text())["plants_per_gpu"] == 2
     assert not (first / "groups").exists()

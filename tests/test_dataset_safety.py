@@ -9,9 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from plantdreamer.cli import main
-from plantdreamer.dataset import RunOptions, expand, run_dataset, runner
+from plantdreamer.dataset import RunOptions, expand, plan, run_dataset, runner
 from plantdreamer.dataset.manifest import Manifest
-from plantdreamer.dataset.spec import Plant
+from plantdreamer.dataset.plant import Plant
 from plantdreamer.errors import InputError, PlantDreamerError
 
 FAST = ["--guidance", "none", "--steps", "0", "--eval-views", "0", "--quiet"]
@@ -65,10 +65,9 @@ def test_point_cloud_file_names_become_safe_folder_names(tmp_path):
 
 def test_a_plant_folder_outside_the_plants_folder_is_refused(tmp_path):
     (plant,) = expand({"group": [{"species": "bean", "guidance": "none"}]})
-    run = runner._DatasetRun({}, [], tmp_path, RunOptions())
     bad = Plant("../escape", plant.group, plant.config, plant.config_hash)
     with pytest.raises(PlantDreamerError, match="not a folder name"):
-        run._plant_dir(bad)
+        plan.plant_dir(tmp_path, bad)
 
 
 # -- cause 2: a record changes before its files -------------------------------------------
@@ -118,16 +117,16 @@ def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
     no longer `done`."""
     spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
     _finished_dataset(tmp_path, expand(spec))
-    real_rmtree, seen = runner.shutil.rmtree, []
+    real_rmtree, seen = plan.shutil.rmtree, []
 
     def checked_rmtree(folder, *args, **kwargs):
         assert Manifest(tmp_path).get(folder.name)["status"] == "pending"
         seen.append(folder.name)
         real_rmtree(folder, *args, **kwargs)
 
-    monkeypatch.setattr(runner.shutil, "rmtree", checked_rmtree)
+    monkeypatch.setattr(plan.shutil, "rmtree", checked_rmtree)
     changed = {**spec, "defaults": {"steps": 7}}
-    todo, skipped = runner._DatasetRun(changed, expand(changed), tmp_path, RunOptions())._plan()
+    todo, skipped = plan.plan(expand(changed), Manifest(tmp_path), tmp_path, 1)
     assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
 
 
@@ -140,7 +139,7 @@ def test_a_clearing_cut_short_is_finished_by_the_next_run(tmp_path):
     folder.mkdir(parents=True)
     (folder / "checkpoint.pt").write_text("the old config's")
     Manifest(tmp_path).replace(plant.id, {"status": "pending", "config_hash": plant.config_hash})
-    todo, _ = runner._DatasetRun(spec, [plant], tmp_path, RunOptions())._plan()
+    todo, _ = plan.plan([plant], Manifest(tmp_path), tmp_path, 1)
     assert todo == [plant] and not folder.exists()
 
 
@@ -149,7 +148,7 @@ def test_a_done_plant_missing_a_file_runs_again(tmp_path):
     plants = expand(spec)
     _finished_dataset(tmp_path, plants)
     (tmp_path / "plants" / "bean-s0001" / "run.json").unlink()
-    todo, skipped = runner._DatasetRun(spec, plants, tmp_path, RunOptions())._plan()
+    todo, skipped = plan.plan(plants, Manifest(tmp_path), tmp_path, 1)
     assert [p.id for p in skipped] == ["bean-s0000"] and [p.id for p in todo] == ["bean-s0001"]
     assert (tmp_path / "plants" / "bean-s0001" / "checkpoint.pt").is_file()  # same config
 
@@ -250,3 +249,32 @@ def test_the_file_stays_within_a_few_lines_per_plant(tmp_path):
     assert lines <= 3 * 10 + 64 + 1
     assert Manifest(tmp_path).records == manifest.records
     assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+
+
+def test_changing_plants_per_gpu_keeps_finished_plants_and_restarts_unfinished_ones(tmp_path):
+    """An SDS plant's bytes depend on its group: a finished plant is kept whatever B made
+    it (its record says which), a checkpoint made under another B is not resumed."""
+    spec = {"group": [{"species": "bean", "count": 3, "guidance": "none"}]}
+    plants = expand(spec)
+    _finished_dataset(tmp_path, plants)
+    manifest = Manifest(tmp_path)
+    for plant in plants:
+        manifest.update(plant.id, plants_per_gpu=4)
+    manifest.update("bean-s0001", status="interrupted")
+    manifest.replace("bean-s0002", {"status": "interrupted", "config_hash": plants[2].config_hash})
+    for name in ("plant.ply", "run.json"):
+        (tmp_path / "plants" / "bean-s0001" / name).unlink()
+        (tmp_path / "plants" / "bean-s0002" / name).unlink()
+    todo, skipped = plan.plan(plants, Manifest(tmp_path), tmp_path, 4)
+    assert [p.id for p in skipped] == ["bean-s0000"]  # same B: the checkpoints resume
+    assert (tmp_path / "plants" / "bean-s0001" / "checkpoint.pt").is_file()
+    todo, skipped = plan.plan(plants, Manifest(tmp_path), tmp_path, 2)
+    assert [p.id for p in skipped] == ["bean-s0000"] and len(todo) == 2
+    assert not (tmp_path / "plants" / "bean-s0001").exists()  # started under B = 4
+    assert (tmp_path / "plants" / "bean-s0002" / "checkpoint.pt").is_file()  # B not recorded
+    records = Manifest(tmp_path).records
+    assert records["bean-s0000"]["plants_per_gpu"] == 4  # the group that made it
+    assert (records["bean-s0001"]["status"], records["bean-s0001"]["plants_per_gpu"]) == (
+        "pending",
+        2,
+    )

@@ -156,3 +156,32 @@ def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
     )
     assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
     assert (tmp_path / "g" / "mint-s0002" / "plant.ply").is_file()
+
+
+def test_a_plant_failed_before_ctrl_c_stays_failed_on_resume(tmp_path):
+    import torch
+
+    from plantdreamer.guidance.base import PhotometricGuidance
+
+    class SecondOfThreeFails(PhotometricGuidance):
+        def __call__(self, images, depth_cond, cameras, step):
+            self.targets = torch.full_like(images.detach(), 0.5)
+            if len(images) == 3:  # the second plant's gradients become NaN
+                self.targets[1] = float("nan")
+            return super().__call__(images, depth_cond, cameras, step)
+
+    cfgs = [GenerateConfig.of(species="mint", seed=s, steps=6, checkpoint_every=4, **SMALL)
+            for s in (0, 1, 2)]  # fmt: skip
+    guidance = SecondOfThreeFails(torch.zeros(1, 48, 48, 3))
+    with pytest.raises(RunInterrupted):
+        generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False,
+                       on_step=_stop_at(2))  # fmt: skip
+    record = json.loads((tmp_path / "g" / "group.json").read_text())["plants"]
+    status = {p["name"]: p["status"] for p in record}
+    assert status["mint-s0001"].startswith("failed: ")  # written on the way out
+    assert status["mint-s0000"] == status["mint-s0002"] == "running"
+    resumed = generate_group(None, tmp_path / "g", guidance=guidance, resume=True,
+                             show_progress=False)  # fmt: skip
+    assert sorted(resumed.done) == ["mint-s0000", "mint-s0002"]
+    assert resumed.failed["mint-s0001"] == status["mint-s0001"].removeprefix("failed: ")
+    assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()

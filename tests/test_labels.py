@@ -22,9 +22,9 @@ from plantdreamer.pipeline.ground_truth import (
     LabelSet,
     Splats,
     _blend,
-    _one_hot,
     render_ground_truth,
 )
+from plantdreamer.pipeline.label_channels import one_hot
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.train_config import LearningRates
 from plantdreamer.pointcloud import voxel_downsample
@@ -183,7 +183,7 @@ def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
     ls = LabelSet.of(g.labels)
     gt = render_ground_truth(model, cam, ls)
     w, _, alpha, _ = _blend(
-        Splats.of(model), cam, _one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
+        Splats.of(model), cam, one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
     )
     reference = np.where(alpha < 0.5, -1, np.argmax(w, axis=-1) - 1)
     np.testing.assert_array_equal(gt.instance, reference)

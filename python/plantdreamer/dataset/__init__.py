@@ -1,14 +1,15 @@
 """Datasets of many plants: a spec of groups, one `generate` per plant (or one trainer per
 packed group of plants), run by long-lived workers on Ray.
 
-``spec`` parses the TOML spec into plants, ``packing`` groups them B per GPU, ``runner``
-plans and records them, ``scheduler`` hands them to the workers (``worker``: the actor that
+``spec`` parses the TOML spec into plants (``plant``), ``packing`` groups them B per GPU,
+``plan`` decides which to skip, resume or redo, ``runner`` runs and records them, ``scheduler`` hands them to the workers (``worker``: the actor that
 keeps the models loaded), ``tasks`` and ``group_task`` are what runs on a worker,
 ``manifest`` records every plant, ``engine`` talks to Ray.
 """
 
+from plantdreamer.dataset.plant import Plant, config_hash
 from plantdreamer.dataset.runner import DatasetReport, RunOptions, run_dataset
-from plantdreamer.dataset.spec import Plant, config_hash, expand, load_spec
+from plantdreamer.dataset.spec import expand, load_spec
 
 __all__ = [
     "DatasetReport",

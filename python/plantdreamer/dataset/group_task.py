@@ -5,6 +5,7 @@ failure fails it alone (``packing.py`` makes the groups)."""
 from __future__ import annotations
 
 import io
+import json
 import shutil
 import time
 import traceback
@@ -115,7 +116,13 @@ def _train_part(
         )
     except RunInterrupted as stop:
         error = f"interrupted at step {stop.step}"
-        return {i: {**info, "status": "interrupted", "error": error} for i in ids}
+        failed = _failed_in(group_dir)  # before the stop: these stay failed
+        return {
+            i: failed_record(info, failed[i])
+            if i in failed
+            else {**info, "status": "interrupted", "error": error}
+            for i in ids
+        }
     except Exception as exc:  # the group could not start (models, settings): each plant fails
         traceback.print_exc()
         return {i: failed_record(info, f"{type(exc).__name__}: {exc}") for i in ids}
@@ -129,6 +136,21 @@ def _train_part(
             out[p["id"]] = failed_record(info, result.failed.get(p["id"], "unknown error"))
     print(f"done: {len(result.done)} of {len(part)} plants in {time.perf_counter() - t0:.1f} s")
     return out
+
+
+def _failed_in(group_dir: str) -> dict[str, str]:
+    """The plants the group's record (written on every exit) says failed, with their error."""
+    from plantdreamer.pipeline.group import GROUP_FILE
+
+    try:
+        record = json.loads((Path(group_dir) / GROUP_FILE).read_text())
+        return {
+            p["name"]: p["status"].removeprefix("failed: ")
+            for p in record["plants"]
+            if p["status"].startswith("failed")
+        }
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
 
 
 class _Tee(io.TextIOBase):

@@ -20,7 +20,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.settings import by_name, canonical, setting
 
 if TYPE_CHECKING:
-    from plantdreamer.dataset.spec import Plant
+    from plantdreamer.dataset.plant import Plant
 
 MAX_PLANTS_PER_GPU = 64
 

@@ -1,15 +1,11 @@
-"""Runs a dataset: plan (skip, resume, redo), hand plants to Ray workers, record results.
+"""Runs a dataset: plan (``plan.py``: skip, resume, redo), hand plants to Ray workers,
+record results.
 
 Every plant is one `generate` run into ``DIR/plants/<id>/``; with ``plants_per_gpu`` B > 1,
 plants that share their settings train B at a time in one trainer (``packing.py``), each
 still in its own folder with its own record, and a plant that fails, fails alone. The
 units go to long-lived worker actors that keep the models loaded (``scheduler.py``,
-``worker.py``). A plant is complete when the
-manifest says ``done`` with the same config hash and its files (``plant.ply``, ``run.json``)
-exist; those are skipped. A plant folder left by an earlier run with the same config keeps
-its checkpoint, so the plant resumes; any other leftover folder is cleared first, after its
-record says ``pending`` (a record changes before its files do, so a stop at any point
-leaves no ``done`` record without its files).
+``worker.py``).
 
 Nothing outside ``DIR`` is written or deleted: plant ids are checked folder names
 (``dataset.spec``), and a plant folder must resolve to a direct child of ``DIR/plants``.
@@ -20,7 +16,6 @@ say ``interrupted``.
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,13 +25,11 @@ from plantdreamer.dataset import engine
 from plantdreamer.dataset.display import DatasetProgress, print_summary
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
-from plantdreamer.dataset.packing import pack
+from plantdreamer.dataset.plan import GROUPS_DIR, base_record, plan, work_units
+from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.scheduler import Dispatcher, Unit
-from plantdreamer.dataset.spec import Plant
-from plantdreamer.dataset.tasks import HOLD_ENV, LOG_NAME, StatusBoard, first_line
-from plantdreamer.errors import PlantDreamerError
+from plantdreamer.dataset.tasks import HOLD_ENV, StatusBoard, first_line
 from plantdreamer.exports.dataset import (
-    PLANTS_DIR,
     DatasetLabels,
     LabelOptions,
     write_dataset_exports,
@@ -47,9 +40,6 @@ from plantdreamer.versions import package_versions
 # After Ctrl-C or SIGTERM, how long running plants get to write their checkpoint and stop.
 STOP_GRACE_S = 60.0
 STOPPED = "stopped by Ctrl-C or SIGTERM"
-# A plant's files that make it complete (with a `done` record of the same config).
-COMPLETE_FILES = ("plant.ply", "run.json")
-GROUPS_DIR = "groups"  # DIR/groups/<first plant>/group.json while a packed group trains
 
 
 @dataclass
@@ -115,7 +105,7 @@ class _DatasetRun:
             )
             for p in self.plants
         }
-        todo, skipped = self._plan()
+        todo, skipped = plan(self.plants, self.manifest, self.out_dir, self.options.plants_per_gpu)
         self._write_summary("running", skipped)
         results: dict[str, dict[str, Any]] = {}
         state = "stopped"
@@ -152,64 +142,11 @@ class _DatasetRun:
             labels,
         )
 
-    # -- planning ----------------------------------------------------------------------
-
-    def _plan(self) -> tuple[list[Plant], list[Plant]]:
-        todo, skipped = [], []
-        for plant in self.plants:
-            record = self.manifest.get(plant.id)
-            folder = self._plant_dir(plant)
-            same_config = record is not None and record.get("config_hash") == plant.config_hash
-            done = same_config and record is not None and record["status"] == "done"
-            if done and all((folder / name).is_file() for name in COMPLETE_FILES):
-                skipped.append(plant)
-                continue
-            # Another config's record and files, or a `pending` plant (no worker started
-            # it: its folder holds only what a clearing cut short left).
-            stale = not same_config or (record is not None and record["status"] == "pending")
-            if stale and (record is not None or folder.exists()):
-                # The record changes first, so a stop while the files go never leaves a
-                # `done` that has none.
-                self.manifest.replace(plant.id, {**self._base_record(plant), "status": "pending"})
-                if folder.exists():
-                    shutil.rmtree(folder)
-            todo.append(plant)
-        return todo, skipped
-
-    def _plant_dir(self, plant: Plant) -> Path:
-        plants_dir = self.out_dir / PLANTS_DIR
-        folder = plants_dir / plant.id
-        # Ids are checked folder names; this keeps any other from reaching outside DIR.
-        if folder.parent != plants_dir or folder.resolve().parent != plants_dir.resolve():
-            raise PlantDreamerError(f"plant id {plant.id!r} is not a folder name in {plants_dir}")
-        return folder
-
     def _status(self, plant_id: str) -> str | None:
         record = self.manifest.get(plant_id)
         return None if record is None else record.get("status")
 
     # -- scheduling --------------------------------------------------------------------
-
-    def _units(self, todo: list[Plant], demands: dict[str, engine.Demand]) -> list[Unit]:
-        """The packed groups' unfinished plants, in plan order (``packing.py``)."""
-        wanted = {p.id for p in todo}
-        units = []
-        for group in pack(self.plants, self.options.plants_per_gpu):
-            plants = [p for p in group if p.id in wanted]
-            if not plants:
-                continue
-            demand = demands[plants[0].id]
-            request = {
-                "plants": [
-                    {"id": p.id, "config": p.config.to_dict(), "plant_dir": str(self._plant_dir(p))}
-                    for p in plants
-                ],
-                "threads": demand.threads,
-                # group.json of a group in training; named by the packed group's first plant
-                "group_dir": str(self.out_dir / GROUPS_DIR / group[0].id),
-            }
-            units.append(Unit(plants, demand, request))
-        return units
 
     def _run_on_ray(
         self, todo: list[Plant], demands: dict[str, engine.Demand]
@@ -217,7 +154,9 @@ class _DatasetRun:
         ray = engine.import_ray()
         started_ray = engine.connect(self.options.address, self.options.local_cpus)
         try:
-            units = self._units(todo, demands)
+            units = work_units(
+                self.plants, todo, demands, self.out_dir, self.options.plants_per_gpu
+            )
             engine.check_feasible({u.demand for u in units})
             self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
             board = ray.remote(num_cpus=0)(StatusBoard).remote()
@@ -258,7 +197,8 @@ class _DatasetRun:
                 self.manifest.update(plant.id, attempt=event["attempt"])
                 continue
             self.manifest.replace(
-                plant.id, {**self._base_record(plant), **event, "status": "running"}
+                plant.id,
+                {**base_record(plant, self.options.plants_per_gpu), **event, "status": "running"},
             )
 
     def _record_unit(self, ray, unit: Unit, ref) -> dict[str, dict[str, Any]]:
@@ -269,7 +209,7 @@ class _DatasetRun:
         for plant in unit.plants:
             record = self.manifest.get(plant.id)
             if record is None or record.get("status") != "running":  # a late start report
-                record = self._base_record(plant)
+                record = base_record(plant, self.options.plants_per_gpu)
             record = {"finished": time.time(), **record, **results[plant.id]}
             self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
         return {p.id: results[p.id] for p in unit.plants}
@@ -288,18 +228,6 @@ class _DatasetRun:
                     results.update(self._record_unit(ray, unit, ref))
         except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
             pass
-
-    def _base_record(self, plant: Plant) -> dict[str, Any]:
-        folder = f"{PLANTS_DIR}/{plant.id}"
-        return {
-            "group": plant.group,
-            "species": plant.species,
-            "source": plant.source,
-            "seed": plant.config.seed,
-            "config_hash": plant.config_hash,
-            "plant_dir": folder,
-            "log": f"{folder}/{LOG_NAME}",
-        }
 
     # -- dataset.json ------------------------------------------------------------------
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from plantdreamer.dataset import engine
-from plantdreamer.dataset.spec import Plant
+from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.worker import PlantWorker
 
 

@@ -33,15 +33,13 @@ its path: a scan replaced at the same path is run again.
 from __future__ import annotations
 
 import glob
-import hashlib
-import json
 import re
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from plantdreamer.dataset import packing
+from plantdreamer.dataset.plant import Plant, config_hash, file_digest
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.presets import resolve_config
@@ -57,42 +55,6 @@ _PLANT_KEYS = ("name", "species", "pointclouds", "seeds", "count", "seed-start")
 # A group name: a folder-name part that is never a path (no separator, no leading dot).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 _UNSAFE_CHARACTERS = re.compile(r"[^A-Za-z0-9._-]")
-
-
-@dataclass(frozen=True)
-class Plant:
-    """One plant of the dataset: its folder name and the full config of its run."""
-
-    id: str
-    group: str
-    config: GenerateConfig
-    config_hash: str
-
-    @property
-    def species(self) -> str | None:
-        return self.config.source.species
-
-    @property
-    def source(self) -> str:
-        return self.config.source.pointcloud or "lsystem"
-
-
-def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
-    """A stable hash of every setting (sorted JSON) and of the input file's contents
-    (``source_digest``), to tell whether a plant is up to date."""
-    text = json.dumps(cfg.to_dict(), sort_keys=True, separators=(",", ":"))
-    if source_digest is not None:
-        text += f"|source:{source_digest}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def file_digest(path: Path) -> str:
-    """SHA-256 of a file's contents (read in 1 MiB blocks)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def load_spec(path: str | Path) -> dict[str, Any]:

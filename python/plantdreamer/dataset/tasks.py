@@ -113,7 +113,7 @@ def run_plant(
             traceback.print_exc()
             return failed_record(info, f"{type(exc).__name__}: {exc}")
         print(f"done: {result.gaussians} Gaussians in {time.perf_counter() - t0:.1f} s")
-    return done_record(info, t0, resumed_from, plant_dir, result)
+    return {**done_record(info, t0, resumed_from, plant_dir, result), "trained_with": [plant_id]}
 
 
 def resolved_config(cfg: Any, saved: dict[str, Any] | None) -> Any:

@@ -93,12 +93,16 @@ def generate_group(
     with claim_folder(out, overwrite=overwrite and not resume, owned=(GROUP_FILE, *names),
                       allow_existing=resume):  # fmt: skip
         result = GroupResult(out)
-        with ExitStack() as stack:
-            plants = _start(record, out, resume, result, stack, show_progress)
+        try:
+            with ExitStack() as stack:
+                plants = _start(record, out, resume, result, stack, show_progress)
+                outputs.write_json(out / GROUP_FILE, record)
+                if plants:
+                    _train(
+                        plants, record, out, guidance, result, show_progress, on_step, depth_ahead
+                    )
+        finally:  # also on Ctrl-C: a plant failed before the stop stays failed on resume
             outputs.write_json(out / GROUP_FILE, record)
-            if plants:
-                _train(plants, record, out, guidance, result, show_progress, on_step, depth_ahead)
-        outputs.write_json(out / GROUP_FILE, record)
         for entry in record["plants"]:
             if entry["status"] == "done" and entry["name"] not in result.done:
                 plant_dir = Path(entry.get("dir", out / entry["name"]))
@@ -188,12 +192,16 @@ def _train(started, record, out, guidance, result, show_progress, on_step, depth
         restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
     trainer = Trainer(plants, guidance, depth_ahead=depth_ahead, isolate_failures=True,
                       out_dir=out)  # fmt: skip
-    trainer.run(show_progress, on_step)
+    try:
+        trainer.run(show_progress, on_step)
+    finally:  # the plants that failed in training, recorded however the run ends
+        for p in plants:
+            if p.error is not None:
+                _fail(entries[p.out_dir], result, PlantDreamerFailure(p.error))
     device = str(getattr(guidance, "device", "cpu"))
     for p in plants:
         entry = entries[p.out_dir]
         if p.error is not None:
-            _fail(entry, result, PlantDreamerFailure(p.error))
             continue
         try:
             resolution = p.cfg.train.resolution

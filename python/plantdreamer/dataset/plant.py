@@ -1,0 +1,47 @@
+"""A dataset's plant: its folder name (id), its full config and the hash that tells whether
+its finished files are up to date (settings and the input file's contents)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from plantdreamer.pipeline.config import GenerateConfig
+
+
+@dataclass(frozen=True)
+class Plant:
+    """One plant of the dataset: its folder name and the full config of its run."""
+
+    id: str
+    group: str
+    config: GenerateConfig
+    config_hash: str
+
+    @property
+    def species(self) -> str | None:
+        return self.config.source.species
+
+    @property
+    def source(self) -> str:
+        return self.config.source.pointcloud or "lsystem"
+
+
+def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
+    """A stable hash of every setting (sorted JSON) and of the input file's contents
+    (``source_digest``), to tell whether a plant is up to date."""
+    text = json.dumps(cfg.to_dict(), sort_keys=True, separators=(",", ":"))
+    if source_digest is not None:
+        text += f"|source:{source_digest}"
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file's contents (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return digest.hexdigest()
