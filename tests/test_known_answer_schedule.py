@@ -26,10 +26,10 @@ import pytest
 import torch
 
 from plantdreamer.known_answer.build import MANIFEST
+from plantdreamer.known_answer.denoiser import MAX_X0_ERROR
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
-MAX_X0_ERROR = 0.15
 RUN_STEPS = 10
 
 
