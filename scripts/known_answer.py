@@ -5,6 +5,10 @@
 builds (or reuses, from ~/.cache/plantdreamer/known_answer) tiny models trained on the
 plant's true views, runs ``generate`` from noise colours with them and with the untrained
 models, and scores both with ``plantdreamer eval``'s masked PSNR on held-out true views.
+The JSON also says whether the run's logged timesteps followed the schedule
+(``timesteps_follow_schedule``) and how well the guidance's own noising and noise
+prediction recover true latents at the drawn timesteps (``x0_error``, ``x0_error_ok``;
+``plantdreamer.known_answer.denoiser``).
 ``--models DIR`` uses a model folder as it is (the test data); ``--build DIR`` only builds
 the models into DIR; ``--verify DIR`` rebuilds DIR's models from its manifest and checks
 that every file is bit for bit the same; ``--gate DIR`` prints the cheap CFG-direction gate

@@ -13,10 +13,9 @@ seeds 0 / 1 / 2, each with its own models; seed 0's are the committed ones):
 - from noise, untrained models: +0.02 / -0.10 / -0.14 (threshold: under 0.5 dB).
 - from the true colours, trained models: 100 -> 23.01 / 25.62 / 21.37 (threshold 18 dB).
 - broken, seed 0: the SDS gradient's sign flipped, 11.24 -> 7.38; the CFG branches
-  swapped, 11.24 -> 7.39. Not caught (docs/known_answer.md): a broken timestep schedule. With
-  t = 1 at every step the run reached 14.91 dB, with the networks told t = 0 while the
-  latents carry t's noise 15.12 (the right schedule: 14.90): these models point at the
-  truth at every t, and Adam undoes w(t)'s scale.
+  swapped, 11.24 -> 7.39. A broken timestep schedule is not seen by this PSNR (t = 1 at
+  every step 14.91 dB, the networks told t = 0 15.12, right 14.90): the denoiser's x0 error
+  and the run's logged timesteps catch it (tests/test_known_answer_schedule.py).
 """
 
 from __future__ import annotations

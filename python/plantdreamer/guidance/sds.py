@@ -219,6 +219,29 @@ class StableDiffusionDepthGuidance:
             mid_block_additional_residual=mid,
         ).sample
 
+    def branch_predictions(
+        self,
+        latents: torch.Tensor,
+        noise: torch.Tensor,
+        t: torch.Tensor,
+        text_embeddings: torch.Tensor,
+        uncond_embeddings: torch.Tensor,
+        control: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(z_t, eps_text, eps_uncond): the latents noised at t and both CFG branches' noise
+        predictions, float32. The SDS step's one path from latents to predictions; the
+        known-answer denoiser check scores it too."""
+        latents = latents.detach().float()
+        latents_noisy = self.parts.scheduler.add_noise(latents, noise, t)
+        eps = self.noise_prediction(
+            torch.cat([latents_noisy, latents_noisy]),
+            torch.cat([t, t]),
+            torch.cat([text_embeddings, uncond_embeddings]),
+            torch.cat([control, control]),
+        )
+        eps_text, eps_uncond = eps.chunk(2)
+        return latents_noisy, eps_text, eps_uncond
+
     def sds_gradient(
         self,
         latents: torch.Tensor,
@@ -229,15 +252,9 @@ class StableDiffusionDepthGuidance:
         control: torch.Tensor,
     ) -> torch.Tensor:
         """w(t) (eps_hat - eps) before ``nan_to_num`` and clamping (float32)."""
-        latents = latents.detach().float()
-        latents_noisy = self.parts.scheduler.add_noise(latents, noise, t)
-        eps = self.noise_prediction(
-            torch.cat([latents_noisy, latents_noisy]),
-            torch.cat([t, t]),
-            torch.cat([text_embeddings, uncond_embeddings]),
-            torch.cat([control, control]),
+        _, eps_text, eps_uncond = self.branch_predictions(
+            latents, noise, t, text_embeddings, uncond_embeddings, control
         )
-        eps_text, eps_uncond = eps.chunk(2)
         eps_hat = eps_uncond + self.guidance_scale * (eps_text - eps_uncond)
         w = (1.0 - self.alphas_cumprod[t]).view(-1, 1, 1, 1)
         return w * (eps_hat - noise)

@@ -20,6 +20,7 @@ from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer import views
 from plantdreamer.known_answer.build import model_dirs
+from plantdreamer.known_answer.denoiser import denoiser_check
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 # Companions' seeds are the plant's plus multiples of this (no model set is made for them).
@@ -35,6 +36,33 @@ def schedule_table(name: str, steps: int) -> str:
         f"{s.min_frac!r}-{s.max_frac!r}" + ("" if s.until_step is None else f"@{s.until_step}")
         for s in stages
     )
+
+
+def run_timesteps(log_csv: Path, steps: int, schedule_name: str = "paper") -> dict[str, Any]:
+    """Did a run's timesteps follow its schedule? From what the run wrote (its ``log.csv``:
+    each step's drawn timestep, the mean over the batch, and the bounds it was drawn
+    within): the steps whose drawn t lies outside their logged bounds, and those whose
+    logged bounds differ from ``schedule_name``'s table at a ``steps``-long run."""
+    import csv
+
+    from plantdreamer.guidance.schedules import make_schedule
+
+    table = make_schedule(schedule_name, max(steps, 1))
+    with log_csv.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    outside = wrong_bounds = 0
+    for row in rows:
+        t, lo, hi = float(row["timestep"]), float(row["t_min"]), float(row["t_max"])
+        outside += not lo <= t <= hi
+        wrong_bounds += (lo, hi) != tuple(float(b) for b in table.bounds(int(row["step"])))
+    return {
+        "timestep_steps": len(rows),
+        "timesteps_outside_bounds": outside,
+        "timestep_bounds_not_in_table": wrong_bounds,
+        "timesteps_follow_schedule": bool(rows)
+        and len(rows) == steps
+        and outside + wrong_bounds == 0,
+    }
 
 
 @dataclass
@@ -163,6 +191,13 @@ def known_answer(
         "gaussians_final": trained_curve[-1].gaussians,
         "curve": [vars(s) for s in trained_curve],
     }
+    if steps:
+        log = work_dir / "trained" / f"run_{steps}" / "log.csv"
+        out.update(run_timesteps(log, steps))
+    denoised = denoiser_check(trained, spec, work_dir, steps)
+    denoised.pop("timesteps")
+    out.update(denoised)
+    out["x0_error_control"] = denoiser_check(untrained, spec, work_dir, steps)["x0_error"]
     if with_true_colours:
         true = {"color_init": "original", **settings}
         runs = step_curve(spec, truth, trained, work_dir / "true", [0, steps], **true)
