@@ -192,7 +192,12 @@ def known_answer(
         "curve": [vars(s) for s in trained_curve],
     }
     if steps:
-        log = work_dir / "trained" / f"run_{steps}" / "log.csv"
+        run_dir = work_dir / "trained" / f"run_{steps}"
+        if settings.get("group", 1) > 1:  # the scored plant's own folder in the group's
+            from plantdreamer.pipeline.group import plant_name
+
+            run_dir /= plant_name(views.generate_config(spec))
+        log = run_dir / "log.csv"
         out.update(run_timesteps(log, steps))
     denoised = denoiser_check(trained, spec, work_dir, steps)
     denoised.pop("timesteps")
