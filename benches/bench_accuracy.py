@@ -165,10 +165,15 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(11, 4))
-    sizes = {resolution_of(r) for r in results}
+    fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(13, 4.5))
+    sizes = sorted({resolution_of(r) for r in results})
+    names = [n for n, _, _ in CONFIGS]
+    colours = plt.get_cmap("tab20")
     for name, px, rows in grouped(results):
         label = name if len(sizes) == 1 else f"{name}, {px} px"
+        # One colour per run, one line style per size (solid: the smallest).
+        style = {"color": colours(names.index(name) % 20), "marker": "o",
+                 "linestyle": ("-", "--", ":")[sizes.index(px) % 3]}  # fmt: skip
         steps = sorted({p["steps"] for r in rows for p in r["curve"]})
         mean = [
             statistics.mean(p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == s)
@@ -178,15 +183,15 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
             statistics.median(p["seconds"] for r in rows for p in r["curve"] if p["steps"] == s)
             for s in steps
         ]
-        by_step.plot(steps, mean, marker="o", label=label)
-        by_time.plot(secs, mean, marker="o", label=label)
+        by_step.plot(steps, mean, label=label, **style)
+        by_time.plot(secs, mean, label=label, **style)
     # The true colours score 100 dB (exact) before any step; the axis is cut below that
     # so that the runs from wrong colours stay readable.
     for ax in (by_step, by_time):
         ax.set_ylim(top=min(ax.get_ylim()[1], 45.0))
     by_step.set(xlabel="SDS steps", ylabel="masked PSNR (dB), mean over seeds (cut at 45)")
     by_time.set(xlabel="seconds (whole run)", ylabel="masked PSNR (dB)")
-    by_step.legend(fontsize=7)
+    by_time.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
