@@ -18,7 +18,6 @@ Two figures, on the committed bean seed-0 models:
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -42,9 +41,7 @@ def unseen_views(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-u
     from plantdreamer.known_answer import denoiser, views
 
     spec = _spec()
-    unseen = dataclasses.replace(spec, train_views=denoiser.DENOISER_VIEWS, recoloured_views=1)
-    truth = views.true_gaussians(spec, tmp_path_factory.mktemp("truth"))
-    return views.training_views(unseen, truth, views.GATE_STREAM)
+    return denoiser.unseen_views(spec, views.true_gaussians(spec, tmp_path_factory.mktemp("t")))
 
 
 def _x0_error(views) -> float:  # type: ignore[no-untyped-def]

@@ -5,7 +5,6 @@ failure fails it alone (``packing.py`` makes the groups)."""
 from __future__ import annotations
 
 import io
-import json
 import shutil
 import time
 import traceback
@@ -26,6 +25,7 @@ from plantdreamer.dataset.tasks import (
     set_threads,
     worker_info,
 )
+from plantdreamer.errors import InputError
 
 
 def run_group(
@@ -140,16 +140,11 @@ def _train_part(
 
 def _failed_in(group_dir: str) -> dict[str, str]:
     """The plants the group's record (written on every exit) says failed, with their error."""
-    from plantdreamer.pipeline.group import GROUP_FILE
+    from plantdreamer.pipeline.group import failed_plants
 
     try:
-        record = json.loads((Path(group_dir) / GROUP_FILE).read_text())
-        return {
-            p["name"]: p["status"].removeprefix("failed: ")
-            for p in record["plants"]
-            if p["status"].startswith("failed")
-        }
-    except (OSError, ValueError, KeyError, TypeError):
+        return failed_plants(Path(group_dir))
+    except InputError:  # no record or a damaged one: nothing to keep failed
         return {}
 
 

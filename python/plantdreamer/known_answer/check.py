@@ -20,7 +20,7 @@ from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer import views
 from plantdreamer.known_answer.build import model_dirs
-from plantdreamer.known_answer.denoiser import denoiser_check
+from plantdreamer.known_answer.denoiser import denoiser_check, unseen_views
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 # Companions' seeds are the plant's plus multiples of this (no model set is made for them).
@@ -199,10 +199,11 @@ def known_answer(
             run_dir /= plant_name(views.generate_config(spec))
         log = run_dir / "log.csv"
         out.update(run_timesteps(log, steps))
-    denoised = denoiser_check(trained, spec, work_dir, steps)
+    unseen = unseen_views(spec, truth.gaussians)
+    denoised = denoiser_check(trained, spec, unseen, steps)
     denoised.pop("timesteps")
     out.update(denoised)
-    out["x0_error_control"] = denoiser_check(untrained, spec, work_dir, steps)["x0_error"]
+    out["x0_error_control"] = denoiser_check(untrained, spec, unseen, steps)["x0_error"]
     if with_true_colours:
         true = {"color_init": "original", **settings}
         runs = step_curve(spec, truth, trained, work_dir / "true", [0, steps], **true)

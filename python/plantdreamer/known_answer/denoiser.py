@@ -20,6 +20,8 @@ from typing import Any
 
 import torch
 
+from plantdreamer.gaussians import Gaussians
+from plantdreamer.known_answer import views
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 DENOISER_VIEWS = 8  # views per sampled step (one batch)
@@ -33,25 +35,23 @@ MAX_X0_ERROR = 0.15
 
 
 def make_guidance(models: Path, spec: KnownAnswerSpec, steps: int, schedule: str = "paper") -> Any:
-    """The real guidance on the model folder ``models``, as a ``steps``-long run builds it."""
-    from plantdreamer.guidance.config import SDS_DEFAULTS
-    from plantdreamer.guidance.models import load_components
-    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
+    """The real guidance on the model folder ``models``, as a ``steps``-long run of the
+    known-answer plant builds it (``generate``'s own ``build_guidance``)."""
     from plantdreamer.known_answer.build import model_dirs
+    from plantdreamer.pipeline.runtime import build_guidance
 
     base, control = model_dirs(models)
-    parts = load_components(str(base), str(control))
-    return StableDiffusionDepthGuidance(
-        species=spec.species,
-        lora=None,
-        schedule=schedule,
-        total_steps=steps,
-        device="cpu",
-        seed=spec.seed,
-        components=parts,
-        resolution=spec.resolution,
-        negative_prompt=SDS_DEFAULTS.negative_prompt,
+    cfg = views.generate_config(
+        spec, base_model=str(base), controlnet=str(control), steps=steps, schedule=schedule
     )
+    return build_guidance(cfg)
+
+
+def unseen_views(spec: KnownAnswerSpec, truth: Gaussians) -> views.ViewSet:
+    """``DENOISER_VIEWS`` true views of the plant ``truth`` from the camera stream no model
+    trained on."""
+    unseen = dataclasses.replace(spec, train_views=DENOISER_VIEWS, recoloured_views=1)
+    return views.training_views(unseen, truth, views.GATE_STREAM)
 
 
 @torch.no_grad()
@@ -98,13 +98,7 @@ def denoiser_error(guidance: Any, data: Any, steps: int = CHECK_STEPS) -> dict[s
 
 
 def denoiser_check(
-    models: Path, spec: KnownAnswerSpec, work_dir: Path, steps: int = CHECK_STEPS
+    models: Path, spec: KnownAnswerSpec, data: views.ViewSet, steps: int = CHECK_STEPS
 ) -> dict[str, Any]:
-    """``denoiser_error`` of the model folder ``models`` on true views of ``spec``'s plant
-    from the camera stream no model trained on."""
-    from plantdreamer.known_answer import views
-
-    unseen = dataclasses.replace(spec, train_views=DENOISER_VIEWS, recoloured_views=1)
-    truth = views.true_gaussians(spec, work_dir)
-    data = views.training_views(unseen, truth, views.GATE_STREAM)
+    """``denoiser_error`` of the model folder ``models`` on ``data`` (``unseen_views``)."""
     return denoiser_error(make_guidance(models, spec, steps), data, steps)

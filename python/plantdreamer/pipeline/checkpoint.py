@@ -44,6 +44,11 @@ def load_checkpoint(out_dir: Path) -> dict[str, Any]:
     return state
 
 
+# Bytes of a saved torch generator state, by device: the CPU's Mersenne Twister, CUDA's
+# Philox (seed and offset).
+_STATE_BYTES = {5056: "cpu", 16: "cuda"}
+
+
 def noise_state(generator: Any) -> dict[str, Any]:
     """The checkpoint's entries for the guidance's noise generator (``None``: it has none)."""
     if generator is None:
@@ -64,8 +69,7 @@ def restore_noise_state(generator: Any, saved: dict[str, Any], where: Path) -> N
             f"{where}: the checkpoint holds a guidance's noise state; this one has none"
         )
     here = generator.device.type
-    # Checkpoints without the device name are told apart by the state's size: torch's CPU
-    # generator (Mersenne Twister) saves 5056 bytes, its CUDA generator (Philox) 16.
+    # Checkpoints without the device name are told apart by the state's size.
     saved_on = saved.get("guidance_device") or _STATE_BYTES.get(int(state.numel()), "unknown")
     if saved_on != here:
         raise CheckpointError(
@@ -77,9 +81,6 @@ def restore_noise_state(generator: Any, saved: dict[str, Any], where: Path) -> N
         generator.set_state(state)
     except (RuntimeError, TypeError) as exc:
         raise CheckpointError(f"{where}: damaged guidance noise state ({exc})") from exc
-
-
-_STATE_BYTES = {5056: "cpu", 16: "cuda"}
 
 
 def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:

@@ -146,14 +146,26 @@ def _read_record(out: Path) -> dict[str, Any]:
     return record
 
 
+def failed_plants(out: Path) -> dict[str, str]:
+    """The plants ``out``'s group record says failed, with their one-line error."""
+    return _failed(_read_record(out))
+
+
+def _failed(record: dict[str, Any]) -> dict[str, str]:
+    return {
+        p["name"]: p["status"].removeprefix("failed: ")
+        for p in record["plants"]
+        if p["status"].startswith("failed")
+    }
+
+
 def _start(record, out, resume, result, stack, show_progress) -> list[tuple[PlantRun, Any]]:
     """Each plant not done or failed, fresh or from its checkpoint; a plant that cannot
     start (bad input, damaged checkpoint) is failed alone."""
     plants = []
+    result.failed.update(_failed(record))
     for entry in record["plants"]:
         if entry["status"] != "running":
-            if entry["status"].startswith("failed"):
-                result.failed[entry["name"]] = entry["status"].removeprefix("failed: ")
             continue
         plant_dir = Path(entry.get("dir", out / entry["name"]))
         try:
