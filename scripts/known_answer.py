@@ -12,7 +12,8 @@ prediction recover true latents at the drawn timesteps (``x0_error``, ``x0_error
 ``--models DIR`` uses a model folder as it is (the test data); ``--build DIR`` only builds
 the models into DIR; ``--verify DIR`` rebuilds DIR's models from its manifest and checks
 that every file is bit for bit the same; ``--gate DIR`` prints the cheap CFG-direction gate
-of DIR's models (``plantdreamer.known_answer.gate``). See docs/known_answer.md.
+of DIR's models (``plantdreamer.known_answer.gate``; ``--gate-colour 0`` or ``1`` from black or
+white instead of the wrong colours the models were trained on). See docs/known_answer.md.
 """
 
 from __future__ import annotations
@@ -49,6 +50,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--build", type=Path, help="Only build the models into this folder.")
     p.add_argument("--verify", type=Path, help="Rebuild this folder's models; compare bits.")
     p.add_argument("--gate", type=Path, help="Print this folder's CFG-direction cosines.")
+    p.add_argument(
+        "--gate-colour",
+        type=float,
+        help="Measure the gate from one flat grey level (0 black, 1 white), not noise.",
+    )
     return p.parse_args(argv)
 
 
@@ -97,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
 
         spec = KnownAnswerSpec(**json.loads((args.gate / MANIFEST).read_text())["spec"])
         with tempfile.TemporaryDirectory() as tmp:
-            gap, gate = gate_on_unseen_views(args.gate, spec, Path(tmp))
+            gap, gate = gate_on_unseen_views(
+                args.gate, spec, Path(tmp), flat_colour=args.gate_colour
+            )
         print(json.dumps({"colour_gap": gap, "cfg_direction": [vars(g) for g in gate]}, indent=2))
         return 0
 

@@ -181,3 +181,27 @@ def test_gate_sign_follows_the_direction_sds_descends(k: float) -> None:
     )
     gate = cfg_direction(parts, data, SDS_DEFAULTS.negative_prompt, timesteps=(100,))
     assert gate[0].cosine * k > 0.8
+    # Through the pooling encoder the pixel step is the latent step spread over its pixels:
+    # the same sign, nearly every channel of the plant moved the same way (z_t's noise
+    # flips a few).
+    assert gate[0].pixel_cosine * k > 0.8
+    assert abs(gate[0].pixel_agreement - (k > 0)) < 0.05
+
+
+@pytest.mark.slow
+def test_gate_sees_why_sds_from_white_stalls(tmp_path: Path) -> None:
+    """The committed models (bean seed 0) point a white plant's latent at the truth
+    (cosine 0.93 at t = 100 on 16 unseen views), yet through the encoder's backward the
+    pixel step points away from it (-0.10 to -0.12), and SDS from white gains 0.21 dB in
+    200 steps where noise colours gain 3.66 (docs/known_answer.md, "Black and white"). From
+    the wrong colours the models were trained on, both point at the truth (0.92 and 0.21)."""
+    import json
+
+    from plantdreamer.known_answer.gate import gate_on_unseen_views
+    from plantdreamer.known_answer.spec import KnownAnswerSpec
+
+    spec = KnownAnswerSpec(**json.loads((MODELS / "manifest.json").read_text())["spec"])
+    _, white = gate_on_unseen_views(MODELS, spec, tmp_path, flat_colour=1.0)
+    _, wrong = gate_on_unseen_views(MODELS, spec, tmp_path)
+    assert all(d.cosine > 0.5 and d.pixel_cosine < -0.05 for d in white)
+    assert all(d.cosine > 0.5 and d.pixel_cosine > 0.1 for d in wrong)

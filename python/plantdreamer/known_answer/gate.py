@@ -8,6 +8,13 @@ CFG direction ``eps_c - eps_u`` with a clearly positive cosine to ``z_wrong - z_
 Random models give about zero; models on a VAE that was blind to colour gave 0.01-0.37 and
 SDS did not move colours towards the truth; the current recipe gives 0.61-0.92
 (docs/known_answer.md).
+
+SDS does not apply that direction to the latent but to the render, through the encoder's
+backward: the pixel step is ``-J^T (eps_c - eps_u)``. ``pixel_cosine`` measures that step
+against ``x_true - x_wrong`` on the plant's pixels. It can disagree with the latent cosine:
+for a white plant the known-answer models point the latent at the truth (0.93 at t = 100,
+bean seed 0) while the pixel step points away from it (-0.12), which is why SDS from white
+stalls (docs/known_answer.md, "Black and white").
 """
 
 from __future__ import annotations
@@ -31,6 +38,10 @@ class CfgDirection:
     timestep: int
     cosine: float  # of eps_c - eps_u with z_wrong - z_true, over all samples together
     relative_size: float  # |eps_c - eps_u| / |eps|
+    # Of the pixel step -J^T (eps_c - eps_u) with x_true - x_wrong on the plant's pixels
+    # (alpha > 0.5), and the share of those pixels' channels it moves the right way.
+    pixel_cosine: float
+    pixel_agreement: float
 
 
 def _latents(vae: Any, images: torch.Tensor) -> torch.Tensor:
@@ -50,7 +61,6 @@ def _predict(parts: Any, z_t: torch.Tensor, t: torch.Tensor, emb: torch.Tensor, 
     ).sample
 
 
-@torch.no_grad()
 def cfg_direction(
     parts: Any,
     data: ViewSet,
@@ -59,27 +69,46 @@ def cfg_direction(
     seed: int = 0,
 ) -> list[CfgDirection]:
     """The CFG direction measured on ``data``'s wrong-colour renders (use views the models
-    never saw), one entry per timestep, the same noise for both branches."""
+    never saw), one entry per timestep, the same noise for both branches; in the latent,
+    and as the pixel step SDS makes of it through the encoder (the posterior's mean)."""
     from plantdreamer.guidance.text import PromptEmbeddings
 
     embed = PromptEmbeddings(parts.tokenizer, parts.text_encoder, "cpu")
     view = data.recoloured_view
-    text = embed.batch([data.prompts[int(i)] for i in view])
-    negative = embed(negative_prompt).expand(len(view), -1, -1)
-    z_true = _latents(parts.vae, data.images[view])
-    z_wrong = _latents(parts.vae, data.recoloured)
+    with torch.no_grad():
+        text = embed.batch([data.prompts[int(i)] for i in view])
+        negative = embed(negative_prompt).expand(len(view), -1, -1)
+        z_true = _latents(parts.vae, data.images[view])
+    wrong = data.recoloured.clone().requires_grad_(True)
+    z_wrong = _latents(parts.vae, wrong)
     control = data.depth[view].repeat(1, 3, 1, 1)
-    towards_wrong = (z_wrong - z_true).flatten()
+    towards_wrong = (z_wrong.detach() - z_true).flatten()
+    plant = (data.alpha[view] > 0.5).expand_as(wrong)
+    towards_true = (data.images[view] - data.recoloured)[plant]
     gen = torch.Generator().manual_seed(seed)
     out = []
     for step in timesteps:
         t = torch.full((len(view),), int(step), dtype=torch.long)
         a = parts.scheduler.alphas_cumprod[int(step)]
         eps = torch.randn(z_wrong.shape, generator=gen)
-        z_t = a.sqrt() * z_wrong + (1.0 - a).sqrt() * eps
-        d = _predict(parts, z_t, t, text, control) - _predict(parts, z_t, t, negative, control)
+        with torch.no_grad():
+            z_t = a.sqrt() * z_wrong + (1.0 - a).sqrt() * eps
+            d = _predict(parts, z_t, t, text, control) - _predict(parts, z_t, t, negative, control)
+        (pull,) = torch.autograd.grad(z_wrong, wrong, grad_outputs=d, retain_graph=True)
+        pixel_step = -pull[plant]
         cosine = torch.nn.functional.cosine_similarity(d.flatten(), towards_wrong, dim=0)
-        out.append(CfgDirection(int(step), float(cosine), float(d.norm() / eps.norm())))
+        pixel_cosine = torch.nn.functional.cosine_similarity(pixel_step, towards_true, dim=0)
+        moved = towards_true.abs() > 0.02  # channels already right carry no sign
+        agree = (torch.sign(pixel_step) == torch.sign(towards_true))[moved].float().mean()
+        out.append(
+            CfgDirection(
+                int(step),
+                float(cosine),
+                float(d.norm() / eps.norm()),
+                float(pixel_cosine),
+                float(agree),
+            )
+        )
     return out
 
 
@@ -95,10 +124,16 @@ def colour_gap(vae: Any, data: ViewSet) -> float:
 
 
 def gate_on_unseen_views(
-    models: Path, spec: KnownAnswerSpec, work_dir: Path, views_count: int = 16
+    models: Path,
+    spec: KnownAnswerSpec,
+    work_dir: Path,
+    views_count: int = 16,
+    flat_colour: float | None = None,
 ) -> tuple[float, list[CfgDirection]]:
-    """``colour_gap`` and ``cfg_direction`` of the model folder ``models`` (``base/``, ``controlnet/``) on
-    ``views_count`` views of ``spec``'s plant from a camera stream no model trained on."""
+    """``colour_gap`` and ``cfg_direction`` of the model folder ``models`` (``base/``,
+    ``controlnet/``) on ``views_count`` views of ``spec``'s plant from a camera stream no
+    model trained on; wrong colours as the models were trained on, or (``flat_colour``)
+    every Gaussian that grey level, as ``--color-init black`` (0) or ``white`` (1) starts."""
     from plantdreamer.guidance.config import SDS_DEFAULTS
     from plantdreamer.guidance.models import load_components
     from plantdreamer.known_answer import views
@@ -108,6 +143,7 @@ def gate_on_unseen_views(
     parts = load_components(str(base), str(control))
     unseen = dataclasses.replace(spec, train_views=views_count, recoloured_views=views_count)
     truth = views.true_gaussians(spec, work_dir)
-    data = views.training_views(unseen, truth, views.GATE_STREAM)
+    paint = views.recolour if flat_colour is None else views.flat_colours(flat_colour)
+    data = views.training_views(unseen, truth, views.GATE_STREAM, paint)
     gap = colour_gap(parts.vae, data)
     return gap, cfg_direction(parts, data, SDS_DEFAULTS.negative_prompt, seed=spec.seed)

@@ -8,6 +8,7 @@ from its view-prompt function, so the models learn exactly what SDS will show th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -130,10 +131,24 @@ def recolour(gaussians: Gaussians, rng: np.random.Generator) -> np.ndarray:
     return np.ascontiguousarray(rgb_to_sh_dc(rgb), dtype=np.float32)
 
 
+def flat_colours(level: float) -> Callable[[Gaussians, np.random.Generator], np.ndarray]:
+    """A ``recolour`` that paints every Gaussian the grey ``level`` (0 black, 1 white)."""
+    from plantdreamer.gaussians import rgb_to_sh_dc
+
+    def paint(gaussians: Gaussians, rng: np.random.Generator) -> np.ndarray:
+        return rgb_to_sh_dc(np.full((len(gaussians), 3), level, dtype=np.float32))
+
+    return paint
+
+
 def training_views(
-    spec: KnownAnswerSpec, gaussians: Gaussians, stream: int = TRAIN_STREAM
+    spec: KnownAnswerSpec,
+    gaussians: Gaussians,
+    stream: int = TRAIN_STREAM,
+    wrong_colours: Callable[[Gaussians, np.random.Generator], np.ndarray] = recolour,
 ) -> ViewSet:
-    """The spec's training views (another ``stream``: as many views no model saw)."""
+    """The spec's training views (another ``stream``: as many views no model saw), with
+    wrong-colour renders painted by ``wrong_colours``."""
     from plantdreamer.guidance.prompts import camera_prompt
 
     template = GenerateConfig().sds.prompt_template or _default_template()
@@ -148,7 +163,7 @@ def training_views(
     rng = np.random.default_rng([spec.seed, 0x2EC0])
     which = rng.integers(len(cameras), size=spec.recoloured_views)
     recoloured = [
-        render(gaussians, [cameras[i]], recolour(gaussians, rng))[0].permute(0, 3, 1, 2)
+        render(gaussians, [cameras[i]], wrong_colours(gaussians, rng))[0].permute(0, 3, 1, 2)
         for i in which
     ]
     return ViewSet(
