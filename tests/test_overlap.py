@@ -142,7 +142,7 @@ def test_an_sds_launch_leaves_its_figures_on_the_device_until_read_back():
         if launch:
             pending = guidance.launch(images, depth, cameras, 0)
             on_device = {k for k, v in pending.stats.items() if isinstance(v, torch.Tensor)}
-            assert on_device == {"loss", "grad_norm", "timestep", "nonfinite_grad"}
+            assert on_device == {"loss", "grad_norm", "timestep", "timesteps", "nonfinite_grad"}
             return pending.result()
         return guidance(images, depth, cameras, 0)
 
