@@ -10,8 +10,8 @@ The guidance draws each sample's t uniformly from the step's inclusive integer r
   ``(2m + 1) * K // (2n)`` of K equal bins of u = (m + 0.5) / n, the middle of its cell in
   (0, 1); each bin's expected count is summed over the draws from the exact share of the
   n integers that fall in it (so ranges of any width count, unequal shares included).
-  Pearson's chi-square over the bins expected to hold anything, K - 1 degrees of freedom,
-  gives ``timesteps_uniform_p``. K = 10, fewer for short runs so that each bin expects at
+  Pearson's chi-square over the bins expected to hold anything (degrees of freedom: one
+  fewer than those bins) gives ``timesteps_uniform_p``. K = 10, fewer for short runs so that each bin expects at
   least 5 draws (Cochran's rule); a range of one integer (lo = hi) says nothing and is
   left out. A right run fails with probability about ``MIN_UNIFORM_P``: measured over
   simulated runs of the real sampler by ``scripts/timestep_false_alarms.py``
@@ -33,7 +33,7 @@ from plantdreamer.guidance.base import TIMESTEPS_STAT
 from plantdreamer.guidance.schedules import make_schedule
 from plantdreamer.pipeline.outputs import read_samples_cell
 
-# A right run's draws fail the distribution test with this probability (the p threshold).
+# The p threshold: a right 200-step run fails about once in 10,000 (docs/known_answer.md).
 MIN_UNIFORM_P = 1e-4
 MAX_BINS = 10
 MIN_EXPECTED_PER_BIN = 5
