@@ -134,6 +134,9 @@ def test_loss_gradient_is_the_clamped_sds_gradient_over_batch():
     grad = guidance.sds_gradient(latents, noise, t, text, uncond, control)
     clip = 1.5 + 0.5 * step / 1000
     assert out.stats["grad_clip"] == pytest.approx(clip)
+    # Every sample's own draw is logged, not only their mean (the known-answer check reads them).
+    assert out.stats["timesteps"] == [float(v) for v in t.tolist()]
+    assert out.stats["timestep"] == pytest.approx(float(t.double().mean()))
     expected = torch.nan_to_num(grad).clamp(-clip, clip) / 2
     torch.testing.assert_close(latents.grad, expected)
     assert (grad.abs() > clip).any(), "CFG 100 should make the clamp active"

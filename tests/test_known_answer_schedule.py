@@ -10,10 +10,25 @@ Two figures, on the committed bean seed-0 models:
   networks told t = 0 while the latents carry t's noise 0.67; told 999 - t 0.63 (threshold
   0.15). t = 1 at every step gives 0.28, the anneal reversed 0.037: schedule draws the
   denoiser cannot judge, so the next figure does.
-- the run's timesteps (``check.run_timesteps``, from the run's log.csv): each step's drawn
-  t inside its logged bounds, and those bounds the paper table's at that run length.
-  A 10-step run: right 0 steps outside; t = 1 at every step 10 of 10 outside; the anneal
-  reversed 7 of 10 outside (its middle steps draw from overlapping ranges).
+- the run's timesteps (``timesteps.run_timesteps``, from the run's log.csv, which holds
+  every sample's draw): each draw inside its logged bounds, those bounds the paper table's
+  at that run length, and the draws uniform within their bounds (chi-square p at least
+  ``MIN_UNIFORM_P``). A 10-step run: right 0 steps outside; t = 1 at every step 10 of 10
+  outside; the anneal reversed 7 of 10 outside (its middle steps draw from overlapping
+  ranges). In a group of 2 (a batch of 2), the companion's sample given a wrong t at every
+  step: its 10 draws outside, the plant's none; the logged batch means, all the old check
+  read, were outside at 7 of 10 steps for t = 0 and at none for t = hi + 1.
+
+How many steps a skew within the right bounds needs (``python
+scripts/timestep_false_alarms.py --runs 200000 --broken-runs 2000 --steps 10,30,50,100,200``:
+simulated runs of the real sampler, judged by the check's own test): draws folded into the
+lower half of their range are caught in 1998 of 2000 runs at 30 steps and every run from
+50; skewed to u**2 in 338 of 2000 at 30 steps, 1006 at 50, 1868 at 100 and all 2000 at 200
+(the check's length). At 10 steps no break can be caught (2 bins: the smallest possible p
+is 0.0016). So the pipeline run here is 30 steps with the lower-half break (p = 2.9e-6),
+and the u**2 skew is checked on 200 steps of the real sampler's draws written by the
+pipeline's log writer. Right runs fail 24 times in 200,000 at 200 steps (1.2e-4; 18, 30
+and 24 at 30, 50 and 100 steps).
 """
 
 from __future__ import annotations
@@ -117,7 +132,8 @@ def _right(monkeypatch: pytest.MonkeyPatch) -> None:
     "breakage", [_right, _t_is_one, _anneal_reversed], ids=["right", "t-is-1", "anneal-reversed"]
 )
 def test_the_run_timesteps_follow_the_schedule(tmp_path: Path, monkeypatch, breakage) -> None:
-    from plantdreamer.known_answer.check import run_generate, run_timesteps, schedule_table
+    from plantdreamer.known_answer.check import run_generate, schedule_table
+    from plantdreamer.known_answer.timesteps import run_timesteps
 
     breakage(monkeypatch)
     out = tmp_path / "run"
@@ -131,3 +147,143 @@ def test_the_run_timesteps_follow_the_schedule(tmp_path: Path, monkeypatch, brea
     else:
         assert not figures["timesteps_follow_schedule"], figures
         assert figures["timesteps_outside_bounds"] > RUN_STEPS // 2, figures
+
+
+SKEW_STEPS = 30  # the lower-half fold is caught in 1998 of 2000 simulated 30-step runs
+
+
+def _drawn_then(monkeypatch: pytest.MonkeyPatch, change) -> None:  # type: ignore[no-untyped-def]
+    """The real sampler's draws, then ``change(t, lo, hi)`` applied to them."""
+    from plantdreamer.guidance.schedules import TimestepSchedule
+
+    right = TimestepSchedule.sample_timestep
+
+    def drawn(self, step, rng, batch_size=1, n=1000):  # type: ignore[no-untyped-def]
+        lo, hi = self.bounds(step, n)
+        return change(right(self, step, rng, batch_size, n), lo, hi)
+
+    monkeypatch.setattr(TimestepSchedule, "sample_timestep", drawn)
+
+
+def _lower_half(t: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+    """Every draw folded into the lower half of its (right) range."""
+    return lo + (t - lo) // 2
+
+
+def _squared(t: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+    """u = (t - lo) / (hi - lo) skewed to u**2: inside the range, crowding its low end."""
+    u = (t - lo).double() / max(hi - lo, 1)
+    return lo + torch.round((hi - lo) * u**2).long()
+
+
+def _last_sample_unset(t: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+    """The batch's last sample given t = 0 (a slot of the batch never filled)."""
+    t = t.clone()
+    t[-1] = 0
+    return t
+
+
+def _last_sample_past_the_range(t: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+    """The batch's last sample given hi + 1 (one past its range): the batch mean stays inside
+    the bounds unless the other sample drew hi."""
+    t = t.clone()
+    t[-1] = hi + 1
+    return t
+
+
+def _unchanged(t: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+    return t
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("change", [_unchanged, _lower_half], ids=["right", "lower-half"])
+def test_the_run_timesteps_are_uniform_within_their_bounds(
+    tmp_path: Path, monkeypatch, change
+) -> None:
+    from plantdreamer.known_answer.check import run_generate, schedule_table
+    from plantdreamer.known_answer.timesteps import MIN_UNIFORM_P, run_timesteps
+
+    _drawn_then(monkeypatch, change)
+    out = tmp_path / "run"
+    run_generate(_spec(), MODELS, out, SKEW_STEPS, schedule_table("paper", SKEW_STEPS),
+                 color_init="noise")  # fmt: skip
+    figures = run_timesteps(out / "log.csv", SKEW_STEPS)
+    print(figures)
+    assert figures["timestep_samples"] == SKEW_STEPS
+    assert figures["timesteps_outside_bounds"] == 0  # the skew stays within the bounds
+    assert figures["timestep_bounds_not_in_table"] == 0
+    right = change is _unchanged
+    assert (figures["timesteps_uniform_p"] >= MIN_UNIFORM_P) == right, figures
+    assert figures["timesteps_follow_schedule"] == right, figures
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "change", [_last_sample_unset, _last_sample_past_the_range], ids=["t-0", "one-past-hi"]
+)
+def test_a_wrong_timestep_for_one_sample_of_a_batch_is_seen(
+    tmp_path: Path, monkeypatch, change
+) -> None:
+    """In a group of 2 (one batch of 2 per step), the companion's sample given a wrong t:
+    each plant logs its own draw, so the companion's log shows all 10, the plant's none."""
+    from plantdreamer.known_answer.check import run_generate, schedule_table
+    from plantdreamer.known_answer.timesteps import run_timesteps
+
+    _drawn_then(monkeypatch, change)
+    out = tmp_path / "group"
+    table = schedule_table("paper", RUN_STEPS)
+    run_generate(_spec(), MODELS, out, RUN_STEPS, table, group=2, color_init="noise")
+    plant_log, companion_log = sorted(out.glob("*/log.csv"))  # the scored plant's first
+    figures = run_timesteps([plant_log, companion_log], RUN_STEPS)
+    print(figures)
+    assert figures["timestep_samples"] == 2 * RUN_STEPS
+    assert figures["timesteps_outside_bounds"] == RUN_STEPS, figures
+    assert not figures["timesteps_follow_schedule"]
+    assert run_timesteps(plant_log, RUN_STEPS)["timesteps_follow_schedule"]
+    assert run_timesteps(companion_log, RUN_STEPS)["timesteps_outside_bounds"] == RUN_STEPS
+
+
+@pytest.mark.parametrize(
+    "change", [_unchanged, _squared, _lower_half], ids=["right", "squared", "lower-half"]
+)
+def test_a_skew_within_the_bounds_fails_at_the_checks_length(tmp_path: Path, change) -> None:
+    """The real sampler's draws over the check's 200 steps, written by the pipeline's log
+    writer: a skew to u**2 is caught there (in every one of 2000 simulated runs; at the
+    pipeline test's 30 steps only in 17%)."""
+    from plantdreamer.guidance.base import TIMESTEPS_STAT
+    from plantdreamer.guidance.schedules import make_schedule
+    from plantdreamer.known_answer.timesteps import MIN_UNIFORM_P, run_timesteps
+    from plantdreamer.pipeline.outputs import samples_cell, write_log_csv
+
+    schedule = make_schedule("paper", CHECK_STEPS)
+    rng = torch.Generator().manual_seed(0)
+    rows = []
+    for step in range(CHECK_STEPS):
+        lo, hi = schedule.bounds(step)
+        t = change(schedule.sample_timestep(step, rng), lo, hi)
+        rows.append({"step": step, "timestep": float(t.float().mean()),
+                     TIMESTEPS_STAT: samples_cell(t.tolist()), "t_min": lo, "t_max": hi})  # fmt: skip
+    write_log_csv(tmp_path / "log.csv", rows)
+    figures = run_timesteps(tmp_path / "log.csv", CHECK_STEPS)
+    print(figures)
+    assert figures["timesteps_outside_bounds"] == 0
+    right = change is _unchanged
+    assert (figures["timesteps_uniform_p"] >= MIN_UNIFORM_P) == right, figures
+    assert figures["timesteps_follow_schedule"] == right
+
+
+def test_right_draws_give_calibrated_p_values() -> None:
+    """Over 400 simulated 200-step runs of the real sampler, the p-values are uniform
+    enough: about 10% below 0.1 and 50% below 0.5 (a wrong chi-square would not be)."""
+    from plantdreamer.guidance.schedules import make_schedule
+    from plantdreamer.known_answer.timesteps import uniform_p
+
+    runs = 400
+    schedule = make_schedule("paper", CHECK_STEPS)
+    rng = torch.Generator().manual_seed(1)
+    t = torch.stack([schedule.sample_timestep(s, rng, runs) for s in range(CHECK_STEPS)])
+    lo, hi = zip(*(schedule.bounds(s) for s in range(CHECK_STEPS)), strict=True)
+    p = torch.tensor([uniform_p(run, lo, hi) for run in t.T.tolist()])
+    # Binomial(400, q): 4 standard deviations either side.
+    assert abs(float((p < 0.1).float().mean()) - 0.1) < 4 * (0.1 * 0.9 / runs) ** 0.5
+    assert abs(float((p < 0.5).float().mean()) - 0.5) < 4 * (0.5 * 0.5 / runs) ** 0.5

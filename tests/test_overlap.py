@@ -96,6 +96,22 @@ def test_an_overlapped_group_of_four_writes_complete_folders_and_trains_both_hal
         assert len((folder / "log.csv").read_text().splitlines()) == 1 + 3, name
         before = (tmp_path / "u" / name / "plant.ply").read_bytes()
         assert (folder / "plant.ply").read_bytes() != before, name
+    # Each plant logs its own sample's timestep; a half's two draws average to its logged
+    # batch mean, so every draw went to the plant it was drawn for.
+    for half in (NAMES[:2], NAMES[2:]):
+        logs = [_log_rows(tmp_path / "g" / name / "log.csv") for name in half]
+        for first, second in zip(*logs, strict=True):
+            own = [float(first["timesteps"]), float(second["timesteps"])]
+            assert first["timestep"] == second["timestep"] == str(sum(own) / 2)
+            assert all(float(r["t_min"]) <= t <= float(r["t_max"]) for r in (first, second)
+                       for t in own)  # fmt: skip
+
+
+def _log_rows(path):
+    import csv
+
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
 
 
 @pytest.mark.slow
@@ -142,7 +158,7 @@ def test_an_sds_launch_leaves_its_figures_on_the_device_until_read_back():
         if launch:
             pending = guidance.launch(images, depth, cameras, 0)
             on_device = {k for k, v in pending.stats.items() if isinstance(v, torch.Tensor)}
-            assert on_device == {"loss", "grad_norm", "timestep", "nonfinite_grad"}
+            assert on_device == {"loss", "grad_norm", "timestep", "timesteps", "nonfinite_grad"}
             return pending.result()
         return guidance(images, depth, cameras, 0)
 

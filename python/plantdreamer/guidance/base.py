@@ -32,34 +32,54 @@ import torch
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 
+# The stat holding every sample's drawn diffusion timestep (a per-sample figure): the
+# column of log.csv that the known-answer check reads the draws from.
+TIMESTEPS_STAT = "timesteps"
+
 
 @dataclass
 class GuidanceOutput:
-    """``loss``: scalar, differentiable w.r.t. the images; ``stats``: numbers worth logging."""
+    """``loss``: scalar, differentiable w.r.t. the images; ``stats``: figures worth logging,
+    each a number for the batch or a list of one number per sample (per-sample figures,
+    such as ``TIMESTEPS_STAT``: a plant in a group logs its own sample's)."""
 
     loss: torch.Tensor
-    stats: dict[str, float] = field(default_factory=dict)
+    stats: dict[str, float | list[float]] = field(default_factory=dict)
 
 
 @dataclass
 class PendingOutput:
     """A guidance call whose device work may still be running. ``loss`` as in
-    ``GuidanceOutput``; ``stats`` in their logged order, each a number or a 0-dim tensor
-    still on the device (read back together, by ``result`` or by the caller)."""
+    ``GuidanceOutput``; ``stats`` in their logged order, each as in ``GuidanceOutput`` or
+    a tensor still on the device, 0-dim for the batch or 1-dim per sample (read back
+    together, by ``result`` or by the caller)."""
 
     loss: torch.Tensor
-    stats: dict[str, float | torch.Tensor] = field(default_factory=dict)
+    stats: dict[str, float | list[float] | torch.Tensor] = field(default_factory=dict)
 
     def device_figures(self) -> torch.Tensor | None:
-        """The figures still on the device as one float64 vector (exact for counts), or
-        None when every figure is already a number."""
-        figures = [v.detach().double() for v in self.stats.values() if isinstance(v, torch.Tensor)]
-        return torch.stack(figures) if figures else None
+        """The figures still on the device as one float64 vector (exact for counts and
+        timesteps), or None when every figure is already a number."""
+        figures = [
+            v.detach().double().reshape(-1)
+            for v in self.stats.values()
+            if isinstance(v, torch.Tensor)
+        ]
+        return torch.cat(figures) if figures else None
 
     def with_figures(self, values: Sequence[float]) -> GuidanceOutput:
-        """The output, with ``values`` (``device_figures``'s, read back) in their places."""
-        read = iter(values)
-        stats = {k: next(read) if isinstance(v, torch.Tensor) else v for k, v in self.stats.items()}
+        """The output, with ``values`` (``device_figures``'s, read back) in their places:
+        a number for each 0-dim figure, a list for each per-sample one."""
+        stats: dict[str, float | list[float]] = {}
+        at = 0
+        for key, value in self.stats.items():
+            if not isinstance(value, torch.Tensor):
+                stats[key] = value
+            elif value.dim() == 0:
+                stats[key], at = float(values[at]), at + 1
+            else:
+                stats[key] = [float(x) for x in values[at : at + value.numel()]]
+                at += value.numel()
         return GuidanceOutput(loss=self.loss, stats=stats)
 
     def result(self) -> GuidanceOutput:

@@ -35,7 +35,7 @@ class GuidanceResult:
 
     grads: torch.Tensor
     loss: float
-    stats: dict[str, float]
+    stats: dict[str, float | list[float]]
 
 
 class InFlight:

@@ -31,7 +31,12 @@ import torch.nn.functional as F
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.base import GuidanceOutput, PendingOutput, check_images
+from plantdreamer.guidance.base import (
+    TIMESTEPS_STAT,
+    GuidanceOutput,
+    PendingOutput,
+    check_images,
+)
 from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE, RESIZE_MODES, SDS_DEFAULTS
 from plantdreamer.guidance.cuda_graph import GraphedAutogradCall, GraphedCall
 from plantdreamer.guidance.depth import resize_control
@@ -314,10 +319,11 @@ class StableDiffusionDepthGuidance:
         lo, hi = self.schedule.bounds(step, self.num_train_timesteps)
         # Device-side figures stay there: they are read back in one copy, after the device
         # is done (each float() would wait for it on its own). The count is exact in float64.
-        stats: dict[str, float | torch.Tensor] = {
+        stats: dict[str, float | list[float] | torch.Tensor] = {
             "loss": loss.detach(),
             "grad_norm": grad.norm(),
             "timestep": t.float().mean(),
+            TIMESTEPS_STAT: t,  # each sample's own: the mean hides a wrong one
             "t_min": float(lo),
             "t_max": float(hi),
             "grad_clip": float("nan") if clip is None else clip,

@@ -22,6 +22,7 @@ from plantdreamer.known_answer import views
 from plantdreamer.known_answer.build import model_dirs
 from plantdreamer.known_answer.denoiser import denoiser_check, unseen_views
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
+from plantdreamer.known_answer.timesteps import run_timesteps
 
 # Companions' seeds are the plant's plus multiples of this (no model set is made for them).
 COMPANION_SEED_OFFSET = 1000
@@ -36,33 +37,6 @@ def schedule_table(name: str, steps: int) -> str:
         f"{s.min_frac!r}-{s.max_frac!r}" + ("" if s.until_step is None else f"@{s.until_step}")
         for s in stages
     )
-
-
-def run_timesteps(log_csv: Path, steps: int, schedule_name: str = "paper") -> dict[str, Any]:
-    """Did a run's timesteps follow its schedule? From what the run wrote (its ``log.csv``:
-    each step's drawn timestep, the mean over the batch, and the bounds it was drawn
-    within): the steps whose drawn t lies outside their logged bounds, and those whose
-    logged bounds differ from ``schedule_name``'s table at a ``steps``-long run."""
-    import csv
-
-    from plantdreamer.guidance.schedules import make_schedule
-
-    table = make_schedule(schedule_name, max(steps, 1))
-    with log_csv.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    outside = wrong_bounds = 0
-    for row in rows:
-        t, lo, hi = float(row["timestep"]), float(row["t_min"]), float(row["t_max"])
-        outside += not lo <= t <= hi
-        wrong_bounds += (lo, hi) != tuple(float(b) for b in table.bounds(int(row["step"])))
-    return {
-        "timestep_steps": len(rows),
-        "timesteps_outside_bounds": outside,
-        "timestep_bounds_not_in_table": wrong_bounds,
-        "timesteps_follow_schedule": bool(rows)
-        and len(rows) == steps
-        and outside + wrong_bounds == 0,
-    }
 
 
 @dataclass
@@ -193,12 +167,9 @@ def known_answer(
     }
     if steps:
         run_dir = work_dir / "trained" / f"run_{steps}"
-        if settings.get("group", 1) > 1:  # the scored plant's own folder in the group's
-            from plantdreamer.pipeline.group import plant_name
-
-            run_dir /= plant_name(views.generate_config(spec))
-        log = run_dir / "log.csv"
-        out.update(run_timesteps(log, steps))
+        # A group's plants each log their own draws: every one of them is checked.
+        logs = sorted(run_dir.glob("*/log.csv")) if settings.get("group", 1) > 1 else []
+        out.update(run_timesteps(logs or [run_dir / "log.csv"], steps))
     unseen = unseen_views(spec, truth.gaussians)
     denoised = denoiser_check(trained, spec, unseen, steps)
     denoised.pop("timesteps")

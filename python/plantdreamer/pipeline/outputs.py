@@ -6,6 +6,7 @@ import csv
 import functools
 import io
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -175,6 +176,17 @@ def write_turntables(
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
     atomic.write_json(path, data, default=_jsonable)
+
+
+def samples_cell(values: Sequence[float]) -> str:
+    """A per-sample figure's log.csv cell (e.g. each drawn timestep): the values separated
+    by spaces, whole numbers without a decimal point."""
+    return " ".join(str(int(v)) if float(v).is_integer() else repr(float(v)) for v in values)
+
+
+def read_samples_cell(text: str) -> list[float]:
+    """The values of a ``samples_cell``; none for an empty cell (a row logged without it)."""
+    return [float(v) for v in text.split()]
 
 
 def write_log_csv(path: Path, rows: list[dict[str, Any]]) -> None:

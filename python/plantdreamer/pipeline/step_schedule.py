@@ -40,6 +40,7 @@ from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.run_state import RunState
 
 
@@ -196,9 +197,23 @@ class StepSchedule:
                     continue
                 p.state.density.after_backward(step, work.renders[k][2], work.cameras[k])
                 p.state.model.optimizer.step()  # type: ignore[union-attr]
-                row = {"step": step, "loss": loss, "gaussians": len(p.state.model), **out.stats}
-                p.state.log_rows.append(row)
+                row = {"step": step, "loss": loss, "gaussians": len(p.state.model)}
+                p.state.log_rows.append(row | plant_stats(out.stats, k, len(group)))
         return loss
+
+
+def plant_stats(stats: dict[str, float | list[float]], k: int, batch: int) -> dict[str, Any]:
+    """The guidance's figures as the ``k``-th plant of a ``batch`` logs them: the batch's
+    numbers as they are, and of each per-sample figure its own sample's only (one camera
+    per plant and step), written as a log.csv cell."""
+    own: dict[str, Any] = {}
+    for key, value in stats.items():
+        if isinstance(value, list):
+            assert len(value) == batch, (key, len(value), batch)
+            own[key] = samples_cell(value[k : k + 1])
+        else:
+            own[key] = value
+    return own
 
 
 def check_finite_gradients(model: GaussianModel, step: int) -> None:
