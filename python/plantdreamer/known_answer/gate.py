@@ -14,7 +14,8 @@ backward: the pixel step is ``-J^T (eps_c - eps_u)``. ``pixel_cosine`` measures 
 against ``x_true - x_wrong`` on the plant's pixels. It can disagree with the latent cosine:
 for a white plant the known-answer models point the latent at the truth (0.93 at t = 100,
 bean seed 0) while the pixel step points away from it (-0.12), which is why SDS from white
-stalls (docs/known_answer.md, "Black and white").
+stalls (docs/known_answer.md, "Black and white"). It tells the step's sign, not SDS's
+speed: a VAE trained to raise it from 0.21 to 0.85 made the run slower (same page).
 """
 
 from __future__ import annotations
