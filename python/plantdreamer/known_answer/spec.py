@@ -13,10 +13,10 @@ from plantdreamer.errors import InputError
 # Bumped whenever the generator's code changes what it makes (it is part of the cache key).
 GENERATOR_VERSION = 5
 
-# Steps of the scored runs. At the default colour learning rate (lr-sh-dc 0.0125) Adam moves
-# a colour at most about 0.0035 per step, so 100 steps cannot carry noise colours far: bean
-# seed 0 gains 2.4 dB in 100 steps and 3.7 in 200 (seeds 1 and 2: 1.5 and 4.5 in 200;
-# docs/known_answer.md).
+# Steps of the scored runs. At the default colour learning rate (lr-sh-dc 0.0125) SDS through
+# these models moves noise colours slowly: bean seed 0 gains 2.4 dB in 100 steps and 3.7 in
+# 200 (seeds 1 and 2: 1.5 and 4.5 in 200), where a photometric loss at the same rate gains
+# 4.9 in 100 (docs/known_answer.md).
 CHECK_STEPS = 200
 
 
