@@ -1,6 +1,6 @@
 """The known answer for SDS: does the real ``generate`` recover a plant's true colours?
 
-    python scripts/known_answer.py --species bean --seed 0 --steps 200 --json ka.json
+    python scripts/known_answer.py --species bean --seed 0 --steps 100 --json ka.json
 
 builds (or reuses, from ~/.cache/plantdreamer/known_answer) tiny models trained on the
 plant's true views, runs ``generate`` from noise colours with them and with the untrained

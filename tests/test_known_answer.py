@@ -189,12 +189,12 @@ def test_gate_sign_follows_the_direction_sds_descends(k: float) -> None:
 
 
 @pytest.mark.slow
-def test_gate_sees_why_sds_from_white_stalls(tmp_path: Path) -> None:
-    """The committed models (bean seed 0) point a white plant's latent at the truth
-    (cosine 0.93 at t = 100 on 16 unseen views), yet through the encoder's backward the
-    pixel step points away from it (-0.10 to -0.12), and SDS from white gains 0.21 dB in
-    200 steps where noise colours gain 3.66 (docs/known_answer.md, "Black and white"). From
-    the wrong colours the models were trained on, both point at the truth (0.92 and 0.21)."""
+def test_gate_points_wrong_and_white_colours_at_the_truth(tmp_path: Path) -> None:
+    """The committed models (generator version 6, bean seed 0) on 16 unseen views: from the
+    wrong colours they were trained on, the latent direction has cosine 0.59-0.89 and the
+    pixel step SDS makes of it 0.21-0.23; from white, 0.71-0.84 and 0.26-0.39. (Version 5
+    models, trained on views of a plant 7.7 times too small, turned the white pixel step
+    away from the truth, -0.10 to -0.12: docs/known_answer.md.)"""
     import json
 
     from plantdreamer.known_answer.gate import gate_on_unseen_views
@@ -203,5 +203,5 @@ def test_gate_sees_why_sds_from_white_stalls(tmp_path: Path) -> None:
     spec = KnownAnswerSpec(**json.loads((MODELS / "manifest.json").read_text())["spec"])
     _, white = gate_on_unseen_views(MODELS, spec, tmp_path, flat_colour=1.0)
     _, wrong = gate_on_unseen_views(MODELS, spec, tmp_path)
-    assert all(d.cosine > 0.5 and d.pixel_cosine < -0.05 for d in white)
     assert all(d.cosine > 0.5 and d.pixel_cosine > 0.1 for d in wrong)
+    assert all(d.cosine > 0.5 and d.pixel_cosine > 0.1 for d in white)

@@ -1,13 +1,13 @@
 """A plant trained in a group (``generate --seeds``, one guidance call for the group per
 step) meets the known answer as the plant made alone does (docs/known_answer.md).
 
-Measured (masked PSNR, dB, 16 held-out views, 200 steps at 64 px, CFG 100, the committed
-bean seed-0 models; the companion is bean seed 1000, guided by the same models): alone
-11.24 -> 14.90; in a group of 2, 11.24 -> 14.95; in a group of 2 with overlap, 14.92. The
-seeds' spread of the plain run's final PSNR is 3.0 dB (14.90 / 12.98 / 15.98 for seeds
-0 / 1 / 2; the issue's criterion): a plant made in a group must not fall more than half of it
-below the plant made alone. That criterion is loose: each render guided with the other
-plant's depth and view prompt (a mix-up within the batch) still reached 14.22 dB and passes.
+Measured with generator version 6 models (masked PSNR, dB, 16 held-out views, 100 steps
+at 64 px, CFG 100, the committed bean seed-0 models; the companion is bean seed 1000,
+guided by the same models): alone 11.40 -> 14.13; in a group of 2, 11.40 -> 14.18. The seeds'
+spread of the plain run's final PSNR is 2.5 dB (14.13 / 15.43 / 16.67 for seeds 0 / 1 / 2;
+the issue's criterion): a plant made in a group must not fall more than half of it below
+the plant made alone. That criterion is loose: with version 5 models, each render guided
+with the other plant's depth and view prompt (a mix-up within the batch) still passed.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from plantdreamer.known_answer.build import MANIFEST
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
-ALONE_FINAL_DB = 14.90  # tests/test_known_answer_accuracy.py's run of the same models
-HALF_SEED_SPREAD_DB = 1.5
-MIN_GAIN_DB = 1.0  # as for the plant made alone
+ALONE_FINAL_DB = 14.13  # tests/test_known_answer_accuracy.py's run of the same models
+HALF_SEED_SPREAD_DB = 1.25
+MIN_GAIN_DB = 2.0  # as for the plant made alone
 
 
 @pytest.mark.slow

@@ -60,10 +60,13 @@ class Truth:
         return cls(gaussians, views.held_out_frames(spec, gaussians))
 
     def score(self, ply: Path) -> float:
+        """Masked PSNR of a run's ``plant.ply`` (beside its ``run.json``), in the scene frame
+        the held-out views are made in."""
         from plantdreamer.eval import evaluate
         from plantdreamer.io import read_splat_ply
 
-        result = evaluate(read_splat_ply(ply), self.frames, keep_views=0)
+        plant = views.to_scene_frame(read_splat_ply(ply), ply.parent)
+        result = evaluate(plant, self.frames, keep_views=0)
         value = result.mean["masked_psnr"]
         assert value is not None  # every held-out view has a mask
         return float(value)

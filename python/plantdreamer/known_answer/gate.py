@@ -6,16 +6,15 @@ the part CFG amplifies moves a latent along ``-(eps_c - eps_u)``. For a wrong-co
 ``z_wrong`` of a view whose true latent is ``z_true``, models that carry the answer give a
 CFG direction ``eps_c - eps_u`` with a clearly positive cosine to ``z_wrong - z_true``.
 Random models give about zero; models on a VAE that was blind to colour gave 0.01-0.37 and
-SDS did not move colours towards the truth; the current recipe gives 0.61-0.92
-(docs/known_answer.md).
+SDS did not move colours towards the truth; the current recipe gives 0.59-0.89 (bean seed
+0, docs/known_answer.md).
 
 SDS does not apply that direction to the latent but to the render, through the encoder's
 backward: the pixel step is ``-J^T (eps_c - eps_u)``. ``pixel_cosine`` measures that step
 against ``x_true - x_wrong`` on the plant's pixels. It can disagree with the latent cosine:
-for a white plant the known-answer models point the latent at the truth (0.93 at t = 100,
-bean seed 0) while the pixel step points away from it (-0.12), which is why SDS from white
-stalls (docs/known_answer.md, "Black and white"). It tells the step's sign, not SDS's
-speed: a VAE trained to raise it from 0.21 to 0.85 made the run slower (same page).
+for a white plant, generator version 5 models (bean seed 0) pointed the latent at the truth
+(0.93 at t = 100) and the pixel step away from it (-0.12), and SDS from white stalled;
+version 6 models give 0.80 and 0.39 (docs/known_answer.md).
 """
 
 from __future__ import annotations
@@ -118,7 +117,8 @@ def colour_gap(vae: Any, data: ViewSet) -> float:
     """|z_wrong - z_true| / |z_true| over ``data``'s wrong-colour renders: how much the
     encoder sees of a plant's colours. A VAE trained on true colours only, with the plant's
     1.4% of the pixels unweighted, gave 0.023 (bean seed 1; SDS could not tell wrong colours
-    from the truth); the current recipe gives 0.119 (seed 0; docs/known_answer.md)."""
+    from the truth); version 5 models gave 0.119 and version 6 models 0.229 (bean seed 0;
+    docs/known_answer.md)."""
     z_true = _latents(vae, data.images[data.recoloured_view])
     z_wrong = _latents(vae, data.recoloured)
     return float((z_wrong - z_true).norm() / z_true.norm())

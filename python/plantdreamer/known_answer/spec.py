@@ -11,13 +11,11 @@ from typing import Any
 from plantdreamer.errors import InputError
 
 # Bumped whenever the generator's code changes what it makes (it is part of the cache key).
-GENERATOR_VERSION = 5
+GENERATOR_VERSION = 6
 
-# Steps of the scored runs. At the default colour learning rate (lr-sh-dc 0.0125) SDS through
-# these models moves noise colours slowly: bean seed 0 gains 2.4 dB in 100 steps and 3.7 in
-# 200 (seeds 1 and 2: 1.5 and 4.5 in 200), where a photometric loss at the same rate gains
-# 4.9 in 100 (docs/known_answer.md).
-CHECK_STEPS = 200
+# Steps of the scored runs: the 100. With the views in generate's scene frame
+# (generator version 6) bean seeds 0 / 1 / 2 gain 2.7 / 3.9 / 5.2 dB in 100 steps (docs/known_answer.md).
+CHECK_STEPS = 100
 
 
 @dataclass(frozen=True)
@@ -32,8 +30,9 @@ class KnownAnswerSpec:
     train_views: int = 600
     recoloured_views: int = 300  # wrong-colour renders (the VAE and the unconditional branch)
     vae_steps: int = 800
-    # The plant covers about 1.4% of a 64 px view: its pixels weigh 1 + vae_mask_weight in the
-    # VAE's loss, or the VAE learns the grey background and blurs the plant away.
+    # The plant's pixels weigh 1 + vae_mask_weight in the VAE's loss. Found when the views
+    # showed the plant 7.7 times too small (about 1.4% of a view; up to generator version 5):
+    # unweighted, the VAE learned the grey background and blurred the plant away.
     vae_mask_weight: float = 20.0
     # Of each VAE batch, wrong-colour renders: trained on true colours only, the encoder
     # needs no colour to encode a view and maps wrong colours near the true latent.
