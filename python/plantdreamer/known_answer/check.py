@@ -65,7 +65,7 @@ class Truth:
         from plantdreamer.eval import evaluate
         from plantdreamer.io import read_splat_ply
 
-        plant = views.to_scene_frame(read_splat_ply(ply), ply.parent)
+        plant = views.in_generate_frame(read_splat_ply(ply), ply)
         result = evaluate(plant, self.frames, keep_views=0)
         value = result.mean["masked_psnr"]
         assert value is not None  # every held-out view has a mask

@@ -56,28 +56,18 @@ def true_gaussians(spec: KnownAnswerSpec, work_dir: Path) -> Gaussians:
 
     cfg = generate_config(spec, guidance="none", steps=0, color_init="original")
     result = generate(cfg, work_dir / "target", overwrite=True, show_progress=False)
-    return to_scene_frame(read_splat_ply(result.ply_path), Path(result.ply_path).parent)
+    return in_generate_frame(read_splat_ply(result.ply_path), Path(result.ply_path))
 
 
-def to_scene_frame(gaussians: Gaussians, run_dir: Path) -> Gaussians:
-    """A plant exported by ``generate`` (in the input's frame) moved back into the scene
-    frame it was trained in, by the normalisation its ``run.json`` records."""
-    import json
+def in_generate_frame(gaussians: Gaussians, ply: Path) -> Gaussians:
+    """The Gaussians of a ``plant.ply`` written by ``generate`` moved back into the scene
+    frame it trained in (``GenerateFrame``: what its ``run.json`` records)."""
+    from plantdreamer.pipeline.rerender import GenerateFrame
 
-    from plantdreamer.pointcloud import NormalizeTransform
-
-    record = json.loads((run_dir / "run.json").read_text())
-    if record.get("export_offset") is not None:
-        raise InputError(f"{run_dir}: an export with an offset is not a known-answer plant")
-    frame = NormalizeTransform(tuple(record["transform"]["center"]), record["transform"]["scale"])
-    return Gaussians(
-        frame.apply(gaussians.means.astype(np.float64)).astype(np.float32),
-        gaussians.quats.copy(),
-        (gaussians.log_scales + np.float32(np.log(frame.scale))).astype(np.float32),
-        gaussians.opacity_logits.copy(),
-        gaussians.sh.copy(),
-        None if gaussians.labels is None else gaussians.labels.copy(),
-    )
+    frame = GenerateFrame.beside(ply)
+    if frame is None:
+        raise InputError(f"{ply} has no run.json beside it: not a generate output")
+    return frame.to_scene(gaussians)
 
 
 def sample_cameras(spec: KnownAnswerSpec, n: int, stream: int) -> list[Camera]:
