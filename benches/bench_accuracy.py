@@ -97,11 +97,12 @@ def measure(
     partial: Path | None = None,
     build_threads: int = 1,
     configs: list[str] | None = None,
+    threads: int | None = None,
 ) -> list[dict[str, Any]]:
     """Every curve; each finished one is also appended to ``partial`` (JSON lines)."""
     from concurrent.futures import as_completed
 
-    threads = max(1, (os.cpu_count() or 1) // jobs)
+    threads = threads or max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
         list(pool.map(build, [(resolution, s, cache, build_threads) for s in seeds]))
     print("models built", file=sys.stderr, flush=True)
@@ -234,6 +235,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resolution", type=int, default=64, help="Render and SDS size (px).")
     p.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 2) // 2))
     p.add_argument("--cache", default=None)
+    p.add_argument(
+        "--threads", type=int, help="CPU threads per run (default: the cores over --jobs)."
+    )
     p.add_argument("--json", type=Path, help="Also write the raw results here.")
     p.add_argument("--partial", type=Path, help="Append each finished curve here.")
     p.add_argument("--configs", help="Only these runs (names as in the table, ';'-separated).")
@@ -259,7 +263,14 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         p.error(f"unknown runs: {', '.join(sorted(unknown))}")
     results = measure(
-        args.resolution, seeds, args.jobs, cache, args.partial, args.build_threads, configs
+        args.resolution,
+        seeds,
+        args.jobs,
+        cache,
+        args.partial,
+        args.build_threads,
+        configs,
+        args.threads,
     )
     command = shlex.join(["python", "benches/bench_accuracy.py", *(argv or sys.argv[1:])])
     if args.json is not None:

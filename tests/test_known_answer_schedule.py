@@ -14,8 +14,9 @@ error of 0.046 at the check's 100 steps, and every test here passes on them.
   denoiser cannot judge, so the next figure does.
 - the run's timesteps (``timesteps.run_timesteps``, from the run's log.csv, which holds
   every sample's draw): each draw inside its logged bounds, those bounds the paper table's
-  at that run length, and the draws uniform within their bounds (chi-square p at least
-  ``MIN_UNIFORM_P``). A 10-step run: right 0 steps outside; t = 1 at every step 10 of 10
+  at that run length, the draws uniform within their bounds (chi-square p at least
+  ``MIN_UNIFORM_P``) and independent of each other (neighbouring draws' products, p at
+  least the same). A 10-step run: right 0 steps outside; t = 1 at every step 10 of 10
   outside; the anneal reversed 7 of 10 outside (its middle steps draw from overlapping
   ranges). In a group of 2 (a batch of 2), the companion's sample given a wrong t at every
   step: its 10 draws outside, the plant's none; the logged batch means, all the old check
@@ -25,12 +26,14 @@ How many steps a skew within the right bounds needs (``python
 scripts/timestep_false_alarms.py --runs 200000 --broken-runs 2000 --steps 10,30,50,100,200``:
 simulated runs of the real sampler, judged by the check's own test): draws folded into the
 lower half of their range are caught in 1998 of 2000 runs at 30 steps and every run from
-50; skewed to u**2 in 338 of 2000 at 30 steps, 1006 at 50, 1868 at 100 and all 2000 at 200
-(the check's length). At 10 steps no break can be caught (2 bins: the smallest possible p
+50; skewed to u**2 in 391 of 2000 at 30 steps, 1044 at 50, 1870 at 100 (the check's
+length) and all 2000 at 200. At 10 steps no break can be caught (2 bins: the smallest possible p
 is 0.0016). So the pipeline run here is 30 steps with the lower-half break (p = 2.9e-6),
-and the u**2 skew is checked on 200 steps of the real sampler's draws written by the
-pipeline's log writer. Right runs fail 24 times in 200,000 at 200 steps (1.2e-4; 18, 30
-and 24 at 30, 50 and 100 steps).
+and the u**2 skew is checked on the check's 100 steps of the real sampler's draws written
+by the pipeline's log writer, as are a draw repeated at the next step (caught in 1793 of
+2000 simulated 100-step runs) and one t shared by a group of 2 (2000 of 2000). Right runs
+fail the chi-square 24 times in 200,000 at 100 and at 200 steps, and either test 58 and 46
+times (docs/known_answer.md has the whole table).
 """
 
 from __future__ import annotations
@@ -249,9 +252,9 @@ def test_a_wrong_timestep_for_one_sample_of_a_batch_is_seen(
     "change", [_unchanged, _squared, _lower_half], ids=["right", "squared", "lower-half"]
 )
 def test_a_skew_within_the_bounds_fails_at_the_checks_length(tmp_path: Path, change) -> None:
-    """The real sampler's draws over the check's 200 steps, written by the pipeline's log
-    writer: a skew to u**2 is caught there (in every one of 2000 simulated runs; at the
-    pipeline test's 30 steps only in 17%)."""
+    """The real sampler's draws over the check's 100 steps, written by the pipeline's log
+    writer: a skew to u**2 is caught there (in 1870 of 2000 simulated runs, every one at
+    200 steps; at the pipeline test's 30 steps only in 391 of 2000)."""
     from plantdreamer.guidance.base import TIMESTEPS_STAT
     from plantdreamer.guidance.schedules import make_schedule
     from plantdreamer.known_answer.timesteps import MIN_UNIFORM_P, run_timesteps
@@ -289,3 +292,89 @@ def test_right_draws_give_calibrated_p_values() -> None:
     # Binomial(400, q): 4 standard deviations either side.
     assert abs(float((p < 0.1).float().mean()) - 0.1) < 4 * (0.1 * 0.9 / runs) ** 0.5
     assert abs(float((p < 0.5).float().mean()) - 0.5) < 4 * (0.5 * 0.5 / runs) ** 0.5
+
+
+def _write_log(path: Path, draws: list[list[int]], steps: int) -> None:
+    """A log.csv as the pipeline writes it: ``draws[step]`` are that step's samples."""
+    from plantdreamer.guidance.base import TIMESTEPS_STAT
+    from plantdreamer.guidance.schedules import make_schedule
+    from plantdreamer.pipeline.outputs import samples_cell, write_log_csv
+
+    schedule = make_schedule("paper", steps)
+    rows = []
+    for step, t in enumerate(draws):
+        lo, hi = schedule.bounds(step)
+        rows.append({"step": step, "timestep": sum(t) / len(t), TIMESTEPS_STAT: samples_cell(t),
+                     "t_min": lo, "t_max": hi})  # fmt: skip
+    write_log_csv(path, rows)
+
+
+def _right_draws(steps: int, seed: int, batch: int = 1) -> list[list[int]]:
+    from plantdreamer.guidance.schedules import make_schedule
+
+    schedule = make_schedule("paper", steps)
+    rng = torch.Generator().manual_seed(seed)
+    return [schedule.sample_timestep(s, rng, batch).tolist() for s in range(steps)]
+
+
+def test_a_draw_repeated_at_the_next_step_is_caught(tmp_path: Path) -> None:
+    """Each odd step given the previous step's u in its own range: every draw uniform and
+    inside its bounds (the chi-square passes), but pairs of steps equal. Caught at the
+    check's length in 1793 of 2000 simulated runs (docs/known_answer.md); this seed's run
+    both ways."""
+    from plantdreamer.guidance.schedules import make_schedule
+    from plantdreamer.known_answer.timesteps import MIN_UNIFORM_P, run_timesteps
+
+    schedule = make_schedule("paper", CHECK_STEPS)
+    right = _right_draws(CHECK_STEPS, seed=3)
+    repeated = [list(t) for t in right]
+    for s in range(1, CHECK_STEPS, 2):
+        (lo0, hi0), (lo, hi) = schedule.bounds(s - 1), schedule.bounds(s)
+        u = (repeated[s - 1][0] - lo0) / max(hi0 - lo0, 1)
+        repeated[s] = [lo + round((hi - lo) * u)]
+    for name, draws in (("right", right), ("repeated", repeated)):
+        _write_log(tmp_path / f"{name}.csv", draws, CHECK_STEPS)
+        figures = run_timesteps(tmp_path / f"{name}.csv", CHECK_STEPS)
+        print(name, figures)
+        assert figures["timesteps_outside_bounds"] == 0
+        assert figures["timesteps_uniform_p"] >= MIN_UNIFORM_P
+        independent = figures["timesteps_independent_p"] >= MIN_UNIFORM_P
+        assert independent == (name == "right"), figures
+        assert figures["timesteps_follow_schedule"] == (name == "right"), figures
+
+
+def test_one_timestep_shared_by_a_group_is_caught(tmp_path: Path) -> None:
+    """A group of 2 whose plants get one draw between them (each plant's draws still
+    uniform and inside its bounds): the two logs' draws at the same step are compared."""
+    from plantdreamer.known_answer.timesteps import MIN_UNIFORM_P, run_timesteps
+
+    batch = _right_draws(CHECK_STEPS, seed=4, batch=2)
+    plant, companion = [[t[0]] for t in batch], [[t[1]] for t in batch]
+    for name, second in (("right", companion), ("shared", plant)):
+        logs = [tmp_path / f"{name}-plant.csv", tmp_path / f"{name}-companion.csv"]
+        _write_log(logs[0], plant, CHECK_STEPS)
+        _write_log(logs[1], second, CHECK_STEPS)
+        figures = run_timesteps(logs, CHECK_STEPS)
+        print(name, figures)
+        assert figures["timesteps_uniform_p"] >= MIN_UNIFORM_P
+        assert figures["timesteps_follow_schedule"] == (name == "right"), figures
+        assert run_timesteps(logs[1], CHECK_STEPS)["timesteps_follow_schedule"]
+
+
+def test_right_draws_give_calibrated_independence_p_values() -> None:
+    """Over 400 simulated runs of the real sampler at the check's length, alone and in
+    groups of 2, the independence p-values are uniform enough (about 10% below 0.1, 50%
+    below 0.5): the normal approximation of the sums of products holds."""
+    from plantdreamer.guidance.schedules import make_schedule
+    from plantdreamer.known_answer.timesteps import independent_p, standardised
+
+    runs = 400
+    schedule = make_schedule("paper", CHECK_STEPS)
+    bounds = [schedule.bounds(s) for s in range(CHECK_STEPS)]
+    rng = torch.Generator().manual_seed(2)
+    t = torch.stack([schedule.sample_timestep(s, rng, 2 * runs) for s in range(CHECK_STEPS)])
+    z = [[[standardised(int(v), *b)] for v, b in zip(col, bounds, strict=True)] for col in t.T]
+    for logs in ([[z[i]] for i in range(runs)], [[z[2 * i], z[2 * i + 1]] for i in range(runs)]):
+        p = torch.tensor([independent_p(group) for group in logs])
+        for q in (0.1, 0.5):
+            assert abs(float((p < q).float().mean()) - q) < 4 * (q * (1 - q) / runs) ** 0.5, q
