@@ -7,7 +7,7 @@ known answer (docs/known_answer.md), over steps and seconds.
 For each plant seed, the known-answer models are built (or reused from the cache), then
 ``generate`` runs from each colour init (noise, black, white, original) at CFG 100, from
 noise at CFG 7.5 and 20, with the VAE in bfloat16 and float16, in a group of two plants
-(with and without overlap), and from noise for 400 steps with and without densification.
+(with and without overlap), and from noise for 600 steps with and without densification.
 Each curve point is its own run (explicit schedule table: a shorter run is the first steps
 of a longer one), so its seconds are a whole run's wall time. Writes
 benches/results/accuracy.md, accuracy.json and docs/images/known_answer_accuracy.png.
@@ -16,6 +16,7 @@ benches/results/accuracy.md, accuracy.json and docs/images/known_answer_accuracy
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import shlex
@@ -31,7 +32,9 @@ RESULTS = ROOT / "benches" / "results"
 PLOT = ROOT / "docs" / "images" / "known_answer_accuracy.png"
 
 SHORT = [0, 50, 100, 200]
-LONG = [0, 100, 200, 300, 400]
+# Density control first runs at step 400 (DensifyConfig: start 300, every 100), so the
+# densify rows go to 600 steps: two rounds (400 and 500).
+LONG = [0, 100, 200, 400, 600]
 # (name, settings, curve)
 CONFIGS: list[tuple[str, dict[str, Any], list[int]]] = [
     ("noise, CFG 100", {"color_init": "noise"}, SHORT),
@@ -160,6 +163,72 @@ def table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+# A point that gains less than this over the previous one: PSNR has stopped rising.
+PLATEAU_DB = 0.25
+
+
+def _mean_at(rows: list[dict[str, Any]], step: int, key: str = "masked_psnr") -> float | None:
+    values = [p[key] for r in rows for p in r["curve"] if p["steps"] == step]
+    return statistics.mean(values) if values else None
+
+
+def _paired(results: list[dict[str, Any]], a: str, b: str, px: int) -> list[tuple[Any, Any]]:
+    """(run a, run b) of each seed measured in both, at size px."""
+    by = {(r["config"], r["seed"]): r for r in results if resolution_of(r) == px}
+    return [(by[a, s], by[b, s]) for (n, s) in by if n == a and (b, s) in by]
+
+
+def findings(results: list[dict[str, Any]]) -> list[str]:
+    """What the table says about steps, densification, precision and groups, computed from
+    the results (nothing here is typed in by hand)."""
+    out = []
+    for name, px, rows in grouped(results):
+        if name != "noise, CFG 100, no densify":
+            continue
+        steps = sorted({p["steps"] for r in rows for p in r["curve"]})
+        means = [(s, _mean_at(rows, s)) for s in steps]
+        flat = next((a for (a, x), (_, y) in itertools.pairwise(means)
+                     if x is not None and y is not None and y - x < PLATEAU_DB), None)  # fmt: skip
+        shown = ", ".join(f"{m:.2f} at {s}" for s, m in means if m is not None)
+        when = (f"stops rising (under {PLATEAU_DB} dB to the next point) after {flat} steps"
+                if flat is not None else f"still rises at {steps[-1]} steps")  # fmt: skip
+        out.append(f"- Steps a plant needs ({px} px, from noise, no densification, mean over "
+                   f"{len(rows)} seeds: {shown} dB): PSNR {when}.")  # fmt: skip
+    for px in sorted({resolution_of(r) for r in results}):
+        pairs = _paired(results, "noise, CFG 100, densify", "noise, CFG 100, no densify", px)
+        if pairs:
+            last = max(p["steps"] for p in pairs[0][0]["curve"])
+            point = [
+                [next(p for p in run["curve"] if p["steps"] == last) for run in pair]
+                for pair in pairs
+            ]
+            dpsnr = [d["masked_psnr"] - n["masked_psnr"] for d, n in point]
+            cost = [d["seconds"] / n["seconds"] for d, n in point]
+            out.append(
+                f"- Densification ({px} px, {last} steps, {len(pairs)} seeds): "
+                f"{statistics.mean(d['gaussians'] for d, _ in point):,.0f} Gaussians against "
+                f"{statistics.mean(n['gaussians'] for _, n in point):,.0f}, masked PSNR "
+                f"{min(dpsnr):+.2f} to {max(dpsnr):+.2f} dB against none, in "
+                f"{min(cost):.2f}-{max(cost):.2f} times the seconds."
+            )
+        for other, what in (
+            ("noise, CFG 100, VAE bfloat16", "the VAE in bfloat16"),
+            ("noise, CFG 100, VAE float16", "the VAE in float16"),
+            ("noise, CFG 100, group of 2", "a group of 2"),
+            ("noise, CFG 100, group of 2, overlap", "a group of 2 with overlap"),
+        ):
+            pairs = _paired(results, other, "noise, CFG 100", px)
+            gaps = [
+                abs(p["masked_psnr"] - q["masked_psnr"])
+                for a, b in pairs
+                for p, q in zip(a["curve"], b["curve"], strict=True)
+            ]
+            if gaps:
+                out.append(f"- {what[0].upper() + what[1:]} ({px} px, {len(pairs)} seeds): "
+                           f"within {max(gaps):.2f} dB of the plain run at every point.")  # fmt: skip
+    return out
+
+
 def plot(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib
 
@@ -215,6 +284,10 @@ seeds and sizes missing from the table were not measured in this run (the comman
 which were asked for); docs/known_answer.md says what these models can and cannot show.
 
 {table(results)}
+
+What it says:
+
+{chr(10).join(findings(results))}
 
 ![masked PSNR against steps and seconds](../docs/images/known_answer_accuracy.png)
 """

@@ -1,0 +1,43 @@
+"""benches/bench_accuracy.py's table and findings: computed from the results they are
+given (synthetic curves here), never typed in."""
+
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benches"))
+
+import bench_accuracy  # noqa: E402
+
+
+def _run(config: str, seed: int, psnr: dict[int, float], gaussians: int = 100, secs: float = 1.0
+         ) -> dict[str, Any]:  # fmt: skip
+    curve = [{"steps": s, "masked_psnr": v, "seconds": secs * max(s, 1) / 100,
+              "gaussians": gaussians} for s, v in sorted(psnr.items())]  # fmt: skip
+    return {"seed": seed, "resolution": 64, "config": config, "curve": curve}
+
+
+def test_findings_read_the_plateau_densification_and_groups_from_the_results() -> None:
+    long_ = {0: 10.0, 100: 13.0, 200: 15.0, 400: 15.1, 600: 15.2}
+    results = [
+        _run("noise, CFG 100, no densify", s, {k: v + s for k, v in long_.items()}) for s in (0, 1)
+    ]
+    for s in (0, 1):
+        densified = {k: v + s - (0.5 if k == 600 else 0) for k, v in long_.items()}
+        results.append(_run("noise, CFG 100, densify", s, densified, gaussians=300, secs=1.5))
+    short = {0: 10.0, 50: 11.0, 100: 12.0, 200: 13.0}
+    results += [_run("noise, CFG 100", s, short) for s in (0, 1)]
+    results += [
+        _run("noise, CFG 100, group of 2", s, {k: v - 0.3 * (k == 50) for k, v in short.items()})
+        for s in (0, 1)
+    ]
+    found = "\n".join(bench_accuracy.findings(results))
+    print(found)
+    assert "stops rising (under 0.25 dB to the next point) after 200 steps" in found
+    assert "Densification (64 px, 600 steps, 2 seeds): 300 Gaussians against 100" in found
+    assert "-0.50 to -0.50 dB against none, in 1.50-1.50 times the seconds" in found
+    assert "A group of 2 (64 px, 2 seeds): within 0.30 dB" in found
+    assert "bfloat16" not in found  # not measured, so not claimed
+    table = bench_accuracy.table(results)
+    assert "| noise, CFG 100, no densify | 64 | 2 | 10.50 ± 0.50 |" in table
