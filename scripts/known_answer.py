@@ -6,7 +6,7 @@ builds (or reuses, from ~/.cache/plantdreamer/known_answer) tiny models trained 
 plant's true views, runs ``generate`` from noise colours with them and with the untrained
 models, and scores both with ``plantdreamer eval``'s masked PSNR on held-out true views.
 The JSON also says whether the run's logged timesteps followed the schedule
-(``timesteps_follow_schedule``: every draw inside its bounds, uniform within them) and how well the guidance's own noising and noise
+(``timesteps_follow_schedule``: every draw inside its bounds, uniform within them, independent) and how well the guidance's own noising and noise
 prediction recover true latents at the drawn timesteps (``x0_error``, ``x0_error_ok``;
 ``plantdreamer.known_answer.denoiser``).
 ``--models DIR`` uses a model folder as it is (the test data); ``--build DIR`` only builds
