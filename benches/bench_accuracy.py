@@ -167,8 +167,8 @@ def table(results: list[dict[str, Any]]) -> str:
 PLATEAU_DB = 0.25
 
 
-def _mean_at(rows: list[dict[str, Any]], step: int, key: str = "masked_psnr") -> float | None:
-    values = [p[key] for r in rows for p in r["curve"] if p["steps"] == step]
+def _mean_at(rows: list[dict[str, Any]], step: int) -> float | None:
+    values = [p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == step]
     return statistics.mean(values) if values else None
 
 
