@@ -1,19 +1,28 @@
 """A plant trained in a group (``generate --seeds``, one guidance call for the group per
-step) meets the known answer as the plant made alone does (docs/known_answer.md).
+step) meets the known answer as the plant made alone does (docs/known_answer.md), and the
+test fails when the group's renders are guided with each other's conditioning.
 
 Measured with generator version 6 models (masked PSNR, dB, 16 held-out views, 100 steps
-at 64 px, CFG 100, the committed bean seed-0 models; the companion is bean seed 1000,
-guided by the same models): alone 11.40 -> 14.13; in a group of 2, 11.40 -> 14.18. The seeds'
-spread of the plain run's final PSNR is 2.5 dB (14.13 / 15.43 / 16.67 for seeds 0 / 1 / 2;
-the issue's criterion): a plant made in a group must not fall more than half of it below
-the plant made alone. That criterion is loose: with version 5 models, each render guided
-with the other plant's depth and view prompt (a mix-up within the batch) still passed.
+at 64 px, CFG 100, each bean seed with its own models, seed 0's the committed ones; the
+companion is bean seed 1000, guided by the same models), seeds 0 / 1 / 2:
+
+- alone: 11.40 -> 14.13 / 15.43 / 16.67 (the seeds' spread, 2.5 dB, is the issue's
+  criterion, far looser than what a group changes);
+- in a group of 2: 14.18 / 15.51 / 16.63, so group minus alone +0.05 / +0.08 / -0.03;
+- mixed up (each render guided with the other plant's depth and view prompt, a one-off
+  script): 13.89 / 15.04 / 15.87, group minus alone -0.24 / -0.39 / -0.80.
+
+The tolerance, 0.15 dB either way, sits between the worst right seed (0.08) and the
+mildest mix-up (0.24, the committed seed). The plant made alone runs in the same test, so
+the comparison holds on a machine whose floating point rounds differently.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -21,21 +30,64 @@ from plantdreamer.known_answer.build import MANIFEST
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
-ALONE_FINAL_DB = 14.13  # tests/test_known_answer_accuracy.py's run of the same models
-HALF_SEED_SPREAD_DB = 1.25
+GROUP_TOLERANCE_DB = 0.15
 MIN_GAIN_DB = 2.0  # as for the plant made alone
 
 
-@pytest.mark.slow
-def test_a_plant_trained_in_a_group_meets_the_known_answer(tmp_path: Path) -> None:
+class _MixedUp:
+    """The group's guidance with the batch's depth maps and cameras (so its view prompts)
+    reversed: each render guided as the other plant."""
+
+    def __init__(self, guidance: Any) -> None:
+        self.guidance = guidance
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.guidance, name)
+
+    def launch(self, images: Any, depth: Any, cameras: Sequence[Any], step: int) -> Any:
+        return self.guidance.launch(images, depth.flip(0), list(cameras)[::-1], step)
+
+    def __call__(self, images: Any, depth: Any, cameras: Sequence[Any], step: int) -> Any:
+        return self.launch(images, depth, cameras, step).result()
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Any, float, Path]:
+    """(spec, truth, masked PSNR of the plant made alone, work folder)."""
     from plantdreamer.known_answer.check import Truth, step_curve
 
+    work = tmp_path_factory.mktemp("known_answer_group")
     spec = KnownAnswerSpec(**json.loads((MODELS / MANIFEST).read_text())["spec"])
-    truth = Truth.of(spec, tmp_path)
+    truth = Truth.of(spec, work)
+    (alone,) = step_curve(spec, truth, MODELS, work / "alone", [CHECK_STEPS], color_init="noise")
+    return spec, truth, alone.masked_psnr, work
+
+
+def _in_group(plant: tuple[Any, Any, float, Path], name: str) -> tuple[float, float]:
+    from plantdreamer.known_answer.check import step_curve
+
+    spec, truth, _, work = plant
     scores = step_curve(
-        spec, truth, MODELS, tmp_path / "runs", [0, CHECK_STEPS], color_init="noise", group=2
+        spec, truth, MODELS, work / name, [0, CHECK_STEPS], color_init="noise", group=2
     )
-    first, last = scores[0].masked_psnr, scores[-1].masked_psnr
-    print(f"in a group of 2: {first:.2f} -> {last:.2f} dB")
+    return scores[0].masked_psnr, scores[-1].masked_psnr
+
+
+@pytest.mark.slow
+def test_a_plant_trained_in_a_group_meets_the_known_answer(plant) -> None:
+    first, last = _in_group(plant, "group")
+    alone = plant[2]
+    print(f"in a group of 2: {first:.2f} -> {last:.2f} dB; alone {alone:.2f}")
     assert last - first >= MIN_GAIN_DB
-    assert last >= ALONE_FINAL_DB - HALF_SEED_SPREAD_DB
+    assert abs(last - alone) <= GROUP_TOLERANCE_DB
+
+
+@pytest.mark.slow
+def test_the_group_check_fails_when_the_renders_are_mixed_up(plant, monkeypatch) -> None:
+    import plantdreamer.pipeline.group as group
+
+    build = group.build_guidance
+    monkeypatch.setattr(group, "build_guidance", lambda cfg, **kw: _MixedUp(build(cfg, **kw)))
+    _, last = _in_group(plant, "mixed_up")
+    print(f"mixed up: {last:.2f} dB; alone {plant[2]:.2f}")
+    assert abs(last - plant[2]) > GROUP_TOLERANCE_DB
