@@ -2,19 +2,20 @@
 step) meets the known answer as the plant made alone does (docs/known_answer.md), and the
 test fails when the group's renders are guided with each other's conditioning.
 
-Measured with generator version 6 models (masked PSNR, dB, 16 held-out views, 100 steps
-at 64 px, CFG 100, each bean seed with its own models, seed 0's the committed ones; the
-companion is bean seed 1000, guided by the same models), seeds 0 / 1 / 2:
+Measured with generator version 6 models, the VAE trained 1600 steps (masked PSNR, dB,
+16 held-out views, 100 steps at 64 px, CFG 100, each bean seed with its own models, seed
+0's the committed ones; the companion is bean seed 1000, guided by the same models), seeds
+0 / 1 / 2:
 
-- alone: 11.40 -> 14.13 / 15.43 / 16.67 (the seeds' spread, 2.5 dB, is the issue's
-  criterion, far looser than what a group changes);
-- in a group of 2: 14.18 / 15.51 / 16.63, so group minus alone +0.05 / +0.08 / -0.03;
+- alone: 11.40 -> 15.61 / 16.91 / 16.80 (the seeds' spread, 1.3 dB, is the issue's
+  criterion, looser than what a group changes);
+- in a group of 2: 15.35 / 16.99 / 16.93, so group minus alone -0.26 / +0.08 / +0.13;
 - mixed up (each render guided with the other plant's depth and view prompt, a one-off
-  script): 13.89 / 15.04 / 15.87, group minus alone -0.24 / -0.39 / -0.80.
+  script): 14.54 / 16.08 / 13.84, group minus alone -1.07 / -0.83 / -2.96.
 
-The tolerance, 0.15 dB either way, sits between the worst right seed (0.08) and the
-mildest mix-up (0.24, the committed seed). The plant made alone runs in the same test, so
-the comparison holds on a machine whose floating point rounds differently.
+The tolerance, 0.5 dB either way, sits between the worst right seed (0.26) and the
+mildest mix-up (0.83). The plant made alone runs in the same test, so the comparison
+holds on a machine whose floating point rounds differently.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ from plantdreamer.known_answer.build import MANIFEST
 from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
 
 MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
-GROUP_TOLERANCE_DB = 0.15
-MIN_GAIN_DB = 2.0  # as for the plant made alone
+GROUP_TOLERANCE_DB = 0.5
+MIN_GAIN_DB = 3.0  # as for the plant made alone
 
 
 class _MixedUp:
