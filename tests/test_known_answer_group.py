@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 
@@ -52,43 +52,53 @@ class _MixedUp:
         return self.launch(images, depth, cameras, step).result()
 
 
+class Plant(NamedTuple):
+    spec: KnownAnswerSpec
+    truth: Any  # known_answer.check.Truth
+    alone_db: float  # masked PSNR of the plant made alone, CHECK_STEPS from noise
+    work: Path
+
+
 @pytest.fixture(scope="module")
-def plant(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Any, float, Path]:
-    """(spec, truth, masked PSNR of the plant made alone, work folder)."""
+def plant(tmp_path_factory: pytest.TempPathFactory) -> Plant:
     from plantdreamer.known_answer.check import Truth, step_curve
 
     work = tmp_path_factory.mktemp("known_answer_group")
     spec = KnownAnswerSpec(**json.loads((MODELS / MANIFEST).read_text())["spec"])
     truth = Truth.of(spec, work)
     (alone,) = step_curve(spec, truth, MODELS, work / "alone", [CHECK_STEPS], color_init="noise")
-    return spec, truth, alone.masked_psnr, work
+    return Plant(spec, truth, alone.masked_psnr, work)
 
 
-def _in_group(plant: tuple[Any, Any, float, Path], name: str) -> tuple[float, float]:
+def _in_group(plant: Plant, name: str) -> tuple[float, float]:
     from plantdreamer.known_answer.check import step_curve
 
-    spec, truth, _, work = plant
     scores = step_curve(
-        spec, truth, MODELS, work / name, [0, CHECK_STEPS], color_init="noise", group=2
+        plant.spec,
+        plant.truth,
+        MODELS,
+        plant.work / name,
+        [0, CHECK_STEPS],
+        color_init="noise",
+        group=2,
     )
     return scores[0].masked_psnr, scores[-1].masked_psnr
 
 
 @pytest.mark.slow
-def test_a_plant_trained_in_a_group_meets_the_known_answer(plant) -> None:
+def test_a_plant_trained_in_a_group_meets_the_known_answer(plant: Plant) -> None:
     first, last = _in_group(plant, "group")
-    alone = plant[2]
-    print(f"in a group of 2: {first:.2f} -> {last:.2f} dB; alone {alone:.2f}")
+    print(f"in a group of 2: {first:.2f} -> {last:.2f} dB; alone {plant.alone_db:.2f}")
     assert last - first >= MIN_GAIN_DB
-    assert abs(last - alone) <= GROUP_TOLERANCE_DB
+    assert abs(last - plant.alone_db) <= GROUP_TOLERANCE_DB
 
 
 @pytest.mark.slow
-def test_the_group_check_fails_when_the_renders_are_mixed_up(plant, monkeypatch) -> None:
+def test_the_group_check_fails_when_the_renders_are_mixed_up(plant: Plant, monkeypatch) -> None:
     import plantdreamer.pipeline.group as group
 
     build = group.build_guidance
     monkeypatch.setattr(group, "build_guidance", lambda cfg, **kw: _MixedUp(build(cfg, **kw)))
     _, last = _in_group(plant, "mixed_up")
-    print(f"mixed up: {last:.2f} dB; alone {plant[2]:.2f}")
-    assert abs(last - plant[2]) > GROUP_TOLERANCE_DB
+    print(f"mixed up: {last:.2f} dB; alone {plant.alone_db:.2f}")
+    assert abs(last - plant.alone_db) > GROUP_TOLERANCE_DB
