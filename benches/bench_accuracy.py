@@ -80,7 +80,21 @@ def one_curve(job: tuple[int, int, str, str, int, int]) -> dict[str, Any]:
         truth = Truth.of(spec, Path(tmp))
         scores = step_curve(spec, truth, models, Path(tmp), curve, **settings)
     curve_points = [vars(s) for s in scores]
-    return {"seed": seed, "resolution": resolution, "config": name, "curve": curve_points}
+    return {
+        "seed": seed,
+        "resolution": resolution,
+        "models": models_label(spec),
+        "config": name,
+        "curve": curve_points,
+    }
+
+
+def models_label(spec: Any) -> str:
+    """Which recipe made the models: a table may hold rows of more than one (the recipe
+    changed and not every row was measured again)."""
+    from plantdreamer.known_answer.spec import GENERATOR_VERSION
+
+    return f"version {GENERATOR_VERSION}, VAE {spec.vae_steps} steps"
 
 
 def build(job: tuple[int, int, str, int]) -> str:
@@ -127,25 +141,36 @@ def resolution_of(result: dict[str, Any]) -> int:
     return int(result.get("resolution", 64))  # results before --resolution were all 64 px
 
 
-def grouped(results: list[dict[str, Any]]) -> list[tuple[str, int, list[dict[str, Any]]]]:
-    """(run name, px, its seeds' results), in CONFIGS order within each size."""
+def sets_of(results: list[dict[str, Any]]) -> list[tuple[int, str]]:
+    """The (px, models) pairs measured: runs are compared only within one."""
+    return sorted({(resolution_of(r), r["models"]) for r in results})
+
+
+def grouped(
+    results: list[dict[str, Any]],
+) -> list[tuple[str, int, str, list[dict[str, Any]]]]:
+    """(run name, px, models, its seeds' results), in CONFIGS order within each set."""
     out = []
-    for px in sorted({resolution_of(r) for r in results}):
+    for px, models in sets_of(results):
         for name, _, _ in CONFIGS:
-            rows = [r for r in results if r["config"] == name and resolution_of(r) == px]
+            rows = [
+                r
+                for r in results
+                if r["config"] == name and resolution_of(r) == px and r["models"] == models
+            ]
             if rows:
-                out.append((name, px, rows))
+                out.append((name, px, models, rows))
     return out
 
 
 def table(results: list[dict[str, Any]]) -> str:
     lines = [
-        "| run | px | seeds | "
+        "| run | px | models | seeds | "
         + " | ".join(f"step {s}" for s in sorted({*SHORT, *LONG}))
         + " | s/100 steps |",
-        "|---|---|---|" + "---|" * (len({*SHORT, *LONG}) + 1),
+        "|---|---|---|---|" + "---|" * (len({*SHORT, *LONG}) + 1),
     ]
-    for name, px, rows in grouped(results):
+    for name, px, models, rows in grouped(results):
         cells = []
         for step in sorted({*SHORT, *LONG}):
             values = [p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == step]
@@ -159,7 +184,7 @@ def table(results: list[dict[str, Any]]) -> str:
             p["seconds"] * 100 / p["steps"] for r in rows for p in r["curve"] if p["steps"] == 100
         ]
         cells.append(f"{statistics.median(per100):.1f}" if per100 else "-")
-        lines.append(f"| {name} | {px} | {len(rows)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | {px} | {models} | {len(rows)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -172,9 +197,15 @@ def _mean_at(rows: list[dict[str, Any]], step: int) -> float | None:
     return statistics.mean(values) if values else None
 
 
-def _paired(results: list[dict[str, Any]], a: str, b: str, px: int) -> list[tuple[Any, Any]]:
-    """(run a, run b) of each seed measured in both, at size px."""
-    by = {(r["config"], r["seed"]): r for r in results if resolution_of(r) == px}
+def _paired(
+    results: list[dict[str, Any]], a: str, b: str, px: int, models: str
+) -> list[tuple[Any, Any]]:
+    """(run a, run b) of each seed measured in both, at size px with these models."""
+    by = {
+        (r["config"], r["seed"]): r
+        for r in results
+        if resolution_of(r) == px and r["models"] == models
+    }
     return [(by[a, s], by[b, s]) for (n, s) in by if n == a and (b, s) in by]
 
 
@@ -182,7 +213,7 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
     """What the table says about steps, densification, precision and groups, computed from
     the results (nothing here is typed in by hand)."""
     out = []
-    for name, px, rows in grouped(results):
+    for name, px, models, rows in grouped(results):
         if name != "noise, CFG 100, no densify":
             continue
         steps = sorted({p["steps"] for r in rows for p in r["curve"]})
@@ -192,10 +223,12 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
         shown = ", ".join(f"{m:.2f} at {s}" for s, m in means if m is not None)
         when = (f"stops rising (under {PLATEAU_DB} dB to the next point) after {flat} steps"
                 if flat is not None else f"still rises at {steps[-1]} steps")  # fmt: skip
-        out.append(f"- Steps a plant needs ({px} px, from noise, no densification, mean over "
+        out.append(f"- Steps a plant needs ({px} px, {models}, from noise, no densification, mean over "
                    f"{len(rows)} seeds: {shown} dB): PSNR {when}.")  # fmt: skip
-    for px in sorted({resolution_of(r) for r in results}):
-        pairs = _paired(results, "noise, CFG 100, densify", "noise, CFG 100, no densify", px)
+    for px, models in sets_of(results):
+        pairs = _paired(
+            results, "noise, CFG 100, densify", "noise, CFG 100, no densify", px, models
+        )
         if pairs:
             last = max(p["steps"] for p in pairs[0][0]["curve"])
             point = [
@@ -205,7 +238,7 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
             dpsnr = [d["masked_psnr"] - n["masked_psnr"] for d, n in point]
             cost = [d["seconds"] / n["seconds"] for d, n in point]
             out.append(
-                f"- Densification ({px} px, {last} steps, {len(pairs)} seeds): "
+                f"- Densification ({px} px, {models}, {last} steps, {len(pairs)} seeds): "
                 f"{statistics.mean(d['gaussians'] for d, _ in point):,.0f} Gaussians against "
                 f"{statistics.mean(n['gaussians'] for _, n in point):,.0f}, masked PSNR "
                 f"{min(dpsnr):+.2f} to {max(dpsnr):+.2f} dB against none, in "
@@ -217,14 +250,14 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
             ("noise, CFG 100, group of 2", "a group of 2"),
             ("noise, CFG 100, group of 2, overlap", "a group of 2 with overlap"),
         ):
-            pairs = _paired(results, other, "noise, CFG 100", px)
+            pairs = _paired(results, other, "noise, CFG 100", px, models)
             gaps = [
                 abs(p["masked_psnr"] - q["masked_psnr"])
                 for a, b in pairs
                 for p, q in zip(a["curve"], b["curve"], strict=True)
             ]
             if gaps:
-                out.append(f"- {what[0].upper() + what[1:]} ({px} px, {len(pairs)} seeds): "
+                out.append(f"- {what[0].upper() + what[1:]} ({px} px, {models}, {len(pairs)} seeds): "
                            f"within {max(gaps):.2f} dB of the plain run at every point.")  # fmt: skip
     return out
 
@@ -236,14 +269,14 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(13, 4.5))
-    sizes = sorted({resolution_of(r) for r in results})
+    sets = sets_of(results)
     names = [n for n, _, _ in CONFIGS]
     colours = plt.get_cmap("tab20")
-    for name, px, rows in grouped(results):
-        label = name if len(sizes) == 1 else f"{name}, {px} px"
-        # One colour per run, one line style per size (solid: the smallest).
+    for name, px, models, rows in grouped(results):
+        label = name if len(sets) == 1 else f"{name}, {px} px, {models}"
+        # One colour per run, one line style per size and models (solid: the first).
         style = {"color": colours(names.index(name) % 20), "marker": "o",
-                 "linestyle": ("-", "--", ":")[sizes.index(px) % 3]}  # fmt: skip
+                 "linestyle": ("-", "--", ":")[sets.index((px, models)) % 3]}  # fmt: skip
         steps = sorted({p["steps"] for r in rows for p in r["curve"]})
         mean = [
             statistics.mean(p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == s)
@@ -278,7 +311,8 @@ def write(results: list[dict[str, Any]], machine: str, command: str) -> None:
 `{command}`, on {machine}. Masked PSNR (dB) of `generate` at the size given (px) against 16 held-out
 true views of each plant (bean, seeds {", ".join(map(str, seeds))}: mean ± half the range
 over seeds), each run scored by `plantdreamer eval`'s metric; models from
-`scripts/known_answer.py` (docs/known_answer.md). Seconds are whole `generate` runs
+`scripts/known_answer.py` (docs/known_answer.md; "models": the generator version and the
+VAE's training steps of the set the row was measured with). Seconds are whole `generate` runs
 (model loading and export included) with the machine shared by parallel runs. Runs,
 seeds and sizes missing from the table were not measured in this run (the command says
 which were asked for); docs/known_answer.md says what these models can and cannot show.

@@ -11,11 +11,11 @@ sys.path.insert(0, str(ROOT / "benches"))
 import bench_accuracy  # noqa: E402
 
 
-def _run(config: str, seed: int, psnr: dict[int, float], gaussians: int = 100, secs: float = 1.0
-         ) -> dict[str, Any]:  # fmt: skip
+def _run(config: str, seed: int, psnr: dict[int, float], gaussians: int = 100, secs: float = 1.0,
+         models: str = "version 6, VAE 1600 steps") -> dict[str, Any]:  # fmt: skip
     curve = [{"steps": s, "masked_psnr": v, "seconds": secs * max(s, 1) / 100,
               "gaussians": gaussians} for s, v in sorted(psnr.items())]  # fmt: skip
-    return {"seed": seed, "resolution": 64, "config": config, "curve": curve}
+    return {"seed": seed, "resolution": 64, "models": models, "config": config, "curve": curve}
 
 
 def test_findings_read_the_plateau_densification_and_groups_from_the_results() -> None:
@@ -35,9 +35,33 @@ def test_findings_read_the_plateau_densification_and_groups_from_the_results() -
     found = "\n".join(bench_accuracy.findings(results))
     print(found)
     assert "stops rising (under 0.25 dB to the next point) after 200 steps" in found
-    assert "Densification (64 px, 600 steps, 2 seeds): 300 Gaussians against 100" in found
+    assert (
+        "Densification (64 px, version 6, VAE 1600 steps, 600 steps, 2 seeds): 300 Gaussians against 100"
+        in found
+    )
     assert "-0.50 to -0.50 dB against none, in 1.50-1.50 times the seconds" in found
-    assert "A group of 2 (64 px, 2 seeds): within 0.30 dB" in found
+    assert "A group of 2 (64 px, version 6, VAE 1600 steps, 2 seeds): within 0.30 dB" in found
     assert "bfloat16" not in found  # not measured, so not claimed
     table = bench_accuracy.table(results)
-    assert "| noise, CFG 100, no densify | 64 | 2 | 10.50 ± 0.50 |" in table
+    assert (
+        "| noise, CFG 100, no densify | 64 | version 6, VAE 1600 steps | 2 | 10.50 ± 0.50 |"
+        in table
+    )
+
+
+def test_runs_of_different_model_sets_are_rows_of_their_own_and_never_paired() -> None:
+    """A table can hold rows measured with an older recipe (not every row was measured
+    again): they get a row of their own and are never compared with the new ones."""
+    short = {0: 10.0, 50: 11.0, 100: 12.0, 200: 13.0}
+    old = "version 6, VAE 800 steps"
+    results = [_run("noise, CFG 100", 0, short)]
+    results.append(_run("noise, CFG 100, group of 2", 0, {k: v - 2 for k, v in short.items()},
+                        models=old))  # fmt: skip
+    found = "\n".join(bench_accuracy.findings(results))
+    assert "group of 2" not in found  # no plain run of the old set to compare with
+    results.append(_run("noise, CFG 100", 0, {k: v - 1.5 for k, v in short.items()}, models=old))
+    found = "\n".join(bench_accuracy.findings(results))
+    assert f"A group of 2 (64 px, {old}, 1 seeds): within 0.50 dB" in found
+    table = bench_accuracy.table(results)
+    assert "| noise, CFG 100 | 64 | version 6, VAE 1600 steps | 1 | 10.00 |" in table
+    assert f"| noise, CFG 100 | 64 | {old} | 1 | 8.50 |" in table
