@@ -257,8 +257,10 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
                 for p, q in zip(a["curve"], b["curve"], strict=True)
             ]
             if gaps:
+                # Two decimals would print a gap under 0.005 dB as "within 0.00".
+                gap = f"within {max(gaps):.2f}" if max(gaps) >= 0.005 else "under 0.005"
                 out.append(f"- {what[0].upper() + what[1:]} ({px} px, {models}, {len(pairs)} seeds): "
-                           f"within {max(gaps):.2f} dB of the plain run at every point.")  # fmt: skip
+                           f"{gap} dB of the plain run at every point.")  # fmt: skip
     return out
 
 

@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         MANIFEST,
         build_models,
         cached_models,
+        differing_files,
         untrained_models,
     )
     from plantdreamer.known_answer.check import known_answer
@@ -87,13 +88,9 @@ def run(args: argparse.Namespace) -> int:
         spec = KnownAnswerSpec(**manifest["spec"])
         with tempfile.TemporaryDirectory() as tmp:
             rebuilt = build_models(spec, Path(tmp) / "models", say)
-        differ = sorted(
-            k
-            for k in set(manifest["sha256"]) | set(rebuilt["sha256"])
-            if manifest["sha256"].get(k) != rebuilt["sha256"].get(k)
-        )
-        if differ:
-            print(f"error: rebuilt models differ in {', '.join(differ)}", file=sys.stderr)
+        differ = differing_files(manifest, rebuilt)
+        if differ is not None:
+            print(f"error: {differ}", file=sys.stderr)
             return 1
         print(f"{len(rebuilt['sha256'])} files rebuilt bit for bit")
         return 0

@@ -65,3 +65,11 @@ def test_runs_of_different_model_sets_are_rows_of_their_own_and_never_paired() -
     table = bench_accuracy.table(results)
     assert "| noise, CFG 100 | 64 | version 6, VAE 1600 steps | 1 | 10.00 |" in table
     assert f"| noise, CFG 100 | 64 | {old} | 1 | 8.50 |" in table
+
+
+def test_a_gap_under_half_a_hundredth_is_not_printed_as_zero() -> None:
+    short = {0: 10.0, 50: 11.0, 100: 12.0, 200: 13.0}
+    results = [_run("noise, CFG 100", 0, short)]
+    results.append(_run("noise, CFG 100, VAE float16", 0, {k: v + 0.001 for k, v in short.items()}))
+    found = "\n".join(bench_accuracy.findings(results))
+    assert "The VAE in float16 (64 px, version 6, VAE 1600 steps, 1 seeds): under 0.005 dB" in found

@@ -13,7 +13,13 @@ import pytest
 import torch
 
 from plantdreamer.errors import InputError
-from plantdreamer.known_answer.build import MANIFEST, build_models, cached_models, file_hashes
+from plantdreamer.known_answer.build import (
+    MANIFEST,
+    build_models,
+    cached_models,
+    differing_files,
+    file_hashes,
+)
 from plantdreamer.known_answer.check import schedule_table
 from plantdreamer.known_answer.spec import KnownAnswerSpec
 
@@ -53,6 +59,8 @@ def test_models_are_made_bit_for_bit_and_load_through_the_real_loader(tmp_path: 
     second = build_models(TINY, tmp_path / "b")
     assert first["sha256"] == second["sha256"]
     assert first["sha256"] == file_hashes(tmp_path / "a")
+    assert differing_files(first, second) is None
+    assert first["built_on"]["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
     parts = load_components(str(tmp_path / "a" / "base"), str(tmp_path / "a" / "controlnet"))
     # The trained VAE's latents are scaled to unit spread, not by SD's 0.18215.
     scale = parts.vae.config.scaling_factor
@@ -77,6 +85,19 @@ def test_the_check_runs_for_every_species(tmp_path: Path, species: str) -> None:
     assert figures["psnr_true_init"] == 100.0  # the truth scores exactly on its own views
     for key in ("psnr_init", "psnr_final", "psnr_control_final", "psnr_true_final"):
         assert 0.0 < figures[key] <= 100.0, (key, figures)
+
+
+def test_a_failed_verify_names_the_files_and_both_machines() -> None:
+    """The committed manifest predates ``built_on``: its machine is said to be unrecorded."""
+    old = {"sha256": {"a": "1", "b": "2"}}
+    new = {"sha256": {"a": "1", "b": "3", "c": "4"},
+           "built_on": {"cpu": "X", "numpy": "2.4.6", "torch_cpu_capability": "AVX512"}}  # fmt: skip
+    said = differing_files(old, new)
+    assert said is not None
+    assert said.startswith("rebuilt models differ in b, c (built on an unrecorded machine; ")
+    assert "rebuilt on cpu X, numpy 2.4.6, torch_cpu_capability AVX512)" in said
+    assert "\n" not in said  # one error: line on the CLI
+    assert differing_files(new, new) is None
 
 
 def test_cache_reuses_a_built_folder(tmp_path: Path) -> None:

@@ -36,6 +36,54 @@ def file_hashes(folder: Path) -> dict[str, str]:
     return out
 
 
+def machine_of() -> dict[str, str]:
+    """Where a set is built: the same spec and libraries give other bits on another machine
+    (measured: a rebuild of the committed set on another x86-64 CPU differed in every
+    trained file, docs/known_answer.md "Bits and CPUs"), so a failed ``--verify`` says both."""
+    import platform
+
+    import numpy
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "numpy": numpy.__version__,
+    }
+
+
+def differing_files(manifest: dict[str, Any], rebuilt: dict[str, Any]) -> str | None:
+    """None when a rebuild has every file of ``manifest`` bit for bit; else what differs,
+    with the machines both were built on."""
+    differ = sorted(
+        k
+        for k in set(manifest["sha256"]) | set(rebuilt["sha256"])
+        if manifest["sha256"].get(k) != rebuilt["sha256"].get(k)
+    )
+    if not differ:
+        return None
+
+    def where(m: dict[str, Any]) -> str:
+        built_on = m.get("built_on")
+        if not built_on:
+            return "an unrecorded machine"
+        return ", ".join(f"{k} {v}" for k, v in sorted(built_on.items()))
+
+    return (
+        f"rebuilt models differ in {', '.join(differ)} (built on {where(manifest)}; "
+        f"rebuilt on {where(rebuilt)}): bits are reproducible on the kind of machine that "
+        "built them"
+    )
+
+
 def model_dirs(folder: Path) -> tuple[Path, Path]:
     return folder / "base", folder / "controlnet"
 
@@ -81,6 +129,7 @@ def build_models(
             "threads": threads,
             "generator": GENERATOR_VERSION,
             "versions": library_versions(),
+            "built_on": machine_of(),
             "figures": {k: round(float(v), 6) for k, v in figures.items()},
             "sha256": file_hashes(staged),
         }
