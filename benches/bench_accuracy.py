@@ -335,7 +335,14 @@ def machine_line() -> str:
 
     import torch
 
-    return f"{os.cpu_count()} CPU cores ({platform.machine()}), torch {torch.__version__}"
+    from plantdreamer.known_answer.build import machine_of
+
+    # The CPU too: the models a bench builds differ in their bits from one CPU to another.
+    m = machine_of()
+    return (
+        f"{os.cpu_count()} CPU cores ({platform.machine()}, {m['cpu']}, torch CPU capability "
+        f"{m['torch_cpu_capability']}), torch {torch.__version__}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
