@@ -258,7 +258,7 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
             ]
             if gaps:
                 # Two decimals would print a gap under 0.005 dB as "within 0.00".
-                gap = f"within {max(gaps):.2f}" if max(gaps) >= 0.005 else "under 0.005"
+                gap = f"within {max(max(gaps), 0.005):.{2 if max(gaps) >= 0.005 else 3}f}"
                 out.append(f"- {what[0].upper() + what[1:]} ({px} px, {models}, {len(pairs)} seeds): "
                            f"{gap} dB of the plain run at every point.")  # fmt: skip
     return out
@@ -275,7 +275,11 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     names = [n for n, _, _ in CONFIGS]
     colours = plt.get_cmap("tab20")
     for name, px, models, rows in grouped(results):
-        label = name if len(sets) == 1 else f"{name}, {px} px, {models}"
+        label = ", ".join(
+            [name]
+            + ([f"{px} px"] if len({x for x, _ in sets}) > 1 else [])
+            + ([models] if len({m for _, m in sets}) > 1 else [])
+        )
         # One colour per run, one line style per size and models (solid: the first).
         style = {"color": colours(names.index(name) % 20), "marker": "o",
                  "linestyle": ("-", "--", ":")[sets.index((px, models)) % 3]}  # fmt: skip

@@ -72,4 +72,6 @@ def test_a_gap_under_half_a_hundredth_is_not_printed_as_zero() -> None:
     results = [_run("noise, CFG 100", 0, short)]
     results.append(_run("noise, CFG 100, VAE float16", 0, {k: v + 0.001 for k, v in short.items()}))
     found = "\n".join(bench_accuracy.findings(results))
-    assert "The VAE in float16 (64 px, version 6, VAE 1600 steps, 1 seeds): under 0.005 dB" in found
+    assert (
+        "The VAE in float16 (64 px, version 6, VAE 1600 steps, 1 seeds): within 0.005 dB" in found
+    )
