@@ -141,9 +141,13 @@ def resolution_of(result: dict[str, Any]) -> int:
     return int(result.get("resolution", 64))  # results before --resolution were all 64 px
 
 
+def set_of(result: dict[str, Any]) -> tuple[int, str]:
+    """(px, models): runs are compared only within one such set."""
+    return resolution_of(result), result["models"]
+
+
 def sets_of(results: list[dict[str, Any]]) -> list[tuple[int, str]]:
-    """The (px, models) pairs measured: runs are compared only within one."""
-    return sorted({(resolution_of(r), r["models"]) for r in results})
+    return sorted({set_of(r) for r in results})
 
 
 def grouped(
@@ -153,11 +157,7 @@ def grouped(
     out = []
     for px, models in sets_of(results):
         for name, _, _ in CONFIGS:
-            rows = [
-                r
-                for r in results
-                if r["config"] == name and resolution_of(r) == px and r["models"] == models
-            ]
+            rows = [r for r in results if r["config"] == name and set_of(r) == (px, models)]
             if rows:
                 out.append((name, px, models, rows))
     return out
@@ -201,11 +201,7 @@ def _paired(
     results: list[dict[str, Any]], a: str, b: str, px: int, models: str
 ) -> list[tuple[Any, Any]]:
     """(run a, run b) of each seed measured in both, at size px with these models."""
-    by = {
-        (r["config"], r["seed"]): r
-        for r in results
-        if resolution_of(r) == px and r["models"] == models
-    }
+    by = {(r["config"], r["seed"]): r for r in results if set_of(r) == (px, models)}
     return [(by[a, s], by[b, s]) for (n, s) in by if n == a and (b, s) in by]
 
 
@@ -258,9 +254,9 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
             ]
             if gaps:
                 # Two decimals would print a gap under 0.005 dB as "within 0.00".
-                gap = f"within {max(max(gaps), 0.005):.{2 if max(gaps) >= 0.005 else 3}f}"
+                gap = f"{max(gaps):.2f}" if max(gaps) >= 0.005 else "0.005"
                 out.append(f"- {what[0].upper() + what[1:]} ({px} px, {models}, {len(pairs)} seeds): "
-                           f"{gap} dB of the plain run at every point.")  # fmt: skip
+                           f"within {gap} dB of the plain run at every point.")  # fmt: skip
     return out
 
 
@@ -272,14 +268,13 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
 
     fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(13, 4.5))
     sets = sets_of(results)
+    # A label names the size and the models only where the plot has more than one.
+    many_sizes = len({px for px, _ in sets}) > 1
+    many_models = len({m for _, m in sets}) > 1
     names = [n for n, _, _ in CONFIGS]
     colours = plt.get_cmap("tab20")
     for name, px, models, rows in grouped(results):
-        label = ", ".join(
-            [name]
-            + ([f"{px} px"] if len({x for x, _ in sets}) > 1 else [])
-            + ([models] if len({m for _, m in sets}) > 1 else [])
-        )
+        label = ", ".join([name] + [f"{px} px"] * many_sizes + [models] * many_models)
         # One colour per run, one line style per size and models (solid: the first).
         style = {"color": colours(names.index(name) % 20), "marker": "o",
                  "linestyle": ("-", "--", ":")[sets.index((px, models)) % 3]}  # fmt: skip
@@ -335,17 +330,14 @@ What it says:
 
 
 def machine_line() -> str:
-    import platform
-
     import torch
+    from host import host_line
 
-    from plantdreamer.known_answer.build import machine_of
-
-    # The CPU too: the models a bench builds differ in their bits from one CPU to another.
-    m = machine_of()
+    # torch's CPU capability too: the models a bench builds differ in their bits from one
+    # CPU to another (docs/known_answer.md, "Bits and CPUs").
     return (
-        f"{os.cpu_count()} CPU cores ({platform.machine()}, {m['cpu']}, torch CPU capability "
-        f"{m['torch_cpu_capability']}), torch {torch.__version__}"
+        f"{host_line()}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}, "
+        f"torch {torch.__version__}"
     )
 
 

@@ -7,19 +7,8 @@ so every report that mixes CPU and GPU work names both.
 from __future__ import annotations
 
 import os
-import platform
-from pathlib import Path
 
-
-def cpu_model() -> str:
-    """The CPU's marketing name (Linux /proc/cpuinfo), else what `platform` knows."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
+from plantdreamer.versions import cpu_model
 
 
 def usable_cores() -> int:

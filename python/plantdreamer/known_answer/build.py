@@ -40,21 +40,13 @@ def machine_of() -> dict[str, str]:
     """Where a set is built: the same spec and libraries give other bits on another machine
     (measured: a rebuild of the committed set on another x86-64 CPU differed in every
     trained file, docs/known_answer.md "Bits and CPUs"), so a failed ``--verify`` says both."""
-    import platform
-
     import numpy
     import torch
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    from plantdreamer.versions import cpu_model
+
     return {
-        "cpu": cpu,
+        "cpu": cpu_model(),
         "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "numpy": numpy.__version__,
     }
