@@ -179,7 +179,8 @@ def test_a_plant_failed_before_ctrl_c_stays_failed_on_resume(tmp_path):
     record = json.loads((tmp_path / "g" / "group.json").read_text())["plants"]
     status = {p["name"]: p["status"] for p in record}
     assert status["mint-s0001"].startswith("failed: ")  # written on the way out
-    assert status["mint-s0000"] == status["mint-s0002"] == "running"
+    # Stopped, not still "running" (the record says where the others stopped).
+    assert status["mint-s0000"] == status["mint-s0002"] == "interrupted at step 3"
     resumed = generate_group(None, tmp_path / "g", guidance=guidance, resume=True,
                              show_progress=False)  # fmt: skip
     assert sorted(resumed.done) == ["mint-s0000", "mint-s0002"]

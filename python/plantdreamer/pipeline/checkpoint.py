@@ -2,18 +2,31 @@
 
 A checkpoint is the config, ``RunState.state_dict()`` and the guidance's noise state. Older
 formats still load where their contents carry over exactly; others fail with one line.
+
+``PlantCheckpoints`` writes a plant's checkpoints (for the trainer) and reads them back (for a
+resume), one object for both. Plants trained together write one after another, so a kill
+between two writes would leave them at different steps; each therefore keeps its previous
+checkpoint (``checkpoint.prev.pt``) until every plant has written the new one, and a resume
+finds a step that every plant of the group can start from (``common_starts``).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from plantdreamer.atomic import _umask  # noqa: F401  (tests check the file mode with it)
 from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError, InputError
 
+if TYPE_CHECKING:
+    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.run_state import RunState
+
 CHECKPOINT_NAME = "checkpoint.pt"
+PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
+CHECKPOINT_FILES = (CHECKPOINT_NAME, PREVIOUS_NAME)
 # 2: nested config sections, plain data only (weights_only loads);
 # 3: the config records init_shape (format 2 runs began from spheres, the default is now discs,
 #    so resuming one would record a shape its model was not made with);
@@ -29,8 +42,8 @@ def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
     return path
 
 
-def load_checkpoint(out_dir: Path) -> dict[str, Any]:
-    path = Path(out_dir) / CHECKPOINT_NAME
+def load_checkpoint(out_dir: Path, name: str = CHECKPOINT_NAME) -> dict[str, Any]:
+    path = Path(out_dir) / name
     state = read_checkpoint(path)
     found = state.get("format")
     if found in _CONVERTS:
@@ -42,6 +55,89 @@ def load_checkpoint(out_dir: Path) -> dict[str, Any]:
             "(start the run again with --overwrite)"
         )
     return state
+
+
+class PlantCheckpoints:
+    """A plant folder's checkpoints: the trainer writes them, a resume reads them back."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+
+    def write(self, record: dict[str, Any]) -> None:
+        """The next checkpoint; the current one is kept as the previous until ``commit``."""
+        current = self.folder / CHECKPOINT_NAME
+        if current.is_file():
+            os.replace(current, self.folder / PREVIOUS_NAME)
+        save_checkpoint(self.folder, record)
+
+    def commit(self) -> None:
+        """Every plant trained beside this one holds the new step: the previous one goes."""
+        (self.folder / PREVIOUS_NAME).unlink(missing_ok=True)
+
+    def starts(self) -> dict[int, str]:
+        """The steps this folder can resume from, each with its file's name."""
+        found: dict[int, str] = {}
+        for name in CHECKPOINT_FILES:
+            path = self.folder / name
+            if path.is_file():
+                found.setdefault(_step_of(path), name)
+        return found
+
+    def read(self, name: str = CHECKPOINT_NAME) -> dict[str, Any]:
+        """The checkpoint in file ``name``, which becomes the folder's one checkpoint."""
+        saved = load_checkpoint(self.folder, name)
+        if name == PREVIOUS_NAME:
+            os.replace(self.folder / PREVIOUS_NAME, self.folder / CHECKPOINT_NAME)
+        else:
+            self.commit()
+        return saved
+
+    def restore(self, cfg: GenerateConfig, resolution: int, saved: dict[str, Any]) -> RunState:
+        """The run state a checkpoint holds; CheckpointError when it is damaged."""
+        from plantdreamer.pipeline.run_state import RunState
+
+        try:
+            return RunState.resumed(cfg, resolution, saved)
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+            raise damaged(self.folder / CHECKPOINT_NAME, exc) from exc
+
+
+def damaged(path: Path, exc: BaseException) -> CheckpointError:
+    return CheckpointError(
+        f"{path}: damaged or incompatible checkpoint ({type(exc).__name__}: {exc})"
+    )
+
+
+def _step_of(path: Path) -> int:
+    """A checkpoint's step, read without loading its tensors (memory-mapped)."""
+    import torch
+
+    try:
+        step = torch.load(path, map_location="cpu", weights_only=True, mmap=True)["step"]
+    except Exception:  # unreadable: read it the ordinary way for the one-line error
+        step = load_checkpoint(path.parent, path.name)["step"]
+    try:
+        return int(step)
+    except (TypeError, ValueError) as exc:
+        raise damaged(path, exc) from exc
+
+
+def common_starts(starts: dict[Any, dict[int, str]]) -> list[tuple[int | None, list[Any]]]:
+    """Plants (by key) grouped by the step they resume from together, given each plant's
+    ``PlantCheckpoints.starts``. Plants trained together hold their last common step (in
+    the current or the previous file): the group resumes there, every plant on the same
+    bits as a run never stopped. Plants that hold no common step (trained apart) form groups
+    of their own, each at its own step; plants with no checkpoint start afresh (None)."""
+    left = {key: steps for key, steps in starts.items() if steps}
+    parts: list[tuple[int | None, list[Any]]] = []
+    while left:
+        step = min(max(steps) for steps in left.values())
+        members = [key for key, steps in left.items() if step in steps]
+        parts.append((step, members))
+        for key in members:
+            del left[key]
+    fresh = [key for key, steps in starts.items() if not steps]
+    return ([(None, fresh)] if fresh else []) + parts
 
 
 # Bytes of a saved torch generator state, by device: the CPU's Mersenne Twister, CUDA's

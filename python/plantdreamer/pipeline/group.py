@@ -1,18 +1,24 @@
 """Several plants trained together in one trainer: ``OUT/<species>-s<seed>/`` per plant.
 
 The plants share every setting but their seed and point cloud (one guidance serves them
-all: one batched network call per step, or one per half with ``overlap``), and keep their own cameras, optimiser, density
-control, labels, checkpoint and outputs. ``OUT/group.json`` lists the plants and their
-status (``running``, ``done`` or ``failed: <error>``); a plant that fails is recorded there
-and the others go on. The same group (same plants, same order) gives the same bytes run
-after run and after Ctrl-C + resume. The guidance's noise and timesteps come from one
-generator (seeded by the first plant), so a plant made in a group is not the plant made
+all: one batched network call per step, or one per half with ``overlap``), and keep their
+own cameras, optimiser, density control, labels, checkpoint and outputs. Each plant starts,
+trains and exports through the same sequence as a plant alone (``run.py``); this module
+keeps the group's record, ``OUT/group.json`` (``group_record.py``): a plant that fails is
+recorded there and the others go on. The same group (same plants, same order) gives the same
+bytes run after run and after Ctrl-C + resume. The guidance's noise and timesteps come from
+one generator (seeded by the first plant), so a plant made in a group is not the plant made
 alone with SDS (docs/scaling.md).
+
+A resume reconciles the record with the plant folders: a plant whose folder holds its
+finished outputs is done, one whose record is stale (``running``) resumes from its
+checkpoint or, with none, starts again, and one that failed on a full disk is tried again.
+Plants resume together from their last common checkpoint (``checkpoint.common_starts``), so
+no plant skips or repeats a step.
 """
 
 from __future__ import annotations
 
-import copy
 import json
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -20,20 +26,45 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.errors import InputError
+from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, restore_noise_state
+from plantdreamer.pipeline.checkpoint import CHECKPOINT_FILES, PlantCheckpoints, common_starts
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.export import RunResult, export_run
-from plantdreamer.pipeline.run import RUN_OUTPUTS, remove_final_outputs, resumed_config
-from plantdreamer.pipeline.run_state import RunState
-from plantdreamer.pipeline.runtime import build_guidance, check_inputs, resolve_runtime
-from plantdreamer.pipeline.trainer import PlantRun, Trainer
+from plantdreamer.pipeline.export import RunResult
+from plantdreamer.pipeline.group_record import (
+    GROUP_FILE,
+    MAX_GROUP_PLANTS,
+    PER_PLANT,
+    failed,
+    failed_plants,
+    mark_failed,
+    new_record,
+    plant_dir,
+    plant_name,
+    read_record,
+)
+from plantdreamer.pipeline.run import (
+    GuidanceFor,
+    PlantFailure,
+    RunInterrupted,
+    Started,
+    start_plant,
+    train_plants,
+)
+from plantdreamer.pipeline.runtime import build_guidance
+from plantdreamer.pipeline.trainer import PlantRun
 
-GROUP_FILE = "group.json"
-PER_PLANT = ("seed", "pointcloud")  # the settings plants of one group may differ in
+__all__ = [
+    "GROUP_FILE",
+    "PER_PLANT",
+    "GroupResult",
+    "failed_plants",
+    "generate_group",
+    "parse_seeds",
+    "plant_name",
+]
 
 
 @dataclass
@@ -41,25 +72,30 @@ class GroupResult:
     out_dir: Path
     done: dict[str, RunResult] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)  # plant -> one-line error
-
-
-def plant_name(cfg: GenerateConfig) -> str:
-    src = cfg.source
-    stem = Path(src.pointcloud).stem if src.pointcloud is not None else src.species
-    return f"{stem}-s{cfg.seed:04d}"
+    resumed_from: dict[str, int] = field(default_factory=dict)  # plant -> its checkpoint's step
+    trained_with: dict[str, list[str]] = field(default_factory=dict)  # plant -> its part
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``0-7``, ``0,3,5`` or both (``0-3,8``), in the order given; duplicates refused."""
-    seeds: list[int] = []
+    """``0-7``, ``0,3,5`` or both (``0-3,8``), in the order given; duplicates refused, and
+    no more than a group holds (counted before the list is made)."""
+    parts: list[range] = []
     try:
         for part in (p.strip() for p in text.split(",") if p.strip()):
             low, dash, high = part.partition("-")
-            seeds += list(range(int(low), int(high) + 1)) if dash else [int(part)]
+            parts.append(range(int(low), int(high) + 1) if dash else range(int(part), int(part) + 1))
     except ValueError:
         raise InputError(
             f"--seeds takes numbers and ranges like 0-7 or 0,3,5, got {text!r}"
         ) from None
+    count = sum(len(r) for r in parts)
+    if count > MAX_GROUP_PLANTS:
+        raise InputError(
+            f"--seeds {text} makes a group of {count} plants; one trainer holds at most "
+            f"{MAX_GROUP_PLANTS} (as --plants-per-gpu): train them as several groups, or with "
+            "`plantdreamer dataset`"
+        )
+    seeds = [seed for r in parts for seed in r]
     if not seeds or len(set(seeds)) != len(seeds):
         raise InputError(f"--seeds needs distinct seeds, got {text!r}")
     return seeds
@@ -70,6 +106,7 @@ def generate_group(
     out_dir: str | Path,
     *,
     guidance: Guidance | None = None,
+    guidance_for: GuidanceFor = build_guidance,
     resume: bool = False,
     overwrite: bool = False,
     show_progress: bool = True,
@@ -78,158 +115,140 @@ def generate_group(
     plant_dirs: list[Path] | None = None,
 ) -> GroupResult:
     """Trains ``cfgs`` together into ``out_dir`` (or, with ``resume``, continues the group
-    there). ``guidance`` overrides the one the configs name (tests inject tiny models).
-    ``plant_dirs`` puts the plants in these folders (named by them) rather than in
-    ``out_dir``, which then holds only ``group.json`` (a dataset's plant folders); the
-    record is then made from ``cfgs`` with or without ``resume``."""
+    there). ``guidance`` overrides the one the configs name (tests inject tiny models);
+    else ``guidance_for`` builds it from the first plant's resolved config. ``plant_dirs``
+    puts the plants in these folders (named by them) rather than in ``out_dir``, which then
+    holds only ``group.json`` (a dataset's plant folders); the record is then made from
+    ``cfgs`` with or without ``resume``, and a plant with a checkpoint resumes from it."""
     out = Path(out_dir)
     if resume and plant_dirs is None:
-        record = _read_record(out)
+        record = read_record(out)
     else:
-        if not cfgs:
-            raise InputError("a group needs at least one plant")
-        record = _new_record(cfgs, plant_dirs)
+        record = new_record(cfgs or [], plant_dirs)
     names = [p["name"] for p in record["plants"]]
     with claim_folder(out, overwrite=overwrite and not resume, owned=(GROUP_FILE, *names),
                       allow_existing=resume):  # fmt: skip
         result = GroupResult(out)
+        part: list[dict[str, Any]] = []
         try:
             with ExitStack() as stack:
-                plants = _start(record, out, resume, result, stack, show_progress)
+                parts = _reconcile(record, out, resume, plant_dirs is None, result)
                 outputs.write_json(out / GROUP_FILE, record)
-                if plants:
-                    _train(
-                        plants, record, out, guidance, result, show_progress, on_step, depth_ahead
-                    )
+                for start, part, files in parts:
+                    started = _start(start, part, files, out, stack, result, show_progress)
+                    if not started:
+                        continue
+                    by_dir = {plant_dir(out, e): e for e in part}
+
+                    def failure(p: PlantRun, exc: BaseException) -> None:
+                        _fail(by_dir[p.out_dir], result, exc)
+
+                    done = train_plants(
+                        started, out, guidance=guidance, guidance_for=guidance_for,
+                        show_progress=show_progress, on_step=on_step, depth_ahead=depth_ahead,
+                        on_failure=failure,
+                    )  # fmt: skip
+                    for folder, run in done.items():
+                        by_dir[folder]["status"] = "done"
+                        result.done[by_dir[folder]["name"]] = run
+        except RunInterrupted as stop:
+            for entry in record["plants"]:
+                if entry["status"] == "running":
+                    at = f" at step {stop.step}" if any(e is entry for e in part) else ""
+                    entry["status"] = f"interrupted{at}"
+            raise
         finally:  # also on Ctrl-C: a plant failed before the stop stays failed on resume
             outputs.write_json(out / GROUP_FILE, record)
         for entry in record["plants"]:
             if entry["status"] == "done" and entry["name"] not in result.done:
-                plant_dir = Path(entry.get("dir", out / entry["name"]))
-                run = json.loads((plant_dir / "run.json").read_text())
-                ply = plant_dir / "plant.ply"
-                result.done[entry["name"]] = RunResult(
-                    plant_dir, ply, run["config"]["train"]["steps"],
-                    run["gaussians"]["final"], run["timings_s"],
-                )  # fmt: skip
+                result.done[entry["name"]] = _finished(plant_dir(out, entry))
         return result
 
 
-def _new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str, Any]:
-    shared = [{k: v for k, v in c.settings().items() if k not in PER_PLANT} for c in cfgs]
-    if any(s != shared[0] for s in shared[1:]):
-        differ = sorted({k for s in shared[1:] for k in s if s[k] != shared[0][k]})
-        raise InputError(
-            f"plants of one group share every setting but {' and '.join(PER_PLANT)}; "
-            f"these differ: {', '.join(differ)}"
-        )
-    names = [plant_name(c) for c in cfgs] if dirs is None else [d.name for d in dirs]
-    if len(set(names)) != len(names):
-        raise InputError("two plants of the group have the same name (species or file, seed)")
-    plants = [
-        {"name": n, "config": c.to_dict(), "status": "running"}
-        for n, c in zip(names, cfgs, strict=True)
-    ]
-    for entry, folder in zip(plants, dirs or [], strict=False):
-        entry["dir"] = str(folder)
-    return {"plants": plants}
+Part = tuple[int | None, list[dict[str, Any]], dict[str, str]]
 
 
-def _read_record(out: Path) -> dict[str, Any]:
-    try:
-        record = json.loads((out / GROUP_FILE).read_text())
-        assert all({"name", "config", "status"} <= set(p) for p in record["plants"])
-    except FileNotFoundError:
-        raise InputError(f"{out} holds no group of plants ({GROUP_FILE} missing)") from None
-    except (ValueError, KeyError, TypeError, AssertionError) as exc:
-        raise InputError(f"{out / GROUP_FILE}: damaged ({exc})") from None
-    return record
-
-
-def failed_plants(out: Path) -> dict[str, str]:
-    """The plants ``out``'s group record says failed, with their one-line error."""
-    return _failed(_read_record(out))
-
-
-def _failed(record: dict[str, Any]) -> dict[str, str]:
-    return {
-        p["name"]: p["status"].removeprefix("failed: ")
-        for p in record["plants"]
-        if p["status"].startswith("failed")
-    }
-
-
-def _start(record, out, resume, result, stack, show_progress) -> list[tuple[PlantRun, Any]]:
-    """Each plant not done or failed, fresh or from its checkpoint; a plant that cannot
-    start (bad input, damaged checkpoint) is failed alone."""
-    plants = []
-    result.failed.update(_failed(record))
+def _reconcile(
+    record: dict[str, Any], out: Path, resume: bool, by_folders: bool, result: GroupResult
+) -> list[Part]:
+    """The plants to train, in parts that each start at one step: (step or None for a fresh
+    start, the plants' entries, each plant's checkpoint file by name). A plant that cannot
+    be read fails alone."""
+    todo = []
     for entry in record["plants"]:
-        if entry["status"] != "running":
+        folder = plant_dir(out, entry)
+        status = entry["status"]
+        if resume and entry.pop("retry", False):
+            entry["status"] = status = "running"  # failed on the machine: tried again
+        if status.startswith("failed"):
             continue
-        plant_dir = Path(entry.get("dir", out / entry["name"]))
+        if by_folders and resume:  # done if its outputs say so, whatever the record says
+            status = "done" if _is_finished(folder) else "running"
+        if status == "done":
+            entry["status"] = "done"
+            continue
+        entry["status"] = "running"
+        todo.append(entry)
+    result.failed.update(failed(record))
+    if not resume:
+        return [(None, todo, {})] if todo else []
+    starts: dict[str, dict[int, str]] = {}
+    for entry in todo:
         try:
-            stack.enter_context(
-                claim_folder(plant_dir, overwrite=not resume, owned=RUN_OUTPUTS,
-                             allow_existing=resume)
-            )  # fmt: skip
-            if resume:
-                saved = load_checkpoint(plant_dir)
-                cfg, _ = resumed_config(saved, {}, plant_dir)
-                check_inputs(cfg)
-                remove_final_outputs(plant_dir)
-            else:
-                saved, cfg = None, GenerateConfig.from_dict(entry["config"])
-                check_inputs(cfg)
-            cfg = copy.deepcopy(cfg)
-            resolve_runtime(cfg)
-            resolution = cfg.train.resolution
-            assert resolution is not None
-            if saved is None:
-                state = RunState.fresh(cfg, resolution, show_progress)
-            else:
-                state = RunState.resumed(cfg, resolution, saved)
-                state.events.append({"step": state.step, "event": "resumed in a group"})
-            plants.append((PlantRun(cfg, state, plant_dir), saved))
+            starts[entry["name"]] = PlantCheckpoints(plant_dir(out, entry)).starts()
+        except PlantDreamerError as exc:  # a damaged checkpoint: this plant fails alone
+            _fail(entry, result, exc)
+    by_name = {e["name"]: e for e in todo}
+    return [
+        (step, [by_name[n] for n in members],
+         {n: starts[n][step] for n in members} if step is not None else {})
+        for step, members in common_starts(starts)
+    ]  # fmt: skip
+
+
+def _is_finished(folder: Path) -> bool:
+    """Its last output written (run.json) and no checkpoint left to resume."""
+    return (folder / "run.json").is_file() and not any(
+        (folder / name).exists() for name in CHECKPOINT_FILES
+    )
+
+
+def _start(
+    step: int | None,
+    part: list[dict[str, Any]],
+    files: dict[str, str],
+    out: Path,
+    stack: ExitStack,
+    result: GroupResult,
+    show_progress: bool,
+) -> list[Started]:
+    """Each plant of a part, fresh or from its checkpoint; a plant that cannot start (bad
+    input, damaged checkpoint) is failed alone."""
+    started = []
+    names = [e["name"] for e in part]
+    for entry in part:
+        name = entry["name"]
+        result.trained_with[name] = names
+        try:
+            cfg = None if step is not None else GenerateConfig.from_dict(entry["config"])
+            start = None if step is None else (step, files[name])
+            started.append(start_plant(stack, cfg, plant_dir(out, entry), start=start,
+                                       changes={}, overwrite=True, show_progress=show_progress))  # fmt: skip
+            if step is not None:
+                result.resumed_from[name] = step
         except Exception as exc:  # this plant's own failure: the others go on
             _fail(entry, result, exc)
-    return plants
+    return started
 
 
-def _train(started, record, out, guidance, result, show_progress, on_step, depth_ahead) -> None:
-    entries = {Path(e.get("dir", out / e["name"])): e for e in record["plants"]}
-    plants, saved = [p for p, _ in started], started[0][1]
-    guidance = guidance if guidance is not None else build_guidance(plants[0].cfg)
-    if saved is not None:
-        restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
-    trainer = Trainer(plants, guidance, depth_ahead=depth_ahead, isolate_failures=True,
-                      out_dir=out)  # fmt: skip
-    try:
-        trainer.run(show_progress, on_step)
-    finally:  # the plants that failed in training, recorded however the run ends
-        for p in plants:
-            if p.error is not None:
-                _fail(entries[p.out_dir], result, PlantDreamerFailure(p.error))
-    device = str(getattr(guidance, "device", "cpu"))
-    for p in plants:
-        entry = entries[p.out_dir]
-        if p.error is not None:
-            continue
-        try:
-            resolution = p.cfg.train.resolution
-            assert resolution is not None
-            result.done[entry["name"]] = export_run(p.cfg, p.state, p.out_dir, resolution, device)
-            entry["status"] = "done"
-        except Exception as exc:
-            _fail(entry, result, exc)
-
-
-class PlantDreamerFailure(Exception):
-    """A plant's failure recorded by the trainer (its message is the error)."""
+def _finished(folder: Path) -> RunResult:
+    run = json.loads((folder / "run.json").read_text())
+    return RunResult(
+        folder, folder / "plant.ply", run["config"]["train"]["steps"],
+        run["gaussians"]["final"], run["timings_s"],
+    )  # fmt: skip
 
 
 def _fail(entry: dict[str, Any], result: GroupResult, exc: BaseException) -> None:
-    lines = str(exc).strip().splitlines() or [type(exc).__name__]
-    what = "" if isinstance(exc, PlantDreamerFailure) else f"{type(exc).__name__}: "
-    entry["status"] = f"failed: {what}{lines[0]}"
-    result.failed[entry["name"]] = f"{what}{lines[0]}"
+    result.failed[entry["name"]] = mark_failed(entry, exc, plain=isinstance(exc, PlantFailure))
+

@@ -1,11 +1,17 @@
-"""The entry point of a generation run: claim the folder, start or resume the state, train,
-export. The loop is ``trainer.py``, the outputs ``export.py``, the state ``run_state.py``."""
+"""The entry sequence of every generation run, one plant or a group: claim each plant's
+folder, start or resume its state, train the plants together, export each. ``generate`` is
+a run of one plant; ``group.py`` keeps a group's record around the same sequence. The loop
+is ``trainer.py``, the outputs ``export.py``, the state ``run_state.py``, the checkpoints
+``checkpoint.py``."""
 
 from __future__ import annotations
 
 import copy
 import shutil
+import sys
 from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,8 +20,9 @@ from plantdreamer.exports.plant import LABEL_FILES
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline.checkpoint import (
+    CHECKPOINT_FILES,
     CHECKPOINT_NAME,
-    load_checkpoint,
+    PlantCheckpoints,
     restore_noise_state,
 )
 from plantdreamer.pipeline.config import GenerateConfig
@@ -42,9 +49,19 @@ FINAL_OUTPUTS = (
     *LABEL_FILES,
 )
 # Everything a run writes.
-RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", CHECKPOINT_NAME)
+RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES)
 # Settings a resumed run may change: more steps continue the same run further.
 RESUME_CHANGEABLE = ("steps",)
+
+GuidanceFor = Callable[[GenerateConfig], Guidance]
+
+
+@dataclass
+class Started:
+    """A plant ready to train, and the checkpoint it resumed from (None: a fresh start)."""
+
+    plant: PlantRun
+    saved: dict[str, Any] | None
 
 
 def generate(
@@ -82,31 +99,114 @@ def generate(
             f"{out_dir} holds a checkpoint of an earlier run; continue it with --resume "
             f"{out_dir}, pass --overwrite to start afresh, or choose another folder"
         )
-    with claim_folder(
-        out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS, allow_existing=resume
-    ):
-        saved = note = None
-        if resume:
-            saved = load_checkpoint(out_dir)
-            cfg, note = resumed_config(saved, changes or {}, out_dir)
-            check_inputs(cfg)
-            remove_final_outputs(out_dir)
-        assert cfg is not None
-        cfg = copy.deepcopy(cfg)  # the caller's config is not changed
-        resolve_runtime(cfg)
-        resolution = cfg.train.resolution
-        assert resolution is not None  # resolve_runtime decides it
-        guidance = guidance if guidance is not None else build_guidance(cfg)
-        if saved is None:
-            state = RunState.fresh(cfg, resolution, show_progress)
-        else:
-            state = _restore(cfg, resolution, saved, guidance, out_dir)
-        if note is not None:
-            state.events.append(note)
-        trainer = Trainer([PlantRun(cfg, state, out_dir)], guidance, depth_ahead=depth_ahead)
-        trainer.run(show_progress, on_step)
-        device = str(getattr(guidance, "device", "cpu"))
-        return export_run(cfg, state, out_dir, resolution, device)
+    with ExitStack() as stack:
+        start = None
+        if resume:  # the folder's latest checkpoint (CheckpointError if it has none)
+            found = PlantCheckpoints(out_dir).starts() if out_dir.is_dir() else {}
+            start = (max(found), found[max(found)]) if found else (0, CHECKPOINT_NAME)
+        started = start_plant(
+            stack, cfg, out_dir, start=start, changes=changes or {}, overwrite=overwrite,
+            show_progress=show_progress,
+        )  # fmt: skip
+        results = train_plants(
+            [started], out_dir, guidance=guidance, show_progress=show_progress,
+            on_step=on_step, depth_ahead=depth_ahead,
+        )  # fmt: skip
+        return results[out_dir]
+
+
+def start_plant(
+    stack: ExitStack,
+    cfg: GenerateConfig | None,
+    out_dir: Path,
+    *,
+    start: tuple[int, str] | None,
+    changes: dict[str, Any],
+    overwrite: bool,
+    show_progress: bool,
+) -> Started:
+    """Claims ``out_dir`` (for the life of ``stack``) and starts its plant: afresh from
+    ``cfg`` (``start`` None), or from the checkpoint at ``start`` = (step, file name) with
+    ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint)."""
+    resume = start is not None
+    stack.enter_context(
+        claim_folder(out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS,
+                     allow_existing=resume)
+    )  # fmt: skip
+    files = PlantCheckpoints(out_dir)
+    saved = note = None
+    if start is not None:
+        saved = files.read(start[1])
+        cfg, note = resumed_config(saved, changes, out_dir)
+        check_inputs(cfg)
+        remove_final_outputs(out_dir)
+    assert cfg is not None
+    cfg = copy.deepcopy(cfg)  # the caller's config is not changed
+    resolve_runtime(cfg)
+    resolution = cfg.train.resolution
+    assert resolution is not None  # resolve_runtime decides it
+    if saved is None:
+        state = RunState.fresh(cfg, resolution, show_progress)
+    else:
+        state = files.restore(cfg, resolution, saved)
+        state.events.append({"step": state.step, "event": "resumed"})
+    if note is not None:
+        state.events.append(note)
+    return Started(PlantRun(cfg, state, out_dir), saved)
+
+
+def train_plants(
+    started: list[Started],
+    out_dir: Path,
+    *,
+    guidance: Guidance | None = None,
+    guidance_for: GuidanceFor = build_guidance,
+    show_progress: bool = True,
+    on_step: Callable[[int], None] | None = None,
+    depth_ahead: bool = True,
+    on_failure: Callable[[PlantRun, BaseException], None] | None = None,
+) -> dict[Path, RunResult]:
+    """Trains the started plants together (all at the same step) and exports each; the
+    results by plant folder. ``guidance`` (else ``guidance_for`` the first plant's config)
+    guides them; a checkpoint's noise state is restored into it. ``on_failure``: a plant
+    that fails (in training or its export) is reported there and the others go on (a
+    group); without it the failure raises (one plant). ``out_dir`` is the folder
+    ``RunInterrupted`` names."""
+    plants = [s.plant for s in started]
+    guidance = guidance if guidance is not None else guidance_for(plants[0].cfg)
+    saved = started[0].saved
+    if saved is not None:
+        restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
+        if show_progress:
+            print(f"resuming at step {plants[0].state.step}", file=sys.stderr)
+    trainer = Trainer(plants, guidance, depth_ahead=depth_ahead,
+                      isolate_failures=on_failure is not None, out_dir=out_dir)  # fmt: skip
+    device = str(getattr(guidance, "device", "cpu"))
+    results: dict[Path, RunResult] = {}
+    with trainer.stops_handled():
+        try:
+            trainer.run(show_progress, on_step)
+        finally:  # the plants that failed in training, reported however the run ends
+            for p in plants:
+                if p.error is not None and on_failure is not None:
+                    on_failure(p, PlantFailure(p.error))
+        for p in plants:
+            if p.error is not None:
+                continue
+            trainer.stop_point()
+            resolution = p.cfg.train.resolution
+            assert resolution is not None
+            try:
+                results[p.out_dir] = export_run(p.cfg, p.state, p.out_dir, resolution, device)
+            except Exception as exc:
+                if on_failure is None:
+                    raise
+                on_failure(p, exc)
+    return results
+
+
+class PlantFailure(Exception):
+    """A plant's failure recorded by the trainer (its message is the error)."""
 
 
 def remove_final_outputs(out_dir: Path) -> None:
@@ -117,20 +217,6 @@ def remove_final_outputs(out_dir: Path) -> None:
             shutil.rmtree(path)
         else:
             path.unlink(missing_ok=True)
-
-
-def _restore(
-    cfg: GenerateConfig, resolution: int, saved: dict[str, Any], guidance: Guidance, out: Path
-) -> RunState:
-    try:
-        state = RunState.resumed(cfg, resolution, saved)
-    except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
-        raise CheckpointError(
-            f"{out / CHECKPOINT_NAME}: damaged or incompatible checkpoint "
-            f"({type(exc).__name__}: {exc})"
-        ) from exc
-    restore_noise_state(guidance.generator, saved, out / CHECKPOINT_NAME)
-    return state
 
 
 def resumed_config(

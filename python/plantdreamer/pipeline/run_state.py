@@ -2,7 +2,9 @@
 
 A checkpoint is ``RunState.state_dict()`` plus the config and the guidance's noise state;
 ``RunState.resumed`` rebuilds the state from one, so a resumed run continues with the same
-bits as one that never stopped (the global torch RNG state included).
+bits as one that never stopped. Every draw of a run comes from a generator of its own (the
+sampler's, density control's, the guidance's noise), never from torch's global one, so the
+global state is neither seeded nor saved (checkpoints that hold it still load).
 """
 
 from __future__ import annotations
@@ -45,7 +47,6 @@ class RunState:
         from plantdreamer.pipeline.source import initial_gaussians, load_source
 
         timer = PhaseTimer()
-        torch.manual_seed(cfg.seed)
         with timer("prepare"):
             source = load_source(cfg)
             g = initial_gaussians(cfg, source)
@@ -108,15 +109,13 @@ class RunState:
             "label_fields": self.label_fields,
             "sampler": self.sampler.state(),
             "density": self.density.state_dict(),
-            "torch_rng": torch.get_rng_state(),
             "log_rows": self.log_rows,
             "events": self.events,
             "timings": dict(self.timer.totals),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Everything but the initial Gaussians (given at construction); sets the global
-        torch RNG, which density control and the guidance draw from."""
+        """Everything but the initial Gaussians (given at construction)."""
         self.step = int(state["step"])
         self.model.load_state_dict(state["model"])
         self.sampler.set_state(state["sampler"])
@@ -126,7 +125,6 @@ class RunState:
         self.label_fields = state.get("label_fields")
         self.log_rows, self.events = state["log_rows"], state["events"]
         self.timer = PhaseTimer(state["timings"])
-        torch.set_rng_state(state["torch_rng"])
 
     def label_summary(self, final: Gaussians, exported: bool) -> dict[str, Any] | None:
         """Where the labels came from and the Gaussians per class / instance count."""

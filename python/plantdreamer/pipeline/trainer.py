@@ -6,6 +6,10 @@ owns their depth conditioning, and calls each at fixed points of a step:
     -> backward to the renders -> rasterizer backwards (one thread per plant)
     -> per plant: density.after_backward, Adam, density.step_end -> checkpoints when due
 
+and, after the last step, a final checkpoint (a run stopped during its export resumes with
+the export). The trainer writes the checkpoints and reads nothing back: a resume reads them
+through the same ``PlantCheckpoints`` (``run.py``).
+
 The step itself (``step_schedule.py``) runs the group as one batch or, with ``overlap``, as
 two halves in flight, one half's host work beside the other's device work. One plant is a
 batch of one. In a group a plant that fails (NaN, ...) is recorded and dropped; the others
@@ -14,7 +18,8 @@ go on.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +28,7 @@ import torch
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import noise_state, save_checkpoint
+from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
@@ -101,10 +106,27 @@ class Trainer:
         every = self.cfg.train.checkpoint_every
         return nxt < self.cfg.train.steps and nxt % every != 0 and not self._stop_requested
 
+    @contextmanager
+    def stops_handled(self) -> Iterator[None]:
+        """Ctrl-C and SIGTERM inside the block ask the run to stop: the training loop writes
+        its checkpoints at the next step boundary and raises ``RunInterrupted``; after the
+        loop, ``stop_point`` raises it between two plants' exports."""
+        with stop_signals_handled(self._request_stop):
+            yield
+
+    def stop_point(self) -> None:
+        """Raises ``RunInterrupted`` if a stop was asked for (the plants' training is over
+        and checkpointed: a resume only exports)."""
+        if self._stop_requested:
+            raise RunInterrupted(self.cfg.train.steps, self.out_dir)
+
     def run(self, show_progress: bool = True, on_step: Callable[[int], None] | None = None) -> None:
-        """Steps from the plants' step to the last; Ctrl-C (or SIGTERM) writes a checkpoint
-        at the next step boundary and raises ``RunInterrupted``."""
+        """Steps from the plants' step to the last (inside ``stops_handled``, a stop writes a
+        checkpoint at the next step boundary and raises ``RunInterrupted``), then writes the
+        final checkpoint, so that a run stopped or killed during its export resumes with the
+        export."""
         steps, first = self.cfg.train.steps, self.plants[0].state
+        resumed_at_end = first.step == steps > 0  # its checkpoint at the last step exists
         progress = Progress(steps, first.step, show_progress)
         note = (
             "" if self.trains else "; no guidance: the steps only run density control and culling"
@@ -113,26 +135,27 @@ class Trainer:
             f"initialised {sum(len(p.state.initial) for p in self.plants)} Gaussians{note}"
         )
         try:
-            with stop_signals_handled(self._request_stop):
-                for step in range(first.step, steps):
-                    # With a half in flight the stop waits a step: the run ahead stops.
-                    if self._stop_requested and self.schedule.pending is None:
-                        self.checkpoint(step)
-                        raise RunInterrupted(step, self.out_dir)
-                    if self.trains:
-                        loss: float | None = self.schedule.train_step(step)
-                    else:
-                        loss = None
-                        self.schedule.step_end(step, self.alive())
-                    progress.update(
-                        step, loss, sum(len(self.plants[i].state.model) for i in self.alive())
-                    )
-                    if (step + 1) % self.cfg.train.checkpoint_every == 0 and step + 1 < steps:
-                        self.checkpoint(step + 1)
-                    if on_step is not None:
-                        on_step(step)
-                    if not self.alive():
-                        break
+            for step in range(first.step, steps):
+                # With a half in flight the stop waits a step: the run ahead stops.
+                if self._stop_requested and self.schedule.pending is None:
+                    self.checkpoint(step)
+                    raise RunInterrupted(step, self.out_dir)
+                if self.trains:
+                    loss: float | None = self.schedule.train_step(step)
+                else:
+                    loss = None
+                    self.schedule.step_end(step, self.alive())
+                progress.update(
+                    step, loss, sum(len(self.plants[i].state.model) for i in self.alive())
+                )
+                if (step + 1) % self.cfg.train.checkpoint_every == 0 and step + 1 < steps:
+                    self.checkpoint(step + 1)
+                if on_step is not None:
+                    on_step(step)
+                if not self.alive():
+                    break
+            if not resumed_at_end:
+                self.checkpoint(steps)
             for p in self.plants:
                 p.state.step = steps
             progress.note(f"exporting, {self.cfg.outputs.eval_views} renders per plant")
@@ -147,10 +170,11 @@ class Trainer:
         self._stop_requested = True
 
     def checkpoint(self, step: int) -> None:
-        """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``."""
+        """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``;
+        each plant's previous one goes once all are written (``PlantCheckpoints``)."""
         noise = noise_state(self.raw_guidance.generator)
-        for i in self.alive():
-            p = self.plants[i]
+        alive = [self.plants[i] for i in self.alive()]
+        for p in alive:
             with p.state.timer("checkpoint"):
                 p.state.step = step
                 record: dict[str, Any] = {
@@ -159,5 +183,7 @@ class Trainer:
                     # The guidance's noise generator, so a resumed run draws the same noise.
                     **noise,
                 }
-                save_checkpoint(p.out_dir, record)
+                PlantCheckpoints(p.out_dir).write(record)
                 outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
+        for p in alive:
+            PlantCheckpoints(p.out_dir).commit()
