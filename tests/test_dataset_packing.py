@@ -1,7 +1,7 @@
 """`dataset --plants-per-gpu B`: plants packed into groups trained in one trainer, each with
 its own folder and record; a bad plant fails alone; the worker's models are loaded once.
 
-The group task and the model cache run in-process here (no Ray); test_dataset_ray.py
+The worker's task and the model cache run in-process here (no Ray); test_dataset_ray.py
 runs the command on a local Ray instance.
 """
 
@@ -14,9 +14,8 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.dataset import expand
-from plantdreamer.dataset.group_task import run_group
 from plantdreamer.dataset.packing import pack, packing_from
-from plantdreamer.dataset.tasks import run_plant
+from plantdreamer.dataset.tasks import run_unit
 from plantdreamer.dataset.worker import ModelCache
 from plantdreamer.errors import InputError
 from plantdreamer.output_folder import LOCK_NAME
@@ -109,7 +108,7 @@ def test_a_packed_group_writes_each_plant_folder_and_a_bad_plant_fails_alone(tmp
     out.mkdir()
     (out / LOCK_NAME).touch()  # the dataset's lock: a worker checks that it sees the folder
     board = FakeBoard()
-    results = run_group(_request(out, group), board, ModelCache().guidance_for, None)
+    results = run_unit(_request(out, group), board, ModelCache().guidance_for, None)
     assert board.starts == ["a-s0000", "b-s0000", "c-s0000"]
     assert {i: r["status"] for i, r in results.items()} == {
         "a-s0000": "done", "b-s0000": "failed", "c-s0000": "done"
@@ -161,9 +160,10 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
     board = FakeBoard()
     for seed in (0, 1):
         cfg = _sds_config(tiny_model_folders, seed)
-        request = {"id": f"p{seed}", "config": cfg.to_dict(),
-                   "plant_dir": str(out / "plants" / f"p{seed}"), "threads": 1}  # fmt: skip
-        result = run_plant(request, board, cache.guidance_for, None)
+        request = {"plants": [{"id": f"p{seed}", "config": cfg.to_dict(),
+                               "plant_dir": str(out / "plants" / f"p{seed}")}],
+                   "threads": 1, "group_dir": str(out / "groups" / f"p{seed}")}  # fmt: skip
+        result = run_unit(request, board, cache.guidance_for, None)[f"p{seed}"]
         assert result["status"] == "done" and result["trained_with"] == [f"p{seed}"], result
     assert cache.loads == 1  # the second plant used the first one's networks
     for seed in (0, 1):  # ... and got the bytes of a guidance loaded from disk for it
@@ -214,14 +214,14 @@ def test_a_stopped_sds_group_resumes_in_a_later_run_byte_identical(tiny_model_fo
         out = outs[name] = tmp_path / name
         (out / "plants").mkdir(parents=True)
         (out / LOCK_NAME).touch()
-    straight = run_group(_request(outs["straight"], group), FakeBoard(), ModelCache().guidance_for,
+    straight = run_unit(_request(outs["straight"], group), FakeBoard(), ModelCache().guidance_for,
                          None)  # fmt: skip
     assert {r["status"] for r in straight.values()} == {"done"}
-    stopped = run_group(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
+    stopped = run_unit(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
                         _interrupt_at(2))  # fmt: skip
     assert {r["error"] for r in stopped.values()} == {"interrupted at step 3"}
     assert (outs["stopped"] / "groups" / ids[0] / "group.json").is_file()  # kept for the rerun
-    resumed = run_group(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
+    resumed = run_unit(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
                         None)  # fmt: skip
     assert [resumed[i]["resumed_from_step"] for i in ids] == [3, 3]
     assert _group_outputs(outs["stopped"], ids) == _group_outputs(outs["straight"], ids)
@@ -238,7 +238,7 @@ def test_a_plant_failed_before_a_stop_is_recorded_failed_not_interrupted(tmp_pat
     out = tmp_path / "out"
     out.mkdir()
     (out / LOCK_NAME).touch()
-    results = run_group(_request(out, group), FakeBoard(), ModelCache().guidance_for,
+    results = run_unit(_request(out, group), FakeBoard(), ModelCache().guidance_for,
                         _interrupt_at(1))  # fmt: skip
     assert {i: r["status"] for i, r in results.items()} == {
         "a-s0000": "interrupted", "b-s0000": "failed", "c-s0000": "interrupted"

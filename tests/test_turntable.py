@@ -94,7 +94,7 @@ def test_generate_turntable_both_and_view(tmp_path, monkeypatch):
     # --view hands the finished plant to the viewer (replaced here: it would serve forever).
     viewed = []
     monkeypatch.setattr(
-        "plantdreamer.viewer.server.view_file", lambda path, **kw: viewed.append(path)
+        "plantdreamer.viewer.server.view_files", lambda paths, **kw: viewed.extend(paths)
     )
     out = tmp_path / "run"
     result = CliRunner().invoke(

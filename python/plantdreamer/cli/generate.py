@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -63,9 +64,7 @@ def build_command() -> click.Command:
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
         and ground truth per view: labels/, instances/, depth/, transforms.json."""
-        from plantdreamer.pipeline import RunInterrupted, resolve_config
-        from plantdreamer.pipeline import generate as run_generate
-        from plantdreamer.pipeline.group import GROUP_FILE, generate_group, parse_seeds
+        from plantdreamer.pipeline import RunInterrupted
 
         given = _given(ctx)
         try:
@@ -80,38 +79,16 @@ def build_command() -> click.Command:
                     )
                 # Settings typed again on resume: checked against the checkpoint, never ignored.
                 changes = options_to_settings(GenerateConfig, given_on_command_line(options))
-                if (Path(resume_dir) / GROUP_FILE).is_file():
-                    if changes or seeds is not None:
-                        raise click.UsageError("a group resumes with the settings it started with")
-                    _group_report(generate_group(None, resume_dir, resume=True,
-                                                 show_progress=not quiet))  # fmt: skip
-                    return
-                result = run_generate(
-                    None, resume_dir, resume=True, changes=changes, show_progress=not quiet
-                )
+                results = _resume(Path(resume_dir), changes, seeds, quiet)
             else:
-                preset = options.pop("preset")
-                typed = options_to_settings(GenerateConfig, given_on_command_line(options))
-                defaults = options_to_settings(GenerateConfig, options)
-                if seeds is not None:
-                    if "seed" in typed:
-                        raise click.UsageError("give --seed or --seeds, not both")
-                    cfgs = [
-                        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
-                        for seed in parse_seeds(seeds)
-                    ]
-                    group = generate_group(
-                        cfgs, out_dir, overwrite=overwrite, show_progress=not quiet
-                    )
-                    _group_report(group)
-                    return
-                cfg = resolve_config(preset, typed, base=defaults)
+                cfgs = _configs(options, seeds)
                 if print_config:
                     from plantdreamer.pipeline.resolved import resolved_settings
 
-                    click.echo(json.dumps(resolved_settings(cfg), indent=2))
+                    shown = [resolved_settings(cfg) for cfg in cfgs]
+                    click.echo(json.dumps(shown if seeds is not None else shown[0], indent=2))
                     return
-                result = run_generate(cfg, out_dir, overwrite=overwrite, show_progress=not quiet)
+                results = _run(cfgs, seeds is not None, Path(out_dir), overwrite, quiet)
         except RunInterrupted as stop:
             click.secho(
                 f"interrupted at step {stop.step}; checkpoint written. "
@@ -120,29 +97,72 @@ def build_command() -> click.Command:
                 fg="yellow",
             )
             raise SystemExit(130) from None
-        click.echo(
-            f"wrote {result.ply_path} ({result.gaussians} Gaussians) "
-            f"and renders in {Path(result.out_dir)}"
-        )
+        for result in results:
+            click.echo(
+                f"wrote {result.ply_path} ({result.gaussians} Gaussians) "
+                f"and renders in {Path(result.out_dir)}"
+            )
         if view:
-            from plantdreamer.viewer.server import view_file
+            from plantdreamer.viewer.server import view_files
 
-            view_file(str(result.ply_path), echo=click.echo)
+            view_files([str(r.ply_path) for r in results], echo=click.echo)
 
     return generate
 
 
-def _group_report(group) -> None:
-    for _, result in sorted(group.done.items()):
-        click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")
+def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:
+    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise)."""
+    from plantdreamer.pipeline import resolve_config
+    from plantdreamer.pipeline.group import parse_seeds
+
+    preset = options.pop("preset")
+    typed = options_to_settings(GenerateConfig, given_on_command_line(options))
+    defaults = options_to_settings(GenerateConfig, options)
+    if seeds is None:
+        return [resolve_config(preset, typed, base=defaults)]
+    if "seed" in typed:
+        raise click.UsageError("give --seed or --seeds, not both")
+    return [
+        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
+        for seed in parse_seeds(seeds)
+    ]
+
+
+def _run(cfgs: list[GenerateConfig], group: bool, out: Path, overwrite: bool, quiet: bool) -> list:
+    """Trains the plants (one, or a group under ``out``); each finished plant's result."""
+    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline.group import generate_group
+
+    if not group:
+        return [generate(cfgs[0], out, overwrite=overwrite, show_progress=not quiet)]
+    return _group_results(generate_group(cfgs, out, overwrite=overwrite, show_progress=not quiet))
+
+
+def _resume(folder: Path, changes: dict[str, Any], seeds: str | None, quiet: bool) -> list:
+    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline.group import GROUP_FILE, generate_group
+
+    if not (folder / GROUP_FILE).is_file():
+        return [generate(None, folder, resume=True, changes=changes, show_progress=not quiet)]
+    if changes or seeds is not None:
+        raise click.UsageError("a group resumes with the settings it started with")
+    return _group_results(generate_group(None, folder, resume=True, show_progress=not quiet))
+
+
+def _group_results(group) -> list:
+    """The finished plants in name order; a failed plant makes the command fail (after the
+    others are written)."""
     if group.failed:
         from plantdreamer.errors import PlantDreamerError
 
+        for _, result in sorted(group.done.items()):
+            click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")
         failures = "; ".join(f"{name}: {error}" for name, error in sorted(group.failed.items()))
         raise PlantDreamerError(
             f"{len(group.failed)} of {len(group.done) + len(group.failed)} plants failed "
             f"({failures}); see {group.out_dir / 'group.json'}"
         )
+    return [result for _, result in sorted(group.done.items())]
 
 
 def _given(ctx: click.Context) -> set[str]:

@@ -1,9 +1,9 @@
-"""Datasets of many plants: a spec of groups, one `generate` per plant (or one trainer per
-packed group of plants), run by long-lived workers on Ray.
+"""Datasets of many plants: a spec of groups, one trainer per packed group of plants (a
+plant alone is a group of one), run by long-lived workers on Ray.
 
 ``spec`` parses the TOML spec into plants (``plant``), ``packing`` groups them B per GPU,
 ``plan`` decides which to skip, resume or redo, ``runner`` runs and records them, ``scheduler`` hands them to the workers (``worker``: the actor that
-keeps the models loaded), ``tasks`` and ``group_task`` are what runs on a worker,
+keeps the models loaded), ``tasks`` is what runs on a worker,
 ``manifest`` records every plant, ``engine`` talks to Ray.
 """
 

@@ -1,5 +1,6 @@
-"""What a dataset worker runs: one plant as one `generate` (a packed group is
-``group_task.py``), the records both return, and the board workers report to.
+"""What a dataset worker runs: a unit of plants (one, or a packed group) as one
+`generate_group`, each plant in its own dataset folder with its own record, and the board
+workers report to.
 
 These are plain functions and classes; the runner wraps them with ``ray.remote`` so this
 module imports without Ray. A plant's own errors never raise: they come back as a
@@ -8,13 +9,14 @@ module imports without Ray. A plant's own errors never raise: they come back as 
 
 from __future__ import annotations
 
-import copy
+import io
 import os
+import shutil
 import socket
 import time
 import traceback
 from collections.abc import Callable
-from contextlib import redirect_stderr, redirect_stdout
+from contextlib import ExitStack, redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
@@ -68,65 +70,97 @@ def worker_info() -> dict[str, Any]:
     return {"pid": os.getpid(), "node": node, "host": socket.gethostname(), "started": time.time()}
 
 
-def run_plant(
+def run_unit(
     request: dict[str, Any], board: Any, guidance_for: GuidanceFor, on_step: StepHook | None
-) -> dict[str, Any]:
-    """Runs (or resumes, when its folder holds a checkpoint) one plant."""
-    from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
-    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint
+) -> dict[str, dict[str, Any]]:
+    """Trains a unit's plants together (``pipeline.group``; one plant is a group of one),
+    each in its own dataset folder; returns each plant's record. A plant with a checkpoint
+    resumes from it (plants stopped at different steps resume apart, each where it
+    stopped); a plant's own failure fails it alone."""
+    from plantdreamer.pipeline import GenerateConfig, RunInterrupted
+    from plantdreamer.pipeline.group import generate_group
 
-    plant_id, plant_dir = request["id"], Path(request["plant_dir"])
+    plants = request["plants"]
     threads = set_threads(request)
     info = worker_info()
-    board.started.remote(plant_id, info)
-    hidden = folder_not_visible(plant_dir, info)
+    for plant in plants:
+        board.started.remote(plant["id"], info)
+    ids = [p["id"] for p in plants]
+    dirs = [Path(p["plant_dir"]) for p in plants]
+    hidden = folder_not_visible(dirs[0], info)
     if hidden is not None:
-        return failed_record(info, hidden)
-    plant_dir.mkdir(parents=True, exist_ok=True)
-    resume = (plant_dir / CHECKPOINT_NAME).is_file()
+        return {i: failed_record(info, hidden) for i in ids}
+    group_dir = Path(request["group_dir"])
     t0 = time.perf_counter()
-    with open(plant_dir / LOG_NAME, "a") as log, redirect_stdout(log), redirect_stderr(log):
-        print(f"== plant {plant_id}, pid {info['pid']}, threads {threads}")
-        on_steps = [on_step, hold_hook(plant_id, plant_dir, log)]
-        saved, resumed_from = None, None
+    with ExitStack() as stack:
+        for folder in dirs:
+            folder.mkdir(parents=True, exist_ok=True)
+        tee = _Tee([stack.enter_context(open(d / LOG_NAME, "a")) for d in dirs])
+        stack.enter_context(redirect_stdout(tee))
+        stack.enter_context(redirect_stderr(tee))
+        print(f"== group of {len(plants)} ({', '.join(ids)}), pid {info['pid']}, "
+              f"threads {threads}")  # fmt: skip
+        hold = next((h for i, d in zip(ids, dirs, strict=True)
+                     if (h := hold_hook(i, d, tee)) is not None), None)  # fmt: skip
         try:
-            if resume:
-                saved = load_checkpoint(plant_dir)
-                resumed_from = int(saved["step"])
-                print(f"resuming from the checkpoint at step {resumed_from}")
-            cfg = GenerateConfig.from_dict(request["config"])
-            guidance = guidance_for(resolved_config(cfg, saved))
-            # The plant folder is the dataset's (it holds this log): a fresh start replaces
-            # whatever an earlier, incomplete attempt left there.
-            result = generate(
-                None if resume else cfg,
-                plant_dir,
-                guidance=guidance,
-                resume=resume,
-                overwrite=not resume,
+            result = generate_group(
+                [GenerateConfig.from_dict(p["config"]) for p in plants],
+                group_dir,
+                guidance_for=guidance_for,
+                resume=True,
+                overwrite=True,
                 show_progress=True,
-                on_step=chain_hooks(on_steps),
+                on_step=chain_hooks([on_step, hold]),
+                plant_dirs=dirs,
             )
         except RunInterrupted as stop:
-            return {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
-        except Exception as exc:  # the plant's own failure: record it, keep the others going
+            failed = _failed_in(group_dir)  # before the stop: these stay failed
+            stopped = {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
+            return {i: failed_record(info, failed[i]) if i in failed else stopped for i in ids}
+        except Exception as exc:  # the group could not start (models, settings): each plant fails
             traceback.print_exc()
-            return failed_record(info, f"{type(exc).__name__}: {exc}")
-        print(f"done: {result.gaussians} Gaussians in {time.perf_counter() - t0:.1f} s")
-    return {**done_record(info, t0, resumed_from, plant_dir, result), "trained_with": [plant_id]}
+            return {i: failed_record(info, f"{type(exc).__name__}: {exc}") for i in ids}
+        print(f"done: {len(result.done)} of {len(ids)} plants in {time.perf_counter() - t0:.1f} s")
+    shutil.rmtree(group_dir, ignore_errors=True)
+    records = {}
+    for plant_id, folder in zip(ids, dirs, strict=True):
+        if plant_id in result.done:
+            resumed = result.resumed_from.get(plant_id)
+            record = done_record(info, t0, resumed, folder, result.done[plant_id])
+            records[plant_id] = {**record, "trained_with": result.trained_with[plant_id]}
+        else:
+            records[plant_id] = failed_record(info, result.failed.get(plant_id, "unknown error"))
+    return records
 
 
-def resolved_config(cfg: Any, saved: dict[str, Any] | None) -> Any:
-    """The config the run will use (a checkpoint's, or ``cfg`` with the machine's choices
-    filled), which decides the guidance."""
-    from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.runtime import resolve_runtime
+def _failed_in(group_dir: Path) -> dict[str, str]:
+    """The plants the group's record (written on every exit) says failed, with their error."""
+    from plantdreamer.errors import InputError
+    from plantdreamer.pipeline.group_record import failed_plants
 
-    if saved is not None:
-        return GenerateConfig.from_dict(saved["config"])
-    cfg = copy.deepcopy(cfg)
-    resolve_runtime(cfg)
-    return cfg
+    try:
+        return failed_plants(group_dir)
+    except InputError:  # no record or a damaged one: nothing to keep failed
+        return {}
+
+
+class _Tee(io.TextIOBase):
+    """A unit's output, written to every plant's log."""
+
+    def __init__(self, files: list[Any]) -> None:
+        self.files = files
+
+    def isatty(self) -> bool:
+        return False
+
+    def write(self, text: str) -> int:  # type: ignore[override]
+        for f in self.files:
+            f.write(text)
+        return len(text)
+
+    def flush(self) -> None:
+        for f in self.files:
+            f.flush()
 
 
 def set_threads(request: dict[str, Any]) -> int:

@@ -22,8 +22,7 @@ import _thread
 import time
 from typing import Any
 
-from plantdreamer.dataset.group_task import run_group
-from plantdreamer.dataset.tasks import run_plant
+from plantdreamer.dataset.tasks import run_unit
 
 STOP_POLL_S = 0.5
 
@@ -85,12 +84,7 @@ class PlantWorker:
 
     def run(self, unit: dict[str, Any], board: Any) -> dict[str, dict[str, Any]]:
         """Each plant's record, by plant id."""
-        stop = StopCheck(board)
-        plants = unit["plants"]
-        if len(plants) == 1:
-            request = {**plants[0], "threads": unit["threads"]}
-            return {plants[0]["id"]: run_plant(request, board, self.cache.guidance_for, stop)}
-        return run_group(unit, board, self.cache.guidance_for, stop)
+        return run_unit(unit, board, self.cache.guidance_for, StopCheck(board))
 
     def loads(self) -> int:
         return self.cache.loads

@@ -83,7 +83,9 @@ def parse_seeds(text: str) -> list[int]:
     try:
         for part in (p.strip() for p in text.split(",") if p.strip()):
             low, dash, high = part.partition("-")
-            parts.append(range(int(low), int(high) + 1) if dash else range(int(part), int(part) + 1))
+            parts.append(
+                range(int(low), int(high) + 1) if dash else range(int(part), int(part) + 1)
+            )
     except ValueError:
         raise InputError(
             f"--seeds takes numbers and ranges like 0-7 or 0,3,5, got {text!r}"
@@ -134,15 +136,15 @@ def generate_group(
             with ExitStack() as stack:
                 parts = _reconcile(record, out, resume, plant_dirs is None, result)
                 outputs.write_json(out / GROUP_FILE, record)
+                by_dir = {plant_dir(out, e): e for e in record["plants"]}
+
+                def failure(p: PlantRun, exc: BaseException) -> None:
+                    _fail(by_dir[p.out_dir], result, exc)
+
                 for start, part, files in parts:
                     started = _start(start, part, files, out, stack, result, show_progress)
                     if not started:
                         continue
-                    by_dir = {plant_dir(out, e): e for e in part}
-
-                    def failure(p: PlantRun, exc: BaseException) -> None:
-                        _fail(by_dir[p.out_dir], result, exc)
-
                     done = train_plants(
                         started, out, guidance=guidance, guidance_for=guidance_for,
                         show_progress=show_progress, on_step=on_step, depth_ahead=depth_ahead,
@@ -251,4 +253,3 @@ def _finished(folder: Path) -> RunResult:
 
 def _fail(entry: dict[str, Any], result: GroupResult, exc: BaseException) -> None:
     result.failed[entry["name"]] = mark_failed(entry, exc, plain=isinstance(exc, PlantFailure))
-

@@ -74,9 +74,10 @@ def new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str,
     return {"plants": plants}
 
 
-def read_record(out: Path) -> dict[str, Any]:
-    """``out``'s record, checked: every plant a plain name in ``out`` (``dir``, if given,
-    is ``out/<name>``), at most ``MAX_GROUP_PLANTS``, no name twice."""
+def read_record(out: Path, own_folders: bool = True) -> dict[str, Any]:
+    """``out``'s record, checked: every plant a plain name, at most ``MAX_GROUP_PLANTS``, no
+    name twice, and with ``own_folders`` its folder ``out/<name>`` (``dir``, if given, says
+    so) and no link: a resume writes nowhere else."""
     where = out / GROUP_FILE
     try:
         record = json.loads(where.read_text())
@@ -97,10 +98,12 @@ def read_record(out: Path) -> dict[str, Any]:
                 f"{where}: plant name {name!r} is not a plain folder name (letters, digits, "
                 "-, _ and ., not first); a group's plants live in its own folder"
             )
-        if "dir" in entry and entry["dir"] != str(out / name):
+        if not own_folders:
+            continue
+        if ("dir" in entry and entry["dir"] != str(out / name)) or (out / name).is_symlink():
             raise InputError(
-                f"{where}: plant {name} names the folder {entry['dir']!r}; a group's plants "
-                f"live in {out}/<name> and nowhere else"
+                f"{where}: plant {name} has its folder elsewhere "
+                f"({entry.get('dir') or 'a link'}); a group's plants live in {out}/<name>"
             )
     if len(set(names)) != len(names):
         raise InputError(f"{where}: a plant is listed twice")
@@ -122,7 +125,7 @@ def failed(record: dict[str, Any]) -> dict[str, str]:
 
 def failed_plants(out: Path) -> dict[str, str]:
     """The plants ``out``'s group record says failed, with their one-line error."""
-    return failed(read_record(out))
+    return failed(read_record(out, own_folders=False))
 
 
 def mark_failed(entry: dict[str, Any], exc: BaseException, plain: bool = False) -> str:

@@ -111,6 +111,30 @@ def load_scene(path: str | os.PathLike[str]) -> SplatScene:
     return scene_from_gaussians(g, Path(path).name, labels)
 
 
+def side_by_side(scenes: list[SplatScene]) -> SplatScene:
+    """The scenes in one row along x, in order, each moved so that its bounding box begins
+    a tenth of the widest one after the previous box ends; one scene is itself."""
+    if len(scenes) == 1:
+        return scenes[0]
+    boxes = [s.bounds() for s in scenes]
+    gap = 0.1 * max(max(float(hi[0] - lo[0]) for lo, hi in boxes), 1e-3)
+    centers, x = [], 0.0
+    for scene, (lo, hi) in zip(scenes, boxes, strict=True):
+        moved = scene.centers.copy()
+        moved[:, 0] += np.float32(x - float(lo[0]))
+        centers.append(moved)
+        x += float(hi[0] - lo[0]) + gap
+    labelled = all(s.labels is not None for s in scenes)
+    return SplatScene(
+        name=f"{len(scenes)} plants ({', '.join(s.name for s in scenes)})",
+        centers=np.concatenate(centers),
+        covariances=np.concatenate([s.covariances for s in scenes]),
+        rgbs=np.concatenate([s.rgbs for s in scenes]),
+        opacities=np.concatenate([s.opacities for s in scenes]),
+        labels=np.concatenate([s.labels for s in scenes]) if labelled else None,  # type: ignore[misc]
+    )
+
+
 def finite_gaussians(g: Gaussians) -> np.ndarray:
     """[N] bool: every parameter the viewer draws is finite."""
     ok = np.isfinite(g.opacity_logits)

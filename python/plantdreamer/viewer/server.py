@@ -14,7 +14,8 @@ import math
 import socket
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -120,10 +121,20 @@ def view_file(
     path: str, port: int = DEFAULT_PORT, show_labels: bool = False, echo: Callable = print
 ) -> None:
     """Serves the splat PLY at ``path`` until Ctrl-C: the whole ``plantdreamer view``."""
-    from plantdreamer.viewer.scene import load_scene
+    view_files([path], port, show_labels, echo)
+
+
+def view_files(
+    paths: list[str], port: int = DEFAULT_PORT, show_labels: bool = False, echo: Callable = print
+) -> None:
+    """Serves the splat PLYs at ``paths`` side by side (a group's plants) until Ctrl-C."""
+    from plantdreamer.viewer.scene import load_scene, side_by_side
 
     import_viser()  # say what to install before reading a large file
-    scene = load_scene(path)
+    scenes = [load_scene(path) for path in paths]
+    if len(scenes) > 1:  # each plant.ply named by its folder
+        scenes = [replace(s, name=Path(p).parent.name) for s, p in zip(scenes, paths, strict=True)]
+    scene = side_by_side(scenes)
     if show_labels and scene.labels is None:
         echo(f"note: {scene.name} has no 'label' property; showing colours")
     viewer = start_viewer(scene, port, show_labels)
