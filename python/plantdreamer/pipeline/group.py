@@ -134,25 +134,26 @@ def generate_group(
         part: list[dict[str, Any]] = []
         try:
             with ExitStack() as stack:
-                parts = _reconcile(record, out, resume, plant_dirs is None, result)
+                parts = _reconcile(record, out, resume, plant_dirs is None, result, stack)
                 outputs.write_json(out / GROUP_FILE, record)
                 by_dir = {plant_dir(out, e): e for e in record["plants"]}
 
                 def failure(p: PlantRun, exc: BaseException) -> None:
                     _fail(by_dir[p.out_dir], result, exc)
 
+                def done(p: PlantRun, run: RunResult) -> None:
+                    by_dir[p.out_dir]["status"] = "done"
+                    result.done[by_dir[p.out_dir]["name"]] = run
+
                 for start, part, files in parts:
                     started = _start(start, part, files, out, stack, result, show_progress)
                     if not started:
                         continue
-                    done = train_plants(
+                    train_plants(
                         started, out, guidance=guidance, guidance_for=guidance_for,
                         show_progress=show_progress, on_step=on_step, depth_ahead=depth_ahead,
-                        on_failure=failure,
+                        on_failure=failure, on_done=done,
                     )  # fmt: skip
-                    for folder, run in done.items():
-                        by_dir[folder]["status"] = "done"
-                        result.done[by_dir[folder]["name"]] = run
         except RunInterrupted as stop:
             for entry in record["plants"]:
                 if entry["status"] == "running":
@@ -171,11 +172,17 @@ Part = tuple[int | None, list[dict[str, Any]], dict[str, str]]
 
 
 def _reconcile(
-    record: dict[str, Any], out: Path, resume: bool, by_folders: bool, result: GroupResult
+    record: dict[str, Any],
+    out: Path,
+    resume: bool,
+    by_folders: bool,
+    result: GroupResult,
+    stack: ExitStack,
 ) -> list[Part]:
     """The plants to train, in parts that each start at one step: (step or None for a fresh
     start, the plants' entries, each plant's checkpoint file by name). A plant that cannot
-    be read fails alone."""
+    be read fails alone; a finished one is claimed too (its folder is locked for the run,
+    and a killed run's lock file goes)."""
     todo = []
     for entry in record["plants"]:
         folder = plant_dir(out, entry)
@@ -186,6 +193,8 @@ def _reconcile(
             continue
         if by_folders and resume:  # done if its outputs say so, whatever the record says
             status = "done" if _is_finished(folder) else "running"
+            if status == "done":
+                stack.enter_context(claim_folder(folder, allow_existing=True))
         if status == "done":
             entry["status"] = "done"
             continue

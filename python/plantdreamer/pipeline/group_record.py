@@ -36,7 +36,7 @@ _RETRIED = (errno.ENOSPC, errno.EDQUOT)
 def plant_name(cfg: GenerateConfig) -> str:
     """``<species or point cloud file>-s<seed>``, made of folder-name characters only."""
     src = cfg.source
-    stem = Path(src.pointcloud).stem if src.pointcloud is not None else src.species
+    stem = Path(src.pointcloud).stem if src.pointcloud is not None else str(src.species)
     return f"{_UNSAFE.sub('_', stem).lstrip('.') or 'plant'}-s{cfg.seed:04d}"
 
 

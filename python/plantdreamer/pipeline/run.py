@@ -165,12 +165,14 @@ def train_plants(
     on_step: Callable[[int], None] | None = None,
     depth_ahead: bool = True,
     on_failure: Callable[[PlantRun, BaseException], None] | None = None,
+    on_done: Callable[[PlantRun, RunResult], None] | None = None,
 ) -> dict[Path, RunResult]:
     """Trains the started plants together (all at the same step) and exports each; the
     results by plant folder. ``guidance`` (else ``guidance_for`` the first plant's config)
     guides them; a checkpoint's noise state is restored into it. ``on_failure``: a plant
     that fails (in training or its export) is reported there and the others go on (a
-    group); without it the failure raises (one plant). ``out_dir`` is the folder
+    group); without it the failure raises (one plant). ``on_done`` hears of each plant as
+    its export ends (a stop between two exports keeps the first). ``out_dir`` is the folder
     ``RunInterrupted`` names."""
     plants = [s.plant for s in started]
     guidance = guidance if guidance is not None else guidance_for(plants[0].cfg)
@@ -202,6 +204,9 @@ def train_plants(
                 if on_failure is None:
                     raise
                 on_failure(p, exc)
+                continue
+            if on_done is not None:
+                on_done(p, results[p.out_dir])
     return results
 
 
