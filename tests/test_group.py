@@ -186,3 +186,135 @@ def test_a_plant_failed_before_ctrl_c_stays_failed_on_resume(tmp_path):
     assert sorted(resumed.done) == ["mint-s0000", "mint-s0002"]
     assert resumed.failed["mint-s0001"] == status["mint-s0001"].removeprefix("failed: ")
     assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
+
+
+# --- the command line: one path for one plant or a group ------------------------------------
+
+TINY = ["--species", "bean", "--guidance", "none", "--points", "500", "--resolution", "32",
+        "--eval-views", "1", "--turntable-frames", "1", "--turntable", "none"]  # fmt: skip
+
+
+def _one_error(result, message):
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 1 and len(errors) == 1, result.output
+    assert "Traceback" not in result.output and message in errors[0], result.output
+    return errors[0]
+
+
+def test_print_config_of_a_group_prints_every_plant_and_trains_nothing(tmp_path):
+    out = tmp_path / "g"
+    result = CliRunner().invoke(
+        main, ["generate", "--species", "bean", "--seeds", "0-2", "--print-config", "--out", out]
+    )
+    assert result.exit_code == 0, result.output
+    shown = json.loads(result.output)
+    assert [plant["config"]["seed"] for plant in shown] == [0, 1, 2]
+    assert not out.exists()
+
+
+def test_view_shows_every_plant_of_a_group(tmp_path, monkeypatch):
+    viewed = []
+    monkeypatch.setattr(
+        "plantdreamer.viewer.server.view_files", lambda paths, **kw: viewed.append(paths)
+    )
+    out = tmp_path / "g"
+    args = ["generate", *TINY, "--steps", "0", "--seeds", "0,3", "--view", "--quiet", "--out", out]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    assert viewed == [
+        [str(out / "bean-s0000" / "plant.ply"), str(out / "bean-s0003" / "plant.ply")]
+    ]
+
+
+def test_a_group_is_viewed_side_by_side():
+    from plantdreamer.viewer.scene import SplatScene, side_by_side
+
+    def scene(x0, n):
+        centers = np.zeros((n, 3), np.float32)
+        centers[:, 0] = np.linspace(x0, x0 + 1.0, n)
+        return SplatScene("p", centers, np.zeros((n, 3, 3), np.float32),
+                          np.zeros((n, 3), np.float32), np.ones((n, 1), np.float32),
+                          np.arange(n, dtype=np.int32))  # fmt: skip
+
+    row = side_by_side([scene(5.0, 3), scene(-2.0, 4)])
+    assert len(row) == 7 and row.labels is not None and len(row.labels) == 7
+    first, second = row.centers[:3, 0], row.centers[3:, 0]
+    assert first.max() < second.min()  # in order, apart
+    np.testing.assert_allclose(second.min() - first.max(), 0.1, rtol=1e-5)  # a tenth of the widest
+
+
+def test_seeds_beyond_what_one_trainer_holds_are_refused_before_anything_runs(tmp_path):
+    for seeds in ("0-9999", "0-20000000"):
+        out = tmp_path / seeds
+        result = CliRunner().invoke(main, ["generate", *TINY, "--seeds", seeds, "--out", out])
+        _one_error(result, "at most 64")
+        assert not out.exists()
+
+
+def _interrupted(out, seeds=None):
+    """A run (``seeds``: a group) stopped by Ctrl-C at step 2 of 4, with checkpoints."""
+    cfgs = [GenerateConfig.of(species="bean", guidance="none", steps=4, checkpoint_every=2,
+                              points=500, resolution=32, eval_views=1, turntable_frames=1,
+                              seed=s) for s in (seeds or [5])]  # fmt: skip
+    with pytest.raises(RunInterrupted):
+        if seeds is None:
+            generate(cfgs[0], out, show_progress=False, on_step=_stop_at(1))
+        else:
+            generate_group(cfgs, out, show_progress=False, on_step=_stop_at(1))
+
+
+def test_a_resume_says_where_it_resumes_for_a_plant_and_a_group(tmp_path):
+    _interrupted(tmp_path / "plant")
+    _interrupted(tmp_path / "group", seeds=[0, 1])
+    for name in ("plant", "group"):
+        result = CliRunner().invoke(main, ["generate", "--resume", tmp_path / name])
+        assert result.exit_code == 0, result.output
+        said = [line for line in result.output.splitlines() if line.startswith("resuming")]
+        assert said == ["resuming at step 2"], (name, result.output)
+
+
+def test_a_damaged_checkpoint_is_the_same_one_line_in_a_group(tmp_path):
+    import torch
+
+    _interrupted(tmp_path / "plant")
+    _interrupted(tmp_path / "group", seeds=[0, 1])
+    paths = [
+        tmp_path / "plant" / "checkpoint.pt",
+        tmp_path / "group" / "bean-s0001" / "checkpoint.pt",
+    ]
+    for path in paths:
+        state = torch.load(path, weights_only=True)
+        del state["model"]
+        torch.save(state, path)
+    alone = _one_error(CliRunner().invoke(main, ["generate", "--resume", tmp_path / "plant"]),
+                       "damaged or incompatible checkpoint")  # fmt: skip
+    in_group = _one_error(CliRunner().invoke(main, ["generate", "--resume", tmp_path / "group"]),
+                          "1 of 2 plants failed")  # fmt: skip
+    message = alone.removeprefix("error: ").replace(str(paths[0]), str(paths[1]))
+    assert f"bean-s0001: CheckpointError: {message}" in in_group
+
+
+@pytest.mark.parametrize(
+    "hostile",
+    [{"name": "../escaped"}, {"name": "/tmp/escaped"}, {"dir": "ELSEWHERE"}, "link"],
+    ids=["dotdot-name", "absolute-name", "absolute-dir", "linked-folder"],
+)
+def test_a_group_record_never_leads_a_resume_out_of_its_folder(tmp_path, hostile):
+    out = tmp_path / "group"
+    _interrupted(out, seeds=[0, 1])
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    record = json.loads((out / "group.json").read_text())
+    if hostile == "link":  # the second plant's folder is a link to a folder outside
+        (out / "bean-s0001").rename(elsewhere / "bean-s0001")
+        (out / "bean-s0001").symlink_to(elsewhere / "bean-s0001")
+    else:
+        given = {k: str(elsewhere) if v == "ELSEWHERE" else v for k, v in hostile.items()}
+        record["plants"][1].update(given)
+        (out / "group.json").write_text(json.dumps(record))
+    before = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if not p.is_symlink()}
+    result = CliRunner().invoke(main, ["generate", "--resume", out, "--quiet"])
+    _one_error(result, "group.json")
+    after = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if not p.is_symlink()}
+    assert after == before  # nothing made, removed or changed, inside or out
+    assert not (tmp_path / "escaped").exists() and not os.path.exists("/tmp/escaped")
