@@ -189,3 +189,17 @@ def test_native_culling_names_a_wrong_array():
         _core.large_gaussian_mask(np.zeros((4, 3)), 3.0)  # float64
     with pytest.raises(InputError, match=r"log_scales must have shape \[N, 3\]"):
         _core.large_gaussian_mask(np.zeros((4, 2), np.float32), 3.0)
+
+
+def test_plants_resume_together_from_their_last_common_step():
+    from plantdreamer.pipeline.checkpoint import common_starts
+
+    cur, prev = "checkpoint.pt", "checkpoint.prev.pt"
+    # Killed between two plants' writes at step 8: all go back to 4 together.
+    lockstep = {"a": {8: cur, 4: prev}, "b": {4: cur}, "c": {4: cur}}
+    assert common_starts(lockstep) == [(4, ["a", "b", "c"])]
+    # Killed while the previous files were going: all hold 8.
+    assert common_starts({"a": {8: cur}, "b": {8: cur, 4: prev}}) == [(8, ["a", "b"])]
+    # Trained apart (one started afresh beside resumed ones): each at its own step.
+    apart = {"a": {6: cur}, "b": {}, "c": {2: cur}, "d": {6: cur}}
+    assert common_starts(apart) == [(None, ["b"]), (2, ["c"]), (6, ["a", "d"])]
