@@ -32,6 +32,9 @@ MAX_RESOLUTION = 8192  # largest training / evaluation render side
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
 # pipeline/presets.py holds each preset's values.
 PRESET_NAMES = ("plantdreamer", "released", "paper")
+# The settings the plants of one group may differ in (pipeline/group.py trains them in one
+# trainer; dataset/packing.py groups a dataset's plants by the rest).
+PER_PLANT = ("seed", "pointcloud")
 
 
 @dataclass
@@ -131,24 +134,6 @@ class GenerateConfig:
             size = self.get(name)
             if size is not None and not 8 <= size <= MAX_RESOLUTION:
                 raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
-
-    def structure(self) -> str | None:
-        """The registered species the L-System input grows (``structures`` applied)."""
-        from plantdreamer.lsystem.species import structure_for
-
-        species = self.source.species
-        return None if species is None else structure_for(species, self.source.structures)
-
-    def plant_name(self) -> str:
-        """The plant's name in the prompts (``bean`` for ``bean-released``)."""
-        from plantdreamer.lsystem.species import plant_name
-
-        return "plant" if self.source.species is None else plant_name(self.source.species)
-
-    def initial_opacity(self) -> float:
-        if self.init.opacity_init is not None:
-            return self.init.opacity_init
-        return 0.1 if self.source.pointcloud is not None else 0.7
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values only (dicts, lists, numbers, strings, None): JSON and checkpoints."""

@@ -25,7 +25,7 @@ from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME, load_checkpoint, restore_noise_state
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.config import PER_PLANT, GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
 from plantdreamer.pipeline.run import RUN_OUTPUTS, remove_final_outputs, resumed_config
 from plantdreamer.pipeline.run_state import RunState
@@ -33,7 +33,6 @@ from plantdreamer.pipeline.runtime import build_guidance, check_inputs, resolve_
 from plantdreamer.pipeline.trainer import PlantRun, Trainer
 
 GROUP_FILE = "group.json"
-PER_PLANT = ("seed", "pointcloud")  # the settings plants of one group may differ in
 
 
 @dataclass
