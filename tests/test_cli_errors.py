@@ -160,7 +160,8 @@ def test_generate_config_refuses_garbage_values(field, value, message):
         (["--background", "nan"], "--background"),
         (["--background", -0.1], "--background"),
         (["--resolution", 100000], "--resolution"),
-        (["--views", 0], "--views"),
+        (["--eval-views", 0], "--eval-views"),
+        (["--views", 0], "--eval-views"),  # its earlier name, still accepted
     ],
 )
 def test_render_bad_numbers(files, tmp_path, args, message):
@@ -287,7 +288,7 @@ def test_resume_applies_more_steps(interrupted_run, tmp_path):
     result = run("generate", "--resume", out, "--quiet", "--steps", 6, "--seed", 5)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "run.json").read_text())
-    assert summary["config"]["train"]["steps"] == 6
+    assert summary["config"]["steps"] == 6
     assert {"step": 2, "event": "steps changed", "from": 4, "to": 6} in summary["events"]
 
 

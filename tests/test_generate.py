@@ -1,5 +1,6 @@
 """End-to-end generation on the CPU: outputs, frames, determinism, resume, bad input."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -51,7 +52,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     ]
     assert (tmp_path / "turntable.gif").stat().st_size > 0
     run = json.loads((tmp_path / "run.json").read_text())
-    assert run["config"]["source"]["species"] == "bean" and run["seed"] == 0
+    assert run["config"]["species"] == "bean" and run["seed"] == 0
     # Densify/prune rounds in (300, 900) every 100 steps; culling every 100 steps after 500.
     events = [(e["step"], e["event"]) for e in run["events"]]
     assert events == [(400, "densify"), (500, "densify"), (600, "densify"), (600, "cull")]
@@ -174,7 +175,7 @@ def _as_format_3(state):
     """A format-4 checkpoint written the way format 3 was: one flat config (``densify``,
     ``cull``, ``lr``, ``cameras`` nested once; ``n_points``, ``sds_resolution``) and density
     control's state under ``densify``."""
-    config = dict(state["config"])
+    config = dataclasses.asdict(GenerateConfig.from_dict(state["config"]))  # sectioned
     flat = {"preset": config.pop("preset"), "seed": config.pop("seed")}
     train = config.pop("train")
     density = config.pop("density")

@@ -142,7 +142,7 @@ def _scene_with_floaters(up_axis=2):
 
 
 def test_robust_frame_ignores_floaters():
-    from plantdreamer.pipeline.outputs import to_scene_frame
+    from plantdreamer.framing import to_scene_frame
 
     framed, _ = to_scene_frame(_scene_with_floaters())
     core = framed.means[:-2]

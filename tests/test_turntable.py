@@ -106,7 +106,7 @@ def test_generate_turntable_both_and_view(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     _, images = read_mp4(out / "turntable.mp4")
     assert len(images) == 3 and len(iio.imread(out / "turntable.gif", index=None)) == 3
-    assert json.loads((out / "run.json").read_text())["config"]["outputs"]["turntable"] == "both"
+    assert json.loads((out / "run.json").read_text())["config"]["turntable"] == "both"
     assert viewed == [str(out / "plant.ply")]
     rendered = CliRunner().invoke(
         main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--views", "2",

@@ -13,7 +13,12 @@ from pathlib import Path
 
 import click
 
-from plantdreamer.cli.options import config_options, given_on_command_line, options_to_settings
+from plantdreamer.cli.options import (
+    config_options,
+    given_on_command_line,
+    options_to_settings,
+    typed_options,
+)
 from plantdreamer.pipeline.config import GenerateConfig
 
 
@@ -67,7 +72,7 @@ def build_command() -> click.Command:
         from plantdreamer.pipeline import generate as run_generate
         from plantdreamer.pipeline.group import GROUP_FILE, generate_group, parse_seeds
 
-        given = _given(ctx)
+        given = typed_options(ctx)
         try:
             if resume_dir is not None:
                 if print_config:
@@ -143,14 +148,6 @@ def _group_report(group) -> None:
             f"{len(group.failed)} of {len(group.done) + len(group.failed)} plants failed "
             f"({failures}); see {group.out_dir / 'group.json'}"
         )
-
-
-def _given(ctx: click.Context) -> set[str]:
-    """The options typed on the command line (not defaults): a resume must not ignore them."""
-    from click.core import ParameterSource
-
-    typed = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
-    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
 
 
 generate = build_command()

@@ -108,7 +108,7 @@ def generate_group(
                 run = json.loads((plant_dir / "run.json").read_text())
                 ply = plant_dir / "plant.ply"
                 result.done[entry["name"]] = RunResult(
-                    plant_dir, ply, run["config"]["train"]["steps"],
+                    plant_dir, ply, GenerateConfig.from_dict(run["config"]).train.steps,
                     run["gaussians"]["final"], run["timings_s"],
                 )  # fmt: skip
         return result

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantdreamer import prepare
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
@@ -35,13 +36,15 @@ class SourceConfig:
         choices=STRUCTURES,
     )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
-    points: int = setting(100_000, "Points to start from.")
-    sor_neighbors: int = setting(20, "Statistical outlier removal: neighbours per point.")
-    sor_std: float = setting(3.0, "Statistical outlier removal: std multiplier.")
+    points: int = setting(prepare.TARGET_POINTS, "Points to start from.")
+    sor_neighbors: int = setting(
+        prepare.SOR_NEIGHBORS, "Statistical outlier removal: neighbours per point."
+    )
+    sor_std: float = setting(prepare.SOR_STD, "Statistical outlier removal: std multiplier.")
     scene_size: float = setting(4.0, "Longest side of the normalised scene.")
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
     downsample_tolerance: float = setting(
-        0.05,
+        prepare.TOLERANCE,
         "Capture prep: voxel downsampling aims at --points +- this fraction; clouds below "
         "(1 + this) x --points are kept whole (released: 0.25).",
     )
@@ -94,14 +97,13 @@ def load_source(src: SourceConfig, seed: int, *, surface: bool) -> Source:
 
     if src.pointcloud is not None:
         from plantdreamer.io import read_ply
-        from plantdreamer.prepare import prepare_cloud
 
         raw = read_ply(Path(src.pointcloud))
         fields = find_label_fields(raw.attributes, src.label_field, src.instance_field)
         for name in fields:
             if name is not None:  # check the values before the slow steps
                 raw.attributes[name] = as_int_labels(name, raw.attributes[name])
-        cloud, transform, report = prepare_cloud(
+        cloud, transform, report = prepare.prepare_cloud(
             raw,
             target=src.points,
             sor_neighbors=src.sor_neighbors,
