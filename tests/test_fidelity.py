@@ -15,7 +15,7 @@ from plantdreamer.guidance.config import RELEASED_NEGATIVE_PROMPT
 from plantdreamer.guidance.depth import DepthCleaning, clean_depth, normalise_depth
 from plantdreamer.pipeline import GenerateConfig, resolve_config
 from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune, random_cap_mask
+from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune, random_cap_mask
 from plantdreamer.pipeline.init import neighbour_spacing
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import legacy_area_uniform_elevation, mixed_elevation

@@ -17,7 +17,7 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_ply, write_splat_ply
 from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, voxel_majority
 from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.ground_truth import (
     LabelSet,
     Splats,

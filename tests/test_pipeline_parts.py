@@ -11,7 +11,7 @@ from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import SURFACE_THICKNESS, init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler

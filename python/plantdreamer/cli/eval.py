@@ -26,9 +26,7 @@ def parse_background(value: str) -> tuple[float, float, float]:
     if len(rgb) == 1:
         rgb = rgb * 3
     if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
-        raise InputError(
-            f"--background must be a grey level or R,G,B in [0, 1], got {value!r}"
-        )
+        raise InputError(f"--background must be a grey level or R,G,B in [0, 1], got {value!r}")
     return (rgb[0], rgb[1], rgb[2])
 
 
