@@ -363,7 +363,7 @@ def test_concurrent_claims_never_report_a_false_unwritable_folder(tmp_path):
 def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command):
     if command == "prepare":
         (tmp_path / "p.transform.json").write_text("{}")  # stale from an earlier --normalize
-        args = ["prepare", files / "cloud.ply", "-o", tmp_path / "p.ply", "--target", 0,
+        args = ["prepare", files / "cloud.ply", "-o", tmp_path / "p.ply", "--points", 0,
                 "--sor-neighbors", 0]  # fmt: skip
         stale = tmp_path / "p.transform.json"
     elif command == "eval":
@@ -374,7 +374,7 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
     else:
         (tmp_path / "o").mkdir()
         (tmp_path / "o" / "view_099.png").write_bytes(b"old")
-        args = ["render", files / "model.ply", "--out", tmp_path / "o", "--views", 2,
+        args = ["render", files / "model.ply", "--out", tmp_path / "o", "--eval-views", 2,
                 "--resolution", 16, "--turntable", "none"]  # fmt: skip
         stale = tmp_path / "o" / "view_099.png"
     assert_one_error(run(*args), "--overwrite")

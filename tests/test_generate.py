@@ -325,7 +325,7 @@ def test_render_command_orbit_and_transforms(tmp_path):
     result = generate(small(species="kale"), tmp_path / "g", show_progress=False)
     runner = CliRunner()
     orbit = runner.invoke(
-        main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--views", "3",
+        main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--eval-views", "3",
                "--resolution", "32", "--turntable", "none"],
     )  # fmt: skip
     assert orbit.exit_code == 0, orbit.output

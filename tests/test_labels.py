@@ -306,7 +306,7 @@ def test_render_labels_of_a_labelled_ply(tmp_path):
     generate(small(species="bean"), tmp_path / "run", show_progress=False)
     result = CliRunner().invoke(
         main,
-        ["render", str(tmp_path / "run" / "plant.ply"), "--labels", "--views", "3",
+        ["render", str(tmp_path / "run" / "plant.ply"), "--labels", "--eval-views", "3",
          "--resolution", "48", "--out", str(tmp_path / "views")],
     )  # fmt: skip
     assert result.exit_code == 0, result.output

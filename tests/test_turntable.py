@@ -109,7 +109,7 @@ def test_generate_turntable_both_and_view(tmp_path, monkeypatch):
     assert json.loads((out / "run.json").read_text())["config"]["turntable"] == "both"
     assert viewed == [str(out / "plant.ply")]
     rendered = CliRunner().invoke(
-        main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--views", "2",
+        main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--eval-views", "2",
                "--resolution", "24", "--turntable", "mp4"],
     )  # fmt: skip
     assert rendered.exit_code == 0, rendered.output
