@@ -191,7 +191,15 @@ def _as_format_3(state):
     return {**old, "format": 3, "config": flat, "densify": state["density"]}
 
 
-def test_a_format_3_checkpoint_resumes_to_the_same_plant(tmp_path):
+def _with_sections(state):
+    """A format-4 checkpoint as 689da5e wrote it: the config in sections
+    (``{"source": {"points": ...}, "density": {"densify": {"every": ...}}}``)."""
+    sections = dataclasses.asdict(GenerateConfig.from_dict(state["config"]))
+    return {**state, "config": json.loads(json.dumps(sections))}
+
+
+@pytest.mark.parametrize("old_form", [_as_format_3, _with_sections])
+def test_an_earlier_checkpoint_resumes_to_the_same_plant(tmp_path, old_form):
     import torch
 
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
@@ -200,7 +208,9 @@ def test_a_format_3_checkpoint_resumes_to_the_same_plant(tmp_path):
     )
     assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", photometric_guidance()) == 8
     path = tmp_path / "cut" / "checkpoint.pt"
-    torch.save(_as_format_3(torch.load(path, weights_only=True)), path)
+    state = torch.load(path, weights_only=True)
+    assert state["config"]["checkpoint-every"] == 5  # saved by name
+    torch.save(old_form(state), path)
     resumed = generate(
         None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
     )
