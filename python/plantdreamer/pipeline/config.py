@@ -134,7 +134,7 @@ class GenerateConfig:
 
 def from_record(data: Mapping[str, Any]) -> GenerateConfig:
     """The config a run.json, group.json or checkpoint recorded: settings by name (this
-    version), the sections of 0.x up to 689da5e (``{"source": {"points": ...}, ...}``), or
+    version), the sections of the versions up to 689da5e (``{"source": {"points": ...}}``), or
     the flat fields before them. The one reader of saved configs: resume, ``render`` and
     the dataset driver all come through here."""
     if isinstance(data.get("source"), Mapping):  # no setting is named "source"
