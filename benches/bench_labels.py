@@ -62,7 +62,8 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
     from plantdreamer.pipeline.source import initial_gaussians, load_source
 
     cfg = GenerateConfig.of(species=species, seed=0, points=100_000)
-    g = initial_gaussians(cfg, load_source(cfg))  # the Gaussians generate starts from
+    source = load_source(cfg.source, cfg.seed, surface=cfg.init.init_shape == "surface")
+    g = initial_gaussians(cfg.init, source, cfg.seed)  # the Gaussians generate starts from
     model, ls = GaussianModel(g), LabelSet.of(g.labels)
     times: dict[str, list[float]] = {"rgb": [], "gt": [], "naive": []}
     if baseline is not None:

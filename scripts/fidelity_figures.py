@@ -92,7 +92,8 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 def initial_model(options: dict) -> tuple[GaussianModel, GenerateConfig]:
     """The initial Gaussians of a run with these options (default settings otherwise)."""
     cfg = GenerateConfig.of(**options)
-    return GaussianModel(initial_gaussians(cfg, load_source(cfg))), cfg
+    source = load_source(cfg.source, cfg.seed, surface=cfg.init.init_shape == "surface")
+    return GaussianModel(initial_gaussians(cfg.init, source, cfg.seed)), cfg
 
 
 def depth_figures(model: GaussianModel, cfg: GenerateConfig, n_cameras: int) -> dict:

@@ -57,7 +57,7 @@ def main() -> None:
         ply = Path(tmp) / "g.ply"
         write_splat_ply(ply, g)
         out = Path(tmp) / "views"
-        args = ["render", str(ply), "--out", str(out), "--views", "2", "--resolution", "48"]
+        args = ["render", str(ply), "--out", str(out), "--eval-views", "2", "--resolution", "48"]
         subprocess.run([*cli, *args, "--turntable", "none"], check=True)
         check(len(list(out.glob("view_*.png"))) == 2, "render wrote no views")
 

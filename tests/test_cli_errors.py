@@ -160,7 +160,8 @@ def test_generate_config_refuses_garbage_values(field, value, message):
         (["--background", "nan"], "--background"),
         (["--background", -0.1], "--background"),
         (["--resolution", 100000], "--resolution"),
-        (["--views", 0], "--views"),
+        (["--eval-views", 0], "--eval-views"),
+        (["--views", 0], "--eval-views"),  # its earlier name, still accepted
     ],
 )
 def test_render_bad_numbers(files, tmp_path, args, message):
@@ -287,7 +288,7 @@ def test_resume_applies_more_steps(interrupted_run, tmp_path):
     result = run("generate", "--resume", out, "--quiet", "--steps", 6, "--seed", 5)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "run.json").read_text())
-    assert summary["config"]["train"]["steps"] == 6
+    assert summary["config"]["steps"] == 6
     assert {"step": 2, "event": "steps changed", "from": 4, "to": 6} in summary["events"]
 
 
@@ -362,7 +363,7 @@ def test_concurrent_claims_never_report_a_false_unwritable_folder(tmp_path):
 def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command):
     if command == "prepare":
         (tmp_path / "p.transform.json").write_text("{}")  # stale from an earlier --normalize
-        args = ["prepare", files / "cloud.ply", "-o", tmp_path / "p.ply", "--target", 0,
+        args = ["prepare", files / "cloud.ply", "-o", tmp_path / "p.ply", "--points", 0,
                 "--sor-neighbors", 0]  # fmt: skip
         stale = tmp_path / "p.transform.json"
     elif command == "eval":
@@ -373,7 +374,7 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
     else:
         (tmp_path / "o").mkdir()
         (tmp_path / "o" / "view_099.png").write_bytes(b"old")
-        args = ["render", files / "model.ply", "--out", tmp_path / "o", "--views", 2,
+        args = ["render", files / "model.ply", "--out", tmp_path / "o", "--eval-views", 2,
                 "--resolution", 16, "--turntable", "none"]  # fmt: skip
         stale = tmp_path / "o" / "view_099.png"
     assert_one_error(run(*args), "--overwrite")

@@ -175,7 +175,7 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         ours = Path(out / "plants" / f"p{seed}" / "plant.ply").read_bytes()
         assert ours == fresh.ply_path.read_bytes(), seed
     run = json.loads((out / "plants" / "p1" / "run.json").read_text())
-    assert run["config"]["sds"]["base_model"] == tiny_model_folders[0]
+    assert run["config"]["base-model"] == tiny_model_folders[0]
 
 
 def _interrupt_at(stop_step):

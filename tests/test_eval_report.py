@@ -96,7 +96,8 @@ def test_ablation_table_and_bar_plot(tmp_path):
 def test_parse_background():
     assert parse_background("0.75,0.75,0.75") == (0.75, 0.75, 0.75)
     assert parse_background(" 1, 0 ,0.5") == (1.0, 0.0, 0.5)
-    for bad in ("1,1", "a,b,c", "2,0,0", ""):
+    assert parse_background("0.5") == (0.5, 0.5, 0.5)  # one grey, as generate's --background
+    for bad in ("1,1", "a,b,c", "2,0,0", "", "1.5"):
         with pytest.raises(InputError):
             parse_background(bad)
 

@@ -129,7 +129,7 @@ def test_downsample_tolerance_is_the_released_band():
 def test_screen_size_prune_removes_gaussians_wider_than_the_threshold_before_densifying():
     import torch
 
-    from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+    from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
     from plantdreamer.pipeline.init import init_gaussians
     from plantdreamer.pipeline.model import GaussianModel
 

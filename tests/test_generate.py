@@ -1,5 +1,6 @@
 """End-to-end generation on the CPU: outputs, frames, determinism, resume, bad input."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -51,7 +52,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     ]
     assert (tmp_path / "turntable.gif").stat().st_size > 0
     run = json.loads((tmp_path / "run.json").read_text())
-    assert run["config"]["source"]["species"] == "bean" and run["seed"] == 0
+    assert run["config"]["species"] == "bean" and run["seed"] == 0
     # Densify/prune rounds in (300, 900) every 100 steps; culling every 100 steps after 500.
     events = [(e["step"], e["event"]) for e in run["events"]]
     assert events == [(400, "densify"), (500, "densify"), (600, "densify"), (600, "cull")]
@@ -174,7 +175,7 @@ def _as_format_3(state):
     """A format-4 checkpoint written the way format 3 was: one flat config (``densify``,
     ``cull``, ``lr``, ``cameras`` nested once; ``n_points``, ``sds_resolution``) and density
     control's state under ``densify``."""
-    config = dict(state["config"])
+    config = dataclasses.asdict(GenerateConfig.from_dict(state["config"]))  # sectioned
     flat = {"preset": config.pop("preset"), "seed": config.pop("seed")}
     train = config.pop("train")
     density = config.pop("density")
@@ -190,7 +191,15 @@ def _as_format_3(state):
     return {**old, "format": 3, "config": flat, "densify": state["density"]}
 
 
-def test_a_format_3_checkpoint_resumes_to_the_same_plant(tmp_path):
+def _with_sections(state):
+    """A format-4 checkpoint as 689da5e wrote it: the config in sections
+    (``{"source": {"points": ...}, "density": {"densify": {"every": ...}}}``)."""
+    sections = dataclasses.asdict(GenerateConfig.from_dict(state["config"]))
+    return {**state, "config": json.loads(json.dumps(sections))}
+
+
+@pytest.mark.parametrize("old_form", [_as_format_3, _with_sections])
+def test_an_earlier_checkpoint_resumes_to_the_same_plant(tmp_path, old_form):
     import torch
 
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
@@ -199,7 +208,9 @@ def test_a_format_3_checkpoint_resumes_to_the_same_plant(tmp_path):
     )
     assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", photometric_guidance()) == 8
     path = tmp_path / "cut" / "checkpoint.pt"
-    torch.save(_as_format_3(torch.load(path, weights_only=True)), path)
+    state = torch.load(path, weights_only=True)
+    assert state["config"]["checkpoint-every"] == 5  # saved by name
+    torch.save(old_form(state), path)
     resumed = generate(
         None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
     )
@@ -324,7 +335,7 @@ def test_render_command_orbit_and_transforms(tmp_path):
     result = generate(small(species="kale"), tmp_path / "g", show_progress=False)
     runner = CliRunner()
     orbit = runner.invoke(
-        main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--views", "3",
+        main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--eval-views", "3",
                "--resolution", "32", "--turntable", "none"],
     )  # fmt: skip
     assert orbit.exit_code == 0, orbit.output

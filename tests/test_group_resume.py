@@ -63,7 +63,7 @@ def assert_resumes_to_straight(out, straight):
     for name in NAMES:
         assert outputs_of(out / name) == outputs_of(straight / name), name
         run = json.loads((out / name / "run.json").read_text())
-        assert len(run["per_step_s"]) and run["config"]["train"]["steps"] == 6
+        assert len(run["per_step_s"]) and run["config"]["steps"] == 6
     return result
 
 

@@ -17,7 +17,7 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_ply, write_splat_ply
 from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, voxel_majority
 from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.ground_truth import (
     LabelSet,
     Splats,
@@ -306,7 +306,7 @@ def test_render_labels_of_a_labelled_ply(tmp_path):
     generate(small(species="bean"), tmp_path / "run", show_progress=False)
     result = CliRunner().invoke(
         main,
-        ["render", str(tmp_path / "run" / "plant.ply"), "--labels", "--views", "3",
+        ["render", str(tmp_path / "run" / "plant.ply"), "--labels", "--eval-views", "3",
          "--resolution", "48", "--out", str(tmp_path / "views")],
     )  # fmt: skip
     assert result.exit_code == 0, result.output

@@ -253,7 +253,7 @@ def test_render_refuses_a_resolution_whose_buffers_cannot_fit(tmp_path):
         resource.setrlimit(resource.RLIMIT_AS, (16 << 30, 16 << 30))
 
     args = ["render", str(tmp_path / "g.ply"), "--out", str(tmp_path / "out")]
-    args += ["--resolution", "100000", "--views", "1"]
+    args += ["--resolution", "100000", "--eval-views", "1"]
     out = subprocess.run(
         [sys.executable, "-m", "plantdreamer", *args],
         capture_output=True,

@@ -26,7 +26,7 @@ def test_nan_colours_are_dropped_with_a_warning(tmp_path):
     write_ply(tmp_path / "in.ply", c, color_dtype="float")
     result = CliRunner().invoke(
         main, ["prepare", str(tmp_path / "in.ply"), "-o", str(tmp_path / "out.ply"),
-               "--target", "0", "--sor-neighbors", "0"],
+               "--points", "0", "--sor-neighbors", "0"],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "warning: 3 of 600 points have NaN or Inf colours; those points were dropped" in (
@@ -88,11 +88,11 @@ def test_plant_near_the_origin_has_no_offset(tmp_path):
     assert b"offset" not in (tmp_path / "o" / "plant.ply").read_bytes()[:2000]
 
 
-def test_prepare_target_above_the_point_count_keeps_every_point(tmp_path):
+def test_prepare_points_above_the_point_count_keeps_every_point(tmp_path):
     write_ply(tmp_path / "in.ply", cloud(300))
     result = CliRunner().invoke(
         main, ["prepare", str(tmp_path / "in.ply"), "-o", str(tmp_path / "o.ply"),
-               "--target", str(10**20), "--sor-neighbors", "0"],
+               "--points", str(10**20), "--sor-neighbors", "0"],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert len(read_ply_columns(tmp_path / "o.ply")["x"]) == 300
@@ -142,7 +142,7 @@ def _scene_with_floaters(up_axis=2):
 
 
 def test_robust_frame_ignores_floaters():
-    from plantdreamer.pipeline.outputs import to_scene_frame
+    from plantdreamer.framing import to_scene_frame
 
     framed, _ = to_scene_frame(_scene_with_floaters())
     core = framed.means[:-2]

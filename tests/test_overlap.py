@@ -87,7 +87,7 @@ def test_an_overlapped_group_of_four_writes_complete_folders_and_trains_both_hal
     for name in NAMES:
         folder = tmp_path / "g" / name
         run = json.loads((folder / "run.json").read_text())
-        assert run["config"]["train"]["overlap"] == "on" and run["labels"]["exported"]
+        assert run["config"]["overlap"] == "on" and run["labels"]["exported"]
         for entry in ("plant.ply", "transforms.json", "turntable.gif"):
             assert (folder / entry).is_file(), (name, entry)
         for views in ("renders", "labels", "instances", "depth"):

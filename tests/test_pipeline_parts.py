@@ -1,6 +1,8 @@
 """Pipeline pieces that need no renderer: config, culling, checkpoints, Adam bookkeeping,
 densification."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,7 @@ from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
 from plantdreamer.pipeline.init import SURFACE_THICKNESS, init_gaussians, initial_colors
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.sampler import CameraSampler
@@ -20,8 +22,12 @@ def test_config_round_trips_through_json_dict():
     cfg = GenerateConfig.of(species="mint", seed=4, lr_means=1e-4)
     back = GenerateConfig.from_dict(cfg.to_dict())
     assert back == cfg
-    with pytest.raises(InputError, match="unknown config keys"):
+    with pytest.raises(InputError, match="unknown setting 'stepz'; did you mean 'steps'"):
         GenerateConfig.from_dict({**cfg.to_dict(), "stepz": 3})
+    sectioned = dataclasses.asdict(cfg)  # the saved form up to 689da5e
+    assert GenerateConfig.from_dict(sectioned) == cfg
+    with pytest.raises(InputError, match="unknown config keys: stepz"):
+        GenerateConfig.from_dict({**sectioned, "stepz": 3})
 
 
 @pytest.mark.parametrize(

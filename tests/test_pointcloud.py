@@ -156,7 +156,6 @@ def test_normalize_and_invert():
     np.testing.assert_allclose((out.max(axis=0) + out.min(axis=0)) / 2, 0, atol=1e-5)
     assert np.isclose((out.max(axis=0) - out.min(axis=0)).max(), 4.0)
     np.testing.assert_allclose(t.invert(out), p, rtol=1e-6)
-    np.testing.assert_allclose(t.invert_log_scales(np.log([[t.scale]])), 0, atol=1e-12)
     assert pc.NormalizeTransform.from_dict(t.to_dict()) == t
     with pytest.raises(dataclasses.FrozenInstanceError):
         t.scale = 2.0  # type: ignore[misc]
@@ -249,3 +248,20 @@ def test_sor_and_voxel_properties(n, k, ratio, dup, grid, seed):
         full = np.sqrt(sq_dist(p))
         np.fill_diagonal(full, np.inf)
         np.testing.assert_array_equal(d, np.sort(full, axis=1)[:, :3].astype(np.float32))
+
+
+def test_gaussians_move_with_the_transform_and_back(random_gaussians):
+    """One similarity transform for Gaussians: means by ``apply`` / ``invert``, every
+    log-scale by log(scale), everything else copied (export and ``render`` use it)."""
+    g = random_gaussians(50)
+    t = pc.NormalizeTransform(center=(1.0, -2.0, 0.5), scale=0.25)
+    scene = t.gaussians_to_scene(g)
+    np.testing.assert_array_equal(
+        scene.means, t.apply(g.means.astype(np.float64)).astype(np.float32)
+    )
+    np.testing.assert_allclose(scene.log_scales, g.log_scales + np.log(0.25), atol=1e-6)
+    assert np.array_equal(scene.quats, g.quats) and scene.quats is not g.quats
+    back = t.gaussians_to_original(scene, offset=np.array([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(back.means, g.means - [1.0, 0.0, 0.0], atol=1e-5)
+    np.testing.assert_allclose(back.log_scales, g.log_scales, atol=1e-6)
+    np.testing.assert_array_equal(back.sh, g.sh)

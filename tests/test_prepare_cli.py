@@ -43,9 +43,13 @@ def test_prepare_command(tmp_path):
     src = plant_like()
     write_ply(tmp_path / "in.ply", src)
     out = tmp_path / "out.ply"
-    args = ["prepare", str(tmp_path / "in.ply"), "-o", str(out), "--target", "20000", "--normalize"]
+    args = ["prepare", str(tmp_path / "in.ply"), "-o", str(out), "--points", "20000", "--normalize"]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
+    old = ["prepare", str(tmp_path / "in.ply"), "-o", str(tmp_path / "old.ply"), "--target",
+           "20000", "--normalize"]  # fmt: skip  # its earlier name, still accepted
+    assert CliRunner().invoke(main, old).exit_code == 0
+    assert (tmp_path / "old.ply").read_bytes() == out.read_bytes()
     for step in ("input", "finite", "outliers removed", "downsampled"):
         assert step in result.output
     assert f"{len(src):>10,d}" in result.output

@@ -3,6 +3,7 @@ checkpoints, and a run never changes its caller's config."""
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -16,6 +17,7 @@ from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
 from plantdreamer.pipeline import GenerateConfig, generate
 from plantdreamer.pipeline.density import CullConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
+from plantdreamer.pipeline.source import SourceConfig
 from plantdreamer.pipeline.train_config import TrainConfig
 
 
@@ -23,7 +25,13 @@ def patch_default(monkeypatch, cls, name, value):
     """Changes a section's default as an edit of its source would: the field and __init__."""
     monkeypatch.setattr(cls.__dataclass_fields__[name], "default", value)
     defaults = list(cls.__init__.__defaults__)
-    defaults[[f.name for f in dataclasses.fields(cls)].index(name)] = value
+    missing = dataclasses.MISSING
+    with_default = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.default is not missing or f.default_factory is not missing
+    ]
+    defaults[with_default.index(name)] = value
     monkeypatch.setattr(cls.__init__, "__defaults__", tuple(defaults))
 
 
@@ -49,9 +57,9 @@ def test_a_changed_section_default_changes_help_spec_and_behaviour(monkeypatch, 
     result = CliRunner().invoke(command, [*args, "--out", str(out), "--quiet"])
     assert result.exit_code == 0, result.output
     config = json.loads((out / "run.json").read_text())["config"]
-    assert config["train"]["steps"] == 0 and config["outputs"]["eval_views"] == 2
-    assert config["density"]["cull"]["threshold"] == 2.5
-    assert config["sds"]["guidance_scale"] == 7.5
+    assert config["steps"] == 0 and config["eval-views"] == 2  # saved by their names
+    assert config["cull-threshold"] == 2.5
+    assert config["guidance-scale"] == 7.5
     assert len(list((out / "renders").iterdir())) == 2
 
 
@@ -213,3 +221,102 @@ def test_a_finished_run_leaves_no_checkpoint(tmp_path):
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     generate(cfg, tmp_path, guidance=guidance, show_progress=False)
     assert (tmp_path / "run.json").is_file() and not (tmp_path / "checkpoint.pt").exists()
+
+
+def test_records_save_each_setting_under_the_name_a_user_types():
+    """run.json, group.json and checkpoints keep ``to_dict()``: one key per setting, the
+    option's name without dashes (brush saves its flags' names)."""
+    cfg = GenerateConfig.of(species="bean", densify_every=7, cameras_distance=(2.0, 5.0))
+    saved = cfg.to_dict()
+    options = {o for p in generate_cli.build_command().params for o in p.opts}
+    assert {f"--{name}" for name in saved} <= options
+    assert saved["densify-every"] == 7 and saved["cameras-distance"] == [2.0, 5.0]
+    assert GenerateConfig.from_dict(json.loads(json.dumps(saved))) == cfg
+
+
+OLD_RUN = Path(__file__).parent / "data" / "run_sections" / "run.json"
+OLD_RUN_SETTINGS = dict(
+    species="bean", seed=3, points=2000, resolution=64, eval_views=3, turntable="none",
+    steps=4, guidance="none", densify_every=2,
+)  # fmt: skip  # the command in data/run_sections/README.md
+
+
+def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp_path):
+    from plantdreamer.cli import main
+    from plantdreamer.exports.listing import plant_species
+    from plantdreamer.pipeline.config import from_record
+    from plantdreamer.pipeline.run import resumed_config
+
+    old = json.loads(OLD_RUN.read_text())
+    assert old["config"]["density"]["densify"]["every"] == 2  # the sectioned form
+    cfg = from_record(old["config"])
+    assert {k: cfg.get(k) for k in OLD_RUN_SETTINGS} == OLD_RUN_SETTINGS
+    assert plant_species(OLD_RUN) == "bean"
+    # --resume reads a checkpoint's config through the same function.
+    resumed, note = resumed_config({"config": old["config"], "step": 2}, {"steps": 6}, tmp_path)
+    assert resumed.train.steps == 6 and note == {
+        "step": 2, "event": "steps changed", "from": 4, "to": 6
+    }  # fmt: skip
+    # `render` of a plant folder takes the orbit of the run.json beside plant.ply.
+    plant = tmp_path / "plant"
+    generate(GenerateConfig.of(**OLD_RUN_SETTINGS), plant, show_progress=False)
+    new = json.loads((plant / "run.json").read_text())
+    assert from_record(new["config"]) == cfg  # every setting, as resolved by that version
+    assert "source" not in new["config"] and new["config"]["densify-every"] == 2
+    (plant / "run.json").write_text(OLD_RUN.read_text())
+    out = tmp_path / "renders"
+    result = CliRunner().invoke(main, ["render", str(plant), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "wrote 3 views" in result.output  # eval-views 3 from the old record
+
+
+@pytest.mark.parametrize(
+    ("module", "command", "cls", "field", "name", "value"),
+    [
+        ("render", "render", OutputsConfig, "eval_distance", "eval_distance", 5.5),
+        ("render", "render", OutputsConfig, "eval_views", "eval_views", 7),
+        ("render", "render", TrainConfig, "background", "background", 0.5),
+        ("prepare", "prepare", SourceConfig, "sor_std", "sor_std", 2.5),
+        ("prepare", "prepare", SourceConfig, "points", "points", 1234),
+        ("eval", "eval_command", TrainConfig, "background", "background", "0.5"),
+    ],
+)
+def test_render_prepare_and_eval_read_generates_declaration(
+    monkeypatch, module, command, cls, field, name, value
+):
+    """One declaration per setting across commands: a default changed in generate's section
+    is the default of the other command's option too (its --help and its run)."""
+    import importlib
+
+    mod = importlib.import_module(f"plantdreamer.cli.{module}")
+    patch_default(monkeypatch, cls, field, float(value) if isinstance(value, str) else value)
+    try:
+        other = getattr(importlib.reload(mod), command)
+        defaults = {p.name: p.default for p in other.params}
+        assert defaults[name] == value
+        generate_defaults = {p.name: p.default for p in generate_cli.build_command().params}
+        assert str(generate_defaults[name]) == str(value)
+        help_text = " ".join(CliRunner().invoke(other, ["--help"]).output.split())
+        assert f"[default: {value}]" in help_text
+    finally:
+        monkeypatch.undo()
+        importlib.reload(mod)
+
+
+def test_lora_train_options_are_its_config(monkeypatch):
+    import importlib
+
+    from plantdreamer.lora.config import LoraTrainConfig
+
+    mod = importlib.import_module("plantdreamer.cli.lora")
+    patch_default(monkeypatch, LoraTrainConfig, "rank", 8)
+    try:
+        command = importlib.reload(mod).train
+        assert {p.name: p.default for p in command.params}["rank"] == 8
+        assert LoraTrainConfig("photos").rank == 8  # the API's default, the same field
+        assert "LoRA rank. [default: 8]" in " ".join(
+            CliRunner().invoke(command, ["--help"]).output.split()
+        )
+    finally:
+        monkeypatch.undo()
+        importlib.reload(mod)

@@ -106,10 +106,10 @@ def test_generate_turntable_both_and_view(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     _, images = read_mp4(out / "turntable.mp4")
     assert len(images) == 3 and len(iio.imread(out / "turntable.gif", index=None)) == 3
-    assert json.loads((out / "run.json").read_text())["config"]["outputs"]["turntable"] == "both"
+    assert json.loads((out / "run.json").read_text())["config"]["turntable"] == "both"
     assert viewed == [str(out / "plant.ply")]
     rendered = CliRunner().invoke(
-        main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--views", "2",
+        main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--eval-views", "2",
                "--resolution", "24", "--turntable", "mp4"],
     )  # fmt: skip
     assert rendered.exit_code == 0, rendered.output

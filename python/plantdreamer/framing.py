@@ -16,8 +16,9 @@ import numpy as np
 
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
+from plantdreamer.pointcloud import NormalizeTransform
 
-__all__ = ["TRIM", "UP_AXES", "robust_center_extent", "rotate_up"]
+__all__ = ["TRIM", "UP_AXES", "robust_center_extent", "rotate_up", "to_scene_frame"]
 
 TRIM = 0.02  # weight trimmed on each side of every axis when measuring the size
 
@@ -84,3 +85,24 @@ def rotate_up(g: Gaussians, up: str) -> Gaussians:
         axis=1,
     ).astype(np.float32)
     return Gaussians(means, quats, g.log_scales.copy(), g.opacity_logits.copy(), g.sh.copy())
+
+
+def to_scene_frame(
+    g: Gaussians,
+    size: float = 4.0,
+    *,
+    up: str = "z",
+    center: tuple[float, float, float] | None = None,
+) -> tuple[Gaussians, NormalizeTransform]:
+    """Frames any model for the orbit: axis ``up`` turned onto +z, centred on its robust
+    centre (or ``center``, in the model's own frame), the longest side of its robust box
+    scaled to ``size``. Returns it and the transform from the (turned) model's frame, exact
+    for ``up="z"``, where nothing is turned."""
+    g = rotate_up(g, up)
+    mid, extent = robust_center_extent(g)
+    if center is not None:
+        mid = UP_AXES[up][0] @ np.asarray(center, dtype=np.float64)
+    transform = NormalizeTransform(
+        center=(float(mid[0]), float(mid[1]), float(mid[2])), scale=float(size / extent)
+    )
+    return transform.gaussians_to_scene(g), transform

@@ -146,6 +146,20 @@ class Gaussians:
             None if self.labels is None else self.labels.copy(),
         )
 
+    def moved(self, means: np.ndarray, log_scale_shift: float) -> Gaussians:
+        """These Gaussians under a similarity transform without rotation: at ``means`` (its
+        image of their means, computed in float64 and cast here once) and every log-scale
+        plus ``log_scale_shift`` (log of the transform's scale, added in float32).
+        Orientations, opacities, colours and labels are copied."""
+        return Gaussians(
+            np.asarray(means, dtype=np.float32),
+            self.quats.copy(),
+            (self.log_scales + np.float32(log_scale_shift)).astype(np.float32),
+            self.opacity_logits.copy(),
+            self.sh.copy(),
+            None if self.labels is None else self.labels.copy(),
+        )
+
     def subset(self, index: np.ndarray) -> Gaussians:
         return Gaussians(
             self.means[index],

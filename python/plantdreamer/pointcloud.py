@@ -17,11 +17,15 @@ import json
 import math
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from plantdreamer import _core
 from plantdreamer.errors import InputError
+
+if TYPE_CHECKING:
+    from plantdreamer.gaussians import Gaussians
 
 __all__ = [
     "NormalizeTransform",
@@ -135,10 +139,19 @@ class NormalizeTransform:
         p = np.asarray(points)
         return (p / self.scale + np.asarray(self.center)).astype(p.dtype, copy=False)
 
-    def invert_log_scales(self, log_scales: np.ndarray) -> np.ndarray:
-        """Gaussian log-scales in the original frame (log s - log scale)."""
-        s = np.asarray(log_scales)
-        return (s - math.log(self.scale)).astype(s.dtype, copy=False)
+    def gaussians_to_scene(self, g: Gaussians, means: np.ndarray | None = None) -> Gaussians:
+        """Gaussians of the original frame in the normalised one (``apply`` to the means,
+        in float64: ``means`` when the caller holds them more precisely than ``g``)."""
+        original = np.asarray(g.means if means is None else means, dtype=np.float64)
+        return g.moved(self.apply(original), math.log(self.scale))
+
+    def gaussians_to_original(self, g: Gaussians, offset: np.ndarray | None = None) -> Gaussians:
+        """Normalised Gaussians back in the original frame (``invert``, in float64), minus
+        ``offset`` before the float32 cast (no precision lost to a far origin)."""
+        means = self.invert(g.means.astype(np.float64))
+        if offset is not None:
+            means = means - offset
+        return g.moved(means, -math.log(self.scale))
 
     def to_dict(self) -> dict[str, object]:
         return {"center": list(self.center), "scale": self.scale}

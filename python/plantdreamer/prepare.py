@@ -31,6 +31,13 @@ from plantdreamer.pointcloud import (
     remove_statistical_outliers,
 )
 
+# The steps' defaults; generate's input section (pipeline/source.py) and the `prepare`
+# command take theirs from here.
+TARGET_POINTS = 100_000
+SOR_NEIGHBORS = 20
+SOR_STD = 3.0
+TOLERANCE = 0.05  # the voxel grid aims at target +- this fraction
+
 
 @dataclass
 class PrepareReport:
@@ -42,11 +49,11 @@ class PrepareReport:
 
 def prepare_cloud(
     cloud: PointCloud,
-    target: int | None = 100_000,
-    sor_neighbors: int = 20,
-    sor_std: float = 3.0,
+    target: int | None = TARGET_POINTS,
+    sor_neighbors: int = SOR_NEIGHBORS,
+    sor_std: float = SOR_STD,
     normalize_size: float | None = None,
-    tolerance: float = 0.05,
+    tolerance: float = TOLERANCE,
     log: Callable[[str, int], None] | None = None,
     sor_after_voxel: bool = False,
     label_fields: Sequence[str] = (),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
+import math
 import numbers
 import types
 import typing
@@ -158,7 +159,9 @@ def check_choices(config: Any) -> None:
 
 
 def check_types(config: Any) -> None:
-    """ValueError naming the first setting whose value is not of its annotated type.
+    """ValueError naming the first setting whose value is not of its annotated type, or
+    is a number that is not finite: the one check of a setting's number (3.7 points is an
+    error, not 3; NaN is no grey level).
 
     A config built from a file or ``--set`` can hold any TOML value (a list where a path
     belongs); this refuses it when the config is checked, before any run starts.
@@ -167,6 +170,13 @@ def check_types(config: Any) -> None:
         value = value_at(config, s.path)
         if not _has_type(value, s.type):
             raise ValueError(f"{s.name} must be {_type_text(s.type)}, got {value!r}")
+        numbers_in = value if isinstance(value, tuple) else (value,)
+        if any(_is_real(v) and not math.isfinite(v) for v in numbers_in):
+            raise ValueError(f"{s.name} must be finite, got {value!r}")
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def _has_type(value: Any, expected: Any) -> bool:
@@ -180,7 +190,7 @@ def _has_type(value: Any, expected: Any) -> bool:
     if expected is int:
         return isinstance(value, numbers.Integral) and not isinstance(value, bool)
     if expected is float:
-        return isinstance(value, numbers.Real) and not isinstance(value, bool)
+        return _is_real(value)
     if typing.get_origin(expected) is tuple:
         return (
             isinstance(value, tuple)

@@ -6,9 +6,16 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.settings import by_name
+
+# generate's --background (the grey its views are rendered on), the default here too.
+GREY = by_name(GenerateConfig)["background"].default
+
 
 def parse_background(value: str) -> tuple[float, float, float]:
-    """``"R,G,B"`` with components in [0, 1] (e.g. ``0.75,0.75,0.75``)."""
+    """``"R,G,B"`` with components in [0, 1] (e.g. ``0.75,0.75,0.75``), or one grey level
+    as generate and render take it (``0.75``)."""
     from plantdreamer.errors import InputError
 
     parts = [p.strip() for p in value.split(",")]
@@ -16,8 +23,10 @@ def parse_background(value: str) -> tuple[float, float, float]:
         rgb = tuple(float(p) for p in parts)
     except ValueError:
         rgb = ()
+    if len(rgb) == 1:
+        rgb = rgb * 3
     if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
-        raise InputError(f"--background must be R,G,B with values in [0, 1], got {value!r}")
+        raise InputError(f"--background must be a grey level or R,G,B in [0, 1], got {value!r}")
     return (rgb[0], rgb[1], rgb[2])
 
 
@@ -38,9 +47,10 @@ def parse_background(value: str) -> tuple[float, float, float]:
 )
 @click.option(
     "--background",
-    default="0.75,0.75,0.75",
+    default=str(GREY),
     show_default=True,
-    help="Render background R,G,B in [0, 1]; RGBA images are composited over it too.",
+    help="Render background: a grey level (as generate's) or R,G,B, in [0, 1]; RGBA images "
+    "are composited over it too.",
 )
 @click.option("--strip-views", default=4, show_default=True, help="Views shown in the image strip.")
 @click.option("--overwrite", is_flag=True, help="Replace an earlier report at --out.")

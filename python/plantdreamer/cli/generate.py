@@ -14,7 +14,12 @@ from typing import Any
 
 import click
 
-from plantdreamer.cli.options import config_options, given_on_command_line, options_to_settings
+from plantdreamer.cli.options import (
+    config_options,
+    given_on_command_line,
+    options_to_settings,
+    typed_options,
+)
 from plantdreamer.pipeline.config import GenerateConfig
 
 
@@ -66,7 +71,7 @@ def build_command() -> click.Command:
         and ground truth per view: labels/, instances/, depth/, transforms.json."""
         from plantdreamer.pipeline import RunInterrupted
 
-        given = _given(ctx)
+        given = typed_options(ctx)
         try:
             if resume_dir is not None:
                 if print_config:
@@ -163,14 +168,6 @@ def _group_results(group) -> list:
             f"({failures}); see {group.out_dir / 'group.json'}"
         )
     return [result for _, result in sorted(group.done.items())]
-
-
-def _given(ctx: click.Context) -> set[str]:
-    """The options typed on the command line (not defaults): a resume must not ignore them."""
-    from click.core import ParameterSource
-
-    typed = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
-    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
 
 
 generate = build_command()

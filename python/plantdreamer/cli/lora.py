@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import click
 
+from plantdreamer.cli.options import config_options, options_to_settings
+from plantdreamer.lora.config import LoraTrainConfig
+
 
 @click.group()
 def lora() -> None:
@@ -12,52 +15,15 @@ def lora() -> None:
 
 @lora.command()
 @click.argument("images_dir", type=click.Path(file_okay=False, path_type=str))
-@click.option("--species", default="bean", show_default=True, help="Plant species name.")
-@click.option(
-    "--base-model",
-    default="stabilityai/stable-diffusion-2-1-base",
-    show_default=True,
-    help="Hub id or local folder of the Stable Diffusion model.",
-)
-@click.option("--rank", default=4, show_default=True, help="LoRA rank.")
-@click.option("--alpha", type=int, default=None, help="LoRA alpha (default: the rank).")
-@click.option("--steps", default=1500, show_default=True, help="Optimiser steps.")
-@click.option("--resolution", default=512, show_default=True, help="Training crop size (px).")
-@click.option("--lr", "learning_rate", default=1e-4, show_default=True, help="AdamW learning rate.")
-@click.option("--batch-size", default=1, show_default=True)
-@click.option("--grad-accum", default=1, show_default=True, help="Gradient accumulation steps.")
-@click.option("--seed", default=0, show_default=True)
-@click.option(
-    "--caption-template",
-    default=None,
-    help="Caption for images without a <name>.txt beside them "
-    "[default: the generation prompt template, 'a {species} plant in a pot'].",
-)
-@click.option(
-    "--checkpoint-every", default=500, show_default=True, help="Steps between checkpoints."
-)
-@click.option("--resume", is_flag=True, help="Continue from the latest checkpoint in --out.")
-@click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out.")
-@click.option(
-    "--mixed-precision/--no-mixed-precision",
-    default=None,
-    help="fp16 autocast (default: on with a CUDA GPU, off on the CPU).",
-)
-@click.option("--device", default=None, help="torch device (default: cuda if available).")
-@click.option(
-    "--validate", default=0, show_default=True, help="Sample images to render after training."
-)
-@click.option("--out", default=None, help="Output folder (default: lora/<species>).")
-def train(images_dir: str, out: str | None, **options: object) -> None:
+@config_options(LoraTrainConfig)
+def train(images_dir: str, **options: object) -> None:
     """Train a LoRA on the photos in IMAGES_DIR (captions from <name>.txt or the template)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from plantdreamer.lora.train import LoraTrainConfig, train_lora
+    from plantdreamer.lora.train import train_lora
 
-    out = out or f"lora/{options['species']}"
-    if options["caption_template"] is None:
-        del options["caption_template"]  # the config's default: the generation template
-    config = LoraTrainConfig(images_dir=images_dir, out=out, **options)  # type: ignore[arg-type]
+    values = options_to_settings(LoraTrainConfig, options)
+    config = LoraTrainConfig.from_settings(images_dir, values)
     with Progress(
         TextColumn("[bold]lora[/bold] step {task.completed}/{task.total}"),
         BarColumn(),

@@ -40,12 +40,12 @@ def _option(s: settings.Setting, with_default: bool, note: str) -> Callable[[F],
     kind = _click_type(s)
     default = s.default if with_default else None
     help_text = meta[settings.HELP] + note
+    shown = text if text is not None else s.default is not None
     if kind is bool:
         return click.option(
             f"--{s.name}/--no-{s.name}", s.param, default=default, help=help_text,
-            show_default=with_default,
+            show_default=shown if with_default else False,
         )  # fmt: skip
-    shown = text if text is not None else s.default is not None
     return click.option(
         f"--{s.name}",
         s.param,
@@ -89,11 +89,47 @@ def config_from_options(cls: type, values: dict[str, Any]) -> Any:
     return cls.from_settings(options_to_settings(cls, values))  # type: ignore[attr-defined]
 
 
+def old_names(cls: type, aliases: dict[str, str]) -> Callable[[F], F]:
+    """Hidden options under settings' earlier names (``{"--views": "eval-views"}``), so
+    old command lines keep working; ``apply_old_names`` moves a typed one onto its setting."""
+    known = settings.by_name(cls)
+
+    def decorate(command: F) -> F:
+        for old, name in aliases.items():
+            s = known[name]
+            kind = _click_type(s)
+            command = click.option(old, _old_param(old), type=kind, hidden=True)(command)
+        return command
+
+    return decorate
+
+
+def apply_old_names(values: dict[str, Any], aliases: dict[str, str]) -> set[str]:
+    """Consumes the ``old_names`` options from ``values``: each one typed replaces its
+    setting's value. Returns the settings' parameters so given."""
+    given = set()
+    for old, name in aliases.items():
+        value = values.pop(_old_param(old))
+        if value is not None:
+            values[name.replace("-", "_")] = value
+            given.add(name.replace("-", "_"))
+    return given
+
+
+def _old_param(old: str) -> str:
+    return "old_" + old.lstrip("-").replace("-", "_")
+
+
+def typed_options(ctx: click.Context | None = None) -> set[str]:
+    """The parameters (click names) of ``ctx`` (default: the current command) that the
+    user typed, on the command line or in the environment, not left at their defaults:
+    the one test of "was this option given"."""
+    ctx = ctx or click.get_current_context()
+    typed = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
+    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
+
+
 def given_on_command_line(values: dict[str, Any]) -> dict[str, Any]:
-    """The values of the current click command that were not left at their defaults."""
-    ctx = click.get_current_context()
-    return {
-        name: value
-        for name, value in values.items()
-        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT
-    }
+    """The ``values`` of the current command's options that the user typed."""
+    typed = typed_options()
+    return {name: value for name, value in values.items() if name in typed}

@@ -3,8 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
+
+from plantdreamer.cli.options import apply_old_names, config_options, old_names, options_to_settings
+from plantdreamer.pipeline.config import GenerateConfig
+
+# generate's input-section settings that prepare applies, under their names and defaults.
+PREPARE_SETTINGS = (
+    "points", "sor-neighbors", "sor-std", "sor-after-voxel", "downsample-tolerance", "scene-size",
+)  # fmt: skip
+OLD_NAMES = {"--target": "points", "--size": "scene-size"}  # prepare's earlier names (hidden)
 
 
 def transform_path(output: Path) -> Path:
@@ -15,55 +25,41 @@ def transform_path(output: Path) -> Path:
 @click.command()
 @click.argument("input_ply", metavar="INPUT.ply", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Output PLY.")
-@click.option(
-    "--target",
-    type=click.IntRange(min=0),
-    default=100_000,
-    show_default=True,
-    help="Voxel-downsample to this many points (+-5%); 0 keeps every point.",
-)
-@click.option(
-    "--sor-neighbors",
-    type=click.IntRange(min=0),
-    default=20,
-    show_default=True,
-    help="Neighbours of statistical outlier removal; 0 skips it.",
-)
-@click.option("--sor-std", type=float, default=3.0, show_default=True, help="SOR std ratio.")
+@config_options(GenerateConfig, only=PREPARE_SETTINGS)
+@old_names(GenerateConfig, OLD_NAMES)
 @click.option(
     "--normalize",
     "do_normalize",
     is_flag=True,
-    help="Centre on the bounding-box midpoint, longest side --size; writes "
+    help="Centre on the bounding-box midpoint, longest side --scene-size; writes "
     "OUTPUT.transform.json to restore the original frame.",
 )
-@click.option("--size", type=float, default=4.0, show_default=True, help="Longest side.")
 @click.option("--ascii", is_flag=True, help="Write an ascii PLY instead of binary.")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT (and its transform) if they exist.")
 def prepare(
-    input_ply: Path,
-    output: Path,
-    target: int,
-    sor_neighbors: int,
-    sor_std: float,
-    do_normalize: bool,
-    size: float,
-    ascii: bool,
-    overwrite: bool,
+    input_ply: Path, output: Path, do_normalize: bool, ascii: bool, overwrite: bool, **options: Any
 ) -> None:
-    """Remove outliers, downsample and (optionally) normalise INPUT.ply.
+    """Remove outliers, downsample and (optionally) normalise INPUT.ply, as generate
+    prepares a --pointcloud (the same settings, names and defaults).
 
-    Steps: drop non-finite points, statistical outlier removal (Open3D semantics),
-    voxel grid to --target points, normalisation. Prints the count after each step.
+    Steps: drop non-finite points, statistical outlier removal (Open3D semantics; 0
+    --sor-neighbors skips it), voxel grid to --points (0 keeps every point), normalisation.
+    Prints the count after each step.
     """
+    from plantdreamer.errors import InputError
     from plantdreamer.output_folder import claim_files
 
+    apply_old_names(options, OLD_NAMES)
+    values = options_to_settings(GenerateConfig, options)
+    for name in ("points", "sor-neighbors"):
+        if values[name] < 0:
+            raise InputError(f"--{name} must not be negative, got {values[name]}")
     # The transform is claimed too: a stale one beside a new, unnormalised output would lie.
     with claim_files([output, transform_path(output)], overwrite=overwrite):
-        _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, size, ascii)
+        _prepare(input_ply, output, values, do_normalize, ascii)
 
 
-def _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, size, ascii) -> None:
+def _prepare(input_ply, output, values, do_normalize, ascii) -> None:
     from plantdreamer.io import read_ply, write_ply
     from plantdreamer.prepare import prepare_cloud
 
@@ -74,11 +70,13 @@ def _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, si
 
     prepared, transform, report = prepare_cloud(
         cloud,
-        target=target or None,
-        sor_neighbors=sor_neighbors,
-        sor_std=sor_std,
-        normalize_size=size if do_normalize else None,
+        target=values["points"] or None,
+        sor_neighbors=values["sor-neighbors"],
+        sor_std=values["sor-std"],
+        normalize_size=values["scene-size"] if do_normalize else None,
+        tolerance=values["downsample-tolerance"],
         log=log,
+        sor_after_voxel=values["sor-after-voxel"],
     )
     if report.voxel_size > 0:
         click.echo(f"voxel size         {report.voxel_size:.6g}")

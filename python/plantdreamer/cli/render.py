@@ -4,10 +4,29 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import click
 
-from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+from plantdreamer.cli.options import (
+    apply_old_names,
+    config_options,
+    old_names,
+    options_to_settings,
+    typed_options,
+)
+from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.rerender import ORBIT
+from plantdreamer.turntable import TURNTABLE_FRAMES
+
+# The orbit, background and turntable are generate's settings, under generate's names and
+# defaults; the render size is render's own (generate's --resolution is decided at run time).
+ORBIT_SETTINGS = (*(name for name in ORBIT if name != "resolution"), "turntable")
+# The names render gave them before (hidden, still accepted).
+OLD_NAMES = {
+    "--views": "eval-views", "--distance": "eval-distance", "--elevation": "eval-elevation-deg",
+    "--fovy": "eval-fovy-deg",
+}  # fmt: skip
 
 # What render writes into --out; --overwrite deletes these first.
 RENDER_OUTPUTS = (
@@ -29,12 +48,9 @@ RENDER_OUTPUTS = (
 @click.option(
     "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
 )
-@click.option("--eval-views", "views", default=120, show_default=True, help="Views on the orbit.")
-@click.option("--views", "views_alias", type=int, hidden=True)  # the name before --eval-views
-@click.option("--resolution", default=512, show_default=True)
-@click.option(
-    "--distance", default=4.0, show_default=True, help="Orbit radius; the model's size is 4."
-)
+@config_options(GenerateConfig, only=ORBIT_SETTINGS)
+@old_names(GenerateConfig, OLD_NAMES)
+@click.option("--resolution", default=512, show_default=True, help="Render size.")
 @click.option(
     "--up",
     type=click.Choice(["z", "y", "x", "-z", "-y", "-x"]),
@@ -46,18 +62,6 @@ RENDER_OUTPUTS = (
     "--center",
     help="X,Y,Z in the model's own frame to orbit around [default: the opacity-weighted "
     "median of the Gaussians].",
-)
-@click.option(
-    "--elevation", default=15.0, show_default=True, help="Degrees above the ground plane."
-)
-@click.option("--fovy", default=70.0, show_default=True)
-@click.option("--background", default=0.75, show_default=True, help="Grey level behind the plant.")
-@click.option(
-    "--turntable",
-    type=click.Choice(TURNTABLE_FORMATS),
-    default="gif",
-    show_default=True,
-    help="turntable.gif, turntable.mp4, both or none (orbit only).",
 )
 @click.option(
     "--transforms",
@@ -78,19 +82,13 @@ def render(
     ctx: click.Context,
     ply: str,
     out_dir: str,
-    views: int,
     resolution: int,
-    distance: float,
-    elevation: float,
-    fovy: float,
-    background: float,
-    turntable: str,
     transforms: str | None,
     ground_truth: bool,
     overwrite: bool,
-    views_alias: int | None,
     up: str,
     center: str | None,
+    **options: Any,
 ) -> None:
     """Render a 3DGS PLY (ours or another tool's) to PNGs, plus a turntable GIF and/or MP4.
 
@@ -112,29 +110,23 @@ def render(
         path = path / "plant.ply"
     if not path.is_file():
         raise FileNotFoundError(f"PLY not found: {path}")
-    views = views_alias if views_alias is not None else views
+    given = typed_options(ctx) | apply_old_names(options, OLD_NAMES)
+    orbit = {**options_to_settings(GenerateConfig, options), "resolution": resolution}
     target = None if center is None else parse_center(center)
     frame = GenerateFrame.beside(path) if up == "z" and target is None else None
     if frame is not None:  # generate's orbit, for the settings not given here
-        given = {
-            "views": _given(ctx, "views") or views_alias is not None,
-            **{name: _given(ctx, name) for name in frame.orbit if name != "views"},
-        }
-        orbit: dict[str, float] = {
-            "views": views, "distance": distance, "elevation": elevation, "fovy": fovy,
-            "resolution": resolution, "background": background,
-        }  # fmt: skip
-        orbit.update({k: v for k, v in frame.orbit.items() if not given[k]})
-        views, resolution = int(orbit["views"]), int(orbit["resolution"])
-        distance, elevation, fovy = orbit["distance"], orbit["elevation"], orbit["fovy"]
-        background = orbit["background"]
+        typed = {k for k in frame.orbit if k.replace("-", "_") in given}
+        orbit.update({k: v for k, v in frame.orbit.items() if k not in typed})
+    views, resolution = int(orbit["eval-views"]), int(orbit["resolution"])
+    distance, elevation = orbit["eval-distance"], orbit["eval-elevation-deg"]
+    fovy, background, turntable = orbit["eval-fovy-deg"], orbit["background"], orbit["turntable"]
     if not 0.0 <= background <= 1.0:  # also refuses NaN
         raise InputError(f"--background must be a grey level in [0, 1], got {background}")
     if views < 1:
-        raise InputError(f"--views must be at least 1, got {views}")
+        raise InputError(f"--eval-views must be at least 1, got {views}")
     check_image_size(resolution, resolution, "--resolution")
     if not (math.isfinite(distance) and distance > 0 and 0 < fovy < 180):
-        raise InputError("--distance must be positive and --fovy in (0, 180) degrees")
+        raise InputError("--eval-distance must be positive and --eval-fovy-deg in (0, 180) degrees")
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
         raise InputError("--labels writes poses in the PLY's own frame; use it with --up z")
@@ -163,12 +155,6 @@ def render(
     click.echo(f"wrote {len(frames)} views of {len(gaussians)} Gaussians to {out}")
 
 
-def _given(ctx: click.Context, name: str) -> bool:
-    from click.core import ParameterSource
-
-    return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
-
-
 def parse_center(value: str) -> tuple[float, float, float]:
     from plantdreamer.errors import InputError
 
@@ -185,14 +171,14 @@ def _scene(gaussians, frame, own_frame: bool, up: str, center):
     """The model in the frame it is rendered in, and the transform from the PLY's frame:
     generate's (a PLY beside its run.json), the PLY's own (cameras of a transforms.json),
     or a robust framing for the orbit."""
-    from plantdreamer.pipeline import outputs
-    from plantdreamer.pipeline.rerender import IDENTITY, scene_gaussians
+    from plantdreamer.framing import to_scene_frame
+    from plantdreamer.pipeline.rerender import IDENTITY
 
     if frame is not None:
         return frame.to_scene(gaussians), frame.transform
     if own_frame:
-        return scene_gaussians(gaussians, gaussians.means.astype("float64"), IDENTITY), IDENTITY
-    return outputs.to_scene_frame(gaussians, up=up, center=center)
+        return gaussians, IDENTITY
+    return to_scene_frame(gaussians, up=up, center=center)
 
 
 def _render_views(scene, transform, cameras, out, background, ground_truth, ply):

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from plantdreamer.errors import InputError
-from plantdreamer.exports.dataset import PLANTS_DIR, SPLITS_FILE, finished_plants
+from plantdreamer.exports.dataset import SPLITS_FILE
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
     PlantClasses,
@@ -35,6 +35,7 @@ from plantdreamer.exports.instances import (
     read_png,
     view_objects,
 )
+from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
 from plantdreamer.exports.splits import SPLITS
 
 

@@ -17,7 +17,7 @@ from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.scheduler import Unit
 from plantdreamer.dataset.tasks import LOG_NAME
 from plantdreamer.errors import PlantDreamerError
-from plantdreamer.exports.dataset import PLANTS_DIR
+from plantdreamer.exports.listing import PLANTS_DIR
 
 # A plant's files that make it complete (with a `done` record of the same config).
 COMPLETE_FILES = ("plant.ply", "run.json")

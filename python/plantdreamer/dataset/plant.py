@@ -3,6 +3,7 @@ its finished files are up to date (settings and the input file's contents)."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
@@ -31,8 +32,10 @@ class Plant:
 
 def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     """A stable hash of every setting (sorted JSON) and of the input file's contents
-    (``source_digest``), to tell whether a plant is up to date."""
-    text = json.dumps(cfg.to_dict(), sort_keys=True, separators=(",", ":"))
+    (``source_digest``), to tell whether a plant is up to date. It hashes the config's
+    sections (the saved form of 689da5e), so the manifests of datasets made before records
+    used setting names still match their plants."""
+    text = json.dumps(dataclasses.asdict(cfg), sort_keys=True, separators=(",", ":"))
     if source_digest is not None:
         text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -7,7 +7,7 @@
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
 - ``gallery.png``, the contact sheet (``exports.gallery``).
 
-A plant counts once its ``run.json`` is written (the last file of a run).
+The plants are those ``exports.listing`` finds finished.
 """
 
 from __future__ import annotations
@@ -21,19 +21,13 @@ from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.gallery import write_gallery
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses
+from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, plant_views, write_plant_exports
 from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED, SPLITS, split_plants
 
-PLANTS_DIR = "plants"  # a dataset's plant folders (dataset/runner.py writes them)
 SPLITS_FILE = "splits.json"
-
-
-@dataclass(frozen=True)
-class PlantEntry:
-    id: str
-    folder: Path
-    species: str  # the L-System species, or the point cloud's file name
 
 
 @dataclass(frozen=True)
@@ -50,26 +44,6 @@ class DatasetLabels:
     splits: dict[str, list[str]]
     report: LabelReport
     gallery: Path
-
-
-def finished_plants(dataset_dir: Path) -> list[PlantEntry]:
-    """The plants of a dataset folder whose run finished, sorted by id."""
-    plants = []
-    for run_json in sorted((Path(dataset_dir) / PLANTS_DIR).glob("*/run.json")):
-        plants.append(PlantEntry(run_json.parent.name, run_json.parent, plant_species(run_json)))
-    return plants
-
-
-def plant_species(run_json: Path) -> str:
-    from plantdreamer.pipeline.config import from_record
-
-    try:
-        source = from_record(json.loads(run_json.read_text()).get("config", {})).source
-    except (InputError, TypeError, AttributeError):
-        return "?"
-    if source.species:
-        return str(source.species)
-    return Path(str(source.pointcloud or "?")).name
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
@@ -122,8 +96,6 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
         coco.write(dataset_dir / "coco" / f"{split}.json", report.info(f"{split} split", min_area))
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, names)
-    from plantdreamer.exports.gallery import write_gallery  # it reads this module's listing
-
     return DatasetLabels(splits, total, write_gallery(dataset_dir))
 
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
-from plantdreamer.exports.dataset import PLANTS_DIR, finished_plants, plant_species
 from plantdreamer.exports.instances import read_png, read_transforms
+from plantdreamer.exports.listing import PLANTS_DIR, finished_plants, plant_species
 
 GALLERY_FILE = "gallery.png"
 PANEL_INCHES = 1.8  # one image, at 100 dpi

@@ -28,7 +28,6 @@ from plantdreamer.atomic import write_json
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
 from plantdreamer.guidance.models import (
-    DEFAULT_BASE_MODEL,
     DiffusionComponents,
     load_base_model,
     local_files_only,
@@ -41,7 +40,8 @@ from plantdreamer.lora.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from plantdreamer.lora.dataset import DEFAULT_CAPTION, Example, load_examples
+from plantdreamer.lora.config import LoraTrainConfig
+from plantdreamer.lora.dataset import load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
 from plantdreamer.output_folder import claim_folder
@@ -49,74 +49,6 @@ from plantdreamer.versions import package_versions
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
 ADAPTER = "default"
-
-
-@dataclass
-class LoraTrainConfig:
-    """Settings of one training run (``plantdreamer lora train --help`` lists them)."""
-
-    images_dir: str
-    species: str = "bean"
-    base_model: str = DEFAULT_BASE_MODEL
-    out: str = "lora/bean"
-    rank: int = 4
-    alpha: int | None = None  # LoRA alpha; None = rank (scale 1)
-    steps: int = 1500
-    resolution: int = 512
-    learning_rate: float = 1e-4
-    batch_size: int = 1
-    grad_accum: int = 1
-    seed: int = 0
-    caption_template: str = DEFAULT_CAPTION
-    checkpoint_every: int = 500
-    resume: bool = False
-    overwrite: bool = False  # delete an earlier run's outputs in ``out`` first
-    mixed_precision: bool | None = None  # None: on for CUDA
-    device: str | None = None
-    validate: int = 0
-    validation_steps: int = 25
-
-    def check(self) -> None:
-        for name in ("rank", "alpha", "steps", "resolution", "batch_size", "grad_accum", "seed",
-                     "checkpoint_every", "validate", "validation_steps"):  # fmt: skip
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
-                raise InputError(f"{name} must be an integer, got {value!r}")
-        if not 0 <= self.seed < 2**32:
-            raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
-        if not (isinstance(self.learning_rate, (int, float)) and math.isfinite(self.learning_rate)):
-            raise InputError(f"learning rate must be a finite number, got {self.learning_rate!r}")
-        positive = {
-            "rank": self.rank,
-            "steps": self.steps,
-            "resolution": self.resolution,
-            "batch_size": self.batch_size,
-            "grad_accum": self.grad_accum,
-            "checkpoint_every": self.checkpoint_every,
-        }
-        bad = [f"{k}={v}" for k, v in positive.items() if v <= 0]
-        if bad or not self.learning_rate > 0 or self.validate < 0:
-            raise InputError(f"settings must be positive: {', '.join(bad) or 'learning_rate'}")
-        if self.resolution % 8:
-            raise InputError(f"resolution must be a multiple of 8, got {self.resolution}")
-
-    def fingerprint(self, examples: list[Example]) -> dict[str, Any]:
-        """What a resumed run must share with its checkpoint (``steps`` may grow)."""
-        keys = [
-            "species",
-            "base_model",
-            "rank",
-            "alpha",
-            "resolution",
-            "learning_rate",
-            "batch_size",
-            "grad_accum",
-            "seed",
-            "caption_template",
-        ]
-        fp: dict[str, Any] = {k: getattr(self, k) for k in keys}
-        fp["images"] = [e.path.name for e in examples]
-        return fp
 
 
 @dataclass
@@ -184,7 +116,7 @@ def train_lora(
     one needs a checkpoint there.
     """
     config.check()
-    out = Path(config.out)
+    out = Path(config.out_dir)
     if config.resume and config.overwrite:
         raise InputError("overwrite starts afresh; it cannot go with resume")
     if config.resume and not list_checkpoints(out):
@@ -212,7 +144,7 @@ def _train(
     if mixed and device.type != "cuda":
         raise InputError("mixed precision needs a CUDA GPU; run without --mixed-precision")
     weight_dtype = torch.float16 if mixed else torch.float32
-    out = Path(config.out)
+    out = Path(config.out_dir)
     examples = load_examples(
         config.images_dir, config.species, config.resolution, config.caption_template
     )
@@ -307,7 +239,7 @@ def _train(
             {
                 "format": "diffusers LoRA (unet.<module>.lora.down/up.weight), alpha folded in",
                 "target_modules": list(TARGET_MODULES),
-                "config": asdict(config),
+                "config": {**asdict(config), "out": config.out_dir},
                 "images": fingerprint["images"],
                 "captions": sorted({e.caption for e in examples}),
                 "steps_done": len(losses),

@@ -4,16 +4,16 @@
 (``source.py``), ``init`` (``init.py``), ``train`` (``train_config.py``), ``sds``
 (``guidance/config.py``), ``density`` (``density.py``) and ``outputs`` (``outputs.py``). Each
 setting has one name (``plantdreamer.settings``): the CLI option, the spec key, the ``--set``
-key and the ``--resume`` key. ``run.json`` and each checkpoint store ``to_dict()`` and
-``--resume`` rebuilds the config with ``from_dict``, so a run continues with exactly the
-settings it started with.
+key, the ``--resume`` key and the key it is saved under. ``run.json``, ``group.json`` and each
+checkpoint store ``to_dict()`` (``{"points": 2000, "densify-every": 100, ...}``, brush saves
+its flags' names too) and ``from_dict`` (``from_record``) reads it back, or a record of an
+earlier version, so a run continues with exactly the settings it started with.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -58,7 +58,7 @@ class GenerateConfig:
     @classmethod
     def from_settings(cls, values: Mapping[str, Any]) -> GenerateConfig:
         try:
-            return cls.from_dict(settings.names_to_tree(cls, values))
+            return _build(cls, settings.names_to_tree(cls, values))
         except ValueError as exc:
             raise InputError(str(exc)) from None
 
@@ -100,24 +100,10 @@ class GenerateConfig:
             check_template(self.sds.prompt_template)
 
     def _check_numbers(self) -> None:
-        """Integers are integers (3.7 points is an error, not 3), numbers are finite and
-        in range, counts fit in memory: no run starts on values it would silently garble."""
+        """Numbers in range and counts that fit in memory (their types and finiteness are
+        ``settings.check_types``'): no run starts on values it would silently garble."""
         from plantdreamer.cloud import check_point_count
 
-        for s in settings.walk(type(self)):
-            value = settings.value_at(self, s.path)
-            if s.type in (int, int | None) and value is not None:
-                if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-                    raise InputError(f"{s.name} must be an integer, got {value!r}")
-            if s.type in (float, float | None) and value is not None:
-                if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                    raise InputError(f"{s.name} must be a number, got {value!r}")
-                if not math.isfinite(value):
-                    raise InputError(f"{s.name} must be finite, got {value}")
-            if s.type == tuple[float, float]:
-                ok = isinstance(value, tuple) and len(value) == 2
-                if not ok or not all(_finite_number(v) for v in value):
-                    raise InputError(f"{s.name} must be two finite numbers, got {value!r}")
         if not 0 <= self.seed < 2**32:
             raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
         check_point_count(self.source.points, "points")
@@ -132,44 +118,31 @@ class GenerateConfig:
             if size is not None and not 8 <= size <= MAX_RESOLUTION:
                 raise InputError(f"{name} must be in 8..{MAX_RESOLUTION}, got {size}")
 
-    def structure(self) -> str | None:
-        """The registered species the L-System input grows (``structures`` applied)."""
-        from plantdreamer.lsystem.species import structure_for
-
-        species = self.source.species
-        return None if species is None else structure_for(species, self.source.structures)
-
-    def plant_name(self) -> str:
-        """The plant's name in the prompts (``bean`` for ``bean-released``)."""
-        from plantdreamer.lsystem.species import plant_name
-
-        return "plant" if self.source.species is None else plant_name(self.source.species)
-
-    def initial_opacity(self) -> float:
-        if self.init.opacity_init is not None:
-            return self.init.opacity_init
-        return 0.1 if self.source.pointcloud is not None else 0.7
-
     def to_dict(self) -> dict[str, Any]:
-        """Plain values only (dicts, lists, numbers, strings, None): JSON and checkpoints."""
-        return _plain(dataclasses.asdict(self))
+        """Every setting by its one name, plain values only (lists, numbers, strings,
+        None): the saved form of run.json, group.json and checkpoints."""
+        return _plain(self.settings())
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> GenerateConfig:
-        return _build(cls, data)
+    def from_dict(cls, data: Mapping[str, Any]) -> GenerateConfig:
+        """The config a record holds, in any saved form (``from_record``)."""
+        return from_record(data)
 
 
-def from_record(data: dict[str, Any]) -> GenerateConfig:
-    """The config a run.json or checkpoint recorded, of this version (sections) or an
-    earlier one (flat)."""
-    if "source" in data:
-        return GenerateConfig.from_dict(data)
+def from_record(data: Mapping[str, Any]) -> GenerateConfig:
+    """The config a run.json, group.json or checkpoint recorded: settings by name (this
+    version), the sections of the versions up to 689da5e (``{"source": {"points": ...}}``), or
+    the flat fields before them. The one reader of saved configs: resume, ``render`` and
+    the dataset driver all come through here."""
+    if isinstance(data.get("source"), Mapping):  # no setting is named "source"
+        return _build(GenerateConfig, data)
     return from_flat_dict(data)
 
 
-def from_flat_dict(data: dict[str, Any]) -> GenerateConfig:
-    """A config from the flat records of earlier versions (top-level fields, ``densify``,
-    ``cull``, ``lr`` and ``cameras`` nested once): each old key maps to one name."""
+def from_flat_dict(data: Mapping[str, Any]) -> GenerateConfig:
+    """A config from a flat record: settings by name, or the fields of the first versions
+    (top-level fields, ``densify``, ``cull``, ``lr`` and ``cameras`` nested once, ``_`` for
+    ``-``, ``n_points``): each key maps to one name."""
     values: dict[str, Any] = {}
     for key, value in data.items():
         if isinstance(value, dict):
@@ -182,11 +155,6 @@ def from_flat_dict(data: dict[str, Any]) -> GenerateConfig:
     )
 
 
-def _finite_number(value: Any) -> bool:
-    real = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    return real and math.isfinite(value)
-
-
 def _plain(value: Any) -> Any:
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
@@ -195,7 +163,7 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _build(cls: Any, data: dict[str, Any]) -> Any:
+def _build(cls: Any, data: Mapping[str, Any]) -> Any:
     """``cls`` from ``to_dict`` output; nested configs recursively, lists back to tuples."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(data) - set(fields)

@@ -2,7 +2,7 @@
 settings, its state and the two points of the loop where it acts.
 
 - ``after_backward(step, meta, camera)``: gathers the 2D-mean gradients of the step;
-- ``step_end(step, model)``: densifies and prunes (3DGS rules, ``densify.py``) and culls large
+- ``step_end(step, model)``: densifies and prunes (3DGS rules, ``density_ops.py``) and culls large
   Gaussians (paper Sec. 3.3, ``culling.py``) when due, and says what it did.
 
 The loop calls only these and ``state_dict`` / ``load_state_dict``, so a density rule changes
@@ -20,7 +20,7 @@ from plantdreamer.settings import option_prefix, setting
 
 if TYPE_CHECKING:
     from plantdreamer.cameras import Camera
-    from plantdreamer.pipeline.densify import DensifyStats
+    from plantdreamer.pipeline.density_ops import DensifyStats
     from plantdreamer.pipeline.model import GaussianModel
 
 
@@ -89,7 +89,7 @@ class DensityControl:
     """Density control of one plant: settings, gradient statistics, hooks."""
 
     def __init__(self, cfg: DensityConfig, seed: int, n_gaussians: int) -> None:
-        from plantdreamer.pipeline.densify import DensifyStats
+        from plantdreamer.pipeline.density_ops import DensifyStats
 
         self.cfg, self.seed = cfg, seed
         self.stats: DensifyStats = DensifyStats.zeros(n_gaussians)
@@ -107,7 +107,7 @@ class DensityControl:
         import torch
 
         from plantdreamer.pipeline.culling import large_gaussian_mask
-        from plantdreamer.pipeline.densify import DensifyStats, densify_and_prune
+        from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune, remove
 
         timed = timer or (lambda name: nullcontext())
         dens, cull, events = self.cfg.densify, self.cfg.cull, []
@@ -138,9 +138,7 @@ class DensityControl:
                     model.params["log_scales"], cull.threshold, cull.volume
                 )
                 if stats["culled"]:
-                    model.remove(mask)
-                if stats["culled"] and step < dens.until:
-                    self.stats = self.stats.subset(~mask)
+                    self.stats = remove(model, self.stats, mask)
             events.append({"step": step, "event": "cull", **stats, "gaussians": len(model)})
         return events
 
@@ -149,7 +147,7 @@ class DensityControl:
         return {"grad_sum": stats.grad_sum, "count": stats.count, "max_radius": stats.max_radius}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        from plantdreamer.pipeline.densify import DensifyStats
+        from plantdreamer.pipeline.density_ops import DensifyStats
 
         # Checkpoints before the screen-size prune hold no max_radius: zeros.
         self.stats = DensifyStats(state["grad_sum"], state["count"], state.get("max_radius"))

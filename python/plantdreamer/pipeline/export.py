@@ -53,7 +53,7 @@ def export_run(
         if offset is not None:
             comments = (outputs.offset_comment(offset),)
         comments += class_comments(class_names) if oc.labels else ()
-        exported = outputs.to_input_frame(final, state.transform, offset)
+        exported = state.transform.gaussians_to_original(final, offset)
         outputs.export_ply(ply_path, exported, oc.sh_degree_export, oc.labels, comments)
         # Views and ground truth of what plant.ply holds (positions as float32 in the
         # input frame, its SH degree), so `render` remakes them exactly.

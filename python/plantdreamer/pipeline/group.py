@@ -255,7 +255,7 @@ def _start(
 def _finished(folder: Path) -> RunResult:
     run = json.loads((folder / "run.json").read_text())
     return RunResult(
-        folder, folder / "plant.ply", run["config"]["train"]["steps"],
+        folder, folder / "plant.ply", GenerateConfig.from_dict(run["config"]).train.steps,
         run["gaussians"]["final"], run["timings_s"],
     )  # fmt: skip
 

@@ -42,6 +42,13 @@ class InitConfig:
         choices=INIT_SHAPES,
     )
 
+    def opacity(self, captured: bool) -> float:
+        """The initial opacity: ``opacity_init``, else the released code's default for a
+        point cloud (``captured``) or an L-System mesh."""
+        if self.opacity_init is not None:
+            return self.opacity_init
+        return 0.1 if captured else 0.7
+
 
 def initial_colors(
     colors: np.ndarray | None, n: int, mode: str, rng: np.random.Generator

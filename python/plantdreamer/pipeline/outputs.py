@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import functools
 import io
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,6 @@ import numpy as np
 
 from plantdreamer import atomic, turntable
 from plantdreamer.atomic import atomic_write
-from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
@@ -70,56 +68,6 @@ def offset_comment(offset: np.ndarray) -> str:
     )
 
 
-def to_input_frame(
-    g: Gaussians, transform: NormalizeTransform, offset: np.ndarray | None = None
-) -> Gaussians:
-    """Undo the normalisation: positions and scales back in the input's units and place,
-    minus ``offset`` (computed in float64, so no precision is lost before the subtraction)."""
-    means = transform.invert(g.means.astype(np.float64))
-    if offset is not None:
-        means = means - offset
-    return Gaussians(
-        np.asarray(means, dtype=np.float32),
-        g.quats.copy(),
-        np.asarray(transform.invert_log_scales(g.log_scales), dtype=np.float32),
-        g.opacity_logits.copy(),
-        g.sh.copy(),
-        None if g.labels is None else g.labels.copy(),
-    )
-
-
-def to_scene_frame(
-    g: Gaussians,
-    size: float = 4.0,
-    *,
-    up: str = "z",
-    center: tuple[float, float, float] | None = None,
-) -> tuple[Gaussians, NormalizeTransform]:
-    """Frames any model for the orbit: axis ``up`` turned onto +z, centred on its robust
-    centre (or ``center``, in the model's own frame), the longest side of its robust box
-    scaled to ``size`` (see ``plantdreamer.framing``). Returns it and the transform from the
-    (turned) model's frame, exact for ``up="z"``, where nothing is turned."""
-    from plantdreamer.framing import UP_AXES, robust_center_extent, rotate_up
-
-    g = rotate_up(g, up)
-    mid, extent = robust_center_extent(g)
-    if center is not None:
-        mid = UP_AXES[up][0] @ np.asarray(center, dtype=np.float64)
-    scale = size / extent
-    transform = NormalizeTransform(
-        center=(float(mid[0]), float(mid[1]), float(mid[2])), scale=float(scale)
-    )
-    scene = Gaussians(
-        ((g.means.astype(np.float64) - mid) * scale).astype(np.float32),
-        g.quats.copy(),
-        (g.log_scales + np.float32(math.log(scale))).astype(np.float32),
-        g.opacity_logits.copy(),
-        g.sh.copy(),
-        None if g.labels is None else g.labels.copy(),
-    )
-    return scene, transform
-
-
 def export_ply(
     path: Path,
     g: Gaussians,
@@ -132,14 +80,6 @@ def export_ply(
     from plantdreamer.io import write_splat_ply
 
     write_splat_ply(path, g, sh_degree=sh_degree, labels=labels, comments=comments)
-
-
-def render_orbit(
-    render, n: int, distance: float, elevation_deg: float, fovy_deg: float, resolution: int
-) -> list[np.ndarray]:
-    """uint8 [H, W, 3] images of the evaluation orbit; ``render(camera) -> [H, W, 3] float``."""
-    cameras = orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution)
-    return [to_uint8(render(cam)) for cam in cameras]
 
 
 def to_uint8(image) -> np.ndarray:

@@ -11,7 +11,6 @@ resolution) and the background.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,11 @@ from plantdreamer.pointcloud import NormalizeTransform
 
 RUN_FILE = "run.json"
 IDENTITY = NormalizeTransform(center=(0.0, 0.0, 0.0), scale=1.0)
+# The settings of generate's evaluation views (render takes them from run.json).
+ORBIT = (
+    "eval-views", "eval-distance", "eval-elevation-deg", "eval-fovy-deg", "resolution",
+    "background",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -34,7 +38,7 @@ class GenerateFrame:
 
     transform: NormalizeTransform
     offset: np.ndarray | None  # plant.ply holds positions minus this
-    orbit: dict[str, Any]  # views, distance, elevation, fovy, resolution, background
+    orbit: dict[str, Any]  # the settings ORBIT names, by name
 
     @classmethod
     def beside(cls, ply: Path) -> GenerateFrame | None:
@@ -46,14 +50,9 @@ class GenerateFrame:
             run = json.loads(path.read_text())
             cfg = from_record(run["config"])
             transform = NormalizeTransform.from_dict(run["transform"])
-            orbit = {
-                "views": int(cfg.outputs.eval_views),
-                "distance": float(cfg.outputs.eval_distance),
-                "elevation": float(cfg.outputs.eval_elevation_deg),
-                "fovy": float(cfg.outputs.eval_fovy_deg),
-                "resolution": int(cfg.train.resolution),  # type: ignore[arg-type]
-                "background": float(cfg.train.background),
-            }
+            orbit = {name: cfg.get(name) for name in ORBIT}
+            if orbit["resolution"] is None:
+                raise ValueError("no resolution recorded")
             offset = run.get("export_offset")
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, InputError) as exc:
             raise InputError(f"{path} is not a generate run.json ({exc})") from None
@@ -74,20 +73,7 @@ def exported_scene(
     means = g.means.astype(np.float64)
     if offset is not None:
         means = means + offset
-    return scene_gaussians(g, means, transform)
-
-
-def scene_gaussians(g: Gaussians, means: np.ndarray, transform: NormalizeTransform) -> Gaussians:
-    """``g`` with float64 input-frame ``means`` moved into ``transform``'s scene frame."""
-    center = np.asarray(transform.center, dtype=np.float64)
-    return Gaussians(
-        ((means - center) * transform.scale).astype(np.float32),
-        g.quats.copy(),
-        (g.log_scales + np.float32(math.log(transform.scale))).astype(np.float32),
-        g.opacity_logits.copy(),
-        g.sh.copy(),
-        None if g.labels is None else g.labels.copy(),
-    )
+    return transform.gaussians_to_scene(g, means)
 
 
 def scene_cameras(transforms: str | Path, transform: NormalizeTransform) -> list[Camera]:

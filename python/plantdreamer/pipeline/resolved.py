@@ -27,14 +27,14 @@ def resolved_settings(cfg: GenerateConfig) -> dict[str, Any]:
     resolve_runtime(cfg)
     out: dict[str, Any] = {
         "config": cfg.to_dict(),
-        "structure": None if cfg.source.pointcloud is not None else cfg.structure(),
+        "structure": None if cfg.source.pointcloud is not None else cfg.source.structure(),
         "densify_steps": [s for s in range(cfg.train.steps) if cfg.density.densify.due(s)],
         "cull_steps": [s for s in range(cfg.train.steps) if cfg.density.cull.due(s)],
     }
     if cfg.sds.guidance == "none":
         return {**out, "prompts": None, "negative_prompt": None, "timesteps": None}
     assert cfg.sds.prompt_template is not None  # resolve_runtime filled it
-    prompt = base_prompt(cfg.plant_name(), cfg.sds.prompt_template)
+    prompt = base_prompt(cfg.source.plant_name(), cfg.sds.prompt_template)
     out["prompts"] = {view: f"{prompt}, {view} view" for view in VIEWS}
     out["negative_prompt"] = cfg.sds.negative_prompt
     out["timesteps"] = _phases(make_schedule(cfg.sds.schedule, cfg.train.steps), cfg.train.steps)

@@ -48,8 +48,8 @@ class RunState:
 
         timer = PhaseTimer()
         with timer("prepare"):
-            source = load_source(cfg)
-            g = initial_gaussians(cfg, source)
+            source = load_source(cfg.source, cfg.seed, surface=cfg.init.init_shape == "surface")
+            g = initial_gaussians(cfg.init, source, cfg.seed)
         if cfg.outputs.labels:  # the masks' limits, now rather than after the last step
             from plantdreamer.labels import check_mask_limits
 

@@ -26,7 +26,7 @@ def check_inputs(cfg: GenerateConfig) -> None:
     if src.pointcloud is None:
         from plantdreamer.lsystem import list_species
 
-        if cfg.structure() not in list_species():
+        if cfg.source.structure() not in list_species():
             raise InputError(f"unknown species {src.species!r}; known: {', '.join(list_species())}")
 
 
@@ -70,7 +70,7 @@ def build_guidance(cfg: GenerateConfig, components: DiffusionComponents | None =
         controlnet=sds.controlnet,
         lora=sds.lora if components is None else None,
         components=components,
-        species=cfg.plant_name(),
+        species=cfg.source.plant_name(),
         guidance_scale=sds.guidance_scale,
         conditioning_scale=sds.conditioning_scale,
         schedule=sds.schedule,

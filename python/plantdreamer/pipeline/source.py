@@ -4,20 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from plantdreamer import prepare
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
-from plantdreamer.pipeline.init import init_gaussians, initial_colors
+from plantdreamer.pipeline.init import InitConfig, init_gaussians, initial_colors
 from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.settings import setting
-
-if TYPE_CHECKING:
-    from plantdreamer.pipeline.config import GenerateConfig
 
 STRUCTURES = ("plantdreamer", "released")  # species grammars: ours or the authors'
 
@@ -39,13 +36,15 @@ class SourceConfig:
         choices=STRUCTURES,
     )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
-    points: int = setting(100_000, "Points to start from.")
-    sor_neighbors: int = setting(20, "Statistical outlier removal: neighbours per point.")
-    sor_std: float = setting(3.0, "Statistical outlier removal: std multiplier.")
+    points: int = setting(prepare.TARGET_POINTS, "Points to start from.")
+    sor_neighbors: int = setting(
+        prepare.SOR_NEIGHBORS, "Statistical outlier removal: neighbours per point."
+    )
+    sor_std: float = setting(prepare.SOR_STD, "Statistical outlier removal: std multiplier.")
     scene_size: float = setting(4.0, "Longest side of the normalised scene.")
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
     downsample_tolerance: float = setting(
-        0.05,
+        prepare.TOLERANCE,
         "Capture prep: voxel downsampling aims at --points +- this fraction; clouds below "
         "(1 + this) x --points are kept whole (released: 0.25).",
     )
@@ -61,6 +60,18 @@ class SourceConfig:
         default_text="instance, instance_id, leaf_id, ... if present",
     )
 
+    def structure(self) -> str | None:
+        """The registered species the L-System input grows (``structures`` applied)."""
+        from plantdreamer.lsystem.species import structure_for
+
+        return None if self.species is None else structure_for(self.species, self.structures)
+
+    def plant_name(self) -> str:
+        """The plant's name in the prompts (``bean`` for ``bean-released``)."""
+        from plantdreamer.lsystem.species import plant_name
+
+        return "plant" if self.species is None else plant_name(self.species)
+
 
 @dataclass
 class Source:
@@ -72,27 +83,27 @@ class Source:
     label_fields: dict[str, str | None] | None = None  # the input properties they came from
     normals: np.ndarray | None = None  # [N, 3] surface normals (L-System faces), else None
     boundary_distance: np.ndarray | None = None  # [N] to the surface's edge (L-System), scaled
+    captured: bool = False  # a point cloud (True) or an L-System mesh's samples
 
 
-def load_source(cfg: GenerateConfig) -> Source:
+def load_source(src: SourceConfig, seed: int, *, surface: bool) -> Source:
     """A captured cloud goes through `prepare_cloud` (finite, SOR, voxel to ~points,
     normalise); an L-System mesh is sampled uniformly by area (then, with ``mesh_sor``,
     filtered by SOR as the released code does), then normalised. Labels come with the points:
-    the L-System's organ and leaf ids, or a cloud's label properties."""
+    the L-System's organ and leaf ids, or a cloud's label properties. ``surface``: the
+    L-System samples keep their normals and distances to the surface's edge (the init
+    section's surface-aligned Gaussians)."""
     from plantdreamer.pointcloud import normalize
-
-    src = cfg.source
 
     if src.pointcloud is not None:
         from plantdreamer.io import read_ply
-        from plantdreamer.prepare import prepare_cloud
 
         raw = read_ply(Path(src.pointcloud))
         fields = find_label_fields(raw.attributes, src.label_field, src.instance_field)
         for name in fields:
             if name is not None:  # check the values before the slow steps
                 raw.attributes[name] = as_int_labels(name, raw.attributes[name])
-        cloud, transform, report = prepare_cloud(
+        cloud, transform, report = prepare.prepare_cloud(
             raw,
             target=src.points,
             sor_neighbors=src.sor_neighbors,
@@ -110,16 +121,16 @@ def load_source(cfg: GenerateConfig) -> Source:
             dict(report.counts),
             _labels(cloud, *fields),
             {"label": fields[0], "instance": fields[1]},
+            captured=True,
         )
 
     from plantdreamer.lsystem import generate_plant, sample_points
 
-    species = cfg.structure()  # the registered species grown (``structures`` applied)
+    species = src.structure()  # the registered species grown (``structures`` applied)
     if species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
-    surface = cfg.init.init_shape == "surface"
     cloud = sample_points(
-        generate_plant(species, cfg.seed), src.points, cfg.seed, boundary_distance=surface
+        generate_plant(species, seed), src.points, seed, boundary_distance=surface
     )
     counts = {"sampled": len(cloud)}
     if src.mesh_sor:
@@ -142,16 +153,16 @@ def load_source(cfg: GenerateConfig) -> Source:
     )
 
 
-def initial_gaussians(cfg: GenerateConfig, source: Source) -> Gaussians:
-    """The Gaussians a run starts from: one per source point, by the config's rules."""
-    rng = np.random.default_rng([cfg.seed, 0xC0102])
-    colors = initial_colors(source.colors, len(source.points), cfg.init.color_init, rng)
+def initial_gaussians(init: InitConfig, source: Source, seed: int) -> Gaussians:
+    """The Gaussians a run starts from: one per source point, by the init section's rules."""
+    rng = np.random.default_rng([seed, 0xC0102])
+    colors = initial_colors(source.colors, len(source.points), init.color_init, rng)
     return init_gaussians(
         source.points,
         colors,
-        cfg.initial_opacity(),
-        cfg.init.sh_degree,
-        scale_rule=cfg.init.init_scale,
+        init.opacity(source.captured),
+        init.sh_degree,
+        scale_rule=init.init_scale,
         labels=source.labels,
         normals=source.normals,
         boundary_distance=source.boundary_distance,

@@ -1,5 +1,6 @@
-"""3DGS adaptive density control: clone small and split large Gaussians with large 2D-mean
-gradients, prune transparent ones. Deterministic for a given seed and step. Clones and split
+"""The operations of adaptive density control (gsplat's ``strategy/ops.py``): the
+statistics it gathers, removing Gaussians with their statistics, and the 3DGS rules: clone
+small and split large Gaussians with large 2D-mean gradients, prune transparent ones. Deterministic for a given seed and step. Clones and split
 samples inherit their parent's label and instance."""
 
 from __future__ import annotations
@@ -50,6 +51,14 @@ class DensifyStats:
 
     def mean(self) -> torch.Tensor:
         return self.grad_sum / self.count.clamp(min=1)
+
+
+def remove(model: GaussianModel, stats: DensifyStats, mask: torch.Tensor) -> DensifyStats:
+    """The Gaussians under ``mask`` leave the parameters, Adam's state and the per-Gaussian
+    statistics together (gsplat's ``strategy/ops.py:remove``); returns the statistics of
+    the Gaussians kept."""
+    model.remove(mask)
+    return stats.subset(~mask)
 
 
 def densify_and_prune(
