@@ -56,8 +56,9 @@ def prepare(
     Steps: drop non-finite points, statistical outlier removal (Open3D semantics),
     voxel grid to --target points, normalisation. Prints the count after each step.
     """
-    from plantdreamer.output_folder import claim_files
+    from plantdreamer.output_folder import claim_files, output_file
 
+    output = output_file(output, "-o/--output")
     # The transform is claimed too: a stale one beside a new, unnormalised output would lie.
     with claim_files([output, transform_path(output)], overwrite=overwrite):
         _prepare(input_ply, output, target, sor_neighbors, sor_std, do_normalize, size, ascii)
