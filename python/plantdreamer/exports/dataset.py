@@ -65,8 +65,8 @@ def plant_species(run_json: Path) -> str:
 
     try:
         source = from_record(json.loads(run_json.read_text()).get("config", {})).source
-    except (InputError, TypeError, AttributeError):
-        return "?"
+    except (InputError, TypeError, AttributeError, ValueError, OSError):
+        return "?"  # a damaged run.json names no species; the plant is still shown
     if source.species:
         return str(source.species)
     return Path(str(source.pointcloud or "?")).name
