@@ -146,11 +146,12 @@ def render(
         raise InputError(f"{path} has no label or instance property to render masks from")
     out = Path(out_dir)
     views_at: list = []
+    files: list[str] = []
     if transforms is not None and not ground_truth:
         from plantdreamer.eval.datasets import scan_transforms_json
 
         views_at = scan_transforms_json(transforms, images_required=False)
-    files = view_files(views_at, transforms) if views_at else []
+        files = view_files(views_at, transforms)
     with claim_folder(out, overwrite=overwrite, owned=(*RENDER_OUTPUTS, *files)):
         if views_at:
             _render_dataset_views(gaussians, views_at, files, out, background)

@@ -140,9 +140,9 @@ def _panel(path: Path, side: int) -> np.ndarray:
     from PIL import Image
 
     try:
-        with Image.open(path) as image:
-            image = image.convert("RGB")
-            image.thumbnail((side, side), Image.Resampling.LANCZOS)
-            return np.asarray(image)
+        with Image.open(path) as file:
+            image = file.convert("RGB")
+        image.thumbnail((side, side), Image.Resampling.LANCZOS)
+        return np.asarray(image)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable image ({exc})") from None
