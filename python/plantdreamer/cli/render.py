@@ -24,6 +24,7 @@ RENDER_OUTPUTS = (
     "transforms.json",
     "coco.json",
     "yolo",
+    "points.ply",
 )
 
 

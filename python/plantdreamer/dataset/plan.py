@@ -21,7 +21,6 @@ from plantdreamer.dataset.scheduler import Unit
 from plantdreamer.dataset.tasks import LOG_NAME
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.exports.dataset import PLANTS_DIR
-from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 
 # A plant's files that make it complete (with a `done` record of the same config).
 COMPLETE_FILES = ("plant.ply", "run.json")
@@ -93,8 +92,11 @@ def decide(
     clear = stale and (record is not None or folder.exists())
     if not same_config and record is not None and record.get("status") == "done":
         return "redo", clear
-    if not stale and (folder / CHECKPOINT_NAME).is_file():
-        return "resume", False
+    if not stale and folder.is_dir():
+        from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME  # torch: only when needed
+
+        if (folder / CHECKPOINT_NAME).is_file():
+            return "resume", False
     return "make", clear
 
 
