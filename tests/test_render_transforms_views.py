@@ -60,8 +60,9 @@ def test_frames_with_the_same_file_name_in_two_folders_are_both_written(model, t
 def test_per_frame_intrinsics_are_kept_in_the_written_transforms(model, tmp_path):
     frames = [
         {"file_path": "a", "transform_matrix": pose(4), "fl_x": 20.0, "cx": 8.0},
-        {"file_path": "b", "transform_matrix": pose(4), "fl_x": 30.0, "fl_y": 25.0, "cx": 7.0},
-    ]
+        {"file_path": "b", "transform_matrix": pose(4), "fl_x": 30.0, "fl_y": 25.0, "cx": 7.0,
+         "w": 24, "h": 20},
+    ]  # fmt: skip
     cams = write_transforms(tmp_path / "cams", frames, w=16, h=16)
     out = tmp_path / "out"
     result = run("render", model, "--transforms", cams, "--labels", "--out", out)
@@ -71,8 +72,10 @@ def test_per_frame_intrinsics_are_kept_in_the_written_transforms(model, tmp_path
     written = scan_transforms_json(out / "transforms.json")
     given = scan_transforms_json(cams, images_required=False)
     assert len(written) == 2
-    for w, g in zip(written, given, strict=True):
+    for w, g in zip(written, given, strict=True):  # each render is its camera's size
         np.testing.assert_allclose(w.camera.K, g.camera.K)
+        assert (w.camera.width, w.camera.height) == (g.camera.width, g.camera.height)
+    assert (written[1].camera.width, written[1].camera.height) == (24, 20)
 
 
 @pytest.mark.parametrize(("value", "shown"), [(32.9, "32.9"), (True, "True"), ("16", "'16'")])
