@@ -103,7 +103,9 @@ def test_a_rerun_stopped_while_ray_starts_leaves_no_done_record_without_files(
 
     monkeypatch.setattr(runner.engine, "connect", ctrl_c_while_ray_starts)
     with pytest.raises(KeyboardInterrupt):
-        run_dataset(changed, expand(changed), tmp_path, RunOptions(show_progress=False))
+        run_dataset(
+            changed, expand(changed), tmp_path, RunOptions(show_progress=False, redo_changed=True)
+        )
     records = Manifest(tmp_path).records
     assert {r["status"] for r in records.values()} == {"pending"}
     assert not any((tmp_path / "plants").iterdir())
@@ -126,7 +128,7 @@ def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
 
     monkeypatch.setattr(plan.shutil, "rmtree", checked_rmtree)
     changed = {**spec, "defaults": {"steps": 7}}
-    todo, skipped = plan.plan(expand(changed), Manifest(tmp_path), tmp_path, 1)
+    todo, skipped = plan.plan(expand(changed), Manifest(tmp_path), tmp_path, 1, redo_changed=True)
     assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
 
 

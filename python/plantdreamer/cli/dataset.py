@@ -83,6 +83,17 @@ def _toml_value(text: str) -> object:
     help="Re-runs of a plant whose worker died.",
 )
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
+@click.option(
+    "--redo-changed",
+    is_flag=True,
+    help="Delete and remake finished plants in OUT made with other settings (without it, "
+    "a run that would do so stops and says how many).",
+)
+@click.option(
+    "--dry-run",
+    is_flag=True,
+    help="List what a run would do with each plant (make, resume, skip, redo); start nothing.",
+)
 @label_options
 def dataset(
     spec_file: str | None,
@@ -98,6 +109,8 @@ def dataset(
     resources: tuple[str, ...],
     max_retries: int,
     quiet: bool,
+    redo_changed: bool,
+    dry_run: bool,
     split_ratios: str,
     split_seed: int,
     min_instance_area: int,
@@ -107,7 +120,8 @@ def dataset(
 
     SPEC_FILE (TOML) lists groups of plants and their settings; without one, --species,
     --count and --seed-start give one group per species. Settings given here apply to
-    every plant, over the spec's [defaults]. Plants already complete in OUT are skipped.
+    every plant, over the spec's [defaults]. Plants already complete in OUT are skipped;
+    finished plants of other settings are kept, and the run refused, unless --redo-changed.
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
@@ -115,10 +129,12 @@ def dataset(
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.packing import packing_from
+    from plantdreamer.dataset.runner import DatasetStopped
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.errors import InputError
 
-    import_ray()  # fail first, with what to install, when Ray is missing
+    if not dry_run:
+        import_ray()  # fail first, with what to install, when Ray is missing
     if spec_file is not None:
         if species is not None:
             raise InputError("give a spec file or --species, not both")
@@ -132,8 +148,19 @@ def dataset(
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
+    if "species" in overrides:  # a group's own species wins over settings: never silently
+        named = {str(g.get("species")) for g in spec.get("group", []) if isinstance(g, dict)}
+        named -= {"None", str(overrides["species"])}
+        if named:
+            raise InputError(
+                f"--set species={overrides['species']} disagrees with the species the groups "
+                f"name ({', '.join(sorted(named))}, from --species or the spec); give it once"
+            )
     spec = with_settings(spec, overrides)
     plants = expand(spec)  # every plant's config is checked here, before Ray starts
+    if dry_run:
+        _print_plan(plants, out_dir, packing.plants_per_gpu)
+        return
     custom = custom_resources(_key_values(resources, "--resource"))
     options = RunOptions(
         address=address,
@@ -146,10 +173,14 @@ def dataset(
         show_progress=not quiet,
         labels=make_label_options(split_ratios, split_seed, min_instance_area),
     )
-    report = run_dataset(spec, plants, out_dir, options)
-    if report.interrupted:
+    try:
+        report, stopped = run_dataset(spec, plants, out_dir, options), False
+    except DatasetStopped as stop:  # Ctrl-C or SIGTERM: the summary line still comes
+        report, stopped = stop.report, True
+    if stopped or report.interrupted:
         click.secho(
-            f"stopped: {report.interrupted} plants interrupted (checkpoints kept); "
+            f"stopped: {report.interrupted} plants interrupted (checkpoints kept), "
+            f"{report.done} done, {report.failed} failed, {report.skipped} skipped; "
             "run the same command again to finish them",
             err=True,
             fg="yellow",
@@ -171,3 +202,15 @@ def dataset(
     )
     if report.labels is not None:
         click.echo(describe(report.labels))
+
+
+def _print_plan(plants, out_dir: str, plants_per_gpu: int) -> None:
+    """``--dry-run``: the plan from OUT's records and folders; nothing is written."""
+    from pathlib import Path
+
+    from plantdreamer.dataset.manifest import Manifest
+    from plantdreamer.dataset.plan import describe_plan
+
+    out = Path(out_dir).resolve()
+    for line in describe_plan(plants, Manifest(out, read_only=True), out, plants_per_gpu):
+        click.echo(line)

@@ -58,11 +58,18 @@ def eval_command(
     ply: Path, dataset: Path, out: Path, background: str, strip_views: int, overwrite: bool
 ) -> None:
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
-    from plantdreamer.output_folder import claim_files
+    from plantdreamer.errors import InputError
+    from plantdreamer.output_folder import claim_files, output_file
 
     bg = parse_background(background)
     if not ply.is_file():
         raise FileNotFoundError(f"model not found: {ply}")
+    out = output_file(out, "--out")
+    if out.suffix.lower() == ".json":  # the JSON report is written beside the markdown
+        raise InputError(
+            f"--out names the markdown report and its JSON goes beside it; give "
+            f"{out.with_suffix('.md')} rather than {out}"
+        )
     strip_path = out.with_name(out.stem + "_strip.png")
     with claim_files([out, out.with_suffix(".json"), strip_path], overwrite=overwrite):
         _evaluate(ply, dataset, out, bg, strip_views, strip_path)

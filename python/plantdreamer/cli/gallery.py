@@ -1,8 +1,10 @@
-"""``plantdreamer gallery``: the contact sheet of a dataset or plant folder."""
+"""``plantdreamer gallery``: the contact sheet of a dataset, group or plant folder."""
 
 from __future__ import annotations
 
 import click
+
+from plantdreamer.exports.gallery import MAX_PLANTS
 
 
 @click.command()
@@ -10,10 +12,19 @@ import click
 @click.option(
     "--out", type=click.Path(dir_okay=False), help="The PNG to write [default: FOLDER/gallery.png]."
 )
-def gallery(folder: str, out: str | None) -> None:
-    """Draw FOLDER's gallery.png: each plant's first view beside its label view."""
+@click.option(
+    "--max-plants",
+    type=int,
+    default=MAX_PLANTS,
+    show_default=True,
+    help="The most plants drawn; more are sampled evenly over their ids.",
+)
+def gallery(folder: str, out: str | None, max_plants: int) -> None:
+    """Draw FOLDER's gallery.png: each plant's first view beside its label view. FOLDER is a
+    dataset folder, a `generate --seeds` group folder or one plant folder."""
     from pathlib import Path
 
     from plantdreamer.exports.gallery import write_gallery
 
-    click.echo(f"wrote {write_gallery(Path(folder), None if out is None else Path(out))}")
+    path = write_gallery(Path(folder), None if out is None else Path(out), max_plants)
+    click.echo(f"wrote {path}")

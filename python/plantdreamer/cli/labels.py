@@ -17,10 +17,13 @@ def labels(folder: str, split_ratios: str, split_seed: int, min_instance_area: i
     coco.json, yolo/ and points.ply; for a dataset folder splits.json, coco/, yolo/ and
     gallery.png (and each plant's own files when --min-instance-area changed)."""
     from plantdreamer.cli.label_options import describe, make_label_options
+    from plantdreamer.errors import InputError
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
 
     options = make_label_options(split_ratios, split_seed, min_instance_area)
     root = Path(folder)
+    if (root / "run.json").is_file() and not (root / "transforms.json").is_file():
+        raise InputError(f"{root} is a plant made with --eval-views 0: it has no views to label")
     if (root / "transforms.json").is_file():
         r = write_plant_exports(root, options.min_area)
         click.echo(

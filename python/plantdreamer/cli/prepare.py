@@ -47,7 +47,9 @@ def prepare(
     Prints the count after each step.
     """
     from plantdreamer.errors import InputError
-    from plantdreamer.output_folder import claim_files
+    from plantdreamer.output_folder import claim_files, output_file
+
+    output = output_file(output, "-o/--output")
 
     apply_old_names(options, OLD_NAMES)
     values = options_to_settings(GenerateConfig, options)

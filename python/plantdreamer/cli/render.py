@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
+import os
+import re
+from pathlib import Path, PurePath
 from typing import Any
 
 import click
@@ -28,11 +30,12 @@ OLD_NAMES = {
     "--fovy": "eval-fovy-deg",
 }  # fmt: skip
 
-# What render writes into --out; --overwrite deletes these first.
+# What render writes into --out; --overwrite deletes these first (and, with --transforms,
+# the views it names): its own views, never a user's other pictures.
 RENDER_OUTPUTS = (
     "turntable.gif",
     "turntable.mp4",
-    "*.png",
+    re.compile(r"view_\d{3,}\.png"),
     "renders",
     "labels",
     "instances",
@@ -40,6 +43,7 @@ RENDER_OUTPUTS = (
     "transforms.json",
     "coco.json",
     "yolo",
+    "points.ply",
 )
 
 
@@ -134,9 +138,16 @@ def render(
     if ground_truth and gaussians.labels is None:
         raise InputError(f"{path} has no label or instance property to render masks from")
     out = Path(out_dir)
-    with claim_folder(out, overwrite=overwrite, owned=RENDER_OUTPUTS):
-        if transforms is not None and not ground_truth:
-            _render_dataset_views(gaussians, transforms, out, background)
+    views_at: list = []
+    files: list[str] = []
+    if transforms is not None and not ground_truth:
+        from plantdreamer.eval.datasets import scan_transforms_json
+
+        views_at = scan_transforms_json(transforms, images_required=False)
+        files = view_files(views_at, transforms)
+    with claim_folder(out, overwrite=overwrite, owned=(*RENDER_OUTPUTS, *files)):
+        if views_at:
+            _render_dataset_views(gaussians, views_at, files, out, background)
             return
         scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
         if transforms is not None:
@@ -212,20 +223,44 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
     return frames
 
 
-def _render_dataset_views(gaussians, transforms: str, out: Path, background: float) -> None:
+def view_files(views, transforms: str) -> list[str]:
+    """Where each camera of a transforms.json is written in --out: its image's file name as
+    a PNG, or, when two frames share a name (``cam0/0001.png``, ``cam1/0001.png``), its
+    path relative to the transforms.json; refused when even those collide."""
+    from plantdreamer.errors import InputError
+    from plantdreamer.eval.datasets import _transforms_file
+
+    flat = [f"{view.name}.png" for view in views]
+    if len(set(flat)) == len(flat):
+        return flat
+    root = _transforms_file(Path(transforms)).parent
+    files: dict[str, int] = {}
+    for i, view in enumerate(views):
+        relative = PurePath(os.path.relpath(view.image_path, root))
+        name = relative.with_name(f"{view.name}.png").as_posix()
+        if ".." in relative.parts or name in files:
+            j = files.get(name, flat.index(flat[i]))
+            raise InputError(
+                f"{transforms}: frames {j} and {i} would both be written as {name}; give "
+                "the frames distinct file names"
+            )
+        files[name] = i
+    return list(files)
+
+
+def _render_dataset_views(gaussians, views, files: list[str], out: Path, background) -> None:
     import numpy as np
     import torch
 
     from plantdreamer.atomic import write_image
-    from plantdreamer.eval.datasets import scan_transforms_json
     from plantdreamer.pipeline.model import GaussianModel
 
     model = GaussianModel(gaussians)
-    views = scan_transforms_json(transforms, images_required=False)
     out.mkdir(parents=True, exist_ok=True)
-    for view in views:
+    for view, name in zip(views, files, strict=True):
         with torch.no_grad():
             rgb = model.render([view.camera], background)[0][0].numpy()
         image = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        write_image(out / f"{Path(view.name).name}.png", image)
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        write_image(out / name, image)
     click.echo(f"wrote {len(views)} views of {len(model)} Gaussians to {out}")

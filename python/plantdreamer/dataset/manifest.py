@@ -37,7 +37,8 @@ _COMPACT_SLACK = 64
 class Manifest:
     """The dataset's plant records, keyed by plant id, kept in first-seen order."""
 
-    def __init__(self, out_dir: Path) -> None:
+    def __init__(self, out_dir: Path, read_only: bool = False) -> None:
+        """Reads ``out_dir``'s records; ``read_only``: never compacts the file (a dry run)."""
         self.path = out_dir / MANIFEST_NAME
         self.records: dict[str, dict[str, Any]] = {}
         self.lines = 0  # lines in the file, for deciding when to compact
@@ -50,7 +51,7 @@ class Manifest:
                     record = _parse(line, f"{self.path}:{number}")
                     self.records[record["id"]] = record
             self.lines = len(lines)
-            if torn or self.lines > len(self.records):
+            if (torn or self.lines > len(self.records)) and not read_only:
                 self.compact()
 
     def get(self, plant_id: str) -> dict[str, Any] | None:

@@ -53,6 +53,7 @@ class RunOptions:
     plants_per_gpu: int = 1  # plants trained together in one trainer (packing.py)
     show_progress: bool = True
     labels: LabelOptions = field(default_factory=LabelOptions)  # splits, COCO, YOLO, gallery
+    redo_changed: bool = False  # delete and remake finished plants of other settings
 
 
 @dataclass
@@ -69,6 +70,14 @@ class DatasetReport:
     @property
     def ok(self) -> bool:
         return self.failed == 0 and self.interrupted == 0
+
+
+class DatasetStopped(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped the run; ``report`` says what it left (for the summary)."""
+
+    def __init__(self, report: DatasetReport) -> None:
+        super().__init__()
+        self.report = report
 
 
 def run_dataset(
@@ -105,14 +114,23 @@ class _DatasetRun:
             )
             for p in self.plants
         }
-        todo, skipped = plan(self.plants, self.manifest, self.out_dir, self.options.plants_per_gpu)
+        todo, skipped = plan(
+            self.plants,
+            self.manifest,
+            self.out_dir,
+            self.options.plants_per_gpu,
+            self.options.redo_changed,
+        )
         self._write_summary("running", skipped)
         results: dict[str, dict[str, Any]] = {}
         state = "stopped"
+        stopped = False
         try:
             if todo:
                 results = self._run_on_ray(todo, demands)
             state = "finished"
+        except KeyboardInterrupt:
+            stopped = True  # recorded below, then raised again with the report
         finally:
             for plant in todo:  # still running after a stop: its checkpoint is what is left
                 if self._status(plant.id) == "running":
@@ -126,12 +144,10 @@ class _DatasetRun:
         records = [
             self.manifest.records[p.id] for p in self.plants if p.id in self.manifest.records
         ]
+        ran = counts["done"] + counts["failed"] if stopped else len(results)
         if self.options.show_progress:
-            print_summary(totals(records), len(skipped), len(results), seconds)
-        labels = None
-        if counts["done"] or skipped:
-            labels = write_dataset_exports(self.out_dir, self.options.labels)
-        return DatasetReport(
+            print_summary(totals(records), len(skipped), ran, seconds)
+        report = DatasetReport(
             self.out_dir,
             counts["done"],
             counts["failed"],
@@ -139,8 +155,12 @@ class _DatasetRun:
             counts["interrupted"],
             seconds,
             {i: r["error"] for i, r in results.items() if r["status"] == "failed"},
-            labels,
         )
+        if stopped:  # no label files: a stop is quick, and the next run writes them
+            raise DatasetStopped(report)
+        if counts["done"] or skipped:
+            report.labels = write_dataset_exports(self.out_dir, self.options.labels)
+        return report
 
     def _status(self, plant_id: str) -> str | None:
         record = self.manifest.get(plant_id)

@@ -126,7 +126,8 @@ def _group_plants(
                 "or 'seeds' / 'count' in the group"
             )
     seeds = _seeds(table, where)
-    species = table.get("species")
+    # The group's own species, else the one of [defaults] or --set (every group's).
+    species = table.get("species", settings.get("species"))
     sources: list[tuple[str | None, str]]
     if "pointclouds" in table:
         if not isinstance(table["pointclouds"], str):

@@ -97,9 +97,21 @@ def _angle(meta: dict[str, Any], key: str, where: str) -> float:
     return value
 
 
+def _pixels(meta: dict[str, Any], key: str, where: str) -> int | None:
+    """``w`` or ``h`` of ``meta`` as a pixel count (None when absent): 32.9 or ``true``
+    is refused, not rendered at 32 or 1 pixels."""
+    value = meta.get(key)
+    if value is None:
+        return None
+    whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    if isinstance(value, bool) or not whole:
+        raise InputError(f"{where}: {key} must be a whole number of pixels, got {value!r}")
+    return int(value)
+
+
 def _check_size(meta: dict[str, Any], width: int, height: int, where: str) -> None:
-    w, h = meta.get("w"), meta.get("h")
-    if (w is not None and int(w) != width) or (h is not None and int(h) != height):
+    w, h = _pixels(meta, "w", where), _pixels(meta, "h", where)
+    if (w is not None and w != width) or (h is not None and h != height):
         raise InputError(
             f"{where}: transforms.json says {w}x{h} but the image is {width}x{height} "
             "(downscaled images need matching intrinsics)"
@@ -158,10 +170,11 @@ def _scan_transforms_json(json_path: Path, images_required: bool) -> list[FrameS
             image_path = resolve_image_path(root / entry["file_path"])
             width, height = image_size(image_path)
         except FileNotFoundError:
-            if images_required or "w" not in frame_meta or "h" not in frame_meta:
+            w, h = _pixels(frame_meta, "w", where), _pixels(frame_meta, "h", where)
+            if images_required or w is None or h is None:
                 raise
             image_path = root / entry["file_path"]
-            width, height = check_image_size(int(frame_meta["w"]), int(frame_meta["h"]), where)
+            width, height = check_image_size(w, h, where)
         _check_size(frame_meta, width, height, where)
         k = _intrinsics(frame_meta, width, height, where)
         c2w = np.asarray(entry["transform_matrix"], dtype=np.float64)

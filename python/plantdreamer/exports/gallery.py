@@ -1,10 +1,15 @@
-"""``gallery.png``: a contact sheet of a dataset (or one plant) to check it at a glance:
-every plant's first view beside its label view, titled by plant id and species.
+"""``gallery.png``: a contact sheet of a dataset, a ``generate --seeds`` group or one plant,
+to check it at a glance: each plant's first view beside its label view, titled by plant id
+and species.
 
-Drawn with matplotlib (Agg, no display needed). The grid is about square in plants
-(ceil(sqrt(n)) pairs a row), so a thousand plants make a picture of a few thousand pixels a
-side, not a strip. The PNG carries no software version, so the same folder gives the same
-bytes with the same matplotlib.
+Bounded whatever the dataset's size: at most ``MAX_PLANTS`` plants are drawn (12 x 12
+pairs, 4320 x 2485 px), evenly spread over the plants sorted by id, and the sheet says so;
+only the chosen plants' files are read, each image shrunk to its panel first. So 10,000
+plants take seconds and tens of megabytes, not half an hour, gigabytes and a PNG too large
+for Pillow to open (BENCHMARKS.md). Composed with Pillow (each panel pasted, titles in
+Pillow's own font; matplotlib's 288 axes took most of the time); the grid is about square
+in plants (ceil(sqrt(n)) pairs a row). The PNG carries no software version, so the same
+folder gives the same bytes with the same Pillow.
 """
 
 from __future__ import annotations
@@ -17,13 +22,17 @@ import numpy as np
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
-from plantdreamer.exports.instances import read_png, read_transforms
-from plantdreamer.exports.listing import PLANTS_DIR, finished_plants, plant_species
+from plantdreamer.exports.instances import read_transforms
+from plantdreamer.exports.listing import PLANTS_DIR, plant_species
 
 GALLERY_FILE = "gallery.png"
+GROUP_FILE = "group.json"  # a `generate --seeds` group folder (pipeline.group writes it)
 PANEL_INCHES = 1.8  # one image, at 100 dpi
+DPI = 100
 TITLE_INCHES = 0.25
+MARGIN = 2  # white pixels around each picture in its panel
 MAX_PAIRS_PER_ROW = 12
+MAX_PLANTS = MAX_PAIRS_PER_ROW**2
 
 
 @dataclass(frozen=True)
@@ -35,64 +44,105 @@ class Tile:
 
 def plant_tile(folder: Path, plant_id: str, species: str) -> Tile:
     """The first view of a plant folder and its label preview."""
-    frames = read_transforms(folder)["frames"]
-    if not frames:
+    frames = read_transforms(folder).get("frames")
+    if not frames or not isinstance(frames, list):
         raise InputError(f"{folder} has no views")
+    if not isinstance(frames[0], dict) or not isinstance(frames[0].get("file_path"), str):
+        raise InputError(f"{folder / 'transforms.json'}: frame 0 has no file_path")
     image = folder / frames[0]["file_path"]
     preview = folder / "labels" / "preview" / image.name
     return Tile(f"{plant_id} ({species})", image, preview if preview.is_file() else None)
 
 
-def gallery_tiles(folder: Path) -> list[Tile]:
-    """The tiles of a dataset folder (its finished plants, by id) or of one plant folder."""
+def gallery_tiles(folder: Path, max_plants: int = MAX_PLANTS) -> tuple[list[Tile], int]:
+    """The tiles of a dataset folder (its finished plants with views), a group folder or
+    one plant folder: at most ``max_plants``, evenly spread over the plants by id; and how
+    many plants there were to show."""
     folder = Path(folder)
+    if max_plants < 1:
+        raise InputError(f"--max-plants must be at least 1, got {max_plants}")
     if (folder / "transforms.json").is_file():
-        species = plant_species(folder / "run.json") if (folder / "run.json").is_file() else "?"
-        return [plant_tile(folder, folder.name, species)]
-    if not (folder / PLANTS_DIR).is_dir():
-        raise InputError(f"{folder} is neither a plant folder nor a dataset folder")
-    tiles = [
-        plant_tile(p.folder, p.id, p.species)
-        for p in finished_plants(folder)
-        if (p.folder / "transforms.json").is_file()
-    ]
-    if not tiles:
-        raise InputError(f"{folder} has no finished plant with views to show")
-    return tiles
+        return [plant_tile(folder, folder.name, _species(folder))], 1
+    if (folder / "run.json").is_file():
+        raise InputError(f"{folder} is a plant made with --eval-views 0: it has no views to show")
+    if (folder / GROUP_FILE).is_file():
+        finished = [p.parent for p in sorted(folder.glob("*/run.json"))]
+    elif (folder / PLANTS_DIR).is_dir():
+        finished = [p.parent for p in sorted((folder / PLANTS_DIR).glob("*/run.json"))]
+    else:
+        raise InputError(
+            f"{folder} is neither a plant folder, a group folder (generate --seeds) nor a "
+            "dataset folder"
+        )
+    shown = [p for p in finished if (p / "transforms.json").is_file()]
+    if not shown:
+        more = " (made with --eval-views 0)" if finished else ""
+        raise InputError(f"{folder} has no finished plant with views to show{more}")
+    chosen = [shown[i] for i in evenly(len(shown), max_plants)]
+    return [plant_tile(p, p.name, _species(p)) for p in chosen], len(shown)
 
 
-def write_gallery(folder: Path, out: Path | None = None) -> Path:
+def evenly(n: int, k: int) -> list[int]:
+    """``min(n, k)`` distinct indices of ``range(n)`` spread evenly, the first included."""
+    return list(range(n)) if n <= k else [i * n // k for i in range(k)]
+
+
+def _species(plant_dir: Path) -> str:
+    run_json = plant_dir / "run.json"
+    return plant_species(run_json) if run_json.is_file() else "?"
+
+
+def write_gallery(folder: Path, out: Path | None = None, max_plants: int = MAX_PLANTS) -> Path:
     """Draws the contact sheet of ``folder`` into ``out`` (default: ``folder/gallery.png``)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from PIL import Image, ImageDraw, ImageFont
 
-    tiles = gallery_tiles(folder)
+    tiles, total = gallery_tiles(folder, max_plants)
     out = Path(out) if out is not None else Path(folder) / GALLERY_FILE
     per_row = min(len(tiles), MAX_PAIRS_PER_ROW, math.ceil(math.sqrt(len(tiles))))
     rows = math.ceil(len(tiles) / per_row)
-    height = rows * (PANEL_INCHES + TITLE_INCHES)
-    fig = Figure(figsize=(2 * per_row * PANEL_INCHES, height), dpi=100)
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, 2 * per_row, squeeze=False)
-    fig.subplots_adjust(
-        left=0.005, right=0.995, bottom=0.005, top=1 - TITLE_INCHES / height, wspace=0.03,
-        hspace=TITLE_INCHES / PANEL_INCHES,
-    )  # fmt: skip
-    for ax in axes.reshape(-1):
-        ax.set_axis_off()
+    side, title = round(PANEL_INCHES * DPI), round(TITLE_INCHES * DPI)
+    header = title if total > len(tiles) else 0
+    sheet = Image.new("RGB", (2 * per_row * side, header + rows * (title + side)), "white")
+    draw = ImageDraw.Draw(sheet)
+    font = ImageFont.load_default(size=11)
+    if header:
+        text = f"{len(tiles)} of {total} plants, evenly spread over their ids"
+        draw.text((4, header // 2), text, fill="black", font=font, anchor="lm")
     for i, tile in enumerate(tiles):
         row, col = divmod(i, per_row)
-        left, right = axes[row, 2 * col], axes[row, 2 * col + 1]
-        image = read_png(tile.image)[..., :3]
-        left.imshow(image)
-        left.set_title(tile.title, fontsize=8, loc="left")
+        x, y = 2 * col * side, header + row * (title + side)
+        draw.text((x + 2, y + title // 2), tile.title, fill="black", font=font, anchor="lm")
+        image = _panel(tile.image, side - 2 * MARGIN)
+        _paste(sheet, image, x, y + title, side)
         if tile.labels is not None:
-            right.imshow(read_png(tile.labels)[..., :3])
+            _paste(sheet, _panel(tile.labels, side - 2 * MARGIN), x + side, y + title, side)
         else:
-            right.imshow(np.zeros_like(image))
-            right.text(0.5, 0.5, "no labels", color="white", ha="center", fontsize=7,
-                       transform=right.transAxes)  # fmt: skip
-    atomic.atomic_write(
-        out, lambda tmp: fig.savefig(tmp, format="png", metadata={"Software": None})
-    )
+            h, w = image.shape[:2]
+            x0, y0 = x + side + (side - w) // 2, y + title + (side - h) // 2
+            draw.rectangle((x0, y0, x0 + w - 1, y0 + h - 1), fill="black")
+            draw.text((x0 + w // 2, y0 + h // 2), "no labels", fill="white", font=font,
+                      anchor="mm")  # fmt: skip
+    atomic.atomic_write(out, lambda tmp: sheet.save(tmp, format="PNG"))
     return out
+
+
+def _paste(sheet, image: np.ndarray, x: int, y: int, side: int) -> None:
+    """``image`` centred in the ``side``-pixel panel at ``(x, y)``."""
+    from PIL import Image
+
+    h, w = image.shape[:2]
+    sheet.paste(Image.fromarray(image), (x + (side - w) // 2, y + (side - h) // 2))
+
+
+def _panel(path: Path, side: int) -> np.ndarray:
+    """An image's RGB shrunk to fit a ``side``-pixel panel (never enlarged): a sheet of
+    large renders holds panel-sized copies, not every full image."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as file:
+            image = file.convert("RGB")
+        image.thumbnail((side, side), Image.Resampling.LANCZOS)
+        return np.asarray(image)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable image ({exc})") from None

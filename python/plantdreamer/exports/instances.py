@@ -59,7 +59,13 @@ def read_transforms(plant_dir: Path) -> dict:
     path = Path(plant_dir) / "transforms.json"
     if not path.is_file():
         raise InputError(f"{plant_dir} is not a plant folder: it has no transforms.json")
-    return json.loads(path.read_text())
+    try:
+        meta = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON (cut short or damaged: {exc})") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{path} is not a transforms.json (not a JSON object)")
+    return meta
 
 
 def labelled_frames(plant_dir: Path) -> list[dict]:

@@ -96,7 +96,7 @@ def _name_point_cloud(plant_dir: Path) -> None:
     path = plant_dir / "transforms.json"
     if not path.is_file():
         return
-    meta = json.loads(path.read_text())
+    meta = read_transforms(plant_dir)
     if meta.get("ply_file_path") == POINTS_FILE:
         return
     meta["ply_file_path"] = POINTS_FILE

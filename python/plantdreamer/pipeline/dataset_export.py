@@ -55,6 +55,7 @@ class GroundTruthWriter:
         self.out_dir, self.label_set, self.transform = out_dir, label_set, transform
         self.class_names = class_names or {}
         self.frames: list[dict[str, object]] = []
+        self.cameras: list[dict[str, object]] = []  # each frame's intrinsics and size
         self.depth_unit_scale = DEPTH_UNIT_SCALE
         self.pixel_values = self.instance_values = None
         if label_set is not None:
@@ -102,20 +103,20 @@ class GroundTruthWriter:
             frame["semantic_path"] = f"labels/{name}.png"
             frame["instance_path"] = f"instances/{name}.png"
         self.frames.append(frame)
+        self.cameras.append(_intrinsics(camera))
 
     def finish(self, camera: Camera) -> None:
-        """Writes transforms.json (``camera``: any view, for the shared intrinsics)."""
-        k = camera.K
+        """Writes transforms.json (``camera``: any view, for the shared intrinsics; a frame
+        whose camera differs from it gets its own, which win over the shared ones)."""
+        shared = _intrinsics(camera)
         meta: dict[str, object] = {
             "camera_model": "OPENCV",
-            "fl_x": float(k[0, 0]),
-            "fl_y": float(k[1, 1]),
-            "cx": float(k[0, 2]),
-            "cy": float(k[1, 2]),
-            "w": camera.width,
-            "h": camera.height,
+            **shared,
             "depth_unit_scale_factor": self.depth_unit_scale,
         }
+        for frame, own in zip(self.frames, self.cameras, strict=True):
+            if own != shared:
+                frame.update(own)
         if self.label_set is not None:
             assert self.pixel_values is not None
             meta["semantic_classes"] = [
@@ -156,6 +157,18 @@ class GroundTruthWriter:
             draw.rectangle([4, y, 14, y + 10], fill=tuple(int(x) for x in colours[v]))
             draw.text((18, y - 1), f"{int(v)}: {self._name(int(c))}", fill=(255, 255, 255))
         return np.asarray(image)
+
+
+def _intrinsics(camera: Camera) -> dict[str, object]:
+    k = camera.K
+    return {
+        "fl_x": float(k[0, 0]),
+        "fl_y": float(k[1, 1]),
+        "cx": float(k[0, 2]),
+        "cy": float(k[1, 2]),
+        "w": camera.width,
+        "h": camera.height,
+    }
 
 
 def class_pixel_values(classes: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from plantdreamer.errors import InputError
 from plantdreamer.settings import option_prefix, setting
 
 if TYPE_CHECKING:
@@ -75,11 +76,21 @@ class CullConfig:
     def due(self, step: int) -> bool:
         return step > self.after and (step + self.offset) % self.every == 0
 
+    def validate(self) -> None:
+        """A negative C culls more than half the Gaussians at every round (-100: all)."""
+        if self.threshold < 0:
+            raise InputError(
+                f"cull-threshold must be >= 0 (standard deviations), got {self.threshold}"
+            )
+
 
 @dataclass
 class DensityConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig, metadata=option_prefix("densify"))
     cull: CullConfig = field(default_factory=CullConfig, metadata=option_prefix("cull"))
+
+    def validate(self) -> None:
+        self.cull.validate()
 
 
 Timer = Callable[[str], AbstractContextManager[Any]]

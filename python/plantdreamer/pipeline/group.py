@@ -83,6 +83,10 @@ def parse_seeds(text: str) -> list[int]:
     try:
         for part in (p.strip() for p in text.split(",") if p.strip()):
             low, dash, high = part.partition("-")
+            if dash and int(low) > int(high):
+                raise InputError(
+                    f"--seeds: {part} is a reversed range; write {high.strip()}-{low.strip()}"
+                )
             parts.append(
                 range(int(low), int(high) + 1) if dash else range(int(part), int(part) + 1)
             )

@@ -49,6 +49,23 @@ class OutputsConfig:
         True, "Write label/instance into plant.ply and the class and instance masks."
     )
 
+    def validate(self) -> None:
+        """The evaluation orbit is a camera and the turntable a count, checked before a run
+        trains (the export comes after all training)."""
+        if not 0 < self.eval_fovy_deg < 180:
+            raise InputError(f"eval-fovy-deg must be in (0, 180) degrees, got {self.eval_fovy_deg}")
+        if not self.eval_distance > 0:
+            raise InputError(f"eval-distance must be positive, got {self.eval_distance}")
+        if not -90 <= self.eval_elevation_deg <= 90:
+            raise InputError(
+                f"eval-elevation-deg must be in [-90, 90] degrees, got {self.eval_elevation_deg}"
+            )
+        if self.turntable_frames < 0:
+            raise InputError(
+                f"turntable-frames must be >= 0, got {self.turntable_frames} "
+                "(--turntable none makes no turntable)"
+            )
+
 
 def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:
     """The offset to subtract before writing float32 positions, or None when the input

@@ -3,7 +3,8 @@
 A run's config after its preset, the user's options and the runtime fills (a LoRA's recorded
 prompt template, the resolution and precision of this machine), plus what those settings
 turn into: the species structure grown, the prompts as the text encoder receives them, the
-timestep range of each phase and the steps where density control and culling run. Users
+timestep range of each phase and the steps where density control and culling run (as
+progressions: first, last, every and count). Users
 check a run here before spending GPU hours on it; tests check the presets through it.
 """
 
@@ -28,8 +29,8 @@ def resolved_settings(cfg: GenerateConfig) -> dict[str, Any]:
     out: dict[str, Any] = {
         "config": cfg.to_dict(),
         "structure": None if cfg.source.pointcloud is not None else cfg.source.structure(),
-        "densify_steps": [s for s in range(cfg.train.steps) if cfg.density.densify.due(s)],
-        "cull_steps": [s for s in range(cfg.train.steps) if cfg.density.cull.due(s)],
+        "densify_steps": densify_steps(cfg),
+        "cull_steps": cull_steps(cfg),
     }
     if cfg.sds.guidance == "none":
         return {**out, "prompts": None, "negative_prompt": None, "timesteps": None}
@@ -39,6 +40,38 @@ def resolved_settings(cfg: GenerateConfig) -> dict[str, Any]:
     out["negative_prompt"] = cfg.sds.negative_prompt
     out["timesteps"] = _phases(make_schedule(cfg.sds.schedule, cfg.train.steps), cfg.train.steps)
     return out
+
+
+def densify_steps(cfg: GenerateConfig) -> dict[str, int | None]:
+    """The steps where ``DensifyConfig.due`` holds, as a progression (computed, not
+    enumerated: a billion steps print at once)."""
+    d = cfg.density.densify
+    return progression(d.start + 1, min(d.until, cfg.train.steps) - 1, d.every, 0)
+
+
+def cull_steps(cfg: GenerateConfig) -> dict[str, int | None]:
+    """The steps where ``CullConfig.due`` holds, as a progression."""
+    c = cfg.density.cull
+    return progression(c.after + 1, cfg.train.steps - 1, c.every, -c.offset)
+
+
+def progression(low: int, high: int, every: int, residue: int) -> dict[str, int | None]:
+    """The steps s in [max(low, 0), high] with s = residue (mod every): first, last,
+    every and count (first and last None when there is none)."""
+    low = max(low, 0)
+    first = low + (residue - low) % every
+    last = high - (high - residue) % every
+    if first > last:
+        return {"first": None, "last": None, "every": every, "count": 0}
+    return {"first": first, "last": last, "every": every, "count": (last - first) // every + 1}
+
+
+def steps_of(steps: dict[str, int | None]) -> list[int]:
+    """The steps of a ``progression``, listed (for a short one)."""
+    if not steps["count"]:
+        return []
+    assert steps["first"] is not None and steps["last"] is not None and steps["every"]
+    return list(range(steps["first"], steps["last"] + 1, steps["every"]))
 
 
 def _phases(schedule: Any, steps: int) -> list[dict[str, Any]]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from plantdreamer.errors import InputError
 from plantdreamer.settings import option_prefix, setting
 
 ELEVATION_SAMPLINGS = ("uniform", "mixed", "mixed-full")
@@ -26,6 +27,17 @@ class LearningRates:
     quats: float = setting(0.001, "Adam learning rate of the rotations.")
     eps: float = setting(1e-15, "Adam epsilon.")
 
+    def validate(self) -> None:
+        """A negative rate runs gradient ascent; zero freezes the parameter."""
+        for name in ("means", "sh_dc", "sh_rest", "opacity", "scales", "quats"):
+            if getattr(self, name) < 0:
+                raise InputError(
+                    f"lr-{name.replace('_', '-')} must be >= 0 (0 freezes it), "
+                    f"got {getattr(self, name)}"
+                )
+        if not self.eps > 0:
+            raise InputError(f"lr-eps must be positive, got {self.eps}")
+
 
 @dataclass
 class CameraRanges:
@@ -41,6 +53,32 @@ class CameraRanges:
     fovy_deg: tuple[float, float] = setting(
         (40.0, 70.0), "Training camera vertical field of view range (degrees)."
     )
+
+    def validate(self) -> None:
+        """Each range is (low, high) with low <= high, and every value in it a camera:
+        a positive distance, an elevation within the poles, a field of view in (0, 180)."""
+        for name, (low, high) in (
+            ("distance", self.distance),
+            ("elevation-deg", self.elevation_deg),
+            ("azimuth-deg", self.azimuth_deg),
+            ("fovy-deg", self.fovy_deg),
+        ):
+            if low > high:
+                raise InputError(
+                    f"cameras-{name} is a range LOW HIGH; got {low:g} {high:g} (low > high)"
+                )
+        if not self.distance[0] > 0:
+            raise InputError(f"cameras-distance must be positive, got {self.distance[0]:g}")
+        if not -90 <= self.elevation_deg[0] <= self.elevation_deg[1] <= 90:
+            raise InputError(
+                "cameras-elevation-deg must lie in [-90, 90] degrees, got "
+                f"{self.elevation_deg[0]:g} {self.elevation_deg[1]:g}"
+            )
+        if not 0 < self.fovy_deg[0] <= self.fovy_deg[1] < 180:
+            raise InputError(
+                "cameras-fovy-deg must lie in (0, 180) degrees, got "
+                f"{self.fovy_deg[0]:g} {self.fovy_deg[1]:g}"
+            )
 
 
 @dataclass
@@ -68,3 +106,7 @@ class TrainConfig:
     )
     lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))
     cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))
+
+    def validate(self) -> None:
+        self.lr.validate()
+        self.cameras.validate()

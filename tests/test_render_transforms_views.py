@@ -1,0 +1,89 @@
+"""``render --transforms`` writes one file per camera, with the camera it was rendered at:
+per-frame intrinsics are kept in the written transforms.json, frames whose file names
+collide in different folders do not overwrite each other, and sizes that are not whole
+pixel counts are refused."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from plantdreamer.cli import main
+from plantdreamer.io import write_splat_ply
+from plantdreamer.pipeline.init import init_gaussians
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    d = tmp_path_factory.mktemp("model")
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(300, 3)).astype(np.float32) * 0.5
+    gaussians = init_gaussians(pts, rng.random((300, 3)).astype(np.float32), 0.9)
+    gaussians.labels = np.stack([np.ones(300), np.arange(300) % 3], axis=1).astype(np.int32)
+    write_splat_ply(d / "model.ply", gaussians)
+    return d / "model.ply"
+
+
+def pose(distance):
+    c2w = np.eye(4)
+    c2w[2, 3] = distance  # looking down -z at the origin (OpenGL)
+    return c2w.tolist()
+
+
+def write_transforms(folder, frames, **top):
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "transforms.json").write_text(json.dumps({**top, "frames": frames}))
+    return folder / "transforms.json"
+
+
+def test_frames_with_the_same_file_name_in_two_folders_are_both_written(model, tmp_path):
+    frames = [
+        {"file_path": f"cam{i}/0001.png", "transform_matrix": pose(3 + i), "w": 16, "h": 16}
+        for i in (0, 1)
+    ]
+    cams = write_transforms(tmp_path / "cams", frames, fl_x=20.0)
+    out = tmp_path / "out"
+    result = run("render", model, "--transforms", cams, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "wrote 2 views" in result.output
+    written = sorted(str(p.relative_to(out)) for p in out.rglob("*.png"))
+    assert written == ["cam0/0001.png", "cam1/0001.png"]
+    a, b = ((out / w).read_bytes() for w in written)
+    assert a != b  # two cameras, two pictures
+
+
+def test_per_frame_intrinsics_are_kept_in_the_written_transforms(model, tmp_path):
+    frames = [
+        {"file_path": "a", "transform_matrix": pose(4), "fl_x": 20.0, "cx": 8.0},
+        {"file_path": "b", "transform_matrix": pose(4), "fl_x": 30.0, "fl_y": 25.0, "cx": 7.0,
+         "w": 24, "h": 20},
+    ]  # fmt: skip
+    cams = write_transforms(tmp_path / "cams", frames, w=16, h=16)
+    out = tmp_path / "out"
+    result = run("render", model, "--transforms", cams, "--labels", "--out", out)
+    assert result.exit_code == 0, result.output
+    from plantdreamer.eval.datasets import scan_transforms_json
+
+    written = scan_transforms_json(out / "transforms.json")
+    given = scan_transforms_json(cams, images_required=False)
+    assert len(written) == 2
+    for w, g in zip(written, given, strict=True):  # each render is its camera's size
+        np.testing.assert_allclose(w.camera.K, g.camera.K)
+        assert (w.camera.width, w.camera.height) == (g.camera.width, g.camera.height)
+    assert (written[1].camera.width, written[1].camera.height) == (24, 20)
+
+
+@pytest.mark.parametrize(("value", "shown"), [(32.9, "32.9"), (True, "True"), ("16", "'16'")])
+def test_sizes_that_are_not_whole_pixel_counts_are_refused(model, tmp_path, value, shown):
+    frames = [{"file_path": "a", "transform_matrix": pose(4), "w": value, "h": 16}]
+    cams = write_transforms(tmp_path / "cams", frames, fl_x=20.0)
+    result = run("render", model, "--transforms", cams, "--out", tmp_path / "out")
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 1 and len(errors) == 1, result.output
+    assert "w must be a whole number of pixels" in errors[0] and shown in errors[0], errors
+    assert not list(tmp_path.glob("out/**/*.png"))
