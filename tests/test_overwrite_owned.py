@@ -155,4 +155,7 @@ def test_group_overwrite_with_glob_characters_in_plant_names(tmp_path):
     result = run(*args)
     assert result.exit_code == 0, result.output
     assert intact(out) and (out / "bean-s0000" / "keep.txt").read_text() == "another plant's"
-    assert (out / "*-s0000" / "run.json").is_file()
+    # The plants are named from the cloud's file name, made a plain name ("_-s0000").
+    names = [entry["name"] for entry in json.loads((out / "group.json").read_text())["plants"]]
+    assert names == ["_-s0000", "_-s0001"]
+    assert all((out / name / "run.json").is_file() for name in names)
