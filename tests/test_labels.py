@@ -173,7 +173,10 @@ def test_front_opaque_gaussian_wins_and_low_alpha_is_background():
     assert gt.label[c, c] == -1 and gt.alpha[c, c] > 0.9 and ls.classes[gt.label[c, c + 9]] == 1
 
 
-def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
+def test_shared_instance_channels_give_the_one_channel_per_unit_answer():
+    """Instances are chosen within the pixel's class: the shared channels give the arg-max
+    of one channel per (class, instance) unit, over the units of the pixel's class (here
+    instances span both classes and some Gaussians of each class have none)."""
     rng = np.random.default_rng(3)
     n = 600
     means = rng.normal(size=(n, 3)) * [0.3, 0.8, 0.8]
@@ -181,13 +184,22 @@ def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
     g = gaussians(means, -2.5, 1.0, labels)
     model, cam = GaussianModel(g), orbit(4.0, 20.0, 30.0, 50.0, 80, 80)
     ls = LabelSet.of(g.labels)
-    gt = render_ground_truth(model, cam, ls)
-    w, _, alpha, _ = _blend(
-        Splats.of(model), cam, one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
+    assert len(ls.unit_class) > len(ls.instances)  # instances of both classes, and "none"
+    gt = render_ground_truth(model, cam, ls, min_piece=1)  # the bare per-pixel arg-max
+    features = torch.cat(
+        [one_hot(ls.class_channel, 0, len(ls.classes)), one_hot(ls.unit, 0, len(ls.unit_class))],
+        dim=1,
     )
-    reference = np.where(alpha < 0.5, -1, np.argmax(w, axis=-1) - 1)
-    np.testing.assert_array_equal(gt.instance, reference)
+    w, _, alpha, _ = _blend(Splats.of(model), cam, features, False)
+    cls = np.argmax(w[..., : len(ls.classes)], axis=-1)
+    mine = ls.unit_class[None, None, :] == cls[..., None]
+    unit = np.argmax(np.where(mine, w[..., len(ls.classes) :], -1.0), axis=-1)
+    fg = alpha >= 0.5
+    np.testing.assert_array_equal(gt.label, np.where(fg, cls, -1))
+    np.testing.assert_array_equal(gt.instance, np.where(fg, ls.unit_instance[unit], -1))
     assert (gt.instance >= 0).sum() > 500
+    # Every pixel of a class that carries instances has an instance or its class's "none".
+    assert (gt.label[fg] >= 0).all()
 
 
 # --- generation ------------------------------------------------------------------------------
