@@ -115,19 +115,21 @@ def render(
     views = views_alias if views_alias is not None else views
     target = None if center is None else parse_center(center)
     frame = GenerateFrame.beside(path) if up == "z" and target is None else None
+    fitted: float | None = distance  # the orbit's distance (None: frame the plant)
     if frame is not None:  # generate's orbit, for the settings not given here
         given = {
             "views": _given(ctx, "views") or views_alias is not None,
             **{name: _given(ctx, name) for name in frame.orbit if name != "views"},
         }
         orbit: dict[str, float] = {
-            "views": views, "distance": distance, "elevation": elevation, "fovy": fovy,
+            "views": views, "elevation": elevation, "fovy": fovy,
             "resolution": resolution, "background": background,
         }  # fmt: skip
-        orbit.update({k: v for k, v in frame.orbit.items() if not given[k]})
+        orbit.update({k: v for k, v in frame.orbit.items() if not given[k] and k != "distance"})
         views, resolution = int(orbit["views"]), int(orbit["resolution"])
-        distance, elevation, fovy = orbit["distance"], orbit["elevation"], orbit["fovy"]
-        background = orbit["background"]
+        elevation, fovy, background = orbit["elevation"], orbit["fovy"], orbit["background"]
+        if not given["distance"]:  # generate's (None: it had no views to frame)
+            fitted = frame.orbit["distance"]
     if not 0.0 <= background <= 1.0:  # also refuses NaN
         raise InputError(f"--background must be a grey level in [0, 1], got {background}")
     if views < 1:
@@ -153,8 +155,11 @@ def render(
             cameras = scene_cameras(transforms, transform)
         else:
             from plantdreamer.cameras import orbit_ring
+            from plantdreamer.framing import framed_distance
 
-            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+            if fitted is None:  # a plant generated without views: generate's framing
+                fitted = framed_distance(scene, views, elevation, fovy, resolution, resolution)
+            cameras = orbit_ring(views, fitted, elevation, fovy, resolution, resolution)
         frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
         if transforms is None:
             from plantdreamer.pipeline import outputs

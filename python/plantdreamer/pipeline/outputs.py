@@ -32,7 +32,11 @@ class OutputsConfig:
     """The outputs section: the evaluation orbit, the turntable and the PLY's contents."""
 
     eval_views: int = setting(120, "Renders on the evaluation orbit.")
-    eval_distance: float = setting(4.0, "Evaluation orbit camera distance.")
+    eval_distance: float | None = setting(
+        None,
+        "Evaluation orbit camera distance (scene units; the plant's longest side is scene-size).",
+        default_text="framed: the closest at which the whole plant is in every view",
+    )
     eval_elevation_deg: float = setting(15.0, "Evaluation orbit elevation (degrees).")
     eval_fovy_deg: float = setting(70.0, "Evaluation orbit vertical field of view (degrees).")
     turntable_frames: int = setting(TURNTABLE_FRAMES, "Frames of the turntable.")
@@ -134,12 +138,23 @@ def export_ply(
     write_splat_ply(path, g, sh_degree=sh_degree, labels=labels, comments=comments)
 
 
-def render_orbit(
-    render, n: int, distance: float, elevation_deg: float, fovy_deg: float, resolution: int
-) -> list[np.ndarray]:
-    """uint8 [H, W, 3] images of the evaluation orbit; ``render(camera) -> [H, W, 3] float``."""
-    cameras = orbit_ring(n, distance, elevation_deg, fovy_deg, resolution, resolution)
-    return [to_uint8(render(cam)) for cam in cameras]
+def eval_orbit(oc: OutputsConfig, scene: Gaussians, resolution: int) -> tuple[list, float | None]:
+    """The evaluation orbit's cameras for the model ``scene`` (scene frame) and its distance:
+    ``eval_distance``, or framed on the model (``framing.framed_distance``); None without
+    views."""
+    from plantdreamer.framing import framed_distance
+
+    if oc.eval_views <= 0:
+        return [], oc.eval_distance
+    distance = oc.eval_distance
+    if distance is None:
+        distance = framed_distance(
+            scene, oc.eval_views, oc.eval_elevation_deg, oc.eval_fovy_deg, resolution, resolution
+        )
+    cameras = orbit_ring(
+        oc.eval_views, distance, oc.eval_elevation_deg, oc.eval_fovy_deg, resolution, resolution
+    )
+    return cameras, distance
 
 
 def to_uint8(image) -> np.ndarray:

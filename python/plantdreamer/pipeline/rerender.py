@@ -5,7 +5,8 @@ the same views and ground truth as ``generate`` did, at its orbit or at any came
 * scale) and writes ``plant.ply`` and the poses of ``transforms.json`` in the input frame
 (minus ``export_offset``, for the PLY). Reading ``run.json`` beside ``plant.ply`` gives that
 frame back; its config gives the evaluation orbit (views, distance, elevation, field of view,
-resolution) and the background.
+resolution) and the background, and ``eval_distance`` the distance generate framed the
+orbit at when its config gives none.
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ class GenerateFrame:
 
     transform: NormalizeTransform
     offset: np.ndarray | None  # plant.ply holds positions minus this
-    orbit: dict[str, Any]  # views, distance, elevation, fovy, resolution, background
+    orbit: dict[str, Any]  # views, distance (None: frame it), elevation, fovy, resolution,
+    # background
 
     @classmethod
     def beside(cls, ply: Path) -> GenerateFrame | None:
@@ -48,7 +50,7 @@ class GenerateFrame:
             transform = NormalizeTransform.from_dict(run["transform"])
             orbit = {
                 "views": int(cfg.outputs.eval_views),
-                "distance": float(cfg.outputs.eval_distance),
+                "distance": _orbit_distance(cfg.outputs.eval_distance, run),
                 "elevation": float(cfg.outputs.eval_elevation_deg),
                 "fovy": float(cfg.outputs.eval_fovy_deg),
                 "resolution": int(cfg.train.resolution),  # type: ignore[arg-type]
@@ -62,6 +64,16 @@ class GenerateFrame:
     def to_scene(self, g: Gaussians) -> Gaussians:
         """plant.ply's Gaussians in the scene frame."""
         return exported_scene(g, self.transform, self.offset)
+
+
+def _orbit_distance(given: float | None, run: dict[str, Any]) -> float | None:
+    """The distance generate's orbit was rendered at: given in its config, else the one it
+    framed and recorded (``eval_distance``); None for a run without views (``render``
+    frames the plant by generate's rule then)."""
+    if given is not None:
+        return float(given)
+    framed = run.get("eval_distance")
+    return None if framed is None else float(framed)
 
 
 def exported_scene(
