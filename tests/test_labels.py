@@ -202,6 +202,32 @@ def test_shared_instance_channels_give_the_one_channel_per_unit_answer():
     assert (gt.label[fg] >= 0).all()
 
 
+def test_a_model_without_gaussians_has_empty_maps():
+    g = gaussians(np.zeros((0, 3)), 0.0, 0.0, np.zeros((0, 2), dtype=np.int64))
+    for ls in (None, LabelSet.of(g.labels)):
+        gt = render_ground_truth(GaussianModel(g), orbit(4.0, 15.0, 0.0, 50.0, 24, 20), ls)
+        assert gt.label.shape == gt.instance.shape == gt.depth.shape == (20, 24)
+        assert (gt.label == -1).all() and (gt.instance == -1).all()
+        assert not gt.depth.any() and not gt.alpha.any()
+
+
+def test_a_run_left_without_gaussians_is_one_error_before_plant_ply(tmp_path):
+    """Density control that prunes everything (opacity 0.7 < 0.9 at step 1): one error line
+    naming the round, and no 0-Gaussian plant.ply (it was an internal "cannot reshape")."""
+    out = tmp_path / "gone"
+    result = CliRunner().invoke(
+        main,
+        ["generate", "--species", "bean", "--guidance", "none", "--steps", "2", "--points",
+         "1500", "--resolution", "32", "--eval-views", "2", "--turntable", "none",
+         "--densify-start", "0", "--densify-every", "1", "--densify-prune-opacity", "0.9",
+         "--out", str(out)],
+    )  # fmt: skip
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 1 and len(errors) == 1, result.output
+    assert "no Gaussian is left to export" in errors[0] and "step 1" in errors[0]
+    assert "Traceback" not in result.output and not (out / "plant.ply").exists()
+
+
 # --- generation ------------------------------------------------------------------------------
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import torch
 
 from plantdreamer import _core
+from plantdreamer.errors import InputError
 from plantdreamer.exports import write_plant_exports
 from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
@@ -40,8 +41,16 @@ class RunResult:
 def export_run(
     cfg: GenerateConfig, state: RunState, out: Path, resolution: int, device: str
 ) -> RunResult:
-    """Writes every output of a finished run into ``out``."""
+    """Writes every output of a finished run into ``out``; a model that training left
+    without Gaussians is refused before anything is written."""
     final = state.model.to_gaussians()
+    if len(final) == 0:
+        emptied = next((e for e in state.events if e.get("gaussians") == 0), None)
+        when = f" (the {emptied['event']} round of step {emptied['step']})" if emptied else ""
+        raise InputError(
+            f"no Gaussian is left to export: training removed all {len(state.initial)}"
+            f"{when}; check the densify and cull settings"
+        )
     timer, oc = state.timer, cfg.outputs
     class_names = _class_names(cfg)
     with timer("export"):

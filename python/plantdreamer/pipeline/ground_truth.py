@@ -100,6 +100,10 @@ class GroundTruthRenderer:
         """
         shape, n = (camera.height, camera.width), len(self.splats)
         ls = self.label_set
+        if n == 0:  # nothing to see: background everywhere
+            empty = np.full(shape, -1, dtype=np.int64)
+            zeros = np.zeros(shape, dtype=np.float32)
+            return GroundTruth(empty, empty.copy(), zeros, zeros.copy())
         depth = alpha = None
         if ls is None or footprints is None:
             _, depth, alpha, footprints = _blend(
