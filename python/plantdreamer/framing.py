@@ -8,8 +8,8 @@ opacity-weighted central 96% (2% trimmed on each side of every axis): a handful 
 Gaussians moves neither. Captured scenes are often y-down; ``up`` rotates the named axis
 onto +z, the orbit's up.
 
-``orbit_distance`` is the evaluation orbit's default distance: the smallest at which every
-Gaussian's 2-sigma sphere lies inside every view of the ring, ``FRAME_MARGIN`` of the
+``framed_distance`` is the evaluation orbit's default distance: the smallest at which every
+Gaussian's 2-sigma sphere lies inside every view of the ring (``orbit_distance``), ``FRAME_MARGIN`` of the
 half-image from its border. A point p with camera-space x = a . p and depth z = d + f . p
 is inside the side plane |x| = k z (k = tan(fov / 2) (1 - margin)) with a sphere of
 radius r around it when d >= (|a . p| + r sqrt(1 + k^2)) / k - f . p: linear in p per side
@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from plantdreamer.cameras import Camera
+from plantdreamer.cameras import Camera, orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 
@@ -146,8 +146,6 @@ def framed_distance(
     """The evaluation orbit's distance for ``g`` (in the scene frame, around the origin):
     ``orbit_distance`` over the ring's ``views`` and a dense ring of ``FRAME_AZIMUTHS``, so
     the whole model stays in view at any azimuth (``render --views`` of the same plant)."""
-    from plantdreamer.cameras import orbit_ring
-
     ring = orbit_ring(views, 1.0, elevation_deg, fovy_deg, width, height)
     dense = orbit_ring(FRAME_AZIMUTHS, 1.0, elevation_deg, fovy_deg, width, height)
     return orbit_distance(g, ring + dense)
