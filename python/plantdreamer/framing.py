@@ -40,8 +40,8 @@ TRIM = 0.02  # weight trimmed on each side of every axis when measuring the size
 FRAME_MARGIN = 0.05  # of the half-image, left free around a framed model in every view
 FRAME_SIGMAS = 2.0  # a Gaussian's extent in the framing: this many of its largest sigma
 FAINT = 1.0 / 255.0  # Gaussians below this opacity draw nothing (the rasterizer skips them)
-FRAME_AZIMUTHS = 72  # views of the dense ring framed besides the orbit's own (5 degrees)
-_CHUNK = 16384  # Gaussians per matrix product in orbit_distance (bounded memory)
+FRAME_AZIMUTHS = 72  # an orbit of fewer views is framed on this many too (5 degrees apart)
+_CHUNK = 4096  # Gaussians per matrix product in orbit_distance (~25 MB at 192 views)
 
 _H = math.sqrt(0.5)
 # up axis -> (rotation taking it to +z, the same rotation as a (w, x, y, z) quaternion)
@@ -129,12 +129,12 @@ def orbit_distance(g: Gaussians, cameras: list[Camera]) -> float:
             for sign in (1.0, -1.0):
                 rows.append(sign * axis / k - forward)
                 offsets.append(math.sqrt(1.0 + k * k) / k)
-    a, c = np.stack(rows, axis=1), np.asarray(offsets)
+    # One product of [p, r] with [a / k - f; sqrt(1 + k^2) / k] per chunk of Gaussians.
+    coefficients = np.concatenate([np.stack(rows, axis=1), [offsets]], axis=0)
+    points = np.concatenate([means, radius[:, None]], axis=1)
     far = -math.inf
-    for start in range(0, len(means), _CHUNK):
-        stop = start + _CHUNK
-        need = means[start:stop] @ a + radius[start:stop, None] * c[None, :]
-        far = max(far, float(need.max()))
+    for start in range(0, len(points), _CHUNK):
+        far = max(far, float((points[start : start + _CHUNK] @ coefficients).max()))
     if not far > 0:
         raise InputError("the model has no extent to frame the evaluation orbit on")
     return far
@@ -144,8 +144,11 @@ def framed_distance(
     g: Gaussians, views: int, elevation_deg: float, fovy_deg: float, width: int, height: int
 ) -> float:
     """The evaluation orbit's distance for ``g`` (in the scene frame, around the origin):
-    ``orbit_distance`` over the ring's ``views`` and a dense ring of ``FRAME_AZIMUTHS``, so
-    the whole model stays in view at any azimuth (``render --views`` of the same plant)."""
+    ``orbit_distance`` over the ring's ``views``, and a ring of ``FRAME_AZIMUTHS`` where the
+    orbit has fewer views, so the whole model stays in view at any azimuth (``render
+    --eval-views`` of the same plant). Rounded up to 1e-6, a number that reads back the same
+    (the matrix product's last bits may differ between CPUs)."""
     ring = orbit_ring(views, 1.0, elevation_deg, fovy_deg, width, height)
-    dense = orbit_ring(FRAME_AZIMUTHS, 1.0, elevation_deg, fovy_deg, width, height)
-    return orbit_distance(g, ring + dense)
+    if views < FRAME_AZIMUTHS:
+        ring += orbit_ring(FRAME_AZIMUTHS, 1.0, elevation_deg, fovy_deg, width, height)
+    return math.ceil(orbit_distance(g, ring) * 1e6) / 1e6
