@@ -68,3 +68,54 @@ def test_bad_cameras_are_rejected():
         stack([orbit(4, 0, 0, 60, 10, 10), orbit(4, 0, 0, 60, 20, 10)])
     with pytest.raises(InputError):
         Camera(np.full((4, 4), np.nan), np.eye(3), 10, 10)
+
+
+def test_framed_distance_keeps_every_gaussian_inside_every_view_with_the_margin():
+    """At the framed distance each Gaussian's 2-sigma sphere is inside every view's frustum
+    shrunk by the margin (checked in camera space, through the cameras' own matrices), one
+    of them touching it; a little closer, one sticks out. A non-square image too."""
+    import math
+
+    from plantdreamer.framing import (
+        FRAME_AZIMUTHS,
+        FRAME_MARGIN,
+        FRAME_SIGMAS,
+        framed_distance,
+        orbit_distance,
+    )
+    from plantdreamer.gaussians import Gaussians
+
+    rng = np.random.default_rng(5)
+    n = 300
+    means = (rng.normal(size=(n, 3)) * [1.5, 0.6, 0.9] + [0.3, 0.0, -0.2]).astype(np.float32)
+    log_scales = np.log(rng.uniform(0.01, 0.1, (n, 3))).astype(np.float32)
+    g = Gaussians(means, np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32), log_scales,
+                  np.full(n, 2.0, np.float32), np.zeros((n, 1, 3), np.float32))  # fmt: skip
+    radius = FRAME_SIGMAS * np.exp(log_scales.astype(np.float64).max(axis=1))
+
+    def worst(cameras):
+        """Largest (|x| + r sqrt(1 + k^2)) / (k z) over Gaussians, sides and views (<= 1:
+        inside)."""
+        out = 0.0
+        for cam in cameras:
+            p = means.astype(np.float64) @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+            for axis, focal, size in ((0, cam.K[0, 0], cam.width), (1, cam.K[1, 1], cam.height)):
+                k = size / (2 * focal) * (1 - FRAME_MARGIN)
+                side = (np.abs(p[:, axis]) + radius * math.sqrt(1 + k * k)) / (k * p[:, 2])
+                out = max(out, float(side.max()))
+        return out
+
+    for width, height, views in ((64, 64, 5), (96, 48, 80)):
+        d = framed_distance(g, views, 20.0, 50.0, width, height)
+        ring = orbit_ring(views, d, 20.0, 50.0, width, height)
+        framed = ring  # an orbit of fewer views is framed at every 5 degrees too
+        if views < FRAME_AZIMUTHS:
+            framed = ring + orbit_ring(FRAME_AZIMUTHS, d, 20.0, 50.0, width, height)
+        assert worst(ring) <= 1.0 and 0.999 < worst(framed) <= 1.0
+        closer = [orbit(0.98 * d, 20.0, c.azimuth_deg, 50.0, width, height) for c in framed]
+        assert worst(closer) > 1.0
+        assert orbit_distance(g, framed) <= d  # any ring distance: the same directions
+    # Faint Gaussians (below 1/255) and none at all.
+    faint = Gaussians(means, g.quats, log_scales, np.full(n, -8.0, np.float32), g.sh)
+    with pytest.raises(InputError, match="no visible Gaussian"):
+        framed_distance(faint, 4, 15.0, 70.0, 32, 32)

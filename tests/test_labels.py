@@ -173,7 +173,10 @@ def test_front_opaque_gaussian_wins_and_low_alpha_is_background():
     assert gt.label[c, c] == -1 and gt.alpha[c, c] > 0.9 and ls.classes[gt.label[c, c + 9]] == 1
 
 
-def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
+def test_shared_instance_channels_give_the_one_channel_per_unit_answer():
+    """Instances are chosen within the pixel's class: the shared channels give the arg-max
+    of one channel per (class, instance) unit, over the units of the pixel's class (here
+    instances span both classes and some Gaussians of each class have none)."""
     rng = np.random.default_rng(3)
     n = 600
     means = rng.normal(size=(n, 3)) * [0.3, 0.8, 0.8]
@@ -181,13 +184,48 @@ def test_shared_instance_channels_give_the_one_channel_per_instance_answer():
     g = gaussians(means, -2.5, 1.0, labels)
     model, cam = GaussianModel(g), orbit(4.0, 20.0, 30.0, 50.0, 80, 80)
     ls = LabelSet.of(g.labels)
-    gt = render_ground_truth(model, cam, ls)
-    w, _, alpha, _ = _blend(
-        Splats.of(model), cam, one_hot(ls.instance_channel, 0, len(ls.instances) + 1), False
+    assert len(ls.unit_class) > len(ls.instances)  # instances of both classes, and "none"
+    gt = render_ground_truth(model, cam, ls, min_piece=1)  # the bare per-pixel arg-max
+    features = torch.cat(
+        [one_hot(ls.class_channel, 0, len(ls.classes)), one_hot(ls.unit, 0, len(ls.unit_class))],
+        dim=1,
     )
-    reference = np.where(alpha < 0.5, -1, np.argmax(w, axis=-1) - 1)
-    np.testing.assert_array_equal(gt.instance, reference)
+    w, _, alpha, _ = _blend(Splats.of(model), cam, features, False)
+    cls = np.argmax(w[..., : len(ls.classes)], axis=-1)
+    mine = ls.unit_class[None, None, :] == cls[..., None]
+    unit = np.argmax(np.where(mine, w[..., len(ls.classes) :], -1.0), axis=-1)
+    fg = alpha >= 0.5
+    np.testing.assert_array_equal(gt.label, np.where(fg, cls, -1))
+    np.testing.assert_array_equal(gt.instance, np.where(fg, ls.unit_instance[unit], -1))
     assert (gt.instance >= 0).sum() > 500
+    # Every pixel of a class that carries instances has an instance or its class's "none".
+    assert (gt.label[fg] >= 0).all()
+
+
+def test_a_model_without_gaussians_has_empty_maps():
+    g = gaussians(np.zeros((0, 3)), 0.0, 0.0, np.zeros((0, 2), dtype=np.int64))
+    for ls in (None, LabelSet.of(g.labels)):
+        gt = render_ground_truth(GaussianModel(g), orbit(4.0, 15.0, 0.0, 50.0, 24, 20), ls)
+        assert gt.label.shape == gt.instance.shape == gt.depth.shape == (20, 24)
+        assert (gt.label == -1).all() and (gt.instance == -1).all()
+        assert not gt.depth.any() and not gt.alpha.any()
+
+
+def test_a_run_left_without_gaussians_is_one_error_before_plant_ply(tmp_path):
+    """Density control that prunes everything (opacity 0.7 < 0.9 at step 1): one error line
+    naming the round, and no 0-Gaussian plant.ply (it was an internal "cannot reshape")."""
+    out = tmp_path / "gone"
+    result = CliRunner().invoke(
+        main,
+        ["generate", "--species", "bean", "--guidance", "none", "--steps", "2", "--points",
+         "1500", "--resolution", "32", "--eval-views", "2", "--turntable", "none",
+         "--densify-start", "0", "--densify-every", "1", "--densify-prune-opacity", "0.9",
+         "--out", str(out)],
+    )  # fmt: skip
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 1 and len(errors) == 1, result.output
+    assert "no Gaussian is left to export" in errors[0] and "step 1" in errors[0]
+    assert "Traceback" not in result.output and not (out / "plant.ply").exists()
 
 
 # --- generation ------------------------------------------------------------------------------

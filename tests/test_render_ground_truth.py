@@ -62,6 +62,22 @@ def test_a_plant_folder_renders_on_generates_orbit(bean, tmp_path):
     assert not (tmp_path / "small" / "view_003.png").exists()
 
 
+def test_the_orbit_distance_is_generates_framed_or_given(bean, tmp_path):
+    """generate frames its orbit on the plant and records the distance; render uses it, and
+    frames a plant generated without views by the same rule (the same views, bit for bit)."""
+    run = json.loads((bean / "run.json").read_text())
+    assert run["config"]["outputs"]["eval_distance"] is None and 1.0 < run["eval_distance"] < 8.0
+    plant = make_plant(tmp_path / "none", eval_views=0)
+    assert json.loads((plant / "run.json").read_text())["eval_distance"] is None
+    render(plant, "--labels", "--eval-views", 3, "--out", tmp_path / "o")
+    assert_same_views(tmp_path / "o", bean, 3)
+    # A distance given to generate is kept, and render follows it.
+    far = make_plant(tmp_path / "far", eval_distance=9.0)
+    assert json.loads((far / "run.json").read_text())["eval_distance"] == 9.0
+    render(far, "--labels", "--out", tmp_path / "f")
+    assert_same_views(tmp_path / "f", far, 3)
+
+
 def test_labels_at_cameras_for_a_ply_without_run_json(bean, tmp_path):
     """Another tool's PLY: rendered in its own frame, close to (not bit for bit) generate's."""
     (tmp_path / "alone").mkdir()

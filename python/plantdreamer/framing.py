@@ -1,4 +1,5 @@
-"""Framing any 3DGS scene for the orbit: a robust centre and size, and which axis is up.
+"""Framing any 3DGS scene for the orbit: a robust centre and size, which axis is up, and
+the orbit distance that keeps a whole model in every view.
 
 Models from other tools carry stray Gaussians far from the subject (floaters, background
 splats). A bounding box follows them, so the subject shrinks to a few pixels. Here the
@@ -6,6 +7,13 @@ centre is the opacity-weighted median of the means and the size is the longest s
 opacity-weighted central 96% (2% trimmed on each side of every axis): a handful of far
 Gaussians moves neither. Captured scenes are often y-down; ``up`` rotates the named axis
 onto +z, the orbit's up.
+
+``framed_distance`` is the evaluation orbit's default distance: the smallest at which every
+Gaussian's 2-sigma sphere lies inside every view of the ring (``orbit_distance``), ``FRAME_MARGIN`` of the
+half-image from its border. A point p with camera-space x = a . p and depth z = d + f . p
+is inside the side plane |x| = k z (k = tan(fov / 2) (1 - margin)) with a sphere of
+radius r around it when d >= (|a . p| + r sqrt(1 + k^2)) / k - f . p: linear in p per side
+of each view, so the distance is one matrix product and a maximum.
 """
 
 from __future__ import annotations
@@ -14,13 +22,28 @@ import math
 
 import numpy as np
 
+from plantdreamer.cameras import Camera, orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
 
-__all__ = ["TRIM", "UP_AXES", "robust_center_extent", "rotate_up", "to_scene_frame"]
+__all__ = [
+    "FRAME_MARGIN",
+    "TRIM",
+    "UP_AXES",
+    "framed_distance",
+    "orbit_distance",
+    "robust_center_extent",
+    "rotate_up",
+    "to_scene_frame",
+]
 
 TRIM = 0.02  # weight trimmed on each side of every axis when measuring the size
+FRAME_MARGIN = 0.05  # of the half-image, left free around a framed model in every view
+FRAME_SIGMAS = 2.0  # a Gaussian's extent in the framing: this many of its largest sigma
+FAINT = 1.0 / 255.0  # Gaussians below this opacity draw nothing (the rasterizer skips them)
+FRAME_AZIMUTHS = 72  # an orbit of fewer views is framed on this many too (5 degrees apart)
+_CHUNK = 4096  # Gaussians per matrix product in orbit_distance (~25 MB at 192 views)
 
 _H = math.sqrt(0.5)
 # up axis -> (rotation taking it to +z, the same rotation as a (w, x, y, z) quaternion)
@@ -106,3 +129,49 @@ def to_scene_frame(
         center=(float(mid[0]), float(mid[1]), float(mid[2])), scale=float(size / extent)
     )
     return transform.gaussians_to_scene(g), transform
+
+
+def orbit_distance(g: Gaussians, cameras: list[Camera]) -> float:
+    """The smallest distance from the target (the origin) at which ``cameras`` (an orbit
+    ring made at any distance, looking at the origin) see every Gaussian of ``g`` whole,
+    with ``FRAME_MARGIN`` to spare; Gaussians fainter than ``FAINT`` do not count."""
+    means = np.asarray(g.means, dtype=np.float64)
+    radius = FRAME_SIGMAS * np.exp(np.asarray(g.log_scales, dtype=np.float64).max(axis=1))
+    opacity = 1.0 / (1.0 + np.exp(-np.asarray(g.opacity_logits, dtype=np.float64)))
+    keep = np.isfinite(means).all(axis=1) & np.isfinite(radius) & (opacity >= FAINT)
+    if not keep.any() or not cameras:
+        raise InputError("no visible Gaussian to frame the evaluation orbit on")
+    means, radius = means[keep], radius[keep]
+    # Per view and side: p . (a / k - f) + r sqrt(1 + k^2) / k >= d, a = +-right or +-down.
+    rows, offsets = [], []
+    for cam in cameras:
+        right, down, forward = cam.viewmat[:3, :3]
+        kx = cam.width / (2.0 * cam.K[0, 0]) * (1.0 - FRAME_MARGIN)
+        ky = cam.height / (2.0 * cam.K[1, 1]) * (1.0 - FRAME_MARGIN)
+        for axis, k in ((right, kx), (down, ky)):
+            for sign in (1.0, -1.0):
+                rows.append(sign * axis / k - forward)
+                offsets.append(math.sqrt(1.0 + k * k) / k)
+    # One product of [p, r] with [a / k - f; sqrt(1 + k^2) / k] per chunk of Gaussians.
+    coefficients = np.concatenate([np.stack(rows, axis=1), [offsets]], axis=0)
+    points = np.concatenate([means, radius[:, None]], axis=1)
+    far = -math.inf
+    for start in range(0, len(points), _CHUNK):
+        far = max(far, float((points[start : start + _CHUNK] @ coefficients).max()))
+    if not far > 0:
+        raise InputError("the model has no extent to frame the evaluation orbit on")
+    return far
+
+
+def framed_distance(
+    g: Gaussians, views: int, elevation_deg: float, fovy_deg: float, width: int, height: int
+) -> float:
+    """The evaluation orbit's distance for ``g`` (in the scene frame, around the origin):
+    ``orbit_distance`` over the ring's ``views``, and a ring of ``FRAME_AZIMUTHS`` where the
+    orbit has fewer views, so the whole model stays in view at any azimuth (``render
+    --eval-views`` of the same plant). Rounded up to 1e-6, a number that reads back the same
+    (the matrix product's last bits may differ between CPUs)."""
+    ring = orbit_ring(views, 1.0, elevation_deg, fovy_deg, width, height)
+    if views < FRAME_AZIMUTHS:
+        ring += orbit_ring(FRAME_AZIMUTHS, 1.0, elevation_deg, fovy_deg, width, height)
+    return math.ceil(orbit_distance(g, ring) * 1e6) / 1e6

@@ -129,7 +129,8 @@ def render(
     if views < 1:
         raise InputError(f"--eval-views must be at least 1, got {views}")
     check_image_size(resolution, resolution, "--resolution")
-    if not (math.isfinite(distance) and distance > 0 and 0 < fovy < 180):
+    # No distance: the orbit is framed on the model (framing.framed_distance), as generate's.
+    if not ((distance is None or (math.isfinite(distance) and distance > 0)) and 0 < fovy < 180):
         raise InputError("--eval-distance must be positive and --eval-fovy-deg in (0, 180) degrees")
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
@@ -156,7 +157,10 @@ def render(
             cameras = scene_cameras(transforms, transform)
         else:
             from plantdreamer.cameras import orbit_ring
+            from plantdreamer.framing import framed_distance
 
+            if distance is None:  # generate's framing (a plant generated without views too)
+                distance = framed_distance(scene, views, elevation, fovy, resolution, resolution)
             cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
         frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
         if transforms is None:

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from plantdreamer import _core
-from plantdreamer.cameras import orbit_ring
+from plantdreamer.errors import InputError
 from plantdreamer.exports import write_plant_exports
 from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
@@ -41,8 +41,16 @@ class RunResult:
 def export_run(
     cfg: GenerateConfig, state: RunState, out: Path, resolution: int, device: str
 ) -> RunResult:
-    """Writes every output of a finished run into ``out``."""
+    """Writes every output of a finished run into ``out``; a model that training left
+    without Gaussians is refused before anything is written."""
     final = state.model.to_gaussians()
+    if len(final) == 0:
+        emptied = next((e for e in state.events if e.get("gaussians") == 0), None)
+        when = f" (the {emptied['event']} round of step {emptied['step']})" if emptied else ""
+        raise InputError(
+            f"no Gaussian is left to export: training removed all {len(state.initial)}"
+            f"{when}; check the densify and cull settings"
+        )
     timer, oc = state.timer, cfg.outputs
     class_names = _class_names(cfg)
     with timer("export"):
@@ -59,17 +67,12 @@ def export_run(
         # input frame, its SH degree), so `render` remakes them exactly.
         if oc.sh_degree_export is not None:
             exported = exported.with_sh_degree(oc.sh_degree_export)
-        view_model = GaussianModel(exported_scene(exported, state.transform, offset))
+        scene = exported_scene(exported, state.transform, offset)
+        view_model = GaussianModel(scene)
     with timer("renders"), torch.no_grad():
-        # Each view's render, then its ground truth (which reuses the render's footprints).
-        cameras = orbit_ring(
-            oc.eval_views,
-            oc.eval_distance,
-            oc.eval_elevation_deg,
-            oc.eval_fovy_deg,
-            resolution,
-            resolution,
-        )
+        # Each view's render, then its ground truth (which reuses the render's footprints),
+        # on the orbit framed on what plant.ply holds unless the distance is given.
+        cameras, eval_distance = outputs.eval_orbit(oc, scene, resolution)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
         def render(camera):
@@ -83,6 +86,7 @@ def export_run(
     with timer("label files"):
         write_plant_exports(out)
     summary = _summary(cfg, state, final, device, export_offset)
+    summary["eval_distance"] = eval_distance  # the orbit's distance (framed, or given)
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))

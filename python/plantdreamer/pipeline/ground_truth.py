@@ -9,10 +9,14 @@ the smaller id) and is background where the accumulated alpha sum_c W_c is below
 get at most its transmittance), so occluding leaves win; at a leaf's soft edge the pixel
 turns to whatever contributes most, as in the RGB image.
 
-Instances use the same rule over one-hot instance features, plus one channel for Gaussians of
-no instance (a stem in front of a leaf is "no instance", not the leaf); instances whose
-footprints never meet share a channel (``label_channels.py``), and at most
-``CHANNELS_PER_PASS`` channels are blended per pass, keeping the running arg-max.
+Instances are chosen within the pixel's class: among the units of that class (its
+instances, and its Gaussians of no instance; ``label_channels.py``), the one of largest
+weight, by the same rule over one-hot unit features; a pixel of a class without instances
+(a stem in front of a leaf) has no instance. Units whose footprints never meet share a
+channel, and at most ``CHANNELS_PER_PASS`` channels are blended per pass, keeping the
+running arg-max. Last, a view's specks (stray pieces of an object under
+``label_pieces.MIN_PIECE`` pixels) take the label around them; depth is kept where the
+class map is foreground.
 """
 
 from __future__ import annotations
@@ -25,10 +29,12 @@ import torch
 from plantdreamer.cameras import Camera, stack
 from plantdreamer.gaussians import activate_opacities, activate_scales
 from plantdreamer.pipeline.label_channels import TILE, LabelSet, one_hot, share_channels
+from plantdreamer.pipeline.label_pieces import BACKGROUND, MIN_PIECE, remove_specks
 from plantdreamer.pipeline.model import GaussianModel
 
 ALPHA_THRESHOLD = 0.5  # below: background (also for depth)
 CHANNELS_PER_PASS = 32  # instance channels blended per rasterizer pass
+NO_UNIT_CLASS = -2  # the class of "no unit": equal to no pixel's class (-1 is label -1)
 
 
 @dataclass
@@ -69,11 +75,15 @@ class Splats:
 
 class GroundTruthRenderer:
     """Renders the ground truth of one model for any number of views; what does not depend
-    on the view (activated parameters, class channels) is prepared once."""
+    on the view (activated parameters, class channels) is prepared once. ``min_piece``:
+    the speck size of ``label_pieces`` (1: the bare per-pixel arg-max)."""
 
-    def __init__(self, model: GaussianModel, label_set: LabelSet | None) -> None:
+    def __init__(
+        self, model: GaussianModel, label_set: LabelSet | None, min_piece: int = MIN_PIECE
+    ) -> None:
         self.splats = Splats.of(model)
         self.label_set = label_set
+        self.min_piece = min_piece
         if label_set is not None:
             # Channel 0 is "unlabelled" (it occludes and names no class) only where some
             # Gaussian has label -1; otherwise channel k is class k.
@@ -90,6 +100,10 @@ class GroundTruthRenderer:
         """
         shape, n = (camera.height, camera.width), len(self.splats)
         ls = self.label_set
+        if n == 0:  # nothing to see: background everywhere
+            empty = np.full(shape, -1, dtype=np.int64)
+            zeros = np.zeros(shape, dtype=np.float32)
+            return GroundTruth(empty, empty.copy(), zeros, zeros.copy())
         depth = alpha = None
         if ls is None or footprints is None:
             _, depth, alpha, footprints = _blend(
@@ -99,13 +113,37 @@ class GroundTruthRenderer:
             assert depth is not None and alpha is not None
             empty = np.full(shape, -1, dtype=np.int64)
             return GroundTruth(empty, empty.copy(), _masked_depth(depth, alpha), alpha)
+        fg, cls, unit, d, a = self._arg_max(camera, footprints, with_depth=depth is None)
+        if depth is None:
+            depth, alpha = d, a
+        assert depth is not None and alpha is not None
+        # One key per object (a unit; or a class, for pixels of no unit), then no specks
+        # (a speck only ever moves to another object or to the background).
+        n_keys = self.n_cls + 1
+        key = np.full(shape[0] * shape[1], BACKGROUND, dtype=np.int64)
+        key[fg] = np.where(unit >= 0, n_keys + unit, cls + 1)
+        key = remove_specks(key.reshape(shape), self.min_piece).reshape(-1)[fg]
+        u = np.where(key >= n_keys, key - n_keys, -1)
+        label = np.full(shape[0] * shape[1], -1, dtype=np.int64)
+        instance = label.copy()
+        label[fg] = np.where(u >= 0, np.r_[ls.unit_class, -1][u], np.maximum(key - 1, -1))
+        instance[fg] = np.r_[ls.unit_instance, -1][u]
+        kept = np.zeros(shape[0] * shape[1], dtype=bool)
+        kept[fg[key != BACKGROUND]] = True
+        depth = np.where(kept.reshape(shape), depth, np.float32(0.0)).astype(np.float32)
+        return GroundTruth(label.reshape(shape), instance.reshape(shape), depth, alpha)
 
-        channel = np.zeros(n, dtype=np.int64)
-        owner = np.full((1, 1, 1), -1, dtype=np.int64)
-        if len(ls.instances):
+    def _arg_max(self, camera: Camera, footprints: dict, with_depth: bool):
+        """The foreground pixels (flat indices), each one's class index and unit (-1: none),
+        and the depth and alpha maps (None without ``with_depth``)."""
+        ls, n = self.label_set, len(self.splats)
+        assert ls is not None
+        channel = np.full(n, -1, dtype=np.int64)
+        owner = np.full((0, 1, 1), -1, dtype=np.int64)
+        if len(ls.unit_class):
             channel, owner = share_channels(ls, footprints, camera)
-        n_inst = int(channel.max()) + 1 if len(ls.instances) else 0
-        first = min(n_inst, CHANNELS_PER_PASS)
+        n_ch = len(owner)
+        first = min(n_ch, CHANNELS_PER_PASS)
         # Classes and the first instance channels in one [N, n_cls + first] feature block.
         # A row is one of n_cls x (first + 1) patterns (its class; its instance channel, or
         # none in this pass): one gather from a table of them.
@@ -113,39 +151,43 @@ class GroundTruthRenderer:
         table = np.zeros((self.n_cls, first + 1, d), dtype=np.float32)
         table[np.arange(self.n_cls), :, np.arange(self.n_cls)] = 1.0
         table[:, np.arange(first), self.n_cls + np.arange(first)] = 1.0
-        pattern = self.class_column * (first + 1) + np.minimum(channel, first)
-        features = table.reshape(-1, d)[pattern]
-        weights, d, a, _ = _blend(
-            self.splats, camera, torch.from_numpy(features), with_depth=depth is None
+        in_pass = np.where((channel >= 0) & (channel < first), channel, first)
+        features = table.reshape(-1, d)[self.class_column * (first + 1) + in_pass]
+        weights, depth, alpha, _ = _blend(
+            self.splats, camera, torch.from_numpy(features), with_depth=with_depth
         )
-        if depth is None:
-            depth, alpha = d, a
-        assert depth is not None and alpha is not None
         # Arg-max over the foreground pixels only (usually a small part of the frame).
         fg = np.flatnonzero(alpha.reshape(-1) >= ALPHA_THRESHOLD)
         w = weights.reshape(-1, weights.shape[-1])[fg]
-        label = np.full(shape[0] * shape[1], -1, dtype=np.int64)
-        label[fg] = np.argmax(w[:, : self.n_cls], axis=1) - self.unlabelled
-        label = label.reshape(shape)
-        if not n_inst:
-            return GroundTruth(label, np.full(shape, -1), _masked_depth(depth, alpha), alpha)
-        best = np.argmax(w[:, self.n_cls :], axis=1)
-        best_w = w[np.arange(len(fg)), self.n_cls + best]
-        for start in range(first, n_inst, CHANNELS_PER_PASS):
-            stop = min(start + CHANNELS_PER_PASS, n_inst)
-            more, _, _, _ = _blend(
-                self.splats, camera, one_hot(channel, start, stop), with_depth=False
-            )
-            chunk = more.reshape(-1, stop - start)[fg]
+        cls = np.argmax(w[:, : self.n_cls], axis=1) - self.unlabelled
+        unit = np.full(len(fg), -1, dtype=np.int64)
+        if not n_ch:
+            return fg, cls, unit, depth, alpha
+        # The instance: the unit of largest weight among those of the pixel's class (the
+        # channel's unit in the pixel's tile; index -1 of unit_class: no unit there).
+        tile = fg // camera.width // TILE * owner.shape[-1] + fg % camera.width // TILE
+        units = owner.reshape(n_ch, -1)[:, tile].T  # [fg, channel]
+        unit_class = np.r_[ls.unit_class, NO_UNIT_CLASS]
+        best = np.zeros(len(fg), dtype=np.int64)
+        best_w = np.zeros(len(fg), dtype=np.float32)
+        for start in range(0, n_ch, CHANNELS_PER_PASS):
+            stop = min(start + CHANNELS_PER_PASS, n_ch)
+            if start == 0:
+                chunk = w[:, self.n_cls :]
+            else:
+                more, _, _, _ = _blend(
+                    self.splats, camera, one_hot(channel, start, stop), with_depth=False
+                )
+                chunk = more.reshape(-1, stop - start)[fg]
+            mine = unit_class[units[:, start:stop]] == cls[:, None]
+            chunk = np.where(mine, chunk, np.float32(-1.0))
             chunk_c = np.argmax(chunk, axis=1)
             chunk_w = chunk[np.arange(len(fg)), chunk_c]
             better = chunk_w > best_w  # strict: ties keep the lower channel
             best_w = np.where(better, chunk_w, best_w)
             best = np.where(better, chunk_c + start, best)
-        # The channel's instance at each pixel: its owner in the pixel's tile.
-        instance = np.full(shape[0] * shape[1], -1, dtype=np.int64)
-        instance[fg] = owner[best, fg // camera.width // TILE, fg % camera.width // TILE]
-        return GroundTruth(label, instance.reshape(shape), _masked_depth(depth, alpha), alpha)
+        unit = np.where(best_w > 0, units[np.arange(len(fg)), best], -1)
+        return fg, cls, unit, depth, alpha
 
 
 def render_ground_truth(
@@ -153,9 +195,10 @@ def render_ground_truth(
     camera: Camera,
     label_set: LabelSet | None,
     footprints: dict | None = None,
+    min_piece: int = MIN_PIECE,
 ) -> GroundTruth:
     """One view's ground truth (``GroundTruthRenderer``; make one to render many views)."""
-    return GroundTruthRenderer(model, label_set)(camera, footprints)
+    return GroundTruthRenderer(model, label_set, min_piece)(camera, footprints)
 
 
 def _blend(splats: Splats, camera: Camera, features: torch.Tensor, with_depth: bool):

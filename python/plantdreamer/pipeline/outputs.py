@@ -14,6 +14,7 @@ import numpy as np
 
 from plantdreamer import atomic, turntable
 from plantdreamer.atomic import atomic_write
+from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
@@ -30,7 +31,11 @@ class OutputsConfig:
     """The outputs section: the evaluation orbit, the turntable and the PLY's contents."""
 
     eval_views: int = setting(120, "Renders on the evaluation orbit.")
-    eval_distance: float = setting(4.0, "Evaluation orbit camera distance.")
+    eval_distance: float | None = setting(
+        None,
+        "Evaluation orbit camera distance (scene units; the plant's longest side is scene-size).",
+        default_text="framed: the closest at which the whole plant is in every view",
+    )
     eval_elevation_deg: float = setting(15.0, "Evaluation orbit elevation (degrees).")
     eval_fovy_deg: float = setting(70.0, "Evaluation orbit vertical field of view (degrees).")
     turntable_frames: int = setting(TURNTABLE_FRAMES, "Frames of the turntable.")
@@ -54,7 +59,7 @@ class OutputsConfig:
         trains (the export comes after all training)."""
         if not 0 < self.eval_fovy_deg < 180:
             raise InputError(f"eval-fovy-deg must be in (0, 180) degrees, got {self.eval_fovy_deg}")
-        if not self.eval_distance > 0:
+        if self.eval_distance is not None and not self.eval_distance > 0:  # None: framed
             raise InputError(f"eval-distance must be positive, got {self.eval_distance}")
         if not -90 <= self.eval_elevation_deg <= 90:
             raise InputError(
@@ -97,6 +102,25 @@ def export_ply(
     from plantdreamer.io import write_splat_ply
 
     write_splat_ply(path, g, sh_degree=sh_degree, labels=labels, comments=comments)
+
+
+def eval_orbit(oc: OutputsConfig, scene: Gaussians, resolution: int) -> tuple[list, float | None]:
+    """The evaluation orbit's cameras for the model ``scene`` (scene frame) and its distance:
+    ``eval_distance``, or framed on the model (``framing.framed_distance``); None without
+    views."""
+    from plantdreamer.framing import framed_distance
+
+    if oc.eval_views <= 0:
+        return [], oc.eval_distance
+    distance = oc.eval_distance
+    if distance is None:
+        distance = framed_distance(
+            scene, oc.eval_views, oc.eval_elevation_deg, oc.eval_fovy_deg, resolution, resolution
+        )
+    cameras = orbit_ring(
+        oc.eval_views, distance, oc.eval_elevation_deg, oc.eval_fovy_deg, resolution, resolution
+    )
+    return cameras, distance
 
 
 def to_uint8(image) -> np.ndarray:

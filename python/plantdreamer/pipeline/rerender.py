@@ -5,7 +5,8 @@ the same views and ground truth as ``generate`` did, at its orbit or at any came
 * scale) and writes ``plant.ply`` and the poses of ``transforms.json`` in the input frame
 (minus ``export_offset``, for the PLY). Reading ``run.json`` beside ``plant.ply`` gives that
 frame back; its config gives the evaluation orbit (views, distance, elevation, field of view,
-resolution) and the background.
+resolution) and the background, and ``eval_distance`` the distance generate framed the
+orbit at when its config gives none.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class GenerateFrame:
             cfg = from_record(run["config"])
             transform = NormalizeTransform.from_dict(run["transform"])
             orbit = {name: cfg.get(name) for name in ORBIT}
+            orbit["eval-distance"] = _orbit_distance(orbit["eval-distance"], run)
             if orbit["resolution"] is None:
                 raise ValueError("no resolution recorded")
             offset = run.get("export_offset")
@@ -61,6 +63,16 @@ class GenerateFrame:
     def to_scene(self, g: Gaussians) -> Gaussians:
         """plant.ply's Gaussians in the scene frame."""
         return exported_scene(g, self.transform, self.offset)
+
+
+def _orbit_distance(given: float | None, run: dict[str, Any]) -> float | None:
+    """The distance generate's orbit was rendered at: given in its config, else the one it
+    framed and recorded (``eval_distance``); None for a run without views (``render``
+    frames the plant by generate's rule then)."""
+    if given is not None:
+        return float(given)
+    framed = run.get("eval_distance")
+    return None if framed is None else float(framed)
 
 
 def exported_scene(
