@@ -66,7 +66,7 @@ def test_the_orbit_distance_is_generates_framed_or_given(bean, tmp_path):
     """generate frames its orbit on the plant and records the distance; render uses it, and
     frames a plant generated without views by the same rule (the same views, bit for bit)."""
     run = json.loads((bean / "run.json").read_text())
-    assert run["config"]["outputs"]["eval_distance"] is None and 1.0 < run["eval_distance"] < 8.0
+    assert run["config"]["eval-distance"] is None and 1.0 < run["eval_distance"] < 8.0
     plant = make_plant(tmp_path / "none", eval_views=0)
     assert json.loads((plant / "run.json").read_text())["eval_distance"] is None
     render(plant, "--labels", "--eval-views", 3, "--out", tmp_path / "o")

@@ -261,7 +261,11 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     plant = tmp_path / "plant"
     generate(GenerateConfig.of(**OLD_RUN_SETTINGS), plant, show_progress=False)
     new = json.loads((plant / "run.json").read_text())
-    assert from_record(new["config"]) == cfg  # every setting, as resolved by that version
+    # Every setting as resolved by that version, but the orbit's distance: 4.0 was then the
+    # default; now none is set and generate frames the orbit on the plant.
+    assert cfg.get("eval-distance") == 4.0 and new["config"]["eval-distance"] is None
+    framed = from_record({**new["config"], "eval-distance": 4.0})
+    assert framed == cfg
     assert "source" not in new["config"] and new["config"]["densify-every"] == 2
     (plant / "run.json").write_text(OLD_RUN.read_text())
     out = tmp_path / "renders"
@@ -273,7 +277,7 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
 @pytest.mark.parametrize(
     ("module", "command", "cls", "field", "name", "value"),
     [
-        ("render", "render", OutputsConfig, "eval_distance", "eval_distance", 5.5),
+        ("render", "render", OutputsConfig, "eval_elevation_deg", "eval_elevation_deg", 22.5),
         ("render", "render", OutputsConfig, "eval_views", "eval_views", 7),
         ("render", "render", TrainConfig, "background", "background", 0.5),
         ("prepare", "prepare", SourceConfig, "sor_std", "sor_std", 2.5),
