@@ -100,6 +100,7 @@ def dataset(
     quiet: bool,
     split_ratios: str,
     split_seed: int,
+    allow_empty_split: bool,
     min_instance_area: int,
     **quick_settings: object,
 ) -> None:
@@ -111,7 +112,11 @@ def dataset(
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
-    from plantdreamer.cli.label_options import describe, make_label_options
+    from plantdreamer.cli.label_options import (
+        check_planned_splits,
+        describe,
+        make_label_options,
+    )
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.packing import packing_from
@@ -144,8 +149,9 @@ def dataset(
         max_retries=max_retries,
         plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
-        labels=make_label_options(split_ratios, split_seed, min_instance_area),
+        labels=make_label_options(split_ratios, split_seed, min_instance_area, allow_empty_split),
     )
+    check_planned_splits(options.labels, [p.id for p in plants], out_dir)
     report = run_dataset(spec, plants, out_dir, options)
     if report.interrupted:
         click.secho(

@@ -12,20 +12,23 @@ from plantdreamer.cli.label_options import label_options
 @click.command()
 @click.argument("folder", type=click.Path(exists=True, file_okay=False))
 @label_options
-def labels(folder: str, split_ratios: str, split_seed: int, min_instance_area: int) -> None:
+def labels(
+    folder: str,
+    split_ratios: str,
+    split_seed: int,
+    allow_empty_split: bool,
+    min_instance_area: int,
+) -> None:
     """Remake the label files from what generate wrote in FOLDER: for a plant folder its
     coco.json, yolo/ and points.ply; for a dataset folder splits.json, coco/, yolo/ and
     gallery.png (and each plant's own files when --min-instance-area changed)."""
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
 
-    options = make_label_options(split_ratios, split_seed, min_instance_area)
+    options = make_label_options(split_ratios, split_seed, min_instance_area, allow_empty_split)
     root = Path(folder)
     if (root / "transforms.json").is_file():
         r = write_plant_exports(root, options.min_area)
-        click.echo(
-            f"{r.objects} objects in {r.images} images ({r.dropped} under "
-            f"{options.min_area} pixels left out): {root}"
-        )
+        click.echo(f"{r.describe(options.min_area)}: {root}")
         return
     click.echo(describe(write_dataset_exports(root, options)))
