@@ -11,9 +11,9 @@ import pytest
 from plantdreamer.errors import InputError
 from plantdreamer.exports import split_plants, view_objects, write_plant_exports
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
+from plantdreamer.exports.pieces import label_pieces
 from plantdreamer.exports.points import read_class_names
 from plantdreamer.exports.splits import SPLITS, check_splits, parse_ratios, species_counts
-from plantdreamer.exports.pieces import label_pieces
 from plantdreamer.exports.yolo import label_lines, link_image, mask_polygons, object_polygon
 
 pycocotools = pytest.importorskip("pycocotools")
@@ -250,7 +250,6 @@ def parse_yolo_seg(label_file, nc):
 
 def test_yolo_labels_follow_the_documented_layout_and_cover_the_masks(bean):
     import yaml
-    from matplotlib.path import Path
 
     data = yaml.safe_load((bean / "yolo" / "data.yaml").read_text())
     assert data["nc"] == len(data["names"]) == 4 and data["names"][0] == "leaf"
@@ -314,7 +313,11 @@ def test_a_zero_share_gets_no_plant():
     for n in (1, 5, 50):
         ids = [f"mint-{i}" for i in range(n)]
         assert split_plants(ids, parse_ratios("0.5,0.5,0"))["test"] == []
-        assert split_plants(ids, parse_ratios("0,0,1")) == {"train": [], "val": [], "test": sorted(ids)}
+        assert split_plants(ids, parse_ratios("0,0,1")) == {
+            "train": [],
+            "val": [],
+            "test": sorted(ids),
+        }
 
 
 def test_an_empty_split_is_an_error_naming_the_counts_unless_allowed():
