@@ -174,6 +174,18 @@ def test_labels_of_one_plant_folder(dataset):
     assert json.loads((plant / "coco.json").read_text())["info"]["min_instance_area"] == 1
 
 
+def test_dataset_refuses_an_empty_split_before_any_plant_runs(tmp_path):
+    pytest.importorskip("ray")
+    ids = ["bean-s0000", "bean-s0001"]
+    assert not split_plants(ids, parse_ratios("0.8,0.1,0.1"), 0)["val"]
+    out = tmp_path / "ds"
+    result = cli("dataset", "--species", "bean", "--count", 2, "--guidance", "none",
+                 "--steps", 0, "--eval-views", 0, "--quiet", "--out", out)  # fmt: skip
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.startswith("error: split val drew no plant (1 train, 0 val, 1 test")
+    assert not (out / "plants").exists() or not any((out / "plants").iterdir())
+
+
 def renumber_classes(plant, order):
     """A plant folder whose class map values are permuted: value v becomes order[v - 1]."""
     import imageio.v3 as iio

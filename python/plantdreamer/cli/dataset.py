@@ -112,11 +112,7 @@ def dataset(
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
-    from plantdreamer.cli.label_options import (
-        check_planned_splits,
-        describe,
-        make_label_options,
-    )
+    from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.packing import packing_from
@@ -151,7 +147,6 @@ def dataset(
         show_progress=not quiet,
         labels=make_label_options(split_ratios, split_seed, min_instance_area, allow_empty_split),
     )
-    check_planned_splits(options.labels, [p.id for p in plants], out_dir)
     report = run_dataset(spec, plants, out_dir, options)
     if report.interrupted:
         click.secho(

@@ -62,22 +62,6 @@ def make_label_options(
     )
 
 
-def check_planned_splits(options, plant_ids: list[str], out_dir: str) -> None:
-    """Refuses, before anything runs, splits that the plants to come (and those already
-    finished in ``out_dir``) would leave empty."""
-    from pathlib import Path
-
-    from plantdreamer.exports.dataset import finished_plants
-    from plantdreamer.exports.splits import check_splits, split_plants
-
-    done = [p.id for p in finished_plants(Path(out_dir))]
-    check_splits(
-        split_plants([*plant_ids, *done], options.ratios, options.seed),
-        options.ratios,
-        options.allow_empty_split,
-    )
-
-
 def describe(labels) -> str:
     """A dataset's label files in a few lines (a ``DatasetLabels``): per split the plants
     of each species, the objects, then warnings."""

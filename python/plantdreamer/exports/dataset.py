@@ -128,6 +128,14 @@ def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
     return [DatasetView(i + 1, p, frame) for i, (p, frame) in enumerate(views)]
 
 
+def check_planned_splits(dataset_dir: Path, plant_ids: list[str], options: LabelOptions) -> None:
+    """Refuses, before any plant runs, splits that the plants to come (with those already
+    finished in the folder) would leave empty."""
+    done = [p.id for p in finished_plants(dataset_dir)]
+    splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
+    check_splits(splits, options.ratios, options.allow_empty_split)
+
+
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
     """Writes the dataset's splits, COCO and YOLO files and gallery; a plant whose own
     label files were made with another area limit gets them remade with this one."""
