@@ -178,15 +178,15 @@ def view_objects(
     loose = (ids == 0) & (classes > 0) & ~np.isin(classes, instanced)
     for value in np.unique(classes[loose]):
         pieces, n = label_pieces((loose & (classes == value)).reshape(h, w))
-        on = pieces.reshape(-1) > 0
-        objects[on] = pieces.reshape(-1)[on] + len(cats)
+        piece = pieces.reshape(-1)
+        objects[piece > 0] = piece[piece > 0] + len(cats)
         cats += [value] * n
         ids_out += [-1] * n
     k = len(cats)
     areas = np.bincount(objects, minlength=k + 1)[1:]
     masks = np.zeros((k, h * w), dtype=bool)
-    on = np.flatnonzero(objects)
-    masks[objects[on] - 1, on] = True
+    pixels = np.flatnonzero(objects)
+    masks[objects[pixels] - 1, pixels] = True
     masks = masks.reshape(k, h, w)
     return ViewObjects(
         instance_ids=np.asarray(ids_out, dtype=np.int64),

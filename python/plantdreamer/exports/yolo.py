@@ -72,18 +72,18 @@ def join_rings(rings: list[np.ndarray]) -> np.ndarray:
     links: dict[tuple[int, int], list[tuple[int, int]]] = {}
     inside, outside = [root], [i for i in range(n) if i != root]
     while outside:  # Prim: attach the ring closest to the tree
-        best = None
+        best: tuple[float, int, int, int, int] | None = None
         for i in inside:
             for j in outside:
                 d = ((rings[i][:, None, :] - rings[j][None, :, :]) ** 2).sum(-1)
-                a, b = np.unravel_index(np.argmin(d), d.shape)
-                if best is None or d[a, b] < best[0]:
-                    best = (d[a, b], i, int(a), j, int(b))
+                va, vb = np.unravel_index(np.argmin(d), d.shape)
+                if best is None or d[va, vb] < best[0]:
+                    best = (float(d[va, vb]), i, int(va), j, int(vb))
         assert best is not None
-        _, i, a, j, b = best
-        links.setdefault((i, a), []).append((j, b))
-        inside.append(j)
-        outside.remove(j)
+        _, parent, vertex, child, entry = best
+        links.setdefault((parent, vertex), []).append((child, entry))
+        inside.append(child)
+        outside.remove(child)
 
     def walk(i: int, start: int) -> list[np.ndarray]:
         ring, path = rings[i], []
