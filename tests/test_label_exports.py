@@ -171,6 +171,44 @@ def test_a_smaller_area_limit_writes_more_objects(bean, tmp_path):
     assert report.objects == before["objects"] + before["ignore_regions"]
 
 
+def test_every_format_declares_the_same_classes(bean):
+    import yaml
+
+    from plantdreamer.data import PlantViews
+
+    names = {1: "leaf", 2: "stem", 3: "pot", 4: "soil"}
+    coco = json.loads((bean / "coco.json").read_text())
+    assert {c["id"]: c["name"] for c in coco["categories"]} == names
+    data = yaml.safe_load((bean / "yolo" / "data.yaml").read_text())
+    assert {i + 1: n for i, n in data["names"].items()} == names
+    assert read_class_names(bean / "points.ply") == names
+    run = json.loads((bean / "run.json").read_text())
+    assert {int(k): v for k, v in run["class_names"].items()} == names
+    pytest.importorskip("torchvision")
+    assert PlantViews(bean).classes == names
+
+
+def test_a_plant_with_an_instance_without_class_exports_and_says_so(bean, tmp_path):
+    import shutil
+
+    import imageio.v3 as iio
+
+    copy = shutil.copytree(bean, tmp_path / "copy")
+    semantic = iio.imread(copy / "labels" / "view_000.png")
+    instance = iio.imread(copy / "instances" / "view_000.png")
+    first = instance[instance > 0].min()
+    semantic[instance == first] = 0  # that leaf's pixels lose their class
+    iio.imwrite(copy / "labels" / "view_000.png", semantic)
+    report = write_plant_exports(copy)
+    assert report.unclassed == 1
+    coco = json.loads((copy / "coco.json").read_text())
+    assert coco["info"]["instances_without_class"] == 1
+    assert {a["category_id"] for a in coco["annotations"]} <= {1, 2, 3, 4}
+    assert int(first) - 1 not in {
+        a["instance_id"] for a in coco["annotations"] if a["image_id"] == 1
+    }
+
+
 # --- YOLO -------------------------------------------------------------------------------
 
 
