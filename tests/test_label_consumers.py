@@ -182,6 +182,50 @@ def test_ultralytics_reads_each_split_of_a_dataset(bean, ultralytics_read):
             assert torch_counts == coco_counts
 
 
+def readme_yolo_command():
+    """The README's Ultralytics block: its environment and its ``yolo`` command line."""
+    import re
+    import shlex
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    (block,) = [b for b in re.findall(r"```bash\n(.*?)```", readme, re.S) if "yolo segment" in b]
+    lines = block.replace("\\\n", " ").splitlines()
+    env = dict(w.split("=", 1) for w in shlex.split(lines[0].removeprefix("export ")))
+    return env, shlex.split(lines[1])
+
+
+@pytest.mark.slow  # Ultralytics trains 2 epochs on a plant's 3 views: ~30 s
+def test_the_readme_ultralytics_command_trains_offline(bean, tmp_path):
+    if importlib.util.find_spec("ultralytics") is None:
+        pytest.skip("ultralytics is not installed (the dev extra has it)")
+    import csv
+
+    env, command = readme_yolo_command()
+    assert env == {"YOLO_OFFLINE": "1", "YOLO_CONFIG_DIR": "$PWD/.ultralytics"}
+    assert command[:3] == ["yolo", "segment", "train"]
+    settings = dict(arg.split("=", 1) for arg in command[3:])
+    assert settings.pop("data") == "$PWD/ds/yolo/data.yaml"
+    # As written, but for the data (a plant's own data.yaml), the size and the epochs.
+    settings.update(imgsz="96", epochs="2", batch="3", workers="0", project=str(tmp_path / "runs"))
+    command = [*command[:3], f"data={bean / 'yolo' / 'data.yaml'}"]
+    command += [f"{k}={v}" for k, v in settings.items()]
+    env = {**os.environ, "YOLO_OFFLINE": "1", "YOLO_CONFIG_DIR": str(tmp_path / "settings")}
+    out = tmp_path / "train.json"
+    train = Path(__file__).with_name("ultralytics_train.py")
+    done = subprocess.run(
+        [sys.executable, str(train), str(out), *command],
+        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, (done.stdout + done.stderr)[-3000:]
+    assert json.loads(out.read_text())["network_calls"] == []
+    (results,) = (tmp_path / "runs").rglob("results.csv")
+    rows = list(csv.DictReader(results.open()))
+    assert len(rows) == 2
+    for row in rows:
+        losses = [float(v) for k, v in row.items() if k.strip().startswith("train/")]
+        assert losses and all(np.isfinite(losses)), row
+
+
 # --- nerfstudio -------------------------------------------------------------------------
 # nerfstudio/data/dataparsers/nerfstudio_dataparser.py and docs/quickstart/data_conventions.md:
 # transform_matrix is camera-to-world with OpenGL camera axes (+x right, +y up, looking down
