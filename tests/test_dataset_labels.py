@@ -268,6 +268,35 @@ def test_label_maps_of_another_size_than_their_render_are_refused(dataset, tmp_p
         PlantViews(plant)[1]
 
 
+def test_stuff_classes_are_no_objects_but_stay_in_the_class_maps(dataset):
+    pytest.importorskip("torchvision")
+    from plantdreamer.data import PlantViews
+
+    bad = cli("labels", dataset, "--stuff", "pot,dirt")
+    assert bad.exit_code == 1 and "--stuff names no class 'dirt'" in bad.output
+    result = cli("labels", dataset, "--stuff", "pot,soil", "--allow-empty-split")
+    assert result.exit_code == 0, result.output
+    try:
+        for coco_file in [dataset / "coco" / f"{s}.json" for s in SPLITS] + [
+            dataset / "plants" / p / "coco.json" for p in PLANTS
+        ]:
+            coco = json.loads(coco_file.read_text())
+            assert [c["name"] for c in coco["categories"]] == ["leaf", "stem"], coco_file
+            assert {a["category_id"] for a in coco["annotations"]} <= {1, 2}
+            assert coco["info"]["stuff_classes"] == ["pot", "soil"]
+        data = yaml.safe_load((dataset / "yolo" / "data.yaml").read_text())
+        assert data["nc"] == 2 and data["names"] == {0: "leaf", 1: "stem"}
+        views = PlantViews(dataset, stuff=("pot", "soil"))
+        assert views.classes == {1: "leaf", 2: "stem"} and views.num_classes == 3
+        semantic = set()
+        for _, target in views:
+            assert set(target["labels"].tolist()) <= {1, 2}
+            semantic |= set(target["semantic"].unique().tolist())
+        assert {3, 4} <= semantic  # the class maps keep the stuff
+    finally:
+        assert cli("labels", dataset, "--allow-empty-split").exit_code == 0
+
+
 def test_gallery_shows_every_plant(dataset, tmp_path):
     import imageio.v3 as iio
 

@@ -100,6 +100,7 @@ def dataset(
     quiet: bool,
     split_ratios: str,
     split_seed: int,
+    stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
     **quick_settings: object,
@@ -145,7 +146,9 @@ def dataset(
         max_retries=max_retries,
         plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
-        labels=make_label_options(split_ratios, split_seed, min_instance_area, allow_empty_split),
+        labels=make_label_options(
+            split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+        ),
     )
     report = run_dataset(spec, plants, out_dir, options)
     if report.interrupted:

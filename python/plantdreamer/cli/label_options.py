@@ -13,7 +13,7 @@ from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED
 
 
 def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Adds --split, --split-seed, --allow-empty-split and --min-instance-area."""
+    """Adds --split, --split-seed, --stuff, --allow-empty-split and --min-instance-area."""
     for option in reversed(
         (
             click.option(
@@ -30,6 +30,13 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
                 default=DEFAULT_SEED,
                 show_default=True,
                 help="Seed of the split.",
+            ),
+            click.option(
+                "--stuff",
+                default="",
+                metavar="NAMES",
+                help="Classes that are no objects, comma-separated (e.g. pot,soil): COCO, "
+                "YOLO and the torch Dataset's targets leave them out; the class maps keep them.",
             ),
             click.option(
                 "--allow-empty-split",
@@ -51,14 +58,19 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def make_label_options(
-    split_ratios: str, split_seed: int, min_instance_area: int, allow_empty_split: bool = False
+    split_ratios: str,
+    split_seed: int,
+    min_instance_area: int,
+    allow_empty_split: bool = False,
+    stuff: str = "",
 ):
     """The ``LabelOptions`` of the parsed values."""
     from plantdreamer.exports.dataset import LabelOptions
     from plantdreamer.exports.splits import parse_ratios
 
+    names = tuple(dict.fromkeys(n.strip() for n in stuff.split(",") if n.strip()))
     return LabelOptions(
-        parse_ratios(split_ratios), split_seed, min_instance_area, allow_empty_split
+        parse_ratios(split_ratios), split_seed, min_instance_area, allow_empty_split, names
     )
 
 

@@ -16,6 +16,7 @@ def labels(
     folder: str,
     split_ratios: str,
     split_seed: int,
+    stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
 ) -> None:
@@ -25,10 +26,12 @@ def labels(
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
 
-    options = make_label_options(split_ratios, split_seed, min_instance_area, allow_empty_split)
+    options = make_label_options(
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+    )
     root = Path(folder)
     if (root / "transforms.json").is_file():
-        r = write_plant_exports(root, options.min_area)
+        r = write_plant_exports(root, options.min_area, options.stuff)
         click.echo(f"{r.describe(options.min_area)}: {root}")
         return
     click.echo(describe(write_dataset_exports(root, options)))

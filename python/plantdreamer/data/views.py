@@ -64,7 +64,8 @@ def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
 
 class PlantViews(torch.utils.data.Dataset):
     """The labelled views under ``root``: a plant folder (with ``transforms.json``) or a
-    dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``."""
+    dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``;
+    ``stuff``: class names that are no objects (``--stuff`` of the label files)."""
 
     def __init__(
         self,
@@ -72,6 +73,7 @@ class PlantViews(torch.utils.data.Dataset):
         split: str | None = None,
         min_area: int = MIN_INSTANCE_AREA,
         transforms: Callable[[Any, dict[str, Any]], tuple[Any, dict[str, Any]]] | None = None,
+        stuff: tuple[str, ...] = (),
     ) -> None:
         self.root, self.min_area, self.transforms = Path(root), min_area, transforms
         # (image id, folder, frame, class lookup table) per view
@@ -90,7 +92,8 @@ class PlantViews(torch.utils.data.Dataset):
                 for v in dataset_views(plants)
                 if chosen is None or v.plant.id in chosen
             ]
-        self.classes: dict[int, str] = dict(classes.names)
+        self.stuff_ids = classes.stuff_ids(tuple(stuff))
+        self.classes: dict[int, str] = classes.things(tuple(stuff))
 
     @property
     def num_classes(self) -> int:
@@ -105,7 +108,7 @@ class PlantViews(torch.utils.data.Dataset):
         rgb = read_png(folder / frame["file_path"])[..., :3]
         semantic, instance = read_label_maps(folder, frame)
         semantic = lut[semantic]
-        objects = view_objects(semantic, instance, self.min_area)
+        objects = view_objects(semantic, instance, self.min_area).without(self.stuff_ids)
         things = objects.things()
         image = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float() / 255.0
         h, w = objects.shape

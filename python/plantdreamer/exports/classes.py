@@ -6,6 +6,10 @@ leaf 1, stem 2, pot 3, soil 4 everywhere), the values stay the category ids. Oth
 names are numbered 1..K in order of the smallest value any plant gives them (then by name),
 and each plant's class map pixels are moved to those ids through a lookup table before any
 object is made, so a scan whose class 1 is "soil" beside L-System plants is annotated soil.
+
+Classes named as "stuff" (``--stuff pot,soil``) are no objects: COCO, YOLO and the torch
+Dataset's targets do not declare them, and they stay in the class maps (``labels/``, the
+torch Dataset's ``semantic``), as COCO's stuff and panoptic sets keep amorphous regions.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from plantdreamer.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -24,6 +30,22 @@ class DatasetClasses:
     names: dict[int, str]
     luts: dict[str, np.ndarray]
     remapped: tuple[str, ...] = ()
+
+    def stuff_ids(self, stuff: tuple[str, ...]) -> tuple[int, ...]:
+        """The ids of the classes named ``stuff`` (``--stuff``), refused in one line when
+        a name is not a class."""
+        ids = {name: i for i, name in self.names.items()}
+        unknown = [name for name in stuff if name not in ids]
+        if unknown:
+            raise InputError(
+                f"--stuff names no class {', '.join(map(repr, unknown))} "
+                f"(the classes: {', '.join(self.names.values())})"
+            )
+        return tuple(sorted(ids[name] for name in stuff))
+
+    def things(self, stuff: tuple[str, ...]) -> dict[int, str]:
+        """The classes that are objects: all but the ``stuff``."""
+        return {i: n for i, n in self.names.items() if n not in stuff}
 
 
 def dataset_classes(maps: dict[str, dict[int, str]]) -> DatasetClasses:

@@ -64,6 +64,7 @@ class LabelOptions:
     seed: int = DEFAULT_SEED
     min_area: int = MIN_INSTANCE_AREA
     allow_empty_split: bool = False
+    stuff: tuple[str, ...] = ()  # class names that are no objects (``exports.classes``)
 
 
 @dataclass(frozen=True)
@@ -146,18 +147,19 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
     labelled, classes = labelled_plants(plants)
+    stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
     splits = split_plants([p.id for p in plants], ratios, seed)
     warnings = check_splits(splits, ratios, options.allow_empty_split)
     for p in labelled:
-        if _plant_min_area(p.folder) == min_area:
+        if _plant_options(p.folder) == (min_area, list(options.stuff)):
             continue
         if not _inside(p.folder, dataset_dir):
             warnings.append(
                 f"{p.folder} lies outside {dataset_dir}: its own label files were left as "
-                f"they are (min instance area {_plant_min_area(p.folder)})"
+                "they are (made with other options)"
             )
             continue
-        write_plant_exports(p.folder, min_area)
+        write_plant_exports(p.folder, min_area, options.stuff)
     species = species_counts(splits, {p.id: p.species for p in plants})
     atomic.write_json(
         dataset_dir / SPLITS_FILE,
@@ -170,7 +172,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
     views = dataset_views(labelled)
-    index = yolo.class_index(classes.names)
+    index = yolo.class_index(things)
     yolo_dir = dataset_dir / "yolo"
     for split in SPLITS:  # stale links and labels of plants that moved split
         shutil.rmtree(yolo_dir / "images" / split, ignore_errors=True)
@@ -178,13 +180,14 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
     for split in SPLITS:
-        coco = CocoBuilder(classes.names, annotation_ids)
+        coco = CocoBuilder(things, annotation_ids)
         report = LabelReport()
         for view in views:
             plant = view.plant
             if split_of[plant.id] != split:
                 continue
             objects = read_view_objects(plant.folder, view.frame, min_area, classes.luts[plant.id])
+            objects = objects.without(stuff_ids)
             image = Path(view.frame["file_path"])
             relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
             coco.add(view.image_id, relative, objects, plant_id=plant.id)
@@ -195,9 +198,10 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             report += LabelReport.of(objects)
         (yolo_dir / "images" / split).mkdir(parents=True, exist_ok=True)
         (dataset_dir / "coco").mkdir(exist_ok=True)
-        coco.write(dataset_dir / "coco" / f"{split}.json", report.info(f"{split} split", min_area))
+        info = report.info(f"{split} split", min_area, options.stuff)
+        coco.write(dataset_dir / "coco" / f"{split}.json", info)
         total += report
-    yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, classes.names)
+    yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
     if classes.remapped:
         warnings.append(
             f"class ids of {', '.join(classes.remapped)} renumbered by class name "
@@ -212,8 +216,10 @@ def _inside(folder: Path, dataset_dir: Path) -> bool:
     return folder.resolve().is_relative_to(dataset_dir.resolve())
 
 
-def _plant_min_area(folder: Path) -> int | None:
+def _plant_options(folder: Path) -> tuple[int, list[str]] | None:
+    """The area limit and stuff classes a plant's own label files were made with."""
     try:
-        return int(json.loads((folder / COCO_FILE).read_text())["info"]["min_instance_area"])
+        info = json.loads((folder / COCO_FILE).read_text())["info"]
+        return int(info["min_instance_area"]), list(info.get("stuff_classes", []))
     except (OSError, ValueError, KeyError, TypeError):
         return None

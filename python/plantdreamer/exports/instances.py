@@ -60,7 +60,14 @@ class ViewObjects:
 
     def things(self) -> ViewObjects:
         """The objects that are not ignore regions."""
-        keep = ~self.iscrowd
+        return self.select(~self.iscrowd)
+
+    def without(self, categories: tuple[int, ...]) -> ViewObjects:
+        """The objects of other categories (``categories``: the stuff classes)."""
+        return self.select(~np.isin(self.categories, categories)) if categories else self
+
+    def select(self, keep: np.ndarray) -> ViewObjects:
+        """The objects where ``keep`` (bool [K]) is true."""
         return replace(
             self,
             instance_ids=self.instance_ids[keep],

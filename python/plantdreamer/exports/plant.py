@@ -54,11 +54,12 @@ class LabelReport:
         """The report of one view."""
         return cls(1, objects.objects, objects.ignored, objects.unclassed, objects.objects)
 
-    def info(self, what: str, min_area: int) -> dict[str, object]:
+    def info(self, what: str, min_area: int, stuff: tuple[str, ...] = ()) -> dict[str, object]:
         """The ``info`` record of a COCO file."""
         return {
             "description": f"plantdreamer labels of {what}",
             "min_instance_area": min_area,
+            "stuff_classes": list(stuff),
             "objects": self.objects,
             "ignore_regions": self.ignored,
             "instances_without_class": self.unclassed,
@@ -110,8 +111,11 @@ def plant_classes(plant_dir: Path) -> DatasetClasses:
     return dataset_classes({PLANT: PlantClasses.read(plant_dir).names})
 
 
-def write_plant_exports(plant_dir: Path, min_area: int = MIN_INSTANCE_AREA) -> LabelReport:
-    """Writes the point cloud and, for a labelled plant, its COCO and YOLO files."""
+def write_plant_exports(
+    plant_dir: Path, min_area: int = MIN_INSTANCE_AREA, stuff: tuple[str, ...] = ()
+) -> LabelReport:
+    """Writes the point cloud and, for a labelled plant, its COCO and YOLO files (``stuff``:
+    the names of classes that are no objects there)."""
     plant_dir = Path(plant_dir)
     if (plant_dir / "plant.ply").is_file():
         write_points_ply(plant_dir / "plant.ply", plant_dir / POINTS_FILE)
@@ -121,11 +125,13 @@ def write_plant_exports(plant_dir: Path, min_area: int = MIN_INSTANCE_AREA) -> L
     if not read_transforms(plant_dir).get("semantic_classes"):  # no labels
         return LabelReport()
     classes = plant_classes(plant_dir)
-    index = yolo.class_index(classes.names)
-    coco = CocoBuilder(classes.names)
+    stuff_ids, things = classes.stuff_ids(stuff), classes.things(stuff)
+    index = yolo.class_index(things)
+    coco = CocoBuilder(things)
     report = LabelReport()
     for view in plant_views(plant_dir):
         objects = read_view_objects(plant_dir, view.frame, min_area, classes.luts[PLANT])
+        objects = objects.without(stuff_ids)
         image = Path(view.frame["file_path"])
         coco.add(view.image_id, image.as_posix(), objects)
         yolo.link_image(plant_dir / image, plant_dir / YOLO_DIR / "images" / image.name)
@@ -133,9 +139,9 @@ def write_plant_exports(plant_dir: Path, min_area: int = MIN_INSTANCE_AREA) -> L
         yolo.write_labels(labels, yolo.label_lines(objects, index))
         report += LabelReport.of(objects)
     yolo.write_data_yaml(
-        plant_dir / YOLO_DIR / "data.yaml", {"train": "images", "val": "images"}, classes.names
+        plant_dir / YOLO_DIR / "data.yaml", {"train": "images", "val": "images"}, things
     )
-    coco.write(plant_dir / COCO_FILE, report.info(f"plant {plant_dir.name}", min_area))
+    coco.write(plant_dir / COCO_FILE, report.info(f"plant {plant_dir.name}", min_area, stuff))
     return report
 
 
