@@ -13,7 +13,13 @@ from plantdreamer.exports import split_plants, view_objects, write_plant_exports
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
 from plantdreamer.exports.pieces import label_pieces
 from plantdreamer.exports.points import read_class_names
-from plantdreamer.exports.splits import SPLITS, check_splits, parse_ratios, species_counts
+from plantdreamer.exports.splits import (
+    SPLITS,
+    check_splits,
+    parse_ratios,
+    species_counts,
+    species_gaps,
+)
 from plantdreamer.exports.yolo import label_lines, link_image, mask_polygons, object_polygon
 
 pycocotools = pytest.importorskip("pycocotools")
@@ -371,6 +377,14 @@ def test_an_empty_split_is_an_error_naming_the_counts_unless_allowed():
     (warning,) = check_splits(splits, ratios, allow_empty=True)
     assert "val" in warning
     assert check_splits(split_plants(ids, parse_ratios("1,0,0")), parse_ratios("1,0,0")) == []
+
+
+def test_a_species_missing_from_a_split_where_expected_is_a_warning():
+    species = {f"kale-{i}": "kale" for i in range(10)} | {"mint-0": "mint"}
+    splits = {"train": sorted(species), "val": [], "test": []}
+    (line,) = species_gaps(splits, species, (0.8, 0.2, 0.0))
+    assert line.startswith("no kale plant drew val (10 kale plants")  # mint: 0.2 expected
+    assert species_gaps(splits, species, (1.0, 0.0, 0.0)) == []
 
 
 def test_species_counts_per_split():

@@ -42,6 +42,7 @@ from plantdreamer.exports.splits import (
     SPLITS,
     check_splits,
     species_counts,
+    species_gaps,
     split_plants,
 )
 
@@ -160,7 +161,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             )
             continue
         write_plant_exports(p.folder, min_area, options.stuff)
-    species = species_counts(splits, {p.id: p.species for p in plants})
+    species_of = {p.id: p.species for p in plants}
+    species = species_counts(splits, species_of)
+    warnings += species_gaps(splits, species_of, ratios)
     atomic.write_json(
         dataset_dir / SPLITS_FILE,
         {

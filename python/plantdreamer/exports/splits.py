@@ -12,7 +12,8 @@ Each plant draws its own u, so every species is split in the ratios on average; 
 species would move plants between splits as plants are added, which is what the draw
 avoids. Small datasets can draw no plant for a split by chance (5 plants at 0.8/0.1/0.1:
 59% of seeds give val none): ``check_splits`` makes that an error naming the counts, or a
-warning with ``allow_empty``; ``species_counts`` gives the per-split count of each species.
+warning with ``allow_empty``; ``species_counts`` gives the per-split count of each species,
+and ``species_gaps`` warns of a species missing from a split where it would be expected.
 """
 
 from __future__ import annotations
@@ -110,3 +111,26 @@ def species_counts(
         names = sorted(species.get(p, "?") for p in splits[split])
         counts[split] = {name: names.count(name) for name in sorted(set(names))}
     return counts
+
+
+def species_gaps(
+    splits: Mapping[str, list[str]],
+    species: Mapping[str, str],
+    ratios: tuple[float, float, float],
+) -> list[str]:
+    """Warnings for a species with enough plants to expect one in a split (its count times
+    the split's share at least 1) that drew none there: the draw is per plant, not a quota."""
+    totals: dict[str, int] = {}
+    for ids in splits.values():
+        for p in ids:
+            totals[species.get(p, "?")] = totals.get(species.get(p, "?"), 0) + 1
+    counts = species_counts(splits, species)
+    lines = []
+    for split, share in zip(SPLITS, ratios, strict=True):
+        for name, n in sorted(totals.items()):
+            if n * share >= 1 and not counts[split].get(name):
+                lines.append(
+                    f"no {name} plant drew {split} ({n} {name} plants at a share of {share:g}; "
+                    "another --split-seed gives another draw)"
+                )
+    return lines
