@@ -19,7 +19,7 @@ OUT = Path(__file__).resolve().parent.parent / "docs" / "images" / "gallery.png"
 
 
 def main() -> int:
-    from plantdreamer.exports import write_dataset_exports
+    from plantdreamer.exports import LabelOptions, write_dataset_exports
     from plantdreamer.pipeline import GenerateConfig, generate
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -31,7 +31,8 @@ def main() -> int:
                     eval_views=4, turntable="none",
                 )  # fmt: skip
                 generate(cfg, root / "plants" / f"{species}-s{seed:04d}", show_progress=False)
-        labels = write_dataset_exports(root)
+        # Six plants at 0.8/0.1/0.1: a split may draw none, which the picture does not mind.
+        labels = write_dataset_exports(root, LabelOptions(allow_empty_split=True))
         OUT.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(labels.gallery, OUT)
     print(f"wrote {OUT}")

@@ -4,13 +4,16 @@ of a split, and the gallery (``plantdreamer labels`` and ``gallery``, no Ray nee
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
+import yaml
 from click.testing import CliRunner
 
 from labelled_plant import make_plant
 from plantdreamer.cli import main
+from plantdreamer.exports.splits import SPLITS, parse_ratios, split_plants
 
 pytest.importorskip("pycocotools")
 PLANTS = {"bean-a": dict(species="bean", seed=1), "bean-b": dict(species="bean", seed=2),
@@ -29,15 +32,31 @@ def cli(*args):
     return CliRunner().invoke(main, [*map(str, args)])
 
 
+def seed_with_one_plant_a_split():
+    """A --split-seed that gives each split one plant at 1,1,1 (by the splits' own rule)."""
+    ratios = parse_ratios("1,1,1")
+    return next(
+        seed
+        for seed in range(100)
+        if all(len(ids) == 1 for ids in split_plants(PLANTS, ratios, seed).values())
+    )
+
+
 def test_labels_split_by_plant_into_coco_and_yolo(dataset):
     from pycocotools.coco import COCO
 
-    result = cli("labels", dataset, "--split", "1,1,1", "--split-seed", "4")
+    seed = seed_with_one_plant_a_split()
+    result = cli("labels", dataset, "--split", "1,1,1", "--split-seed", seed)
     assert result.exit_code == 0, result.output
     assert "gallery" in result.output
     splits = json.loads((dataset / "splits.json").read_text())
     assert sorted(splits["train"] + splits["val"] + splits["test"]) == sorted(PLANTS)
     assert [len(splits[s]) for s in ("train", "val", "test")] == [1, 1, 1]
+    # The summary says per split how many plants of each species.
+    species = {split: PLANTS[splits[split][0]]["species"] for split in SPLITS}
+    assert splits["species"] == {split: {species[split]: 1} for split in SPLITS}
+    assert f"1 train (1 {species['train']})" in result.output
+    image_ids, annotation_ids = set(), set()
     for split in ("train", "val", "test"):
         coco = COCO(str(dataset / "coco" / f"{split}.json"))
         images = coco.loadImgs(coco.getImgIds())
@@ -47,19 +66,85 @@ def test_labels_split_by_plant_into_coco_and_yolo(dataset):
             assert (dataset / image["file_name"]).is_file()
         ids = [a["id"] for a in coco.loadAnns(coco.getAnnIds())]
         assert len(ids) == len(set(ids))
+        # Ids unique across the splits' files: they merge without renumbering.
+        assert not image_ids & set(coco.getImgIds()) and not annotation_ids & set(ids)
+        image_ids |= set(coco.getImgIds())
+        annotation_ids |= set(ids)
         yolo_images = sorted((dataset / "yolo" / "images" / split).glob("*.png"))
         assert [p.name.split("__")[0] for p in yolo_images] == [splits[split][0]] * 2
         for image in yolo_images:
-            assert (dataset / "yolo" / "labels" / split / f"{image.stem}.txt").is_file()
+            label = dataset / "yolo" / "labels" / split / f"{image.stem}.txt"
+            coco_image = next(
+                i for i in images if i["file_name"].endswith(image.name.split("__")[1])
+            )
+            objects = coco.getAnnIds(imgIds=coco_image["id"], iscrowd=False)
+            assert len(label.read_text().splitlines()) == len(objects)
+    assert image_ids == set(range(1, 7))
     data_yaml = (dataset / "yolo" / "data.yaml").read_text()
     assert 'train: "images/train"' in data_yaml and "nc: 4" in data_yaml
+
+
+def test_perfect_predictions_from_the_torch_dataset_score_ap_1_against_the_coco_files(dataset):
+    pytest.importorskip("torchvision")
+    from pycocotools import mask as mask_utils
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    from plantdreamer.data import PlantViews
+
+    seed = seed_with_one_plant_a_split()
+    assert cli("labels", dataset, "--split", "1,1,1", "--split-seed", seed).exit_code == 0
+    annotated = set()
+    for split in SPLITS:
+        truth = COCO(str(dataset / "coco" / f"{split}.json"))
+        predictions = []
+        for _, target in PlantViews(dataset, split=split):
+            masks = target["masks"].numpy().astype(np.uint8)
+            rles = mask_utils.encode(np.asfortranarray(masks.transpose(1, 2, 0)))
+            for k, rle in enumerate(rles):
+                x0, y0, x1, y1 = target["boxes"][k].tolist()
+                predictions.append(
+                    {
+                        "image_id": target["image_id"],
+                        "category_id": int(target["labels"][k]),
+                        "segmentation": {"size": rle["size"], "counts": rle["counts"].decode()},
+                        "bbox": [x0, y0, x1 - x0, y1 - y0],
+                        "score": 1.0,
+                    }
+                )
+        assert len(predictions) == len(truth.getAnnIds(iscrowd=False)) > 0
+        for kind in ("segm", "bbox"):
+            scores = COCOeval(truth, truth.loadRes(predictions), kind)
+            scores.params.maxDets = [1, 10, 1000]  # more than any view's objects
+            scores.evaluate()
+            scores.accumulate()
+            # AP over IoU 0.5:0.95, every area, the largest maxDets (summarize's stats[0]
+            # is read at maxDets 100 whatever the parameters say).
+            precision = scores.eval["precision"][:, :, :, 0, -1]
+            assert precision[precision > -1].mean() == pytest.approx(1.0), (split, kind)
+        annotated |= {a["category_id"] for a in truth.loadAnns(truth.getAnnIds())}
+    # Every class the files declare is annotated in the dataset.
+    assert annotated == set(truth.getCatIds()) == {1, 2, 3, 4}
+
+
+def test_a_split_that_draws_no_plant_is_an_error_unless_allowed(dataset):
+    ratios = parse_ratios("0.8,0.1,0.1")
+    seed = next(s for s in range(100) if not split_plants(PLANTS, ratios, s)["val"])
+    result = cli("labels", dataset, "--split-seed", seed)
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.startswith("error: split val") and "of 3 plants" in result.output
+    allowed = cli("labels", dataset, "--split-seed", seed, "--allow-empty-split")
+    assert allowed.exit_code == 0, allowed.output
+    assert "warning: split val" in allowed.output
 
 
 def test_a_split_is_a_torch_dataset_of_its_plants(dataset):
     pytest.importorskip("torchvision")
     from plantdreamer.data import PlantViews
 
-    assert cli("labels", dataset, "--split", "2,1,0").exit_code == 0
+    ratios = parse_ratios("2,1,0")
+    seed = next(s for s in range(100) if len(split_plants(PLANTS, ratios, s)["train"]) == 2)
+    assert cli("labels", dataset, "--split", "2,1,0", "--split-seed", seed).exit_code == 0
     splits = json.loads((dataset / "splits.json").read_text())
     train = PlantViews(dataset, split="train")
     assert len(train) == 2 * len(splits["train"]) == 4
@@ -71,10 +156,11 @@ def test_a_split_is_a_torch_dataset_of_its_plants(dataset):
 
 
 def test_another_area_limit_remakes_each_plants_files(dataset):
-    assert cli("labels", dataset, "--min-instance-area", "1").exit_code == 0
+    result = cli("labels", dataset, "--min-instance-area", "1", "--allow-empty-split")
+    assert result.exit_code == 0, result.output
     for plant_id in PLANTS:
         info = json.loads((dataset / "plants" / plant_id / "coco.json").read_text())["info"]
-        assert info["min_instance_area"] == 1 and info["objects_left_out"] == 0
+        assert info["min_instance_area"] == 1 and info["ignore_regions"] == 0
     coco = json.loads((dataset / "coco" / "train.json").read_text())
     assert coco["info"]["min_instance_area"] == 1
 
@@ -83,8 +169,132 @@ def test_labels_of_one_plant_folder(dataset):
     plant = dataset / "plants" / "bean-a"
     result = cli("labels", plant, "--min-instance-area", "1")
     assert result.exit_code == 0, result.output
-    assert "objects in 2 images (0 under 1 pixels left out)" in result.output
+    assert "objects in 2 images, at most" in result.output
+    assert "(0 under 1 pixels kept as ignore regions)" in result.output
     assert json.loads((plant / "coco.json").read_text())["info"]["min_instance_area"] == 1
+
+
+def test_dataset_refuses_an_empty_split_before_any_plant_runs(tmp_path):
+    pytest.importorskip("ray")
+    ids = ["bean-s0000", "bean-s0001"]
+    assert not split_plants(ids, parse_ratios("0.8,0.1,0.1"), 0)["val"]
+    out = tmp_path / "ds"
+    result = cli("dataset", "--species", "bean", "--count", 2, "--guidance", "none",
+                 "--steps", 0, "--eval-views", 0, "--quiet", "--out", out)  # fmt: skip
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.startswith("error: split val drew no plant (1 train, 0 val, 1 test")
+    assert not (out / "plants").exists() or not any((out / "plants").iterdir())
+
+
+def renumber_classes(plant, order):
+    """A plant folder whose class map values are permuted: value v becomes order[v - 1]."""
+    import imageio.v3 as iio
+
+    lut = np.arange(256, dtype=np.uint8)
+    lut[1 : len(order) + 1] = order
+    meta = json.loads((plant / "transforms.json").read_text())
+    for c in meta["semantic_classes"]:
+        c["value"] = int(lut[c["value"]])
+    for frame in meta["frames"]:
+        path = plant / frame["semantic_path"]
+        iio.imwrite(path, lut[iio.imread(path)])
+    (plant / "transforms.json").write_text(json.dumps(meta))
+
+
+def test_categories_are_keyed_by_class_name_across_plants(dataset, tmp_path):
+    from pycocotools.coco import COCO
+
+    other = tmp_path / "mixed"
+    for plant_id in ("bean-a", "mint-a"):
+        shutil.copytree(dataset / "plants" / plant_id, other / "plants" / plant_id)
+    renumber_classes(other / "plants" / "mint-a", [4, 3, 2, 1])  # leaf 4 ... soil 1
+    result = cli("labels", other, "--split", "1,0,0")
+    assert result.exit_code == 0, result.output
+    assert "renumbered by class name" in result.output
+    coco = COCO(str(other / "coco" / "train.json"))
+    names = {c["id"]: c["name"] for c in coco.loadCats(coco.getCatIds())}
+    assert sorted(names.values()) == ["leaf", "pot", "soil", "stem"]
+    for ann in coco.loadAnns(coco.getAnnIds()):
+        if ann["instance_id"] >= 0:  # only leaves have instances, in both plants
+            assert names[ann["category_id"]] == "leaf"
+    data = yaml.safe_load((other / "yolo" / "data.yaml").read_text())
+    assert [data["names"][i] for i in range(4)] == [names[i] for i in sorted(names)]
+    pytest.importorskip("torchvision")
+    from plantdreamer.data import PlantViews
+
+    views = PlantViews(other)
+    assert views.classes == names
+    for _, target in views:
+        leaves = target["instance_ids"] >= 0
+        assert [names[int(v)] for v in target["labels"][leaves]] == ["leaf"] * int(leaves.sum())
+
+
+def test_labels_never_write_inside_a_plant_folder_outside_the_dataset(dataset, tmp_path):
+    linked = tmp_path / "linked"
+    (linked / "plants").mkdir(parents=True)
+    (linked / "plants" / "elsewhere").symlink_to(dataset / "plants" / "bean-b")
+    outside = dataset / "plants" / "bean-b"
+    before = {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()}
+    result = cli("labels", linked, "--min-instance-area", "3", "--split", "1,0,0")
+    assert result.exit_code == 0, result.output
+    assert "lies outside" in result.output
+    assert {p: p.read_bytes() for p in outside.rglob("*") if p.is_file()} == before
+    assert (linked / "coco" / "train.json").is_file()
+
+
+def test_labels_twice_leave_no_hidden_files(dataset):
+    for _ in range(2):
+        assert cli("labels", dataset, "--allow-empty-split").exit_code == 0
+    hidden = [p for p in (dataset / "yolo").rglob(".*")]
+    hidden += [p for p in (dataset / "plants").rglob(".*")]
+    assert hidden == []
+
+
+def test_label_maps_of_another_size_than_their_render_are_refused(dataset, tmp_path):
+    import imageio.v3 as iio
+
+    plant = shutil.copytree(dataset / "plants" / "bean-a", tmp_path / "plant")
+    labels = plant / "labels" / "view_001.png"
+    iio.imwrite(labels, iio.imread(labels)[::2, ::2])
+    result = cli("labels", plant)
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.startswith("error: ") and str(labels) in result.output
+    assert "is 32x32 px but its render" in result.output
+    pytest.importorskip("torchvision")
+    from plantdreamer.data import PlantViews
+    from plantdreamer.errors import InputError
+
+    with pytest.raises(InputError, match=r"labels/view_001\.png is 32x32 px"):
+        PlantViews(plant)[1]
+
+
+def test_stuff_classes_are_no_objects_but_stay_in_the_class_maps(dataset):
+    pytest.importorskip("torchvision")
+    from plantdreamer.data import PlantViews
+
+    bad = cli("labels", dataset, "--stuff", "pot,dirt")
+    assert bad.exit_code == 1 and "--stuff names no class 'dirt'" in bad.output
+    result = cli("labels", dataset, "--stuff", "pot,soil", "--allow-empty-split")
+    assert result.exit_code == 0, result.output
+    try:
+        for coco_file in [dataset / "coco" / f"{s}.json" for s in SPLITS] + [
+            dataset / "plants" / p / "coco.json" for p in PLANTS
+        ]:
+            coco = json.loads(coco_file.read_text())
+            assert [c["name"] for c in coco["categories"]] == ["leaf", "stem"], coco_file
+            assert {a["category_id"] for a in coco["annotations"]} <= {1, 2}
+            assert coco["info"]["stuff_classes"] == ["pot", "soil"]
+        data = yaml.safe_load((dataset / "yolo" / "data.yaml").read_text())
+        assert data["nc"] == 2 and data["names"] == {0: "leaf", 1: "stem"}
+        views = PlantViews(dataset, stuff=("pot", "soil"))
+        assert views.classes == {1: "leaf", 2: "stem"} and views.num_classes == 3
+        semantic = set()
+        for _, target in views:
+            assert set(target["labels"].tolist()) <= {1, 2}
+            semantic |= set(target["semantic"].unique().tolist())
+        assert {3, 4} <= semantic  # the class maps keep the stuff
+    finally:
+        assert cli("labels", dataset, "--allow-empty-split").exit_code == 0
 
 
 def test_gallery_shows_every_plant(dataset, tmp_path):

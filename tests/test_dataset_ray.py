@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow
 
 SMALL = {"guidance": "none", "steps": 20, "points": 2000, "eval_views": 1, "resolution": 32}
 SMALL_FLAGS = ["--guidance", "none", "--steps", "20", "--points", "2000", "--eval-views", "1",
-               "--resolution", "32", "--quiet"]  # fmt: skip
+               "--resolution", "32", "--quiet", "--allow-empty-split"]  # fmt: skip
 
 
 def loopback_env(**extra):
@@ -79,7 +79,9 @@ def test_a_dataset_run_ends_with_splits_label_files_and_a_gallery(six_plants):
     assert f"gallery: {out / 'gallery.png'}" in result.output
     splits = json.loads((out / "splits.json").read_text())
     assert sorted(splits["train"] + splits["val"] + splits["test"]) == sorted(manifest(out))
-    assert [len(splits[s]) for s in ("train", "val", "test")] == [5, 1, 0]  # 0.8, 0.1, 0.1
+    # 0.8, 0.1, 0.1, each plant by its own hash: val drew none, said in a warning.
+    assert [len(splits[s]) for s in ("train", "val", "test")] == [5, 0, 1]
+    assert "warning: split val drew no plant" in result.output
     for split in ("train", "val", "test"):
         coco = json.loads((out / "coco" / f"{split}.json").read_text())
         assert len(coco["images"]) == len(splits[split])  # one view per plant

@@ -13,6 +13,7 @@ from plantdreamer.dataset import RunOptions, expand, plan, run_dataset, runner
 from plantdreamer.dataset.manifest import Manifest
 from plantdreamer.dataset.plant import Plant
 from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.exports import LabelOptions
 
 FAST = ["--guidance", "none", "--steps", "0", "--eval-views", "0", "--quiet"]
 
@@ -103,8 +104,12 @@ def test_a_rerun_stopped_while_ray_starts_leaves_no_done_record_without_files(
 
     monkeypatch.setattr(runner.engine, "connect", ctrl_c_while_ray_starts)
     with pytest.raises(KeyboardInterrupt):
+        labels = LabelOptions(allow_empty_split=True)  # 3 plants: val may draw none
         run_dataset(
-            changed, expand(changed), tmp_path, RunOptions(show_progress=False, redo_changed=True)
+            changed,
+            expand(changed),
+            tmp_path,
+            RunOptions(show_progress=False, redo_changed=True, labels=labels),
         )
     records = Manifest(tmp_path).records
     assert {r["status"] for r in records.values()} == {"pending"}

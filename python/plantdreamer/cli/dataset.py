@@ -113,6 +113,8 @@ def dataset(
     dry_run: bool,
     split_ratios: str,
     split_seed: int,
+    stuff: str,
+    allow_empty_split: bool,
     min_instance_area: int,
     **quick_settings: object,
 ) -> None:
@@ -171,7 +173,9 @@ def dataset(
         max_retries=max_retries,
         plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
-        labels=make_label_options(split_ratios, split_seed, min_instance_area),
+        labels=make_label_options(
+            split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+        ),
     )
     try:
         report, stopped = run_dataset(spec, plants, out_dir, options), False

@@ -13,7 +13,7 @@ from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED
 
 
 def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Adds --split, --split-seed and --min-instance-area."""
+    """Adds --split, --split-seed, --stuff, --allow-empty-split and --min-instance-area."""
     for option in reversed(
         (
             click.option(
@@ -32,11 +32,24 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
                 help="Seed of the split.",
             ),
             click.option(
+                "--stuff",
+                default="",
+                metavar="NAMES",
+                help="Classes that are no objects, comma-separated (e.g. pot,soil): COCO, "
+                "YOLO and the torch Dataset's targets leave them out; the class maps keep them.",
+            ),
+            click.option(
+                "--allow-empty-split",
+                is_flag=True,
+                help="Warn, not stop, when a split with a share draws no plant.",
+            ),
+            click.option(
                 "--min-instance-area",
                 type=click.IntRange(1),
                 default=MIN_INSTANCE_AREA,
                 show_default=True,
-                help="Objects of fewer pixels are left out of COCO, YOLO and the torch Dataset.",
+                help="Objects of fewer pixels are ignore regions: COCO iscrowd 1, left out of "
+                "YOLO and the torch Dataset's targets.",
             ),
         )
     ):
@@ -44,19 +57,34 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
     return command
 
 
-def make_label_options(split_ratios: str, split_seed: int, min_instance_area: int):
+def make_label_options(
+    split_ratios: str,
+    split_seed: int,
+    min_instance_area: int,
+    allow_empty_split: bool = False,
+    stuff: str = "",
+):
     """The ``LabelOptions`` of the parsed values."""
     from plantdreamer.exports.dataset import LabelOptions
     from plantdreamer.exports.splits import parse_ratios
 
-    return LabelOptions(parse_ratios(split_ratios), split_seed, min_instance_area)
+    names = tuple(dict.fromkeys(n.strip() for n in stuff.split(",") if n.strip()))
+    return LabelOptions(
+        parse_ratios(split_ratios), split_seed, min_instance_area, allow_empty_split, names
+    )
 
 
 def describe(labels) -> str:
-    """One line about a dataset's label files (a ``DatasetLabels``)."""
-    sizes = ", ".join(f"{len(ids)} {split}" for split, ids in labels.splits.items())
-    r = labels.report
-    return (
-        f"splits: {sizes} plants; {r.objects} objects in {r.images} images "
-        f"({r.dropped} under the area limit left out); gallery: {labels.gallery}"
-    )
+    """A dataset's label files in a few lines (a ``DatasetLabels``): per split the plants
+    of each species, the objects, then warnings."""
+    parts = []
+    for split, ids in labels.splits.items():
+        species = ", ".join(f"{n} {name}" for name, n in labels.species.get(split, {}).items())
+        parts.append(f"{len(ids)} {split}" + (f" ({species})" if species else ""))
+    lines = [
+        f"splits: {'; '.join(parts)} plants",
+        labels.report.describe(labels.min_area),
+        f"gallery: {labels.gallery}",
+    ]
+    lines += [f"warning: {w}" for w in labels.warnings]
+    return "\n".join(lines)

@@ -12,7 +12,14 @@ from plantdreamer.cli.label_options import label_options
 @click.command()
 @click.argument("folder", type=click.Path(exists=True, file_okay=False))
 @label_options
-def labels(folder: str, split_ratios: str, split_seed: int, min_instance_area: int) -> None:
+def labels(
+    folder: str,
+    split_ratios: str,
+    split_seed: int,
+    stuff: str,
+    allow_empty_split: bool,
+    min_instance_area: int,
+) -> None:
     """Remake the label files from what generate wrote in FOLDER: for a plant folder its
     coco.json, yolo/ and points.ply; for a dataset folder splits.json, coco/, yolo/ and
     gallery.png (and each plant's own files when --min-instance-area changed)."""
@@ -20,15 +27,14 @@ def labels(folder: str, split_ratios: str, split_seed: int, min_instance_area: i
     from plantdreamer.errors import InputError
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
 
-    options = make_label_options(split_ratios, split_seed, min_instance_area)
+    options = make_label_options(
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+    )
     root = Path(folder)
     if (root / "run.json").is_file() and not (root / "transforms.json").is_file():
         raise InputError(f"{root} is a plant made with --eval-views 0: it has no views to label")
     if (root / "transforms.json").is_file():
-        r = write_plant_exports(root, options.min_area)
-        click.echo(
-            f"{r.objects} objects in {r.images} images ({r.dropped} under "
-            f"{options.min_area} pixels left out): {root}"
-        )
+        r = write_plant_exports(root, options.min_area, options.stuff)
+        click.echo(f"{r.describe(options.min_area)}: {root}")
         return
     click.echo(describe(write_dataset_exports(root, options)))

@@ -3,6 +3,6 @@ plant or dataset folder in the dtypes torchvision's detection models take."""
 
 from __future__ import annotations
 
-from plantdreamer.data.views import PlantViews, collate
+from plantdreamer.data.views import PlantViews, collate, object_keys
 
-__all__ = ["PlantViews", "collate"]
+__all__ = ["PlantViews", "collate", "object_keys"]

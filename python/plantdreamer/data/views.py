@@ -6,14 +6,23 @@ Each item is ``(image, target)``:
 - ``image``: float32 [3, H, W] in [0, 1] (a ``tv_tensors.Image`` when torchvision is there);
 - ``target["boxes"]``: float32 [K, 4] x0 y0 x1 y1, pixel edges, never zero-sized
   (``tv_tensors.BoundingBoxes``, XYXY);
-- ``target["labels"]``: int64 [K], the class pixel values (1..; 0 is background, so
-  ``num_classes`` = largest value + 1 for Mask R-CNN);
+- ``target["labels"]``: int64 [K], the category ids of the COCO files (1..; 0 is
+  background, so ``num_classes`` = largest id + 1 for Mask R-CNN);
 - ``target["masks"]``: uint8 [K, H, W] (``tv_tensors.Mask``);
-- ``target["semantic"]``: int64 [H, W] class map (0 background), ready for a cross-entropy;
-- ``target["instance_ids"]``, ``target["area"]``, ``target["iscrowd"]``, ``target["image_id"]``.
+- ``target["semantic"]``: int64 [H, W] class map in category ids (0 background), ready for a
+  cross-entropy;
+- ``target["ignore"]``: uint8 [H, W], the pixels of the ignore regions (objects under
+  ``min_area``: COCO's ``iscrowd`` 1 annotations), which the K objects leave out;
+- ``target["instance_ids"]``, ``target["area"]``, ``target["iscrowd"]`` (all 0), and
+  ``target["image_id"]``: the id of the view's image in ``coco/<split>.json`` (and a plant
+  folder's ``coco.json``), so predictions score against those files as they are.
 
-Objects under ``min_area`` pixels are left out (``exports.instances``), as in the COCO and
-YOLO files. The 16-bit instance PNGs never reach the user: torch has few uint16 kernels.
+A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops only what its
+``labels_getter`` names: pass ``labels_getter=object_keys`` and ``labels``, ``area``,
+``iscrowd`` and ``instance_ids`` follow the boxes. ``area`` is taken again from the masks
+after the transforms (a resize or crop changes it), and an item whose per-object keys no
+longer line up with its boxes is refused in one line. The 16-bit instance PNGs never reach
+the user: torch has few uint16 kernels.
 """
 
 from __future__ import annotations
@@ -27,21 +36,31 @@ import numpy as np
 import torch
 
 from plantdreamer.errors import InputError
-from plantdreamer.exports.dataset import SPLITS_FILE
+from plantdreamer.exports.dataset import SPLITS_FILE, dataset_views, labelled_plants
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
-    PlantClasses,
-    labelled_frames,
+    read_label_maps,
     read_png,
     view_objects,
 )
 from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
+from plantdreamer.exports.plant import PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
+
+OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids")  # one entry per box
+
+
+def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
+    """``SanitizeBoundingBoxes``' ``labels_getter`` for these targets: the per-object
+    tensors it must filter with the boxes."""
+    target = inputs[1] if isinstance(inputs, tuple | list) else inputs
+    return tuple(target[key] for key in OBJECT_KEYS)
 
 
 class PlantViews(torch.utils.data.Dataset):
     """The labelled views under ``root``: a plant folder (with ``transforms.json``) or a
-    dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``."""
+    dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``;
+    ``stuff``: class names that are no objects (``--stuff`` of the label files)."""
 
     def __init__(
         self,
@@ -49,15 +68,27 @@ class PlantViews(torch.utils.data.Dataset):
         split: str | None = None,
         min_area: int = MIN_INSTANCE_AREA,
         transforms: Callable[[Any, dict[str, Any]], tuple[Any, dict[str, Any]]] | None = None,
+        stuff: tuple[str, ...] = (),
     ) -> None:
         self.root, self.min_area, self.transforms = Path(root), min_area, transforms
-        folders = _plant_folders(self.root, split)
-        self.views: list[tuple[Path, dict]] = []
-        self.classes: dict[int, str] = {}
-        for folder in folders:
-            for value, name in PlantClasses.read(folder).names.items():
-                self.classes.setdefault(value, name)
-            self.views += [(folder, frame) for frame in labelled_frames(folder)]
+        # (image id, folder, frame, class lookup table) per view
+        self.views: list[tuple[int, Path, dict, np.ndarray]] = []
+        if (self.root / "transforms.json").is_file():
+            if split is not None:
+                raise InputError(f"{root} is one plant folder; a split needs a dataset folder")
+            classes = plant_classes(self.root)
+            lut = classes.luts[PLANT]
+            self.views = [(v.image_id, self.root, v.frame, lut) for v in plant_views(self.root)]
+        else:
+            plants, classes = labelled_plants(_dataset_plants(self.root))
+            chosen = _split_plants(self.root, split)
+            self.views = [
+                (v.image_id, v.plant.folder, v.frame, classes.luts[v.plant.id])
+                for v in dataset_views(plants)
+                if chosen is None or v.plant.id in chosen
+            ]
+        self.stuff_ids = classes.stuff_ids(tuple(stuff))
+        self.classes: dict[int, str] = classes.things(tuple(stuff))
 
     @property
     def num_classes(self) -> int:
@@ -68,30 +99,34 @@ class PlantViews(torch.utils.data.Dataset):
         return len(self.views)
 
     def __getitem__(self, index: int) -> tuple[Any, dict[str, Any]]:
-        folder, frame = self.views[index]
+        image_id, folder, frame, lut = self.views[index]
         rgb = read_png(folder / frame["file_path"])[..., :3]
-        semantic = read_png(folder / frame["semantic_path"])
-        objects = view_objects(semantic, read_png(folder / frame["instance_path"]), self.min_area)
+        semantic, instance = read_label_maps(folder, frame)
+        semantic = lut[semantic]
+        objects = view_objects(semantic, instance, self.min_area).without(self.stuff_ids)
+        things = objects.things()
         image = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float() / 255.0
         h, w = objects.shape
         target: dict[str, Any] = {
-            "boxes": torch.from_numpy(objects.boxes).reshape(-1, 4),
-            "labels": torch.from_numpy(objects.categories).to(torch.int64),
-            "masks": torch.from_numpy(objects.masks.astype(np.uint8)),
+            "boxes": torch.from_numpy(things.boxes).reshape(-1, 4),
+            "labels": torch.from_numpy(things.categories).to(torch.int64),
+            "masks": torch.from_numpy(things.masks.astype(np.uint8)),
             "semantic": torch.from_numpy(semantic.astype(np.int64)),
-            "instance_ids": torch.from_numpy(objects.instance_ids).to(torch.int64),
-            "area": torch.from_numpy(objects.areas).to(torch.float32),
-            "iscrowd": torch.zeros(len(objects.areas), dtype=torch.int64),
-            "image_id": index,
+            "ignore": torch.from_numpy(objects.ignore_mask().astype(np.uint8)),
+            "instance_ids": torch.from_numpy(things.instance_ids).to(torch.int64),
+            "area": torch.from_numpy(things.areas).to(torch.float32),
+            "iscrowd": torch.zeros(len(things.areas), dtype=torch.int64),
+            "image_id": image_id,
         }
         image, target = _as_tv_tensors(image, target, (h, w))
         if self.transforms is not None:
             image, target = self.transforms(image, target)
+            _follow_boxes(target, self.describe(index))
         return image, target
 
     def describe(self, index: int) -> str:
         """Which file an item comes from."""
-        folder, frame = self.views[index]
+        _, folder, frame, _ = self.views[index]
         return str(folder / frame["file_path"])
 
 
@@ -101,22 +136,33 @@ def collate(batch: list[tuple[Any, dict[str, Any]]]) -> tuple[tuple, tuple]:
     return images, targets
 
 
-def _plant_folders(root: Path, split: str | None) -> list[Path]:
-    if (root / "transforms.json").is_file():
-        if split is not None:
-            raise InputError(f"{root} is one plant folder; a split needs a dataset folder")
-        return [root]
+def _follow_boxes(target: dict[str, Any], source: str) -> None:
+    """``area`` again from the masks; every per-object key as long as the boxes."""
+    if "masks" in target:
+        target["area"] = torch.as_tensor(target["masks"]).flatten(1).sum(1).to(torch.float32)
+    k = len(target["boxes"])
+    wrong = [key for key in OBJECT_KEYS if key in target and len(target[key]) != k]
+    if wrong:
+        raise InputError(
+            f"{source}: after the transforms {', '.join(wrong)} no longer have one entry per "
+            f"box ({k}); give SanitizeBoundingBoxes labels_getter=plantdreamer.data.object_keys"
+        )
+
+
+def _dataset_plants(root: Path):
     if not (root / PLANTS_DIR).is_dir():
         raise InputError(f"{root} is neither a plant folder nor a dataset folder")
-    plants = [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
-    if split is not None:
-        if split not in SPLITS:
-            raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
-        if not (root / SPLITS_FILE).is_file():
-            raise InputError(f"{root} has no {SPLITS_FILE}: run `plantdreamer labels` first")
-        chosen = set(json.loads((root / SPLITS_FILE).read_text())[split])
-        plants = [p for p in plants if p.id in chosen]
-    return [p.folder for p in plants]
+    return [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
+
+
+def _split_plants(root: Path, split: str | None) -> set[str] | None:
+    if split is None:
+        return None
+    if split not in SPLITS:
+        raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+    if not (root / SPLITS_FILE).is_file():
+        raise InputError(f"{root} has no {SPLITS_FILE}: run `plantdreamer labels` first")
+    return set(json.loads((root / SPLITS_FILE).read_text())[split])
 
 
 def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int, int]):
@@ -128,4 +174,5 @@ def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int,
     target["boxes"] = tv_tensors.BoundingBoxes(target["boxes"], format="XYXY", canvas_size=size)
     target["masks"] = tv_tensors.Mask(target["masks"])
     target["semantic"] = tv_tensors.Mask(target["semantic"])
+    target["ignore"] = tv_tensors.Mask(target["ignore"])
     return tv_tensors.Image(image), target

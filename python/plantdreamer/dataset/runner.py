@@ -32,6 +32,7 @@ from plantdreamer.dataset.tasks import HOLD_ENV, StatusBoard, first_line
 from plantdreamer.exports.dataset import (
     DatasetLabels,
     LabelOptions,
+    check_planned_splits,
     write_dataset_exports,
 )
 from plantdreamer.stop_signals import stop_signals_handled
@@ -114,6 +115,8 @@ class _DatasetRun:
             )
             for p in self.plants
         }
+        # A split the plants would leave empty: refused before any plant runs.
+        check_planned_splits(self.out_dir, [p.id for p in self.plants], self.options.labels)
         todo, skipped = plan(
             self.plants,
             self.manifest,

@@ -1,15 +1,21 @@
 """COCO instance segmentation JSON, written with pycocotools (the library that defines the
 format's masks).
 
-One image per labelled view; one annotation per object above the area limit
-(``exports.instances``), with its mask as compressed RLE (``pycocotools.mask.encode``), its
-box ``[x, y, width, height]`` and area from the same library, ``iscrowd`` 0. Category ids
-are the class pixel values of ``labels/`` (1..255; 0 is background), so a COCO category, a
-class map pixel and a YOLO class (id - 1 in ``data.yaml``'s order) name the same thing.
+One image per labelled view; one annotation per object (``exports.instances``), with its
+mask as compressed RLE (``pycocotools.mask.encode``), its box ``[x, y, width, height]`` and
+area from the same library, ``iscrowd`` 0, and ``iscrowd`` 1 for an ignore region (an
+object under the area limit). Category ids are the dataset's class ids
+(``exports.classes``: the class pixel values of ``labels/`` unless plants disagree), so a
+COCO category, a class map pixel and a YOLO class (its index in ``data.yaml``'s order) name
+the same thing. Image ids are given by the caller (``exports.views``: the ids the torch
+Dataset's targets carry); annotation ids come from a counter the caller may share between
+files, so the files of a dataset's splits can be merged as they are.
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,20 +31,18 @@ class CocoBuilder:
     """Collects images and annotations; ``image_root``-relative file names."""
 
     categories: dict[int, str]
+    annotation_ids: Iterator[int] = field(default_factory=lambda: itertools.count(1))
     images: list[dict[str, Any]] = field(default_factory=list)
     annotations: list[dict[str, Any]] = field(default_factory=list)
-    dropped: int = 0
 
-    def add(self, file_name: str, objects: ViewObjects, **extra: Any) -> None:
+    def add(self, image_id: int, file_name: str, objects: ViewObjects, **extra: Any) -> None:
         """One image and its objects (``extra``: more keys of the image record)."""
         from pycocotools import mask as mask_utils
 
         h, w = objects.shape
-        image_id = len(self.images) + 1
         self.images.append(
             {"id": image_id, "file_name": file_name, "height": h, "width": w, **extra}
         )
-        self.dropped += objects.dropped
         if not len(objects.masks):
             return
         # [K, W, H] in C order is [H, W, K] in Fortran order, as encode wants it.
@@ -49,13 +53,13 @@ class CocoBuilder:
         for k, rle in enumerate(rles):
             self.annotations.append(
                 {
-                    "id": len(self.annotations) + 1,
+                    "id": next(self.annotation_ids),
                     "image_id": image_id,
                     "category_id": int(objects.categories[k]),
                     "segmentation": {"size": [h, w], "counts": rle["counts"].decode()},
                     "area": int(areas[k]),
                     "bbox": [float(v) for v in boxes[k]],
-                    "iscrowd": 0,
+                    "iscrowd": int(objects.iscrowd[k]),
                     "instance_id": int(objects.instance_ids[k]),
                 }
             )

@@ -1,31 +1,51 @@
 """The label files of a whole dataset folder (``DIR/plants/<id>/``), split by plant:
 
-- ``splits.json``: the seed, the ratios and the plant ids of each split;
+- ``splits.json``: the seed, the ratios, the plant ids of each split and the number of
+  plants of each species in it (``exports.splits``);
 - ``coco/{train,val,test}.json``: COCO files whose ``file_name`` is relative to ``DIR``
-  (``plants/<id>/renders/view_000.png``), image and annotation ids unique per file;
+  (``plants/<id>/renders/view_000.png``); image and annotation ids are unique across the
+  three files, so they merge as they are, and the image ids are the torch Dataset's
+  (``dataset_views``);
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
 - ``gallery.png``, the contact sheet (``exports.gallery``).
 
-The plants are those ``exports.listing`` finds finished.
+The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
+folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
+its own label files left as they are.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
+from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.gallery import write_gallery
-from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses
+from plantdreamer.exports.instances import (
+    MIN_INSTANCE_AREA,
+    PlantClasses,
+    labelled_frames,
+    read_view_objects,
+)
 from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
-from plantdreamer.exports.plant import COCO_FILE, LabelReport, plant_views, write_plant_exports
-from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED, SPLITS, split_plants
+from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
+from plantdreamer.exports.splits import (
+    DEFAULT_RATIOS,
+    DEFAULT_SEED,
+    SPLITS,
+    check_splits,
+    species_counts,
+    species_gaps,
+    split_plants,
+)
 
 SPLITS_FILE = "splits.json"
 
@@ -37,6 +57,8 @@ class LabelOptions:
     ratios: tuple[float, float, float] = DEFAULT_RATIOS
     seed: int = DEFAULT_SEED
     min_area: int = MIN_INSTANCE_AREA
+    allow_empty_split: bool = False
+    stuff: tuple[str, ...] = ()  # class names that are no objects (``exports.classes``)
 
 
 @dataclass(frozen=True)
@@ -44,6 +66,49 @@ class DatasetLabels:
     splits: dict[str, list[str]]
     report: LabelReport
     gallery: Path
+    min_area: int = MIN_INSTANCE_AREA
+    species: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> species -> n
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class DatasetView:
+    """A labelled view of a dataset: its image id (COCO's and the torch Dataset's), plant
+    and frame of the plant's transforms.json."""
+
+    image_id: int
+    plant: PlantEntry
+    frame: dict
+
+
+def labelled_plants(plants: list[PlantEntry]) -> tuple[list[PlantEntry], DatasetClasses]:
+    """The plants with labelled views, and their classes keyed by name."""
+    maps = {}
+    for p in plants:
+        if not (p.folder / "transforms.json").is_file():
+            continue
+        try:
+            maps[p.id] = PlantClasses.read(p.folder).names
+        except InputError:
+            continue
+    return [p for p in plants if p.id in maps], dataset_classes(maps)
+
+
+def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
+    """Every labelled view of the plants (sorted by id), numbered from 1 in that order: the
+    image ids of every COCO file of the dataset and of the torch Dataset of any split."""
+    views = []
+    for p in plants:
+        views += [(p, frame) for frame in labelled_frames(p.folder)]
+    return [DatasetView(i + 1, p, frame) for i, (p, frame) in enumerate(views)]
+
+
+def check_planned_splits(dataset_dir: Path, plant_ids: list[str], options: LabelOptions) -> None:
+    """Refuses, before any plant runs, splits that the plants to come (with those already
+    finished in the folder) would leave empty."""
+    done = [p.id for p in finished_plants(dataset_dir)]
+    splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
+    check_splits(splits, options.ratios, options.allow_empty_split)
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
@@ -55,59 +120,80 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
-    classes = {p.id: _classes(p) for p in plants}
-    labelled = [p for p in plants if classes[p.id]]
-    for p in labelled:
-        if _plant_min_area(p.folder) != min_area:
-            write_plant_exports(p.folder, min_area)
-    names: dict[int, str] = {}
-    for p in labelled:
-        names.update({v: n for v, n in classes[p.id].items() if v not in names})
+    labelled, classes = labelled_plants(plants)
+    stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
     splits = split_plants([p.id for p in plants], ratios, seed)
+    warnings = check_splits(splits, ratios, options.allow_empty_split)
+    for p in labelled:
+        if _plant_options(p.folder) == (min_area, list(options.stuff)):
+            continue
+        if not _inside(p.folder, dataset_dir):
+            warnings.append(
+                f"{p.folder} lies outside {dataset_dir}: its own label files were left as "
+                "they are (made with other options)"
+            )
+            continue
+        write_plant_exports(p.folder, min_area, options.stuff)
+    species_of = {p.id: p.species for p in plants}
+    species = species_counts(splits, species_of)
+    warnings += species_gaps(splits, species_of, ratios)
     atomic.write_json(
         dataset_dir / SPLITS_FILE,
-        {"seed": seed, "ratios": dict(zip(SPLITS, ratios, strict=True)), **splits},
+        {
+            "seed": seed,
+            "ratios": dict(zip(SPLITS, ratios, strict=True)),
+            **splits,
+            "species": species,
+        },
     )
-    by_id = {p.id: p for p in labelled}
-    index = yolo.class_index(names)
+    split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
+    views = dataset_views(labelled)
+    index = yolo.class_index(things)
     yolo_dir = dataset_dir / "yolo"
     for split in SPLITS:  # stale links and labels of plants that moved split
         shutil.rmtree(yolo_dir / "images" / split, ignore_errors=True)
         shutil.rmtree(yolo_dir / "labels" / split, ignore_errors=True)
     total = LabelReport()
+    annotation_ids = itertools.count(1)  # unique across the splits' files
     for split in SPLITS:
-        coco = CocoBuilder(names)
+        coco = CocoBuilder(things, annotation_ids)
         report = LabelReport()
-        for plant_id in splits[split]:
-            if plant_id not in by_id:
+        for view in views:
+            plant = view.plant
+            if split_of[plant.id] != split:
                 continue
-            folder = by_id[plant_id].folder
-            for frame, objects in plant_views(folder, min_area):
-                image = Path(frame["file_path"])
-                relative = (folder / image).relative_to(dataset_dir).as_posix()
-                coco.add(relative, objects, plant_id=plant_id)
-                flat = f"{plant_id}__{image.stem}"
-                yolo.link_image(folder / image, yolo_dir / "images" / split / f"{flat}.png")
-                lines = yolo.label_lines(objects, index)
-                yolo.write_labels(yolo_dir / "labels" / split / f"{flat}.txt", lines)
-                report += LabelReport(1, len(objects.areas), objects.dropped)
+            objects = read_view_objects(plant.folder, view.frame, min_area, classes.luts[plant.id])
+            objects = objects.without(stuff_ids)
+            image = Path(view.frame["file_path"])
+            relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
+            coco.add(view.image_id, relative, objects, plant_id=plant.id)
+            flat = f"{plant.id}__{image.stem}"
+            yolo.link_image(plant.folder / image, yolo_dir / "images" / split / f"{flat}.png")
+            lines = yolo.label_lines(objects, index)
+            yolo.write_labels(yolo_dir / "labels" / split / f"{flat}.txt", lines)
+            report += LabelReport.of(objects)
         (yolo_dir / "images" / split).mkdir(parents=True, exist_ok=True)
         (dataset_dir / "coco").mkdir(exist_ok=True)
-        coco.write(dataset_dir / "coco" / f"{split}.json", report.info(f"{split} split", min_area))
+        info = report.info(f"{split} split", min_area, options.stuff)
+        coco.write(dataset_dir / "coco" / f"{split}.json", info)
         total += report
-    yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, names)
-    return DatasetLabels(splits, total, write_gallery(dataset_dir))
+    yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
+    if classes.remapped:
+        warnings.append(
+            f"class ids of {', '.join(classes.remapped)} renumbered by class name "
+            f"({', '.join(f'{i} {n}' for i, n in classes.names.items())})"
+        )
+    return DatasetLabels(splits, total, write_gallery(dataset_dir), min_area, species, warnings)
 
 
-def _plant_min_area(folder: Path) -> int | None:
+def _inside(folder: Path, dataset_dir: Path) -> bool:
+    return folder.resolve().is_relative_to(dataset_dir.resolve())
+
+
+def _plant_options(folder: Path) -> tuple[int, list[str]] | None:
+    """The area limit and stuff classes a plant's own label files were made with."""
     try:
-        return int(json.loads((folder / COCO_FILE).read_text())["info"]["min_instance_area"])
+        info = json.loads((folder / COCO_FILE).read_text())["info"]
+        return int(info["min_instance_area"]), list(info.get("stuff_classes", []))
     except (OSError, ValueError, KeyError, TypeError):
         return None
-
-
-def _classes(plant: PlantEntry) -> dict[int, str]:
-    try:
-        return PlantClasses.read(plant.folder).names
-    except InputError:
-        return {}

@@ -10,12 +10,12 @@ same folder.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from plantdreamer import atomic
 from plantdreamer.exports import yolo
+from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
@@ -31,39 +31,91 @@ POINTS_FILE = "points.ply"
 COCO_FILE = "coco.json"
 YOLO_DIR = "yolo"
 LABEL_FILES = (POINTS_FILE, COCO_FILE, YOLO_DIR)  # what write_plant_exports writes
+PLANT = ""  # the one plant of a plant folder's class table
+# COCOeval's maxDets, torchvision's box_detections_per_img and Detectron2's
+# TEST.DETECTIONS_PER_IMAGE all default to 100.
+DEFAULT_MAX_DETECTIONS = 100
 
 
 @dataclass(frozen=True)
 class LabelReport:
-    """What the label files hold: images, objects written, objects under the area limit."""
+    """What the label files hold: images, objects written, ignore regions (objects under
+    the area limit), instances without a class (left out), and the most objects in one
+    image (what COCOeval's ``maxDets`` and a detector's detections per image must reach)."""
 
     images: int = 0
     objects: int = 0
-    dropped: int = 0
+    ignored: int = 0
+    unclassed: int = 0
+    max_objects: int = 0
 
-    def info(self, what: str, min_area: int) -> dict[str, object]:
+    @classmethod
+    def of(cls, objects: ViewObjects) -> LabelReport:
+        """The report of one view."""
+        return cls(1, objects.objects, objects.ignored, objects.unclassed, objects.objects)
+
+    def info(self, what: str, min_area: int, stuff: tuple[str, ...] = ()) -> dict[str, object]:
         """The ``info`` record of a COCO file."""
         return {
             "description": f"plantdreamer labels of {what}",
             "min_instance_area": min_area,
+            "stuff_classes": list(stuff),
             "objects": self.objects,
-            "objects_left_out": self.dropped,
+            "ignore_regions": self.ignored,
+            "instances_without_class": self.unclassed,
+            "max_objects_per_image": self.max_objects,
         }
+
+    def describe(self, min_area: int) -> str:
+        """The objects part of a summary line."""
+        line = (
+            f"{self.objects} objects in {self.images} images, at most {self.max_objects} in "
+            f"one ({self.ignored} under {min_area} pixels kept as ignore regions"
+        )
+        if self.unclassed:
+            line += f"; {self.unclassed} instances without a class left out"
+        line += ")"
+        if self.max_objects > DEFAULT_MAX_DETECTIONS:
+            line += (
+                f"; more than {DEFAULT_MAX_DETECTIONS} objects in an image: raise COCOeval's "
+                f"maxDets and the detector's detections per image (docs/datasets.md)"
+            )
+        return line
 
     def __add__(self, other: LabelReport) -> LabelReport:
         return LabelReport(
-            self.images + other.images, self.objects + other.objects, self.dropped + other.dropped
+            self.images + other.images,
+            self.objects + other.objects,
+            self.ignored + other.ignored,
+            self.unclassed + other.unclassed,
+            max(self.max_objects, other.max_objects),
         )
 
 
-def plant_views(plant_dir: Path, min_area: int) -> Iterator[tuple[dict, ViewObjects]]:
-    """Each labelled frame of a plant folder with its objects."""
-    for frame in labelled_frames(plant_dir):
-        yield frame, read_view_objects(plant_dir, frame, min_area)
+@dataclass(frozen=True)
+class PlantView:
+    """A labelled view of a plant folder: its image id (COCO's and the torch Dataset's) and
+    frame of transforms.json."""
+
+    image_id: int
+    frame: dict
 
 
-def write_plant_exports(plant_dir: Path, min_area: int = MIN_INSTANCE_AREA) -> LabelReport:
-    """Writes the point cloud and, for a labelled plant, its COCO and YOLO files."""
+def plant_views(plant_dir: Path) -> list[PlantView]:
+    """The labelled frames of a plant folder, numbered from 1 in their order."""
+    return [PlantView(i + 1, f) for i, f in enumerate(labelled_frames(plant_dir))]
+
+
+def plant_classes(plant_dir: Path) -> DatasetClasses:
+    """A plant folder's classes as categories (its values; unnamed values unlabelled)."""
+    return dataset_classes({PLANT: PlantClasses.read(plant_dir).names})
+
+
+def write_plant_exports(
+    plant_dir: Path, min_area: int = MIN_INSTANCE_AREA, stuff: tuple[str, ...] = ()
+) -> LabelReport:
+    """Writes the point cloud and, for a labelled plant, its COCO and YOLO files (``stuff``:
+    the names of classes that are no objects there)."""
     plant_dir = Path(plant_dir)
     if (plant_dir / "plant.ply").is_file():
         write_points_ply(plant_dir / "plant.ply", plant_dir / POINTS_FILE)
@@ -72,21 +124,24 @@ def write_plant_exports(plant_dir: Path, min_area: int = MIN_INSTANCE_AREA) -> L
         return LabelReport()
     if not read_transforms(plant_dir).get("semantic_classes"):  # no labels
         return LabelReport()
-    names = PlantClasses.read(plant_dir).names
-    index = yolo.class_index(names)
-    coco = CocoBuilder(names)
+    classes = plant_classes(plant_dir)
+    stuff_ids, things = classes.stuff_ids(stuff), classes.things(stuff)
+    index = yolo.class_index(things)
+    coco = CocoBuilder(things)
     report = LabelReport()
-    for frame, objects in plant_views(plant_dir, min_area):
-        image = Path(frame["file_path"])
-        coco.add(image.as_posix(), objects)
+    for view in plant_views(plant_dir):
+        objects = read_view_objects(plant_dir, view.frame, min_area, classes.luts[PLANT])
+        objects = objects.without(stuff_ids)
+        image = Path(view.frame["file_path"])
+        coco.add(view.image_id, image.as_posix(), objects)
         yolo.link_image(plant_dir / image, plant_dir / YOLO_DIR / "images" / image.name)
         labels = plant_dir / YOLO_DIR / "labels" / f"{image.stem}.txt"
         yolo.write_labels(labels, yolo.label_lines(objects, index))
-        report += LabelReport(1, len(objects.areas), objects.dropped)
+        report += LabelReport.of(objects)
     yolo.write_data_yaml(
-        plant_dir / YOLO_DIR / "data.yaml", {"train": "images", "val": "images"}, names
+        plant_dir / YOLO_DIR / "data.yaml", {"train": "images", "val": "images"}, things
     )
-    coco.write(plant_dir / COCO_FILE, report.info(f"plant {plant_dir.name}", min_area))
+    coco.write(plant_dir / COCO_FILE, report.info(f"plant {plant_dir.name}", min_area, stuff))
     return report
 
 
