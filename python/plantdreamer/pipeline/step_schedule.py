@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch.profiler import record_function
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
@@ -132,11 +133,12 @@ class StepSchedule:
 
     @contextmanager
     def _timed(self, name: str) -> Iterator[None]:
-        """One phase of the step, its wall time added to every live plant (the group's)."""
+        """One phase of the step, its wall time added to every live plant (the group's), and
+        a named range of a profiler's timeline (benches/bench_throughput.py --trace)."""
         plants = self.alive()
         first = self.plants[plants[0]].state.timer.totals
         before = first[name]
-        with self.plants[plants[0]].state.timer(name):
+        with self.plants[plants[0]].state.timer(name), record_function(name):
             yield
         for i in plants[1:]:
             self.plants[i].state.timer.totals[name] += first[name] - before
@@ -152,7 +154,8 @@ class StepSchedule:
         background = self.cfg.train.background
 
         def render(k: int):
-            return group[k].state.model.render([cameras[k]], background)
+            with record_function(f"render plant {plants[k]}"):
+                return group[k].state.model.render([cameras[k]], background)
 
         with self._timed("render"):
             renders = self._map(render, list(range(len(group))))
@@ -174,7 +177,12 @@ class StepSchedule:
                 optimizer.zero_grad(set_to_none=True)
             images = [r[0] for r in work.renders]
             grads = out.grads
-            self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
+
+            def backward(k: int) -> None:
+                with record_function(f"backward plant {work.plants[k]}"):
+                    images[k].backward(grads[k : k + 1])
+
+            self._map(backward, list(range(len(group))))
         loss = out.loss
         # A non-finite loss fails the plants whose renders got non-finite gradients (all of
         # them when none did): one plant's NaN must not stop the others.
