@@ -188,11 +188,14 @@ class OneStepTrace:
     writes it to ``path`` as a Chrome trace."""
 
     def __init__(self, path: Path, cuda: bool, clock: StepClock) -> None:
+        from torch._C._profiler import _ExperimentalConfig
         from torch.profiler import ProfilerActivity, profile
 
         activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
         self.path, self.clock = path, clock
-        self.prof = profile(activities=activities)
+        # Every thread: the plants' renders and backwards run on a pool's threads.
+        every_thread = _ExperimentalConfig(profile_all_threads=True)
+        self.prof = profile(activities=activities, experimental_config=every_thread)
         self.active = False
 
     def __call__(self, step: int) -> None:

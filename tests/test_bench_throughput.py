@@ -40,7 +40,7 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     out = tmp_path / "out"
     cmd = [
         sys.executable, "scripts/gpu_checks.py", "throughput", str(out), "--tiny",
-        "--groups", "1", "2", "--overlap", "off", "on", "--steps", "4", "--warmup", "2",
+        "--groups", "2", "1", "--overlap", "off", "on", "--steps", "4", "--warmup", "2",
         "--points", "1500", "--render", "48", "--sds", "64", "--work", str(tmp_path / "work"),
         "--trace", str(out / "step.json"),
     ]  # fmt: skip
@@ -63,3 +63,12 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     names = {e.get("name") for e in trace["traceEvents"]}
     assert {"render", "guidance", "backward", "optimizer"} <= names
     assert "| 2 | on | float32 |" in (out / "throughput.md").read_text()
+    # The timeline drawn from that trace: every plant's thread and the main thread.
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import plot_timeline
+
+    found = plot_timeline.lanes(trace["traceEvents"])
+    named = {n for lane in found.values() for *_, n in lane["ranges"]}
+    assert {"render plant 0", "render plant 1", "backward plant 1"} <= named
+    assert plot_timeline.main([str(out / "step.json"), str(out / "step.png")]) == 0
+    assert (out / "step.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
