@@ -28,7 +28,9 @@ Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` network
 
 ``--trace PATH`` profiles one steady step (the step after warm-up) of the first run with the
 torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome trace
-(``scripts/plot_timeline.py`` draws it).
+(``scripts/plot_timeline.py`` draws it). ``--raster-batch off on`` compares the group
+step's rasterizer calls, interleaved: one native call each way for the B plants (on, the
+default) against one call per plant on its own thread (off).
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -67,21 +69,27 @@ class Variant:
     b: int
     overlap: str = "off"
     vae: str = "float32"
+    raster_batch: str = "on"
 
     @property
     def label(self) -> str:
         parts = [str(self.b)]
         parts += ["overlap"] if self.overlap == "on" else []
         parts += [self.vae] if self.vae != "float32" else []
+        parts += ["per-plant-raster"] if self.raster_batch == "off" else []
         return "-".join(parts)
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
     out = []
-    for b, overlap, vae in itertools.product(args.groups, args.overlap, args.vae):
+    for b, overlap, vae, batch in itertools.product(
+        args.groups, args.overlap, args.vae, args.raster_batch
+    ):
         if overlap == "on" and b == 1:
             continue  # one plant has no halves
-        out.append(Variant(b, overlap, vae))
+        if batch == "off" and b == 1 and "on" in args.raster_batch:
+            continue  # one plant is one call either way
+        out.append(Variant(b, overlap, vae, batch))
     return out
 
 
@@ -236,6 +244,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.pipeline import GenerateConfig
     from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline.step_schedule import StepSchedule
 
     cuda = args.device.startswith("cuda")
     cfgs = [
@@ -256,10 +265,14 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     hook: Callable[[int], None] = clock if trace is None else OneStepTrace(trace, cuda, clock)
     if cuda:
         torch.cuda.reset_peak_memory_stats()
+    StepSchedule.raster_batch = v.raster_batch == "on"
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
-                                on_step=hook)  # fmt: skip
+        try:
+            result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
+                                    on_step=hook)  # fmt: skip
+        finally:
+            StepSchedule.raster_batch = True
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
@@ -268,10 +281,12 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
             raise SystemExit(f"error: plants failed: {result.failed}")
         run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
     timings = run["timings_s"]
-    out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae}
+    out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
+                           "raster_batch": v.raster_batch}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
+    out["gaussians_final"] = run["gaussians"]["final"]  # plant 0's
     out["peak_cuda_gib"] = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
     out["wall_s"] = wall
     return out
@@ -325,14 +340,15 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
         "phases: means over every step.",
         "",
-        "| B | overlap | VAE | ms per step | plants per hour | host core-ms "
+        "| B | overlap | VAE | rasterizer calls | ms per step | plants per hour | host core-ms "
         "per plant-step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "|---:|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
+        calls = "one per plant" if row["raster_batch"] == "off" else "one per group"
         lines.append(
-            f"| {row['B']} | {row['overlap']} | {row['vae']} | "
+            f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
             f"{num(row['host_core_ms_per_plant_step'])} "
@@ -403,6 +419,13 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
     p.add_argument("--overlap", nargs="+", choices=("off", "on"), default=["off", "on"])
     p.add_argument("--vae", nargs="+", choices=("float32", "bfloat16"), help="VAE precision "
                    "(default float32 bfloat16 on CUDA, float32 on the CPU)")  # fmt: skip
+    p.add_argument(
+        "--raster-batch",
+        nargs="+",
+        choices=("off", "on"),
+        default=["on"],
+        help="one native rasterizer call for the group (on) or one per plant",
+    )
     p.add_argument("--steps", type=int, default=None if gpu_checks else 24)
     p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")
     p.add_argument("--repeats", type=int, default=1)

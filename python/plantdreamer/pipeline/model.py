@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
+from plantdreamer.errors import PlantDreamerError
 from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scales
 from plantdreamer.pipeline.train_config import LearningRates
 
@@ -106,6 +107,12 @@ class GaussianModel:
         """Renders [C, H, W, ch] images (and alphas, meta) through the native rasterizer."""
         from plantdreamer.rasterizer import rasterization
 
+        return rasterization(**self.render_call(cameras, background, render_mode))
+
+    def render_call(
+        self, cameras: Sequence[Camera], background: float, render_mode: str = "RGB"
+    ) -> dict[str, Any]:
+        """``rasterization``'s keyword arguments for a render of ``cameras``."""
         p = self.params
         viewmats, ks = stack(cameras)
         bg = None
@@ -121,20 +128,20 @@ class GaussianModel:
         else:
             colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
         scales, opacities = _Activations.apply(p["log_scales"], p["opacity_logits"])
-        return rasterization(
-            p["means"],
-            p["quats"],
-            scales,
-            opacities,
-            colors,
-            torch.from_numpy(viewmats),
-            torch.from_numpy(ks),
-            cameras[0].width,
-            cameras[0].height,
-            sh_degree=self.sh_degree,
-            backgrounds=bg,
-            render_mode=render_mode,
-        )
+        return {
+            "means": p["means"],
+            "quats": p["quats"],
+            "scales": scales,
+            "opacities": opacities,
+            "colors": colors,
+            "viewmats": torch.from_numpy(viewmats),
+            "Ks": torch.from_numpy(ks),
+            "width": cameras[0].width,
+            "height": cameras[0].height,
+            "sh_degree": self.sh_degree,
+            "backgrounds": bg,
+            "render_mode": render_mode,
+        }
 
     # -- changing the set of Gaussians -------------------------------------------------
 
@@ -190,3 +197,16 @@ class GaussianModel:
                 group["params"][0] = self.params[group["name"]]
             self.optimizer.state.clear()
             self.optimizer.load_state_dict(state["optimizer"])
+
+
+def render_many(
+    models: Sequence[GaussianModel], cameras: Sequence[Camera], background: float
+) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
+    """``models[k].render([cameras[k]], background)`` for every k, as one native call each
+    way (``rasterization_many``: the same bits); a model whose render fails gets its
+    error in its place. The renders' gradients must come from one
+    ``torch.autograd.backward`` over all of them."""
+    from plantdreamer.rasterizer import rasterization_many
+
+    calls = [m.render_call([c], background) for m, c in zip(models, cameras, strict=True)]
+    return rasterization_many(calls)
