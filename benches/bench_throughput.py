@@ -94,11 +94,14 @@ def variants(args: argparse.Namespace) -> list[Variant]:
 
 
 class StepClock:
-    """The ``on_step`` hook: wall clock and process CPU time at every step end; starts
-    ``window_start`` after warm-up and stops ``window_stop`` at the last step."""
+    """The ``on_step`` hook: wall clock and process CPU time at every step end; calls
+    ``on_window("start")`` at the end of warm-up and ``on_window("stop")`` at the end of
+    step ``last`` (the run's exports after it are no part of the window)."""
 
-    def __init__(self, warmup: int, on_window: Callable[[str], None] | None = None) -> None:
-        self.warmup, self.on_window = warmup, on_window
+    def __init__(
+        self, warmup: int, on_window: Callable[[str], None] | None = None, last: int = -1
+    ) -> None:
+        self.warmup, self.on_window, self.last = warmup, on_window, last
         self.wall: list[float] = []
         self.cpu: list[float] = []
 
@@ -107,6 +110,8 @@ class StepClock:
         self.cpu.append(time.process_time())
         if self.on_window is not None and len(self.wall) == self.warmup:
             self.on_window("start")
+        if self.on_window is not None and step == self.last:
+            self.on_window("stop")
 
     def steady(self, b: int) -> dict[str, float]:
         if len(self.wall) < self.warmup + 1:
@@ -151,6 +156,9 @@ class GpuBusy:
     def window(self, event: str) -> None:
         if not self.cuda:
             return
+        if event == "stop":
+            self._close()
+            return
         if self._nvml is not None:
             self._thread = threading.Thread(target=self._sample, daemon=True)
             self._thread.start()
@@ -167,9 +175,14 @@ class GpuBusy:
             self._samples.append(pynvml.nvmlDeviceGetUtilizationRates(handle).gpu / 100)
 
     def finish(self) -> None:
+        """Ends the window if the run stopped early (a failure) and leaves ``share`` set."""
+        self._close()
+
+    def _close(self) -> None:
         if self._thread is not None:
             self._stop.set()
             self._thread.join()
+            self._thread = None
             if self._samples:
                 self.share, self.source = statistics.fmean(self._samples), "nvml"
         elif self._prof is not None:
@@ -178,9 +191,10 @@ class GpuBusy:
             torch.cuda.synchronize()
             wall = time.perf_counter() - self._t0
             self._prof.stop()
+            prof, self._prof = self._prof, None
             spans = sorted(
                 (e.time_range.start, e.time_range.end)
-                for e in self._prof.events()
+                for e in prof.events()
                 if e.device_type == torch.autograd.DeviceType.CUDA
             )
             total, end = 0.0, float("-inf")
@@ -261,7 +275,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         vae_dtype=v.vae, seed=0,
     )  # fmt: skip
     busy = GpuBusy(cuda)
-    clock = StepClock(args.warmup, busy.window)
+    clock = StepClock(args.warmup, busy.window, last=args.steps - 1)
     hook: Callable[[int], None] = clock if trace is None else OneStepTrace(trace, cuda, clock)
     if cuda:
         torch.cuda.reset_peak_memory_stats()

@@ -28,6 +28,15 @@ def test_the_steady_state_is_the_median_gap_after_warm_up():
     assert math.isclose(s["host_core_ms_per_plant_step"], 4000 / (3 * 4))
 
 
+def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
+    events = []
+    clock = bench_throughput.StepClock(warmup=2, on_window=lambda e: events.append((e, len(clock.wall))),
+                                       last=4)  # fmt: skip
+    for step in range(5):
+        clock(step)
+    assert events == [("start", 2), ("stop", 5)]
+
+
 def test_too_few_steps_for_the_warm_up_is_one_clear_error(tmp_path):
     cmd = [sys.executable, "scripts/gpu_checks.py", "throughput", str(tmp_path), "--tiny",
            "--steps", "3", "--warmup", "7"]  # fmt: skip
