@@ -241,7 +241,7 @@ class OneStepTrace:
 
 
 def build_parts(args: argparse.Namespace) -> Callable[[], Any]:
-    """The networks' factory: fresh components per run (a run's VAE cast stays its own)."""
+    """The networks' factory: tiny ones, or full size (random weights) on the device."""
     if args.tiny:
         from plantdreamer.guidance.tiny import tiny_models
 
@@ -311,9 +311,14 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     with each run's repeats under ``repeats``."""
     runs: dict[Variant, list[dict[str, Any]]] = {v: [] for v in variants(args)}
     make = build_parts(args)
+    # One set of networks per VAE precision, built once (the guidance casts its VAE in
+    # place, so the precisions do not share one set).
+    parts: dict[str, Any] = {}
     for _ in range(args.repeats):
         for v in runs:
-            runs[v].append(one_run(v, args, make()))
+            if v.vae not in parts:
+                parts[v.vae] = make()
+            runs[v].append(one_run(v, args, parts[v.vae]))
             print(v.label, json.dumps(runs[v][-1]), flush=True)
     groups = {}
     for v, reps in runs.items():
