@@ -30,7 +30,8 @@ Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` network
 torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome trace
 (``scripts/plot_timeline.py`` draws it). ``--raster-batch off on`` compares the group
 step's rasterizer calls, interleaved: one native call each way for the B plants (on, the
-default) against one call per plant on its own thread (off).
+default) against one call per plant on its own thread (off); ``--adam single foreach``
+compares torch's Adam implementations for the Gaussians (the same bits).
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -70,6 +71,7 @@ class Variant:
     overlap: str = "off"
     vae: str = "float32"
     raster_batch: str = "on"
+    adam: str = "foreach"
 
     @property
     def label(self) -> str:
@@ -77,19 +79,20 @@ class Variant:
         parts += ["overlap"] if self.overlap == "on" else []
         parts += [self.vae] if self.vae != "float32" else []
         parts += ["per-plant-raster"] if self.raster_batch == "off" else []
+        parts += [f"adam-{self.adam}"] if self.adam != "foreach" else []
         return "-".join(parts)
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
     out = []
-    for b, overlap, vae, batch in itertools.product(
-        args.groups, args.overlap, args.vae, args.raster_batch
+    for b, overlap, vae, batch, adam in itertools.product(
+        args.groups, args.overlap, args.vae, args.raster_batch, args.adam
     ):
         if overlap == "on" and b == 1:
             continue  # one plant has no halves
         if batch == "off" and b == 1 and "on" in args.raster_batch:
             continue  # one plant is one call either way
-        out.append(Variant(b, overlap, vae, batch))
+        out.append(Variant(b, overlap, vae, batch, adam))
     return out
 
 
@@ -256,7 +259,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     import torch
 
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
-    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline import GenerateConfig, model
     from plantdreamer.pipeline.group import generate_group
     from plantdreamer.pipeline.step_schedule import StepSchedule
 
@@ -280,13 +283,14 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     if cuda:
         torch.cuda.reset_peak_memory_stats()
     StepSchedule.raster_batch = v.raster_batch == "on"
+    model.ADAM_IMPLEMENTATION = v.adam
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         try:
             result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
                                     on_step=hook)  # fmt: skip
         finally:
-            StepSchedule.raster_batch = True
+            StepSchedule.raster_batch, model.ADAM_IMPLEMENTATION = True, "foreach"
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
@@ -296,7 +300,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
     timings = run["timings_s"]
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
-                           "raster_batch": v.raster_batch}  # fmt: skip
+                           "raster_batch": v.raster_batch, "adam": v.adam}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
@@ -359,15 +363,15 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
         "phases: means over every step.",
         "",
-        "| B | overlap | VAE | rasterizer calls | ms per step | plants per hour | host core-ms "
+        "| B | overlap | VAE | rasterizer calls | Adam | ms per step | plants per hour | host core-ms "
         "per plant-step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "|---:|---|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
         calls = "one per plant" if row["raster_batch"] == "off" else "one per group"
         lines.append(
-            f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | "
+            f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | {row['adam']} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
             f"{num(row['host_core_ms_per_plant_step'])} "
@@ -444,6 +448,13 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
         choices=("off", "on"),
         default=["on"],
         help="one native rasterizer call for the group (on) or one per plant",
+    )
+    p.add_argument(
+        "--adam",
+        nargs="+",
+        choices=("single", "foreach"),
+        default=["foreach"],
+        help="torch's Adam implementation for the Gaussians (the same bits)",
     )
     p.add_argument("--steps", type=int, default=None if gpu_checks else 24)
     p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")

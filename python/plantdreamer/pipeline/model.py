@@ -19,6 +19,11 @@ from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scale
 from plantdreamer.pipeline.train_config import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+# torch's Adam implementation for the Gaussians: "foreach" gives the bits of the
+# single-tensor loop (tests/test_model_adam.py) in fewer torch calls, each an OpenMP region
+# the host waits on; benches/bench_throughput.py --adam compares them.
+ADAM_IMPLEMENTATION = "foreach"
+ADAM_FOREACH = {"single": False, "foreach": True}
 
 
 class _Activations(torch.autograd.Function):
@@ -82,6 +87,7 @@ class GaussianModel:
             self.optimizer = torch.optim.Adam(
                 [{"params": [self.params[k]], "lr": rates[k], "name": k} for k in PARAM_NAMES],
                 eps=lr.eps,
+                foreach=ADAM_FOREACH[ADAM_IMPLEMENTATION],
             )
 
     def __len__(self) -> int:
@@ -197,6 +203,9 @@ class GaussianModel:
                 group["params"][0] = self.params[group["name"]]
             self.optimizer.state.clear()
             self.optimizer.load_state_dict(state["optimizer"])
+            # The implementation is this build's, not the checkpoint's (the same bits).
+            for group in self.optimizer.param_groups:
+                group["foreach"] = ADAM_FOREACH[ADAM_IMPLEMENTATION]
 
 
 def render_many(
