@@ -1,142 +1,385 @@
-"""Plants per hour with several plants in one trainer (`generate --seeds`), B = 1, 2, 4, 8.
+"""Plants per hour in the steady state: B plants in one trainer (`generate --seeds`).
 
-Tiny random-weight diffusion models on this machine's CPU (no CUDA GPU here): the UNet
-costs far less than SD 2.1's, so the figures show the host side of a group step (B renders
-and rasterizer backwards on B threads, the batched guidance call, per-plant Adam and
-density control), not a GPU's. Each B runs as one group of B plants (L-System bean,
-seeds 0..B-1) for a few steps; the B values are interleaved over the repeats, and the
-min and median are reported. "plants per hour" projects the measured training time per
-plant-step to 3600-step plants (preparation and export excluded: they are per plant and
-do not change with B). ``--overlap`` adds rows of those B trained as two halves in flight
-(``overlap on``; the other rows are ``off``), interleaved with the rest.
+Each run trains one group of B L-System beans (seeds 0..B-1) through ``generate_group``
+and records, through its ``on_step`` hook, the wall clock and the process's CPU time at
+every step end. The figures are the **steady state**, after ``--warmup`` steps (7: the
+CUDA-graph captures and first prompt encodes fall in them):
 
-    python benches/bench_throughput.py                     # B = 1, 2, 4, 8; 6 steps; 3 repeats
-    python benches/bench_throughput.py --groups 1 2 --steps 4 --repeats 1 --render 64
-    python benches/bench_throughput.py --separate      # and B processes of one plant each
+* ``step_ms_median``: the median wall time between consecutive step ends after warm-up;
+  ``plants_per_hour`` = 3600 s x B / (that median x 3600 steps per plant);
+* ``gpu_busy``: the share of the steady window's wall time the GPU was busy: NVML's
+  utilisation sampled every 50 ms (``pynvml``), else the union of the kernels' intervals
+  from the torch profiler over the window; null without CUDA;
+* ``host_core_ms_per_plant_step``: process CPU time (every thread) over the steady window
+  / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
+  (on the CPU the tiny networks' arithmetic is in it too);
+* ``phases_ms``: the step's phases (render, depth, guidance = the networks and the host's
+  wait for them, backward, optimizer) from plant 0's run.json, means over every step;
+* ``peak_cuda_gib``: ``torch.cuda.max_memory_allocated`` over the run (null on the CPU).
+
+Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` networks on the CPU
+(the default without CUDA). Runs are B x overlap x VAE precision (``--groups``,
+``--overlap``, ``--vae``; overlap on is skipped for B = 1), interleaved over ``--repeats``.
+
+    python benches/bench_throughput.py                            # CUDA: B = 1, 8, 16, 32
+    python benches/bench_throughput.py --tiny --groups 1 4 --steps 12 --render 128
+    python benches/bench_throughput.py --tiny --groups 4 --trace timeline.json   # one step
     python benches/bench_throughput.py --loading 8     # model loading per plant vs per worker
 
-Each row also gives the host's core use (process CPU time / wall / cores) and, on CUDA, the
-GPU's idle share of the wall time (the union of the kernels' intervals from the profiler's
-CUDA events; on this machine, which has no CUDA GPU, that column says not measured).
-``--separate`` adds, for each B, B processes side by side that train one plant each on
-cores / B threads (as `dataset` without packing runs B plants sharing a GPU).
+``--trace PATH`` profiles one steady step (the step after warm-up) of the first run with the
+torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome trace
+(``scripts/plot_timeline.py`` draws it). ``--raster-batch off on`` compares the group
+step's rasterizer calls, interleaved: one native call each way for the B plants (on, the
+default) against one call per plant on its own thread (off); ``--adam single foreach``
+compares torch's Adam implementations for the Gaussians (the same bits).
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
-plant, as one Ray task per plant did) and once per worker (one cache for all N, as a
-``PlantWorker`` does). Tiny models saved to disk in the hub's layout, so the load is a
-real ``from_pretrained``; the two ways alternate over the repeats.
-    python benches/bench_throughput.py --groups 4 --overlap 4   # overlap off / on, B = 4
+plant) and once per worker (one cache for all N, as a ``PlantWorker`` does).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
+import math
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from host import host_line
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PHASES = ("render", "depth", "guidance", "backward", "optimizer")
 STEPS_PER_PLANT = 3600
-OVERLAPPED = "one trainer, two halves in flight"
+NVML_PERIOD_S = 0.05
 
 
-def one_group(
-    b: int, args: argparse.Namespace, first_seed: int = 0, overlap: str = "off"
-) -> dict[str, float]:
+@dataclass(frozen=True)
+class Variant:
+    b: int
+    overlap: str = "off"
+    vae: str = "float32"
+    raster_batch: str = "on"
+    adam: str = "foreach"
+
+    @property
+    def label(self) -> str:
+        parts = [str(self.b)]
+        parts += ["overlap"] if self.overlap == "on" else []
+        parts += [self.vae] if self.vae != "float32" else []
+        parts += ["per-plant-raster"] if self.raster_batch == "off" else []
+        parts += [f"adam-{self.adam}"] if self.adam != "foreach" else []
+        return "-".join(parts)
+
+
+def variants(args: argparse.Namespace) -> list[Variant]:
+    out = []
+    for b, overlap, vae, batch, adam in itertools.product(
+        args.groups, args.overlap, args.vae, args.raster_batch, args.adam
+    ):
+        if overlap == "on" and b == 1:
+            continue  # one plant has no halves
+        if batch == "off" and b == 1 and "on" in args.raster_batch:
+            continue  # one plant is one call either way
+        out.append(Variant(b, overlap, vae, batch, adam))
+    return out
+
+
+class StepClock:
+    """The ``on_step`` hook: wall clock and process CPU time at every step end; calls
+    ``on_window("start")`` at the end of warm-up and ``on_window("stop")`` at the end of
+    step ``last`` (the run's exports after it are no part of the window)."""
+
+    def __init__(
+        self, warmup: int, on_window: Callable[[str], None] | None = None, last: int = -1
+    ) -> None:
+        self.warmup, self.on_window, self.last = warmup, on_window, last
+        self.wall: list[float] = []
+        self.cpu: list[float] = []
+
+    def __call__(self, step: int) -> None:
+        self.wall.append(time.perf_counter())
+        self.cpu.append(time.process_time())
+        if self.on_window is not None and len(self.wall) == self.warmup:
+            self.on_window("start")
+        if self.on_window is not None and step == self.last:
+            self.on_window("stop")
+
+    def steady(self, b: int) -> dict[str, float]:
+        if len(self.wall) < self.warmup + 1:
+            raise SystemExit(
+                f"error: {len(self.wall)} steps leave no step after {self.warmup} warm-up steps"
+            )
+        gaps = [t1 - t0 for t0, t1 in itertools.pairwise(self.wall[self.warmup - 1 :])]
+        steps = len(gaps)
+        cpu = self.cpu[-1] - self.cpu[self.warmup - 1]
+        median = statistics.median(gaps)
+        return {
+            "steady_steps": steps,
+            "step_ms_median": 1000 * median,
+            "step_ms_min": 1000 * min(gaps),
+            "plants_per_hour": 3600 * b / (median * STEPS_PER_PLANT),
+            "s_per_plant": median * STEPS_PER_PLANT / b,
+            "host_core_ms_per_plant_step": 1000 * cpu / (steps * b),
+            "window_s": self.wall[-1] - self.wall[self.warmup - 1],
+        }
+
+
+class GpuBusy:
+    """The GPU's busy share over the steady window: NVML samples every 50 ms where pynvml
+    imports, else the torch profiler's kernel intervals; ``share`` stays None on the CPU."""
+
+    def __init__(self, cuda: bool) -> None:
+        self.cuda, self.share, self.source = cuda, None, None
+        self._nvml: Any = None
+        self._samples: list[float] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._prof: Any = None
+        self._t0 = 0.0
+        if cuda:
+            with contextlib.suppress(Exception):  # no pynvml, or no NVML library
+                import pynvml
+
+                pynvml.nvmlInit()
+                index = os.environ.get("CUDA_VISIBLE_DEVICES", "0").split(",")[0]
+                self._nvml = (pynvml, pynvml.nvmlDeviceGetHandleByIndex(int(index)))
+
+    def window(self, event: str) -> None:
+        if not self.cuda:
+            return
+        if event == "stop":
+            self._close()
+            return
+        if self._nvml is not None:
+            self._thread = threading.Thread(target=self._sample, daemon=True)
+            self._thread.start()
+            return
+        from torch.profiler import ProfilerActivity, profile
+
+        self._prof = profile(activities=[ProfilerActivity.CUDA])
+        self._prof.start()
+        self._t0 = time.perf_counter()
+
+    def _sample(self) -> None:
+        pynvml, handle = self._nvml
+        while not self._stop.wait(NVML_PERIOD_S):
+            self._samples.append(pynvml.nvmlDeviceGetUtilizationRates(handle).gpu / 100)
+
+    def finish(self) -> None:
+        """Ends the window if the run stopped early (a failure) and leaves ``share`` set."""
+        self._close()
+
+    def _close(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+            if self._samples:
+                self.share, self.source = statistics.fmean(self._samples), "nvml"
+        elif self._prof is not None:
+            import torch
+
+            torch.cuda.synchronize()
+            wall = time.perf_counter() - self._t0
+            self._prof.stop()
+            prof, self._prof = self._prof, None
+            spans = sorted(
+                (e.time_range.start, e.time_range.end)
+                for e in prof.events()
+                if e.device_type == torch.autograd.DeviceType.CUDA
+            )
+            total, end = 0.0, float("-inf")
+            for start, stop in spans:  # microseconds; overlapping kernels counted once
+                if stop > end:
+                    total += stop - max(start, end)
+                    end = stop
+            self.share, self.source = min(1.0, total / 1e6 / wall), "profiler"
+
+
+class OneStepTrace:
+    """Profiles the step after warm-up (torch profiler: CPU, and CUDA where present) and
+    writes it to ``path`` as a Chrome trace."""
+
+    def __init__(self, path: Path, cuda: bool, clock: StepClock) -> None:
+        from torch._C._profiler import _ExperimentalConfig
+        from torch.profiler import ProfilerActivity, profile
+
+        activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+        self.path, self.clock = path, clock
+        # Every thread: the plants' renders and backwards run on a pool's threads.
+        every_thread = _ExperimentalConfig(profile_all_threads=True)
+        self.prof = profile(activities=activities, experimental_config=every_thread)
+        self.active = False
+
+    def __call__(self, step: int) -> None:
+        self.clock(step)
+        if len(self.clock.wall) == self.clock.warmup:
+            self.prof.start()
+            self.active = True
+        elif self.active:
+            self.stop()
+
+    def stop(self) -> None:
+        if not self.active:
+            return
+        self.prof.stop()
+        self.active = False
+        from plantdreamer.atomic import atomic_path
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.path) as tmp:
+            self.prof.export_chrome_trace(str(tmp))
+
+
+def build_parts(args: argparse.Namespace) -> Callable[[], Any]:
+    """The networks' factory: tiny ones, or full size (random weights) on the device."""
+    if args.tiny:
+        from plantdreamer.guidance.tiny import tiny_models
+
+        return tiny_models
+    from plantdreamer.guidance.full_size import full_size_models
+
+    return lambda: full_size_models(device=args.device)
+
+
+def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None = None):
+    """Trains one group of ``v.b`` plants; returns the run's figures."""
+    import torch
+
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
-    from plantdreamer.guidance.tiny import tiny_models
-    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline import GenerateConfig, model
     from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline.step_schedule import StepSchedule
 
+    cuda = args.device.startswith("cuda")
     cfgs = [
         GenerateConfig.of(
             species="bean", seed=s, steps=args.steps, points=args.points,
-            resolution=args.render, eval_views=1, turntable_frames=1, turntable="none",
-            overlap=overlap,
+            resolution=args.render, sds_resolution=args.sds, eval_views=1,
+            turntable_frames=1, turntable="none", checkpoint_every=args.steps,
+            device=args.device, overlap=v.overlap, vae_dtype=v.vae,
         )
-        for s in range(first_seed, first_seed + b)
+        for s in range(v.b)
     ]  # fmt: skip
     guidance = StableDiffusionDepthGuidance(
-        species="bean", components=tiny_models(), resolution=args.sds, seed=first_seed
-    )
-    with tempfile.TemporaryDirectory() as tmp, gpu_busy() as busy:
-        t0, cpu0 = time.perf_counter(), time.process_time()
-        result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False)
-        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
-        assert not result.failed, result.failed
-        first = f"bean-s{first_seed:04d}"
-        timings = json.loads((Path(tmp) / first / "run.json").read_text())["timings_s"]
-    train = sum(timings.get(k, 0.0) for k in PHASES)  # the group's step phases (shared)
-    out = {f"{k}_ms": 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
-    out["step_ms"] = 1000 * train / args.steps
-    out["plants_per_hour"] = 3600 * b / (train / args.steps * STEPS_PER_PLANT)
+        species="bean", components=parts, resolution=args.sds, device=args.device,
+        vae_dtype=v.vae, seed=0,
+    )  # fmt: skip
+    busy = GpuBusy(cuda)
+    clock = StepClock(args.warmup, busy.window, last=args.steps - 1)
+    hook: Callable[[int], None] = clock if trace is None else OneStepTrace(trace, cuda, clock)
+    if cuda:
+        torch.cuda.reset_peak_memory_stats()
+    StepSchedule.raster_batch = v.raster_batch == "on"
+    model.ADAM_IMPLEMENTATION = v.adam
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        try:
+            result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
+                                    on_step=hook)  # fmt: skip
+        finally:
+            StepSchedule.raster_batch, model.ADAM_IMPLEMENTATION = True, "foreach"
+        wall = time.perf_counter() - t0
+        busy.finish()
+        if isinstance(hook, OneStepTrace):
+            hook.stop()
+        if result.failed:
+            raise SystemExit(f"error: plants failed: {result.failed}")
+        run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
+    timings = run["timings_s"]
+    out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
+                           "raster_batch": v.raster_batch, "adam": v.adam}  # fmt: skip
+    out |= clock.steady(v.b)
+    out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
+    out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
+    out["gaussians_final"] = run["gaussians"]["final"]  # plant 0's
+    out["peak_cuda_gib"] = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
     out["wall_s"] = wall
-    out["core_use"] = cpu / (wall * (os.cpu_count() or 1))  # the host's cores kept busy
-    if busy:
-        out["gpu_idle"] = 1.0 - busy[0] / wall
     return out
 
 
-@contextlib.contextmanager
-def gpu_busy() -> Iterator[list[float]]:
-    """On CUDA, yields a list that gets the seconds some kernel ran on the GPU during the
-    block (the union of the kernels' intervals, from the profiler's CUDA events); on the
-    CPU an empty list."""
-    import torch
+def run_all(args: argparse.Namespace) -> dict[str, Any]:
+    """Every variant, interleaved over the repeats: ``{"groups": {label: median run}}``,
+    with each run's repeats under ``repeats``."""
+    runs: dict[Variant, list[dict[str, Any]]] = {v: [] for v in variants(args)}
+    make = build_parts(args)
+    # One set of networks per VAE precision, built once (the guidance casts its VAE in
+    # place, so the precisions do not share one set).
+    parts: dict[str, Any] = {}
+    for _ in range(args.repeats):
+        for v in runs:
+            if v.vae not in parts:
+                parts[v.vae] = make()
+            runs[v].append(one_run(v, args, parts[v.vae]))
+            print(v.label, json.dumps(runs[v][-1]), flush=True)
+    groups = {}
+    for v, reps in runs.items():
+        row = dict(min(reps, key=lambda r: r["step_ms_median"]))  # keys of one run
+        for key, value in reps[0].items():
+            if isinstance(value, float) and all(isinstance(r[key], float) for r in reps):
+                row[key] = statistics.median(r[key] for r in reps)
+        row["step_ms_median_min"] = min(r["step_ms_median"] for r in reps)
+        row["host_core_ms_per_plant_step_min"] = min(r["host_core_ms_per_plant_step"] for r in reps)
+        row["repeats"] = reps
+        groups[v.label] = row
+    return {
+        "device": args.device,
+        "host": host_line(),
+        "networks": "tiny" if args.tiny else "full size (SD 2.1-base), random weights",
+        "points": args.points,
+        "render": args.render,
+        "sds": args.sds,
+        "steps": args.steps,
+        "warmup": args.warmup,
+        "repeats": args.repeats,
+        "groups": groups,
+    }
 
-    busy: list[float] = []
-    if not torch.cuda.is_available():
-        yield busy
-        return
-    from torch.profiler import ProfilerActivity, profile
 
-    with profile(activities=[ProfilerActivity.CUDA]) as prof:
-        yield busy
-        torch.cuda.synchronize()
-    spans = sorted(
-        (e.time_range.start, e.time_range.end)
-        for e in prof.events()
-        if e.device_type == torch.autograd.DeviceType.CUDA
-    )
-    total, end = 0.0, float("-inf")
-    for start, stop in spans:  # microseconds; overlapping kernels counted once
-        if stop > end:
-            total += stop - max(start, end)
-            end = stop
-    busy.append(total / 1e6)
+def table(report: dict[str, Any], command: str) -> list[str]:
+    def num(x: Any, fmt: str = "{:.1f}") -> str:
+        return "-" if x is None or not math.isfinite(x) else fmt.format(x)
 
-
-def separate(b: int, args: argparse.Namespace) -> dict[str, float]:
-    """B plants as B processes side by side, one plant each, the cores split between them
-    (as `dataset` gives each plant its CPUs): plants per hour added over the processes."""
-    cores = os.cpu_count() or 1
-    threads = str(max(1, cores // b))
-    env = {**os.environ, "RAYON_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
-    cmd = [sys.executable, __file__, "--steps", str(args.steps), "--points", str(args.points),
-           "--render", str(args.render), "--sds", str(args.sds), "--child"]  # fmt: skip
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    procs = [subprocess.Popen([*cmd, str(s)], env=env, stdout=subprocess.PIPE, text=True)
-             for s in range(b)]  # fmt: skip
-    children = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    out = {k: max(c[k] for c in children) for k in children[0] if k.endswith("_ms")}
-    out["plants_per_hour"] = sum(c["plants_per_hour"] for c in children)
-    out["wall_s"] = wall
-    out["core_use"] = cpu / (wall * cores)
-    return out
+    lines = [
+        "## Plants per hour in the steady state (`benches/bench_throughput.py`)",
+        "",
+        f"Command: `{command}`; device {report['device']}, host {report['host']}; "
+        f"{report['networks']} networks, {report['points']} points per plant, render "
+        f"{report['render']} px, SDS {report['sds']} px, {report['steps']} steps of which "
+        f"{report['warmup']} warm-up, {report['repeats']} interleaved repeats (median of "
+        "the runs; min in brackets). Step ms: median wall time between step ends after "
+        "warm-up; host core-ms: process CPU time per plant-step over the same window; "
+        "phases: means over every step.",
+        "",
+        "| B | overlap | VAE | rasterizer calls | Adam | ms per step | plants per hour | host core-ms "
+        "per plant-step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
+        "|---:|---|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+    ]
+    for row in report["groups"].values():
+        phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
+        calls = "one per plant" if row["raster_batch"] == "off" else "one per group"
+        lines.append(
+            f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | {row['adam']} | "
+            f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
+            f"{num(row['plants_per_hour'], '{:.2f}')} | "
+            f"{num(row['host_core_ms_per_plant_step'])} "
+            f"({num(row['host_core_ms_per_plant_step_min'])}) | "
+            f"{num(row['gpu_busy'], '{:.0%}')} | {num(row['peak_cuda_gib'], '{:.1f}')} | "
+            f"{phases} |"
+        )
+    return lines
 
 
 def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
@@ -177,10 +420,10 @@ def loading(args: argparse.Namespace) -> list[str]:
     lines = [
         "## Model loading per plant and per worker (`benches/bench_throughput.py --loading`)",
         "",
-        f"Command: `{command.strip()}`, on {os.cpu_count()} shared CPU cores, no CUDA GPU on "
-        f"the benchmark machine. Building the guidance of {args.loading} plants (tiny "
-        "random-weight models saved in the hub's layout, CPU, float32), the two ways "
-        f"alternating over {args.repeats} repeats; min / median.",
+        f"Command: `{command.strip()}`, on {host_line()}, no CUDA GPU on the benchmark "
+        f"machine. Building the guidance of {args.loading} plants (tiny random-weight models "
+        "saved in the hub's layout, CPU, float32), the two ways alternating over "
+        f"{args.repeats} repeats; min / median.",
         "",
         f"| models loaded | per plant, ms | all {args.loading} plants, s |",
         "|---|---|---|",
@@ -192,82 +435,92 @@ def loading(args: argparse.Namespace) -> list[str]:
     return lines
 
 
+def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> None:
+    """The run settings (``scripts/gpu_checks.py throughput`` shares them)."""
+    p.add_argument("--groups", type=int, nargs="+", help="B values (default 1 8 16 32; "
+                   "--tiny: 1 4 8)")  # fmt: skip
+    p.add_argument("--overlap", nargs="+", choices=("off", "on"), default=["off", "on"])
+    p.add_argument("--vae", nargs="+", choices=("float32", "bfloat16"), help="VAE precision "
+                   "(default float32 bfloat16 on CUDA, float32 on the CPU)")  # fmt: skip
+    p.add_argument(
+        "--raster-batch",
+        nargs="+",
+        choices=("off", "on"),
+        default=["on"],
+        help="one native rasterizer call for the group (on) or one per plant",
+    )
+    p.add_argument(
+        "--adam",
+        nargs="+",
+        choices=("single", "foreach"),
+        default=["foreach"],
+        help="torch's Adam implementation for the Gaussians (the same bits)",
+    )
+    p.add_argument("--steps", type=int, default=None if gpu_checks else 24)
+    p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")
+    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--points", type=int, default=100_000)
+    p.add_argument("--render", type=int, help="render size (768; --tiny: 128)")
+    p.add_argument("--sds", type=int, help="SDS size (512; --tiny: 64)")
+    p.add_argument("--tiny", action="store_true", help="tiny networks on the CPU")
+    p.add_argument("--device", help="cuda where present, else cpu (--tiny: cpu)")
+    p.add_argument("--trace", type=Path, help="Chrome trace of one steady step (first run)")
+
+
+def resolve(args: argparse.Namespace) -> argparse.Namespace:
+    """Fills the machine-dependent defaults; an impossible choice is one clear error."""
+    import torch
+
+    cuda = torch.cuda.is_available()
+    args.tiny = args.tiny or not cuda
+    args.device = args.device or ("cuda" if cuda and not args.tiny else "cpu")
+    if args.device.startswith("cuda") and not cuda:
+        raise SystemExit("error: --device cuda asked for, but torch sees no CUDA GPU")
+    args.groups = args.groups or ([1, 4, 8] if args.tiny else [1, 8, 16, 32])
+    args.vae = args.vae or (["float32"] if args.tiny else ["float32", "bfloat16"])
+    args.render = args.render or (128 if args.tiny else 768)
+    args.sds = args.sds or (64 if args.tiny else 512)
+    args.steps = args.steps or 24
+    if args.warmup < 1 or args.steps <= args.warmup:
+        raise SystemExit(f"error: --steps ({args.steps}) must exceed --warmup ({args.warmup}) "
+                         "and --warmup be at least 1")  # fmt: skip
+    if min(args.groups) < 1:
+        raise SystemExit("error: --groups takes B >= 1")
+    return args
+
+
+def trace_one(args: argparse.Namespace) -> dict[str, Any]:
+    """One run of the first variant with one steady step profiled into ``args.trace``."""
+    v = variants(args)[0]
+    row = one_run(v, args, build_parts(args)(), trace=args.trace)
+    print(f"trace of one step of B = {v.b} ({v.label}) written to {args.trace}")
+    return row
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--groups", type=int, nargs="+", default=[1, 2, 4, 8])
-    parser.add_argument("--steps", type=int, default=6)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--points", type=int, default=10_000)
-    parser.add_argument("--render", type=int, default=128)
-    parser.add_argument("--sds", type=int, default=64)
+    add_arguments(parser)
     parser.add_argument("--loading", type=int, metavar="N", help="plants of the loading bench")
-    parser.add_argument("--separate", action="store_true", help="also B processes of 1 plant")
-    parser.add_argument("--overlap", type=int, nargs="*", default=[4], help="B with overlap on")
-    parser.add_argument("--child", type=int, help=argparse.SUPPRESS)  # one plant, JSON out
     parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
     args = parser.parse_args()
+    from plantdreamer.atomic import write_json, write_text
+
     if args.loading:
+        args.repeats = max(args.repeats, 3)
         lines = loading(args)
-        args.out.with_name("throughput_loading.md").write_text("\n".join(lines) + "\n")
+        write_text(args.out.with_name("throughput_loading.md"), "\n".join(lines) + "\n")
         print("\n".join(lines))
         return 0
-    if args.child is not None:
-        print(json.dumps(one_group(1, args, first_seed=args.child)))
+    resolve(args)
+    if args.trace is not None:
+        trace_one(args)
         return 0
-    modes = ["one trainer", *(["B processes"] if args.separate else [])]
-    variants = [(b, m) for b in args.groups for m in modes]
-    variants += [(b, OVERLAPPED) for b in args.overlap]
-    runs: dict[tuple[int, str], list[dict[str, float]]] = {v: [] for v in variants}
-    for _ in range(args.repeats):  # interleaved: each repeat runs every B and mode once
-        for b, mode in runs:
-            if mode == "B processes":
-                runs[b, mode].append(separate(b, args))
-            else:
-                overlap = "on" if mode == OVERLAPPED else "off"
-                runs[b, mode].append(one_group(b, args, overlap=overlap))
-    rows = []
-    for (b, mode), results in runs.items():
-        row: dict[str, object] = {"B": b, "mode": mode}
-        for key in results[0]:
-            values = [r[key] for r in results]
-            row[key] = (min(values), statistics.median(values))
-        rows.append(row)
+    report = run_all(args)
     command = "python benches/bench_throughput.py " + " ".join(sys.argv[1:])
-    lines = [
-        "## Several plants in one trainer (`benches/bench_throughput.py`)",
-        "",
-        f"Command: `{command.strip()}`, on {os.cpu_count()} shared CPU cores (other jobs ran "
-        "beside it: the spread between min and median is theirs), no CUDA GPU on the "
-        "benchmark machine, so these are the host side with tiny random-weight networks, "
-        "not the 30-plants-per-hour goal's full-size CUDA figures (not measured). L-System bean, "
-        f"{args.points} points, {args.render} px renders, tiny SDS at {args.sds} px, "
-        f"{args.steps} steps, {args.repeats} interleaved repeats (min / median). Step phases "
-        "are the group's (one step trains B plants; B processes: the slowest process's); "
-        f"plants per hour projects them to {STEPS_PER_PLANT}-step plants (B processes: "
-        "added over the processes, each on cores / B threads). Core use is process CPU "
-        "time / wall / cores (median); GPU idle, on CUDA only, is the share of the wall "
-        "time in which no kernel ran (profiler CUDA events).",
-        "",
-        "| B | mode | step ms | " + " | ".join(f"{p} ms" for p in PHASES)
-        + " | plants per hour | core use | GPU idle |",
-        "|---|---|---|" + "---|" * len(PHASES) + "---|---|---|",
-    ]  # fmt: skip
-    for row in rows:
-        cells = [f"{row[f'{p}_ms'][0]:.1f} / {row[f'{p}_ms'][1]:.1f}" for p in PHASES]
-        step = row["step_ms"]
-        done = runs[row["B"], row["mode"]]  # type: ignore[index]
-        per_hour = [r["plants_per_hour"] for r in done]
-        idle = [r["gpu_idle"] for r in done if "gpu_idle" in r]
-        idle_text = f"{statistics.median(idle):.2f}" if idle else "not measured (no CUDA)"
-        lines.append(
-            f"| {row['B']} | {row['mode']} | {step[0]:.1f} / {step[1]:.1f} | " + " | ".join(cells)
-            + f" | {statistics.median(per_hour):.2f} (best {max(per_hour):.2f})"
-            + f" | {statistics.median(r['core_use'] for r in done):.2f} | {idle_text} |"
-        )  # fmt: skip
-    args.out.write_text("\n".join(lines) + "\n")
-    record = {"args": {**vars(args), "out": str(args.out)},
-              "runs": {f"{b} {m}": r for (b, m), r in runs.items()}}  # fmt: skip
-    args.out.with_suffix(".json").write_text(json.dumps(record, indent=2))
+    lines = table(report, command.strip())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_text(args.out, "\n".join(lines) + "\n")
+    write_json(args.out.with_suffix(".json"), report)
     print("\n".join(lines))
     return 0
 

@@ -4,11 +4,14 @@
     python scripts/gpu_checks.py resume OUT --steps 300    # Ctrl-C and --resume on CUDA
     python scripts/gpu_checks.py scaling OUT --binary BIN  # rasterizer stages vs threads
     python benches/bench_gpu.py --steps 200                # per-phase times, memory, projection
-    python scripts/gpu_checks.py throughput OUT --steps 40 # plants per hour, B = 1, 4, 8,
-                                                           # overlap off / on for B = 4, 8
+    python scripts/gpu_checks.py throughput OUT            # plants per hour in the steady
+                                                           # state, B = 1, 8, 16, 32, overlap
+                                                           # off / on, VAE float32 / bfloat16
+    python scripts/gpu_checks.py throughput OUT --tiny --groups 4 --trace OUT/step.json
     python scripts/gpu_checks.py dataset OUT --steps 40    # `dataset --plants-per-gpu 4`
 
-``throughput`` is ``scripts/gpu_throughput.py``: several plants in one trainer.
+``throughput`` is ``scripts/gpu_throughput.py`` over ``benches/bench_throughput.py``:
+several plants in one trainer, timed from step end to step end after warm-up.
 ``dataset`` is ``scripts/gpu_dataset.py``: the same through `plantdreamer dataset` on Ray.
 
 ``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
@@ -166,6 +169,11 @@ def thread_scaling():
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["throughput"]:
+        from gpu_throughput import run_throughput
+
+        os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
+        return run_throughput(argv[1:])
     if argv[:1] == ["scaling"]:
         scaling = thread_scaling()
         sp = argparse.ArgumentParser(description="rasterizer stages against threads")
@@ -175,9 +183,9 @@ def main(argv: list[str] | None = None) -> int:
         report = scaling.run_from_args(args.out, args)
         return 0 if report["identical_across_threads"] else 1
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("check", choices=("tests", "resume", "scaling", "throughput", "dataset"))
+    p.add_argument("check", choices=("tests", "resume", "scaling", "dataset"))
     p.add_argument("out", type=Path, help="folder for logs and the JSON report")
-    p.add_argument("--steps", type=int, help="steps per run (resume: 300, throughput: 40)")
+    p.add_argument("--steps", type=int, help="steps per run (resume: 300, dataset: 40)")
     p.add_argument("--species", default="bean")
     p.add_argument("--device", default="cuda")
     p.add_argument("--checkpoint-every", type=int, default=100)
@@ -189,31 +197,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tiny", action="store_true", help="tiny models (a dry run on the CPU)")
     p.add_argument("--models", type=Path, default=Path("/tmp/plantdreamer-full-size"))
     p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
-    p.add_argument("--groups", type=int, nargs="+", help="B (throughput: 1 4 8; dataset: 1 4)")
+    p.add_argument("--groups", type=int, nargs="+", help="B (dataset: 1 4)")
     p.add_argument("--plants", type=int, default=8, help="dataset: plants per run")
-    p.add_argument(
-        "--overlap", type=int, nargs="*", default=[4, 8], help="throughput: B also overlapped"
-    )
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
     if args.check == "tests":
         return run_tests(args.out)
-    if args.check in ("throughput", "dataset"):
+    if args.check == "dataset":
         args.steps = args.steps or 40
         args.resolution = args.resolution or (128 if args.tiny else 768)
         args.sds_resolution = args.sds_resolution or (64 if args.tiny else 512)
         if args.tiny and args.device == "cuda":
             args.device = "cpu"
-        if args.check == "dataset":
-            from gpu_dataset import run_dataset_check
+        from gpu_dataset import run_dataset_check
 
-            args.groups = args.groups or [1, 4]
-            return run_dataset_check(args, args.out)
-        from gpu_throughput import run_throughput
-
-        args.groups = args.groups or [1, 4, 8]
-        return run_throughput(args, args.out)
+        args.groups = args.groups or [1, 4]
+        return run_dataset_check(args, args.out)
     args.steps = args.steps or 300
     return run_resume(args, args.out)
 

@@ -1,44 +1,35 @@
-"""``python scripts/gpu_checks.py throughput OUT``: plants per hour with several plants in
-one trainer, and Ctrl-C + resume of a group, with the full-size networks (random weights
-built in-process, SD 2.1-base sizes) on CUDA; ``--tiny`` runs the same on the CPU.
+"""``python scripts/gpu_checks.py throughput OUT``: plants per hour in the steady state with
+several plants in one trainer (``benches/bench_throughput.py``: full-size random-weight
+networks on CUDA, ``--tiny`` networks on the CPU), then Ctrl-C + resume of a group.
 
-For each B (default 1, 4, 8) one group of B L-System beans (seeds 0..B-1) trains for
-``--steps`` steps as one batch (``overlap off``), and each B of ``--overlap`` (default 4, 8)
-also as two halves in flight (``overlap on``), run right after its one-batch twin; the
-report gives the group's per-phase step times (ms; "guidance" includes the host's wait for
-the device), plants per hour projected to 3600-step plants, the wall time and the peak CUDA
-memory, under ``groups`` as ``"B"`` and ``"B-overlap"``. Then a group of 4 with overlap on
-is run straight through, and again stopped by SIGINT after step ``--steps // 2`` and
-resumed; every plant's plant.ply and masks must be byte-identical. Writes
-``OUT/throughput.json``.
+The bench's settings apply (``--groups``, ``--overlap``, ``--vae``, ``--steps``,
+``--warmup``, ``--trace``, ...); ``OUT/throughput.json`` holds the bench's report, whose
+``groups`` give per run ``step_ms_median``, ``plants_per_hour``, ``gpu_busy`` (null without
+CUDA), ``host_core_ms_per_plant_step``, ``peak_cuda_gib`` and the rest, and ``resume``: a
+group of 4 with overlap on run straight through, and again stopped by SIGINT after step
+``--steps // 2`` and resumed; every plant's plant.ply and images must be byte-identical
+(``--no-resume`` leaves it out). ``OUT/throughput.md`` is the bench's table.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import os
 import signal
-import time
+import sys
 from pathlib import Path
 from typing import Any
 
-PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+BENCHES = Path(__file__).resolve().parent.parent / "benches"
 
 
-def _configs(args: argparse.Namespace, b: int, overlap: str = "off") -> list[Any]:
-    from plantdreamer.pipeline import GenerateConfig
+def bench() -> Any:
+    """benches/bench_throughput.py, which is not part of the package."""
+    sys.path.insert(0, str(BENCHES))
+    import bench_throughput
 
-    return [
-        GenerateConfig.of(
-            species="bean", seed=s, steps=args.steps, points=args.points,
-            resolution=args.resolution, sds_resolution=args.sds_resolution, eval_views=2,
-            turntable_frames=2, turntable="none", checkpoint_every=max(1, args.steps // 4),
-            device=args.device, overlap=overlap,
-        )
-        for s in range(b)
-    ]  # fmt: skip
+    return bench_throughput
 
 
 def _hashes(folder: Path) -> dict[str, str]:
@@ -46,53 +37,28 @@ def _hashes(folder: Path) -> dict[str, str]:
     return {n: hashlib.sha256((folder / n).read_bytes()).hexdigest() for n in names}
 
 
-def run_throughput(args: argparse.Namespace, out: Path) -> int:
-    import torch
-
+def resume_check(args: argparse.Namespace, work: Path) -> dict[str, Any]:
+    """A group of 4 (overlap on) straight, and stopped by SIGINT halfway and resumed."""
     from plantdreamer.guidance import StableDiffusionDepthGuidance
-    from plantdreamer.pipeline import RunInterrupted
+    from plantdreamer.pipeline import GenerateConfig, RunInterrupted
     from plantdreamer.pipeline.group import generate_group
 
-    if args.tiny:
-        from plantdreamer.guidance.tiny import tiny_models
-
-        parts, args.device = tiny_models(), "cpu"
-    else:
-        from plantdreamer.guidance.full_size import full_size_models
-
-        parts = full_size_models(device=args.device)
-    cuda = args.device.startswith("cuda")
+    make = bench().build_parts(args)
+    cfgs = [
+        GenerateConfig.of(
+            species="bean", seed=s, steps=args.steps, points=args.points,
+            resolution=args.render, sds_resolution=args.sds, eval_views=2,
+            turntable_frames=2, turntable="none", checkpoint_every=max(1, args.steps // 4),
+            device=args.device, overlap="on",
+        )
+        for s in range(4)
+    ]  # fmt: skip
 
     def guidance() -> Any:
         return StableDiffusionDepthGuidance(
-            species="bean", components=parts, resolution=args.sds_resolution,
-            device=args.device, seed=0,
-        )  # fmt: skip
+            species="bean", components=make(), resolution=args.sds, device=args.device, seed=0
+        )
 
-    work = args.work / "throughput"
-    report: dict[str, Any] = {"device": args.device, "steps": args.steps, "groups": {}}
-    runs = [(b, o) for b in args.groups for o in ("off", "on") if o == "off" or b in args.overlap]
-    for b, overlap in runs:
-        label = str(b) if overlap == "off" else f"{b}-overlap"
-        if cuda:
-            torch.cuda.reset_peak_memory_stats()
-        t0 = time.perf_counter()
-        result = generate_group(_configs(args, b, overlap), work / label, guidance=guidance(),
-                                overwrite=True, show_progress=False)  # fmt: skip
-        wall = time.perf_counter() - t0
-        timings = json.loads((work / label / "bean-s0000" / "run.json").read_text())
-        per_step = {k: 1000 * timings["timings_s"].get(k, 0.0) / args.steps for k in PHASES}
-        step_s = sum(per_step.values()) / 1000
-        report["groups"][label] = {
-            "failed": result.failed,
-            "step_ms": per_step,
-            "plants_per_hour": 3600 * b / (step_s * 3600),
-            "wall_s": wall,
-            "peak_cuda_gib": torch.cuda.max_memory_allocated() / 2**30 if cuda else None,
-        }
-        print(label, json.dumps(report["groups"][label]), flush=True)
-    # Ctrl-C and --resume of a group of 4 in two halves: byte-identical to the straight run.
-    cfgs = _configs(args, 4, "on")
     generate_group(cfgs, work / "straight", guidance=guidance(), overwrite=True,
                    show_progress=False)  # fmt: skip
 
@@ -109,7 +75,33 @@ def run_throughput(args: argparse.Namespace, out: Path) -> int:
     generate_group(None, work / "cut", guidance=guidance(), resume=True, show_progress=False)
     names = [f"bean-s{s:04d}" for s in range(4)]
     same = {n: _hashes(work / "straight" / n) == _hashes(work / "cut" / n) for n in names}
-    report["resume"] = {"stopped_at": stopped, "identical": same}
-    (out / "throughput.json").write_text(json.dumps(report, indent=2))
-    print(json.dumps(report, indent=2))
-    return 0 if stopped is not None and all(same.values()) else 1
+    return {"stopped_at": stopped, "identical": same}
+
+
+def run_throughput(argv: list[str]) -> int:
+    b = bench()
+    p = argparse.ArgumentParser(prog="gpu_checks.py throughput", description=__doc__.split("\n")[0])
+    p.add_argument("out", type=Path, help="folder for throughput.json and throughput.md")
+    b.add_arguments(p, gpu_checks=True)
+    p.add_argument("--work", type=Path, default=Path("/tmp/plantdreamer-gpu-checks"))
+    p.add_argument("--no-resume", action="store_true", help="leave out Ctrl-C + resume")
+    args = p.parse_args(argv)
+    b.resolve(args)
+    from plantdreamer.atomic import write_json, write_text
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.trace is not None:
+        b.trace_one(args)
+    report = b.run_all(args)
+    command = "python scripts/gpu_checks.py throughput " + " ".join(argv)
+    write_text(args.out / "throughput.md", "\n".join(b.table(report, command.strip())) + "\n")
+    ok = True
+    if not args.no_resume:
+        report["resume"] = resume_check(args, args.work / "throughput")
+        ok = report["resume"]["stopped_at"] is not None and all(
+            report["resume"]["identical"].values()
+        )
+    write_json(args.out / "throughput.json", report)
+    print((args.out / "throughput.md").read_text())
+    print("resume:", report.get("resume", "not run"))
+    return 0 if ok else 1

@@ -1,6 +1,7 @@
 """The known answer for SDS: does the real ``generate`` recover a plant's true colours?
 
     python scripts/known_answer.py --species bean --seed 0 --steps 100 --json ka.json
+    python scripts/known_answer.py --models tests/data/known_answer/bean_s0_r64 --device cuda
 
 builds (or reuses, from ~/.cache/plantdreamer/known_answer) tiny models trained on the
 plant's true views, runs ``generate`` from noise colours with them and with the untrained
@@ -43,6 +44,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=1,
         help="Train the plant first in a group of this many (generate --seeds) and score it.",
     )
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="Run the guidance here: cpu, or cuda (cuda:N) to judge CUDA's precision, batching "
+        "and overlap on CUDA; the rasterizer stays on the CPU.",
+    )
     p.add_argument("--json", type=Path, help="Write the figures here.")
     p.add_argument("--models", type=Path, help="A known-answer model folder to use as it is.")
     p.add_argument("--cache", type=Path, help="Model cache (default ~/.cache/plantdreamer/...).")
@@ -77,11 +84,13 @@ def run(args: argparse.Namespace) -> int:
         differing_files,
         untrained_models,
     )
-    from plantdreamer.known_answer.check import known_answer
+    from plantdreamer.known_answer.check import check_device, known_answer
     from plantdreamer.known_answer.spec import KnownAnswerSpec
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
+
+    check_device(args.device)  # before any model is built
 
     if args.verify is not None:
         manifest = json.loads((args.verify / MANIFEST).read_text())
@@ -122,7 +131,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work_dir or Path(tmp)
-        figures = known_answer(spec, trained, untrained, work, args.steps, curve, **settings)
+        figures = known_answer(
+            spec, trained, untrained, work, args.steps, curve, device=args.device, **settings
+        )
+    figures["device"] = args.device
     figures["total_seconds"] = time.perf_counter() - t0
     text = json.dumps(figures, indent=2)
     if args.json is not None:

@@ -228,3 +228,48 @@ def test_gate_points_wrong_and_white_colours_at_the_truth(tmp_path: Path) -> Non
     assert all(d.cosine > 0.5 and d.pixel_cosine > 0.1 for d in wrong)
     assert all(d.cosine > 0.5 for d in white)
     assert sum(d.pixel_cosine for d in white) / len(white) > 0.0
+
+
+def _script():
+    import sys
+
+    scripts = str(Path(__file__).resolve().parents[1] / "scripts")
+    if scripts not in sys.path:
+        sys.path.insert(0, scripts)
+    import known_answer as script
+
+    return script
+
+
+def test_the_script_passes_its_device_to_the_check(tmp_path: Path, monkeypatch, capsys) -> None:
+    """``--device cpu`` reaches ``known_answer`` and the figures (the check itself stubbed:
+    this is the argument path; the check's runs are the accuracy tests')."""
+    import json
+
+    from plantdreamer.known_answer import build, check
+
+    seen = {}
+
+    def fake_check(spec, trained, untrained, work, steps, curve, device="cpu", **settings):
+        seen.update(device=device, trained=trained, steps=steps)
+        return {"psnr_final": 1.0}
+
+    monkeypatch.setattr(check, "known_answer", fake_check)
+    monkeypatch.setattr(build, "untrained_models", lambda spec, cache: tmp_path)
+    argv = ["--models", str(MODELS), "--steps", "3", "--device", "cpu"]
+    assert _script().main([*argv, "--json", str(tmp_path / "ka.json")]) == 0
+    assert seen == {"device": "cpu", "trained": MODELS, "steps": 3}
+    assert json.loads((tmp_path / "ka.json").read_text())["device"] == "cpu"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA GPU is present")
+def test_cuda_asked_for_without_a_gpu_is_one_clear_error(tmp_path: Path, capsys) -> None:
+    from plantdreamer.known_answer.check import known_answer
+
+    assert _script().main(["--models", str(MODELS), "--device", "cuda"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: device 'cuda' asked for, but torch sees no CUDA GPU"]
+    with pytest.raises(InputError, match="device must be cpu or cuda"):
+        known_answer(TINY, MODELS, MODELS, tmp_path, steps=1, device="tpu")
+    with pytest.raises(InputError, match="torch sees no CUDA GPU"):
+        known_answer(TINY, MODELS, MODELS, tmp_path, steps=1, device="cuda:0")

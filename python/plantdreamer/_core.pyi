@@ -19,7 +19,9 @@ __all__ = [
     "large_gaussian_mask",
     "raster_defaults",
     "rasterize_backward",
+    "rasterize_backward_many",
     "rasterize_forward",
+    "rasterize_forward_many",
     "read_ply_vertex",
     "remove_statistical_outliers",
     "voxel_downsample",
@@ -121,6 +123,34 @@ def rasterize_backward(
     colors: bool = True,
     threads: int | None = None,
 ) -> dict[str, Any]: ...
+def rasterize_forward_many(
+    scenes: list[dict[str, Any]],  # rasterize_forward's arrays, width, height, sh_degree
+    *,
+    near_plane: float | None = None,
+    far_plane: float | None = None,
+    eps2d: float | None = None,
+    antialiased: bool | None = None,
+    render_color: bool = True,
+    render_depth: bool | None = None,
+    tile_size: int | None = None,
+    footprint_sigma: float | None = None,
+    tile_ellipse: bool | None = None,
+    t_min: float | None = None,
+    simd: bool | None = None,
+    threads: int | None = None,
+) -> list[dict[str, Any] | BaseException]: ...
+def rasterize_backward_many(
+    states: list[RasterState],
+    v_renders: list[npt.NDArray[np.float32]],
+    v_alphas: list[npt.NDArray[np.float32]],
+    *,
+    means: bool = True,
+    quats: bool = True,
+    scales: bool = True,
+    opacities: bool = True,
+    colors: bool = True,
+    threads: int | None = None,
+) -> list[dict[str, Any] | BaseException]: ...
 def eval_sh(
     degree: int, coeffs: npt.NDArray[np.float32], dirs: npt.NDArray[np.float32]
 ) -> npt.NDArray[np.float32]: ...

@@ -5,6 +5,8 @@ docs/rasterizer.md) so code can move between them. The work runs in the Rust cor
 (``plantdreamer._core.rasterize_forward`` / ``rasterize_backward``); this module validates
 inputs, wraps the native pair in a ``torch.autograd.Function`` and applies backgrounds and
 expected depth with plain torch ops (so their gradients come from autograd).
+``rasterization_many`` renders several scenes (a group's plants) in one native call each
+way, with the bits of separate calls.
 
 Conventions and choices (documented behaviour):
 
@@ -26,18 +28,21 @@ Conventions and choices (documented behaviour):
 from __future__ import annotations
 
 import operator
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
 from plantdreamer import _core
-from plantdreamer.errors import InputError
+from plantdreamer.errors import InputError, PlantDreamerError
 
 # The core's `RasterOptions::default()`, the one place the rasterizer's defaults are written.
 RASTER_DEFAULTS: dict[str, Any] = _core.raster_defaults()
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
 RASTERIZE_MODES = ("classic", "antialiased")
+GRAD_NAMES = ("means", "quats", "scales", "opacities", "colors", "means2d")
 
 
 def _numpy(t: torch.Tensor) -> np.ndarray:
@@ -102,6 +107,50 @@ class _RasterizeFunction(torch.autograd.Function):
             None,
             None,
         )
+
+
+class _RasterizeManyFunction(torch.autograd.Function):
+    """Autograd node of one ``rasterize_forward_many`` call (``rasterization_many``): the
+    inputs of scene j are ``inputs[6 j : 6 j + 6]`` (means, quats, scales, opacities,
+    colors, means2d), its outputs render and alpha ``2 j`` and ``2 j + 1``. The backward is
+    one ``rasterize_backward_many`` call for every scene."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any, natives: list[dict[str, Any]], threads: int | None, *inputs: torch.Tensor
+    ) -> tuple[torch.Tensor, ...]:
+        ctx.states = [n["state"] for n in natives]
+        ctx.threads = threads
+        out: list[torch.Tensor] = []
+        for n in natives:
+            out += [torch.from_numpy(n["render"]), torch.from_numpy(n["alpha"]).unsqueeze(-1)]
+        return tuple(out)
+
+    @staticmethod
+    def backward(ctx: Any, *grads: torch.Tensor) -> tuple[Any, ...]:
+        need = ctx.needs_input_grad[2:]
+        b = len(ctx.states)
+        # The groups any scene needs; a scene's unneeded ones are dropped below.
+        wanted = [any(need[6 * j + i] for j in range(b)) for i in range(5)]
+        results = _core.rasterize_backward_many(
+            ctx.states,
+            [_numpy(grads[2 * j].to(torch.float32)) for j in range(b)],
+            [_numpy(grads[2 * j + 1].to(torch.float32).squeeze(-1)) for j in range(b)],
+            means=wanted[0],
+            quats=wanted[1],
+            scales=wanted[2],
+            opacities=wanted[3],
+            colors=wanted[4],
+            threads=ctx.threads,
+        )
+        out: list[Any] = [None, None]
+        for j, g in enumerate(results):
+            if isinstance(g, BaseException):
+                raise type(g)(f"scene {j}: {g}") from None
+            for i, name in enumerate(GRAD_NAMES):
+                wants = need[6 * j + i] and g[name] is not None
+                out.append(torch.from_numpy(g[name]) if wants else None)
+        return tuple(out)
 
 
 class _Background(torch.autograd.Function):
@@ -220,6 +269,184 @@ def rasterization(
         culling), "n_intersections" [C] int64 (tile-Gaussian pairs), "width", "height",
         "tile_size", "n_cameras", "render_mode", "profile" (native seconds per stage).
     """
+    call = _prepare(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height, near_plane,
+        far_plane, eps2d, sh_degree, backgrounds, render_mode, rasterize_mode, tile_size,
+    )  # fmt: skip
+    sc = call.scene
+    native = _core.rasterize_forward(
+        sc["means"], sc["quats"], sc["scales"], sc["opacities"], sc["colors"], sc["viewmats"],
+        sc["Ks"], sc["width"], sc["height"], sh_degree=sc["sh_degree"], **call.settings,
+        threads=threads,
+    )  # fmt: skip
+    means2d = call.means2d(native)
+    render, alpha = _RasterizeFunction.apply(*call.params, call.color_in, means2d, native, threads)
+    return call.finish(render, alpha, means2d, native)
+
+
+def rasterization_many(
+    calls: Sequence[Mapping[str, Any]], *, threads: int | None = None
+) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
+    """``rasterization`` of every call in ``calls`` (each a dict of its keyword arguments;
+    the settings, as ``render_mode``, the same in all), as ONE native forward call whose
+    scenes run side by side, and later one native backward call for all of them: the
+    renders of B plants with one call's overhead.
+
+    Each result has exactly the bits of its own ``rasterization`` call (also its gradients)
+    and comes back in its place in the list; a call with bad input comes back as its
+    error (not raised), naming it (``scene K: ...``), and the others are rendered. The
+    gradients of all the renders must be computed in one ``torch.autograd.backward`` (one
+    autograd node holds them all).
+    """
+    results: list[Any] = [None] * len(calls)
+    prepared: dict[int, _Call] = {}
+    for k, kwargs in enumerate(calls):
+        try:
+            prepared[k] = _prepare(**kwargs)
+        except (InputError, TypeError) as exc:
+            results[k] = InputError(f"scene {k}: {exc}")
+    ok = list(prepared)
+    if ok:
+        settings = prepared[ok[0]].settings
+        for k in ok[1:]:
+            if prepared[k].settings != settings:
+                results[k] = InputError(
+                    f"scene {k}: its settings differ from scene {ok[0]}'s: "
+                    f"{prepared[k].settings} against {settings}"
+                )
+        ok = [k for k in ok if results[k] is None]
+    if not ok:
+        return results
+    natives = _core.rasterize_forward_many(
+        [prepared[k].scene for k in ok], **settings, threads=threads
+    )
+    rendered = []
+    for k, native in zip(ok, natives, strict=True):
+        if isinstance(native, BaseException):
+            kind = native if isinstance(native, PlantDreamerError) else InputError(str(native))
+            results[k] = type(kind)(f"scene {k}: {native}")
+        else:
+            rendered.append((k, native))
+    if not rendered:
+        return results
+    inputs: list[torch.Tensor] = []
+    means2ds = []
+    for k, native in rendered:
+        means2d = prepared[k].means2d(native)
+        means2ds.append(means2d)
+        inputs += [*prepared[k].params, prepared[k].color_in, means2d]
+    outputs = _RasterizeManyFunction.apply([n for _, n in rendered], threads, *inputs)
+    for j, (k, native) in enumerate(rendered):
+        render, alpha = outputs[2 * j], outputs[2 * j + 1]
+        results[k] = prepared[k].finish(render, alpha, means2ds[j], native)
+    return results
+
+
+@dataclass
+class _Call:
+    """One validated ``rasterization`` call: the native call's arrays (``scene``) and
+    settings, the differentiable inputs, and what ``finish`` needs."""
+
+    tensors: dict[str, torch.Tensor]
+    device: torch.device
+    render_color: bool
+    render_depth: bool
+    render_mode: str
+    bg: torch.Tensor | None
+    n_color: int
+    n_cameras: int
+    width: int
+    height: int
+    sh_degree: int | None
+    settings: dict[str, Any]
+    params: list[torch.Tensor] = field(init=False)
+    color_in: torch.Tensor = field(init=False)
+    scene: dict[str, Any] = field(init=False)
+
+    def __post_init__(self) -> None:
+        t = self.tensors
+        self.params = [t[k].to("cpu") for k in ("means", "quats", "scales", "opacities")]
+        color_in = t["colors"].to("cpu")
+        if not self.render_color:
+            color_in = color_in.detach()  # colours do not affect depth renders
+        self.color_in = color_in
+        means_a, quats_a, scales_a, opacities_a = (_numpy(x) for x in self.params)
+        self.scene = {
+            "means": means_a,
+            "quats": quats_a,
+            "scales": scales_a,
+            "opacities": opacities_a,
+            # Not read for depth renders.
+            "colors": _numpy(color_in) if self.render_color else None,
+            "viewmats": _numpy(t["viewmats"].cpu()),
+            "Ks": _numpy(t["Ks"].cpu()),
+            "width": self.width,
+            "height": self.height,
+            "sh_degree": self.sh_degree,
+        }
+
+    def means2d(self, native: dict[str, Any]) -> torch.Tensor:
+        """The native array itself (no copy); a leaf, so its .grad is dL/d(means2d)."""
+        inputs = [*self.params, self.color_in]
+        wants_grad = torch.is_grad_enabled() and any(p.requires_grad for p in inputs)
+        return torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
+
+    def finish(
+        self, render: torch.Tensor, alpha: torch.Tensor, means2d: torch.Tensor, native: dict
+    ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """Background, expected depth and ``meta`` on the native call's render and alpha."""
+        bg, n_color = self.bg, self.n_color
+        if bg is not None and not self.render_depth and not bg.requires_grad and n_color in (1, 3):
+            render = _Background.apply(render, alpha, bg.contiguous())
+        elif bg is not None:
+            # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
+            color = render[..., :n_color] if self.render_depth else render
+            color = color + bg[:, None, None, :] * (1.0 - alpha)
+            render = (
+                torch.cat([color, render[..., n_color:]], dim=-1) if self.render_depth else color
+            )
+        if self.render_mode.endswith("ED"):
+            depth = render[..., -1:] / alpha.clamp_min(1e-10)
+            render = torch.cat([render[..., :-1], depth], dim=-1) if render.shape[-1] > 1 else depth
+        device = self.device
+        meta: dict[str, Any] = {
+            "radii": torch.from_numpy(native["radii"]).to(device),
+            "means2d": means2d,
+            "depths": torch.from_numpy(native["depths"]).to(device),
+            "n_visible": torch.from_numpy(native["n_visible"].astype(np.int64)).to(device),
+            "n_intersections": torch.from_numpy(native["n_intersections"].astype(np.int64)).to(
+                device
+            ),
+            "width": self.width,
+            "height": self.height,
+            "tile_size": self.settings["tile_size"],
+            "n_cameras": self.n_cameras,
+            "render_mode": self.render_mode,
+            "profile": dict(native["profile"]),
+        }
+        return render.to(device), alpha.to(device), meta
+
+
+def _prepare(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    near_plane: float = RASTER_DEFAULTS["near_plane"],
+    far_plane: float = RASTER_DEFAULTS["far_plane"],
+    eps2d: float = RASTER_DEFAULTS["eps2d"],
+    sh_degree: int | None = None,
+    backgrounds: torch.Tensor | None = None,
+    render_mode: str = "RGB",
+    rasterize_mode: str = "antialiased" if RASTER_DEFAULTS["antialiased"] else "classic",
+    tile_size: int = RASTER_DEFAULTS["tile_size"],
+) -> _Call:
+    """The checks of ``rasterization``'s arguments (shapes, dtypes, modes)."""
     if render_mode not in RENDER_MODES:
         raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
     if rasterize_mode not in RASTERIZE_MODES:
@@ -270,59 +497,25 @@ def rasterization(
         bg = _tensor("backgrounds", backgrounds).to("cpu")
         _check_shape("backgrounds", bg, (c, n_color))
 
-    params = [t[k].to("cpu") for k in ("means", "quats", "scales", "opacities")]
-    color_in = t["colors"].to("cpu")
-    if not render_color:
-        color_in = color_in.detach()  # colours do not affect depth renders
-    means_a, quats_a, scales_a, opacities_a = (_numpy(x) for x in params)
-    native = _core.rasterize_forward(
-        means_a,
-        quats_a,
-        scales_a,
-        opacities_a,
-        _numpy(color_in) if render_color else None,  # not read for depth renders
-        _numpy(t["viewmats"].cpu()),
-        _numpy(t["Ks"].cpu()),
-        width,
-        height,
-        sh_degree=sh_degree,
-        near_plane=float(near_plane),
-        far_plane=float(far_plane),
-        eps2d=float(eps2d),
-        antialiased=rasterize_mode == "antialiased",
+    return _Call(
+        t,
+        device=device,
         render_color=render_color,
         render_depth=render_depth,
-        tile_size=tile_size,
-        threads=threads,
+        render_mode=render_mode,
+        bg=bg,
+        n_color=n_color,
+        n_cameras=c,
+        width=width,
+        height=height,
+        sh_degree=sh_degree,
+        settings={
+            "near_plane": float(near_plane),
+            "far_plane": float(far_plane),
+            "eps2d": float(eps2d),
+            "antialiased": rasterize_mode == "antialiased",
+            "render_color": render_color,
+            "render_depth": render_depth,
+            "tile_size": tile_size,
+        },
     )
-    wants_grad = torch.is_grad_enabled() and any(p.requires_grad for p in [*params, color_in])
-    # The native array itself (no copy); a leaf, so its .grad is dL/d(means2d).
-    means2d = torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
-    render, alpha = _RasterizeFunction.apply(*params, color_in, means2d, native, threads)
-
-    if bg is not None and not render_depth and not bg.requires_grad and n_color in (1, 3):
-        render = _Background.apply(render, alpha, bg.contiguous())
-    elif bg is not None:
-        # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
-        cc = n_color
-        color = render[..., :cc] if render_depth else render
-        color = color + bg[:, None, None, :] * (1.0 - alpha)
-        render = torch.cat([color, render[..., cc:]], dim=-1) if render_depth else color
-    if render_mode.endswith("ED"):
-        depth = render[..., -1:] / alpha.clamp_min(1e-10)
-        render = torch.cat([render[..., :-1], depth], dim=-1) if render.shape[-1] > 1 else depth
-
-    meta: dict[str, Any] = {
-        "radii": torch.from_numpy(native["radii"]).to(device),
-        "means2d": means2d,
-        "depths": torch.from_numpy(native["depths"]).to(device),
-        "n_visible": torch.from_numpy(native["n_visible"].astype(np.int64)).to(device),
-        "n_intersections": torch.from_numpy(native["n_intersections"].astype(np.int64)).to(device),
-        "width": width,
-        "height": height,
-        "tile_size": tile_size,
-        "n_cameras": c,
-        "render_mode": render_mode,
-        "profile": dict(native["profile"]),
-    }
-    return render.to(device), alpha.to(device), meta

@@ -14,6 +14,7 @@ mod native;
 mod ply;
 mod pointcloud;
 mod raster;
+mod raster_many;
 
 pub use errors::to_pyerr;
 pub use native::run_native;
@@ -48,5 +49,6 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(info, m)?)?;
     culling::register(m)?;
     raster::register(m)?;
+    raster_many::register(m)?;
     Ok(())
 }

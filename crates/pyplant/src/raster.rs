@@ -4,9 +4,11 @@ use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntyp
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use splat_core::raster::{
-    self, Camera, ColorMode, Footprint, ForwardState, GradRequest, RasterOptions, Scene,
+    self, Camera, ColorMode, Footprint, ForwardOutput, ForwardState, GradRequest, Gradients,
+    RasterOptions, Scene, SceneJob,
 };
 use splat_core::threads::with_threads;
+use splat_core::CoreResult;
 
 use crate::errors::InputError;
 use crate::ints::{threads_from, u32_from, usize_from};
@@ -15,7 +17,7 @@ use crate::run_native;
 /// The forward pass's saved state; pass it to `rasterize_backward`. Opaque.
 #[pyclass(module = "plantdreamer._core", name = "RasterState", frozen)]
 pub struct RasterState {
-    inner: ForwardState,
+    pub(crate) inner: ForwardState,
 }
 
 #[pymethods]
@@ -49,7 +51,7 @@ impl RasterState {
 }
 
 /// A C-contiguous float32 array with the given number of dimensions, borrowed (no copy).
-fn f32_view<'py>(
+pub(crate) fn f32_view<'py>(
     name: &str,
     obj: &Bound<'py, PyAny>,
     ndim: usize,
@@ -71,7 +73,7 @@ fn f32_view<'py>(
 }
 
 /// The flat data of an array from `f32_view`.
-fn flat<'a>(name: &str, view: &'a PyReadonlyArrayDyn<'_, f32>) -> PyResult<&'a [f32]> {
+pub(crate) fn flat<'a>(name: &str, view: &'a PyReadonlyArrayDyn<'_, f32>) -> PyResult<&'a [f32]> {
     view.as_slice()
         .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))
 }
@@ -83,7 +85,7 @@ fn f32_array(name: &str, obj: &Bound<'_, PyAny>, ndim: usize) -> PyResult<(Vec<u
     Ok((view.shape().to_vec(), flat(name, &view)?.to_vec()))
 }
 
-fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult<()> {
+pub(crate) fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult<()> {
     let ok = shape.len() == want.len()
         && shape
             .iter()
@@ -101,6 +103,183 @@ fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult
             want.join(", ")
         )))
     }
+}
+
+/// The arrays and sizes of one forward call, copied out of Python (the forward state keeps
+/// them: the caller may change its arrays before the backward).
+pub(crate) struct ForwardArgs {
+    means: Vec<f32>,
+    quats: Vec<f32>,
+    scales: Vec<f32>,
+    opacities: Vec<f32>,
+    colors: Vec<f32>,
+    mode: ColorMode,
+    viewmats: Vec<f32>,
+    ks: Vec<f32>,
+    /// Cameras and Gaussians.
+    pub(crate) c: usize,
+    pub(crate) n: usize,
+    width: u32,
+    height: u32,
+}
+
+impl ForwardArgs {
+    /// Checks shapes and copies the arrays (the GIL held).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn new(
+        means: &Bound<'_, PyAny>,
+        quats: &Bound<'_, PyAny>,
+        scales: &Bound<'_, PyAny>,
+        opacities: &Bound<'_, PyAny>,
+        colors: &Bound<'_, PyAny>,
+        viewmats: &Bound<'_, PyAny>,
+        ks: &Bound<'_, PyAny>,
+        width: &Bound<'_, PyAny>,
+        height: &Bound<'_, PyAny>,
+        sh_degree: Option<&Bound<'_, PyAny>>,
+        render_color: bool,
+    ) -> PyResult<Self> {
+        let width = u32_from(width, "width", 1)?;
+        let height = u32_from(height, "height", 1)?;
+        let sh_degree = sh_degree
+            .filter(|d| !d.is_none())
+            .map(|d| usize_from(d, "sh_degree", 0))
+            .transpose()?;
+        let (ms, m) = f32_array("means", means, 2)?;
+        let n = ms[0];
+        expect_shape("means", &ms, &[None, Some(3)])?;
+        let (qs, q) = f32_array("quats", quats, 2)?;
+        expect_shape("quats", &qs, &[Some(n), Some(4)])?;
+        let (ss, s) = f32_array("scales", scales, 2)?;
+        expect_shape("scales", &ss, &[Some(n), Some(3)])?;
+        let (os, o) = f32_array("opacities", opacities, 1)?;
+        expect_shape("opacities", &os, &[Some(n)])?;
+        let (mode, col) = if !render_color {
+            (ColorMode::None, Vec::new())
+        } else if let Some(degree) = sh_degree {
+            let (cs, c) = f32_array("colors", colors, 3)?;
+            expect_shape("colors (SH)", &cs, &[Some(n), None, Some(3)])?;
+            (
+                ColorMode::Sh {
+                    degree,
+                    bases: cs[1],
+                },
+                c,
+            )
+        } else {
+            let (cs, c) = f32_array("colors", colors, 2)?;
+            expect_shape("colors", &cs, &[Some(n), None])?;
+            (ColorMode::Direct { channels: cs[1] }, c)
+        };
+        let (vs, v) = f32_array("viewmats", viewmats, 3)?;
+        expect_shape("viewmats", &vs, &[None, Some(4), Some(4)])?;
+        let c = vs[0];
+        let (kshape, k) = f32_array("Ks", ks, 3)?;
+        expect_shape("Ks", &kshape, &[Some(c), Some(3), Some(3)])?;
+        Ok(Self {
+            means: m,
+            quats: q,
+            scales: s,
+            opacities: o,
+            colors: col,
+            mode,
+            viewmats: v,
+            ks: k,
+            c,
+            n,
+            width,
+            height,
+        })
+    }
+
+    /// The scene and cameras (the core's checks: finite matrices, ...); no GIL needed.
+    pub(crate) fn job(self) -> CoreResult<SceneJob> {
+        let (width, height) = (self.width, self.height);
+        let scene = Scene::from_vecs(
+            self.means,
+            self.quats,
+            self.scales,
+            self.opacities,
+            self.colors,
+            self.mode,
+        )?;
+        let (v, k) = (&self.viewmats, &self.ks);
+        let cameras = (0..self.c)
+            .map(|i| {
+                Camera::from_matrices(&v[16 * i..16 * i + 16], &k[9 * i..9 * i + 9], width, height)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(SceneJob {
+            scene,
+            cameras,
+            width,
+            height,
+        })
+    }
+}
+
+/// The options of a forward call: a setting left at None takes `RasterOptions::default()`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn raster_options(
+    near_plane: Option<f32>,
+    far_plane: Option<f32>,
+    eps2d: Option<f32>,
+    antialiased: Option<bool>,
+    render_depth: Option<bool>,
+    tile_size: Option<&Bound<'_, PyAny>>,
+    footprint_sigma: Option<f32>,
+    tile_ellipse: Option<bool>,
+    t_min: Option<f32>,
+    simd: Option<bool>,
+) -> PyResult<RasterOptions> {
+    let def = RasterOptions::default();
+    let tile_size = match tile_size.filter(|t| !t.is_none()) {
+        Some(t) => u32_from(t, "tile_size", 0)?,
+        None => def.tile_size,
+    };
+    Ok(RasterOptions {
+        near_plane: near_plane.unwrap_or(def.near_plane),
+        far_plane: far_plane.unwrap_or(def.far_plane),
+        eps2d: eps2d.unwrap_or(def.eps2d),
+        antialiased: antialiased.unwrap_or(def.antialiased),
+        tile_size,
+        footprint: footprint_sigma.map_or(def.footprint, Footprint::Sigma),
+        tile_ellipse: tile_ellipse.unwrap_or(def.tile_ellipse),
+        t_min: t_min.unwrap_or(def.t_min),
+        with_depth: render_depth.unwrap_or(def.with_depth),
+        simd: simd.unwrap_or(def.simd),
+    })
+}
+
+/// The Python result of one forward call (see `rasterize_forward`).
+pub(crate) fn forward_dict<'py>(
+    py: Python<'py>,
+    out: ForwardOutput,
+    state: ForwardState,
+    c: usize,
+    n: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let ch = state.channels();
+    let (h, w) = (state.height as usize, state.width as usize);
+    let d = PyDict::new(py);
+    d.set_item(
+        "render",
+        out.render.into_pyarray(py).reshape([c, h, w, ch])?,
+    )?;
+    d.set_item("alpha", out.alpha.into_pyarray(py).reshape([c, h, w])?)?;
+    d.set_item("radii", out.radii.into_pyarray(py).reshape([c, n, 2])?)?;
+    d.set_item("means2d", out.means2d.into_pyarray(py).reshape([c, n, 2])?)?;
+    d.set_item("depths", out.depths.into_pyarray(py).reshape([c, n])?)?;
+    d.set_item("n_visible", out.n_visible.into_pyarray(py))?;
+    d.set_item("n_intersections", out.n_intersections.into_pyarray(py))?;
+    let p = PyDict::new(py);
+    p.set_item("project", out.profile.project)?;
+    p.set_item("sort", out.profile.sort)?;
+    p.set_item("bin", out.profile.bin)?;
+    p.set_item("blend", out.profile.blend)?;
+    d.set_item("profile", p)?;
+    d.set_item("state", RasterState { inner: state })?;
+    Ok(d)
 }
 
 /// Forward rasterization of N Gaussians into C cameras (gsplat 1.5 classic semantics).
@@ -146,94 +325,40 @@ fn rasterize_forward<'py>(
     simd: Option<bool>,
     threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let width = u32_from(width, "width", 1)?;
-    let height = u32_from(height, "height", 1)?;
-    let sh_degree = sh_degree
-        .filter(|d| !d.is_none())
-        .map(|d| usize_from(d, "sh_degree", 0))
-        .transpose()?;
-    let tile_size = match tile_size.filter(|t| !t.is_none()) {
-        Some(t) => u32_from(t, "tile_size", 0)?,
-        None => RasterOptions::default().tile_size,
-    };
-    let threads = threads_from(threads)?;
-    let (ms, m) = f32_array("means", means, 2)?;
-    let n = ms[0];
-    expect_shape("means", &ms, &[None, Some(3)])?;
-    let (qs, q) = f32_array("quats", quats, 2)?;
-    expect_shape("quats", &qs, &[Some(n), Some(4)])?;
-    let (ss, s) = f32_array("scales", scales, 2)?;
-    expect_shape("scales", &ss, &[Some(n), Some(3)])?;
-    let (os, o) = f32_array("opacities", opacities, 1)?;
-    expect_shape("opacities", &os, &[Some(n)])?;
-    let (mode, col) = if !render_color {
-        (ColorMode::None, Vec::new())
-    } else if let Some(degree) = sh_degree {
-        let (cs, c) = f32_array("colors", colors, 3)?;
-        expect_shape("colors (SH)", &cs, &[Some(n), None, Some(3)])?;
-        (
-            ColorMode::Sh {
-                degree,
-                bases: cs[1],
-            },
-            c,
-        )
-    } else {
-        let (cs, c) = f32_array("colors", colors, 2)?;
-        expect_shape("colors", &cs, &[Some(n), None])?;
-        (ColorMode::Direct { channels: cs[1] }, c)
-    };
-    let (vs, v) = f32_array("viewmats", viewmats, 3)?;
-    expect_shape("viewmats", &vs, &[None, Some(4), Some(4)])?;
-    let c = vs[0];
-    let (kshape, k) = f32_array("Ks", ks, 3)?;
-    expect_shape("Ks", &kshape, &[Some(c), Some(3), Some(3)])?;
-
-    let def = RasterOptions::default();
-    let opts = RasterOptions {
-        near_plane: near_plane.unwrap_or(def.near_plane),
-        far_plane: far_plane.unwrap_or(def.far_plane),
-        eps2d: eps2d.unwrap_or(def.eps2d),
-        antialiased: antialiased.unwrap_or(def.antialiased),
+    let args = ForwardArgs::new(
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        ks,
+        width,
+        height,
+        sh_degree,
+        render_color,
+    )?;
+    let opts = raster_options(
+        near_plane,
+        far_plane,
+        eps2d,
+        antialiased,
+        render_depth,
         tile_size,
-        footprint: footprint_sigma.map_or(def.footprint, Footprint::Sigma),
-        tile_ellipse: tile_ellipse.unwrap_or(def.tile_ellipse),
-        t_min: t_min.unwrap_or(def.t_min),
-        with_depth: render_depth.unwrap_or(def.with_depth),
-        simd: simd.unwrap_or(def.simd),
-    };
+        footprint_sigma,
+        tile_ellipse,
+        t_min,
+        simd,
+    )?;
+    let threads = threads_from(threads)?;
+    let (c, n) = (args.c, args.n);
     let (out, state) = run_native(py, || {
-        let scene = Scene::from_vecs(m, q, s, o, col, mode)?;
-        let cameras = (0..c)
-            .map(|i| {
-                Camera::from_matrices(&v[16 * i..16 * i + 16], &k[9 * i..9 * i + 9], width, height)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let job = args.job()?;
         with_threads(threads, || {
-            raster::forward(scene, cameras, width, height, opts)
+            raster::forward(job.scene, job.cameras, job.width, job.height, opts)
         })
     })?;
-    let ch = state.channels();
-    let (h, w) = (height as usize, width as usize);
-    let d = PyDict::new(py);
-    d.set_item(
-        "render",
-        out.render.into_pyarray(py).reshape([c, h, w, ch])?,
-    )?;
-    d.set_item("alpha", out.alpha.into_pyarray(py).reshape([c, h, w])?)?;
-    d.set_item("radii", out.radii.into_pyarray(py).reshape([c, n, 2])?)?;
-    d.set_item("means2d", out.means2d.into_pyarray(py).reshape([c, n, 2])?)?;
-    d.set_item("depths", out.depths.into_pyarray(py).reshape([c, n])?)?;
-    d.set_item("n_visible", out.n_visible.into_pyarray(py))?;
-    d.set_item("n_intersections", out.n_intersections.into_pyarray(py))?;
-    let p = PyDict::new(py);
-    p.set_item("project", out.profile.project)?;
-    p.set_item("sort", out.profile.sort)?;
-    p.set_item("bin", out.profile.bin)?;
-    p.set_item("blend", out.profile.blend)?;
-    d.set_item("profile", p)?;
-    d.set_item("state", RasterState { inner: state })?;
-    Ok(d)
+    forward_dict(py, out, state, c, n)
 }
 
 /// `RasterOptions::default()` under the keyword names of `rasterize_forward`: the one place
@@ -290,17 +415,8 @@ fn rasterize_backward<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let threads = threads_from(threads)?;
     let st = &state.get().inner;
-    let (c, n) = (st.cameras.len(), st.scene.n);
-    let (h, w) = (st.height as usize, st.width as usize);
     // Read in place: the backward keeps nothing of them.
-    let vr_view = f32_view("v_render", v_render, 4)?;
-    expect_shape(
-        "v_render",
-        vr_view.shape(),
-        &[Some(c), Some(h), Some(w), Some(st.channels())],
-    )?;
-    let va_view = f32_view("v_alpha", v_alpha, 3)?;
-    expect_shape("v_alpha", va_view.shape(), &[Some(c), Some(h), Some(w)])?;
+    let (vr_view, va_view) = upstream_views(st, v_render, v_alpha)?;
     let (vr, va) = (flat("v_render", &vr_view)?, flat("v_alpha", &va_view)?);
     let want = GradRequest {
         means,
@@ -312,6 +428,36 @@ fn rasterize_backward<'py>(
     let grads = run_native(py, || {
         with_threads(threads, || raster::backward(st, vr, va, want))
     })?;
+    grads_dict(py, grads, st)
+}
+
+/// dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W] of a forward state, borrowed.
+#[allow(clippy::type_complexity)]
+pub(crate) fn upstream_views<'py>(
+    st: &ForwardState,
+    v_render: &Bound<'py, PyAny>,
+    v_alpha: &Bound<'py, PyAny>,
+) -> PyResult<(PyReadonlyArrayDyn<'py, f32>, PyReadonlyArrayDyn<'py, f32>)> {
+    let c = st.cameras.len();
+    let (h, w) = (st.height as usize, st.width as usize);
+    let vr_view = f32_view("v_render", v_render, 4)?;
+    expect_shape(
+        "v_render",
+        vr_view.shape(),
+        &[Some(c), Some(h), Some(w), Some(st.channels())],
+    )?;
+    let va_view = f32_view("v_alpha", v_alpha, 3)?;
+    expect_shape("v_alpha", va_view.shape(), &[Some(c), Some(h), Some(w)])?;
+    Ok((vr_view, va_view))
+}
+
+/// The Python result of one backward call (see `rasterize_backward`).
+pub(crate) fn grads_dict<'py>(
+    py: Python<'py>,
+    grads: Gradients,
+    st: &ForwardState,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (c, n) = (st.cameras.len(), st.scene.n);
     let d = PyDict::new(py);
     let put = |name: &str, v: Option<Vec<f32>>, shape: Vec<usize>| -> PyResult<()> {
         match v {

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from plantdreamer.errors import InputError
 from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer import views
@@ -148,10 +149,16 @@ def known_answer(
     steps: int = CHECK_STEPS,
     curve: Sequence[int] = (),
     with_true_colours: bool = True,
+    device: str = "cpu",
     **settings: Any,
 ) -> dict[str, Any]:
     """The check's figures: from noise colours with the trained and the untrained models, and
-    (``with_true_colours``) from the true colours with the trained ones."""
+    (``with_true_colours``) from the true colours with the trained ones. ``device`` runs
+    the guidance there (``cuda``: precision, batching and overlap judged on CUDA); the
+    rasterizer and the true plant stay on the CPU."""
+    check_device(device)
+    if device != "cpu":
+        settings = {**settings, "device": device}
     truth = Truth.of(spec, work_dir)
     points = sorted({0, steps, *curve})
     noise = {"color_init": "noise", **settings}
@@ -174,13 +181,25 @@ def known_answer(
         logs = sorted(run_dir.glob("*/log.csv")) if settings.get("group", 1) > 1 else []
         out.update(run_timesteps(logs or [run_dir / "log.csv"], steps))
     unseen = unseen_views(spec, truth.gaussians)
-    denoised = denoiser_check(trained, spec, unseen, steps)
+    denoised = denoiser_check(trained, spec, unseen, steps, device)
     denoised.pop("timesteps")
     out.update(denoised)
-    out["x0_error_control"] = denoiser_check(untrained, spec, unseen, steps)["x0_error"]
+    out["x0_error_control"] = denoiser_check(untrained, spec, unseen, steps, device)["x0_error"]
     if with_true_colours:
         true = {"color_init": "original", **settings}
         runs = step_curve(spec, truth, trained, work_dir / "true", [0, steps], **true)
         out["psnr_true_init"] = runs[0].masked_psnr
         out["psnr_true_final"] = runs[-1].masked_psnr
     return out
+
+
+def check_device(device: str) -> None:
+    """``cpu`` or an available ``cuda[:N]``; anything else is one clear InputError."""
+    import torch
+
+    if device == "cpu":
+        return
+    if device.split(":")[0] != "cuda":
+        raise InputError(f"device must be cpu or cuda (cuda:N), got {device!r}")
+    if not torch.cuda.is_available():
+        raise InputError(f"device {device!r} asked for, but torch sees no CUDA GPU")

@@ -35,16 +35,19 @@ BUCKETS = ((0, 250), (250, 500), (500, 1000))
 MAX_X0_ERROR = 0.15
 
 
-def make_guidance(models: Path, spec: KnownAnswerSpec, steps: int, schedule: str = "paper") -> Any:
+def make_guidance(
+    models: Path, spec: KnownAnswerSpec, steps: int, schedule: str = "paper", device: str = "cpu"
+) -> Any:
     """The real guidance on the model folder ``models``, as a ``steps``-long run of the
-    known-answer plant builds it (``generate``'s own ``build_guidance``)."""
+    known-answer plant builds it (``generate``'s own ``build_guidance``), on ``device``."""
     from plantdreamer.known_answer.build import model_dirs
     from plantdreamer.pipeline.runtime import build_guidance
 
     base, control = model_dirs(models)
     cfg = views.generate_config(
-        spec, base_model=str(base), controlnet=str(control), steps=steps, schedule=schedule
-    )
+        spec, base_model=str(base), controlnet=str(control), steps=steps, schedule=schedule,
+        device=device,
+    )  # fmt: skip
     return build_guidance(cfg)
 
 
@@ -99,7 +102,12 @@ def denoiser_error(guidance: Any, data: Any, steps: int = CHECK_STEPS) -> dict[s
 
 
 def denoiser_check(
-    models: Path, spec: KnownAnswerSpec, data: views.ViewSet, steps: int = CHECK_STEPS
+    models: Path,
+    spec: KnownAnswerSpec,
+    data: views.ViewSet,
+    steps: int = CHECK_STEPS,
+    device: str = "cpu",
 ) -> dict[str, Any]:
-    """``denoiser_error`` of the model folder ``models`` on ``data`` (``unseen_views``)."""
-    return denoiser_error(make_guidance(models, spec, steps), data, steps)
+    """``denoiser_error`` of the model folder ``models`` on ``data`` (``unseen_views``), the
+    guidance on ``device``."""
+    return denoiser_error(make_guidance(models, spec, steps, device=device), data, steps)

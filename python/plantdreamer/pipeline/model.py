@@ -14,10 +14,16 @@ import numpy as np
 import torch
 
 from plantdreamer.cameras import Camera, stack
+from plantdreamer.errors import PlantDreamerError
 from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scales
 from plantdreamer.pipeline.train_config import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+# torch's Adam implementation for the Gaussians: "foreach" gives the bits of the
+# single-tensor loop (tests/test_model_adam.py) in fewer torch calls, each an OpenMP region
+# the host waits on; benches/bench_throughput.py --adam compares them.
+ADAM_IMPLEMENTATION = "foreach"
+ADAM_FOREACH = {"single": False, "foreach": True}
 
 
 class _Activations(torch.autograd.Function):
@@ -81,6 +87,7 @@ class GaussianModel:
             self.optimizer = torch.optim.Adam(
                 [{"params": [self.params[k]], "lr": rates[k], "name": k} for k in PARAM_NAMES],
                 eps=lr.eps,
+                foreach=ADAM_FOREACH[ADAM_IMPLEMENTATION],
             )
 
     def __len__(self) -> int:
@@ -106,6 +113,12 @@ class GaussianModel:
         """Renders [C, H, W, ch] images (and alphas, meta) through the native rasterizer."""
         from plantdreamer.rasterizer import rasterization
 
+        return rasterization(**self.render_call(cameras, background, render_mode))
+
+    def render_call(
+        self, cameras: Sequence[Camera], background: float, render_mode: str = "RGB"
+    ) -> dict[str, Any]:
+        """``rasterization``'s keyword arguments for a render of ``cameras``."""
         p = self.params
         viewmats, ks = stack(cameras)
         bg = None
@@ -121,20 +134,20 @@ class GaussianModel:
         else:
             colors = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
         scales, opacities = _Activations.apply(p["log_scales"], p["opacity_logits"])
-        return rasterization(
-            p["means"],
-            p["quats"],
-            scales,
-            opacities,
-            colors,
-            torch.from_numpy(viewmats),
-            torch.from_numpy(ks),
-            cameras[0].width,
-            cameras[0].height,
-            sh_degree=self.sh_degree,
-            backgrounds=bg,
-            render_mode=render_mode,
-        )
+        return {
+            "means": p["means"],
+            "quats": p["quats"],
+            "scales": scales,
+            "opacities": opacities,
+            "colors": colors,
+            "viewmats": torch.from_numpy(viewmats),
+            "Ks": torch.from_numpy(ks),
+            "width": cameras[0].width,
+            "height": cameras[0].height,
+            "sh_degree": self.sh_degree,
+            "backgrounds": bg,
+            "render_mode": render_mode,
+        }
 
     # -- changing the set of Gaussians -------------------------------------------------
 
@@ -190,3 +203,19 @@ class GaussianModel:
                 group["params"][0] = self.params[group["name"]]
             self.optimizer.state.clear()
             self.optimizer.load_state_dict(state["optimizer"])
+            # The implementation is this build's, not the checkpoint's (the same bits).
+            for group in self.optimizer.param_groups:
+                group["foreach"] = ADAM_FOREACH[ADAM_IMPLEMENTATION]
+
+
+def render_many(
+    models: Sequence[GaussianModel], cameras: Sequence[Camera], background: float
+) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
+    """``models[k].render([cameras[k]], background)`` for every k, as one native call each
+    way (``rasterization_many``: the same bits); a model whose render fails gets its
+    error in its place. The renders' gradients must come from one
+    ``torch.autograd.backward`` over all of them."""
+    from plantdreamer.rasterizer import rasterization_many
+
+    calls = [m.render_call([c], background) for m, c in zip(models, cameras, strict=True)]
+    return rasterization_many(calls)

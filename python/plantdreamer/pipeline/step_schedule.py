@@ -1,8 +1,9 @@
 """One training step of a trainer's plants: as one batch, or as two halves in flight.
 
-One batch (``overlap`` off, or a single plant): every plant renders (a thread each), one
-guidance call runs on the batch, its gradient goes back to the renders, the rasterizer
-backwards run (a thread each), then each plant's Adam update and density control.
+One batch (``overlap`` off, or a single plant): the plants render (one native call for all
+of them, their scenes side by side on the rasterizer's pool), one guidance call runs on the
+batch, its gradient goes back to the renders, the rasterizer backwards run (again one native
+call), then each plant's Adam update and density control.
 
 Two halves (``overlap`` on, two plants or more): the plants are split once, A the first
 ceil(B/2) and B the rest. A launch queues a half's device work and returns at once
@@ -33,13 +34,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch.profiler import record_function
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model import GaussianModel, render_many
 from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.run_state import RunState
 
@@ -68,11 +70,17 @@ class _Launched:
     cameras: list[Camera]
     renders: list[tuple[torch.Tensor, torch.Tensor, dict]]
     flight: InFlight
+    batched: bool  # the renders came from one native call (one autograd node)
 
 
 class StepSchedule:
     """Runs each step of ``plants`` (module docstring); ``run_ahead(step)`` says whether the
     first half of step + 1 may be launched during ``step`` (no checkpoint or stop between)."""
+
+    # Several plants' renders as one native call each way (``render_many``, the same bits
+    # as one call per plant); False renders each plant on its own thread, kept for the
+    # comparison (benches/bench_throughput.py --raster-batch).
+    raster_batch: bool = True
 
     def __init__(
         self,
@@ -132,11 +140,12 @@ class StepSchedule:
 
     @contextmanager
     def _timed(self, name: str) -> Iterator[None]:
-        """One phase of the step, its wall time added to every live plant (the group's)."""
+        """One phase of the step, its wall time added to every live plant (the group's), and
+        a named range of a profiler's timeline (benches/bench_throughput.py --trace)."""
         plants = self.alive()
         first = self.plants[plants[0]].state.timer.totals
         before = first[name]
-        with self.plants[plants[0]].state.timer(name):
+        with self.plants[plants[0]].state.timer(name), record_function(name):
             yield
         for i in plants[1:]:
             self.plants[i].state.timer.totals[name] += first[name] - before
@@ -152,14 +161,24 @@ class StepSchedule:
         background = self.cfg.train.background
 
         def render(k: int):
-            return group[k].state.model.render([cameras[k]], background)
+            with record_function(f"render plant {plants[k]}"):
+                return group[k].state.model.render([cameras[k]], background)
 
+        batched = self.raster_batch and len(group) > 1
         with self._timed("render"):
-            renders = self._map(render, list(range(len(group))))
+            if batched:
+                models = [p.state.model for p in group]
+                renders = []
+                for p, r in zip(group, render_many(models, cameras, background), strict=True):
+                    if isinstance(r, Exception):
+                        raise type(r)(f"{p.out_dir.name}: {r}")
+                    renders.append(r)
+            else:
+                renders = self._map(render, list(range(len(group))))
         images = [r[0] for r in renders]
         batch = images[0] if len(images) == 1 else torch.cat(images)
         flight = launch_guidance(self.guidance, batch, plants, cameras, step, more, self._timed)
-        return _Launched(plants, cameras, renders, flight)
+        return _Launched(plants, cameras, renders, flight, batched)
 
     def _finish(self, work: _Launched, step: int) -> float:
         """Waits for a launched half's gradient, back-propagates it through the rasterizer
@@ -174,7 +193,15 @@ class StepSchedule:
                 optimizer.zero_grad(set_to_none=True)
             images = [r[0] for r in work.renders]
             grads = out.grads
-            self._map(lambda k: images[k].backward(grads[k : k + 1]), list(range(len(group))))
+
+            def backward(k: int) -> None:
+                with record_function(f"backward plant {work.plants[k]}"):
+                    images[k].backward(grads[k : k + 1])
+
+            if work.batched:  # one node holds every render: one backward for all
+                torch.autograd.backward(images, [grads[k : k + 1] for k in range(len(group))])
+            else:
+                self._map(backward, list(range(len(group))))
         loss = out.loss
         # A non-finite loss fails the plants whose renders got non-finite gradients (all of
         # them when none did): one plant's NaN must not stop the others.

@@ -16,6 +16,7 @@
 //!
 //! ```text
 //! eval_count                           blending work of a forward state (benchmarks)
+//! many_scenes                          many scenes' passes in one call (a group's plants)
 //! forward_pass, backward_pass          whole passes over every camera
 //! backward_chain                       per-splat sums -> 3D parameter gradients
 //! forward_blend, backward_blend        per-camera blend drivers + scalar kernels
@@ -56,6 +57,7 @@ mod forward_pass;
 #[cfg(all(test, target_arch = "x86_64"))]
 mod kernel_tests;
 mod lanes;
+mod many_scenes;
 mod options;
 mod prefetch;
 pub mod project;
@@ -75,5 +77,6 @@ pub use camera::Camera;
 pub use eval_count::{count_evaluations, Evaluations};
 pub use forward_blend::{blend_kernel, Blended};
 pub use forward_pass::{forward, CameraState, ForwardOutput, ForwardState, Profile};
+pub use many_scenes::{backward_many, forward_many, BackwardJob, ForwardResult, SceneJob};
 pub use options::{Footprint, RasterOptions, ALPHA_MAX, ALPHA_MIN};
 pub use scene::{ColorMode, Scene};

@@ -1,0 +1,86 @@
+"""benches/bench_throughput.py through `scripts/gpu_checks.py throughput`: the steady-state
+figures and the report's schema, run with tiny networks on the CPU (the same script a CUDA
+host runs at full size)."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benches"))
+
+import bench_throughput  # noqa: E402
+
+KEYS = ("step_ms_median", "plants_per_hour", "gpu_busy", "host_core_ms_per_plant_step",
+        "peak_cuda_gib")  # fmt: skip
+
+
+def test_the_steady_state_is_the_median_gap_after_warm_up():
+    clock = bench_throughput.StepClock(warmup=2)
+    # Step ends at 0, 10 (warm-up), then gaps of 1, 3, 2 s; CPU 4 s over the window.
+    clock.wall = [0.0, 10.0, 11.0, 14.0, 16.0]
+    clock.cpu = [0.0, 20.0, 21.0, 23.0, 24.0]
+    s = clock.steady(b=4)
+    assert s["steady_steps"] == 3 and s["step_ms_median"] == 2000.0 and s["step_ms_min"] == 1000
+    assert s["plants_per_hour"] == 3600 * 4 / (2.0 * 3600)
+    assert math.isclose(s["host_core_ms_per_plant_step"], 4000 / (3 * 4))
+
+
+def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
+    events = []
+    clock = bench_throughput.StepClock(warmup=2, on_window=lambda e: events.append((e, len(clock.wall))),
+                                       last=4)  # fmt: skip
+    for step in range(5):
+        clock(step)
+    assert events == [("start", 2), ("stop", 5)]
+
+
+def test_too_few_steps_for_the_warm_up_is_one_clear_error(tmp_path):
+    cmd = [sys.executable, "scripts/gpu_checks.py", "throughput", str(tmp_path), "--tiny",
+           "--steps", "3", "--warmup", "7"]  # fmt: skip
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert done.stderr.strip().splitlines()[-1].startswith("error: --steps (3) must exceed")
+
+
+def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
+    out = tmp_path / "out"
+    cmd = [
+        sys.executable, "scripts/gpu_checks.py", "throughput", str(out), "--tiny",
+        "--groups", "2", "1", "--overlap", "off", "on", "--steps", "4", "--warmup", "2",
+        "--points", "1500", "--render", "48", "--sds", "64", "--work", str(tmp_path / "work"),
+        "--trace", str(out / "step.json"),
+    ]  # fmt: skip
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    report = json.loads((out / "throughput.json").read_text())
+    assert report["device"] == "cpu" and report["warmup"] == 2
+    assert set(report["groups"]) == {"1", "2", "2-overlap"}  # no halves for one plant
+    for label, row in report["groups"].items():
+        assert set(KEYS) <= set(row), label
+        assert row["gpu_busy"] is None and row["peak_cuda_gib"] is None
+        for key in ("step_ms_median", "plants_per_hour", "host_core_ms_per_plant_step"):
+            assert math.isfinite(row[key]) and row[key] > 0, (label, key, row[key])
+        assert row["steady_steps"] == 2
+        assert set(row["phases_ms"]) == set(bench_throughput.PHASES)
+    two = report["groups"]["2"]
+    assert math.isclose(two["plants_per_hour"], 2 / (two["step_ms_median"] / 1000))
+    assert report["resume"]["stopped_at"] in (2, 3) and all(report["resume"]["identical"].values())
+    trace = json.loads((out / "step.json").read_text())
+    names = {e.get("name") for e in trace["traceEvents"]}
+    assert {"render", "guidance", "backward", "optimizer"} <= names
+    assert "| 2 | on | float32 |" in (out / "throughput.md").read_text()
+    # The timeline drawn from that trace: the step's phases in one thread's lane, nested
+    # ranges (Adam's steps inside "optimizer") one level deeper.
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import plot_timeline
+
+    found = plot_timeline.lanes(trace["traceEvents"])
+    main = next(lane for lane in found.values() if any(n == "render" for *_, n in lane["ranges"]))
+    ranges = sorted(main["ranges"])
+    depth = dict(zip((n for *_, n in ranges), plot_timeline.depths(ranges), strict=True))
+    assert depth["render"] == 0 and depth["Optimizer.step#Adam.step"] == 1
+    assert plot_timeline.main([str(out / "step.json"), str(out / "step.png")]) == 0
+    assert (out / "step.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,150 @@
+"""Many scenes in one native call (``rasterization_many``, ``_core.rasterize_*_many``): the
+bits of separate calls on any thread count, forward and gradients; a bad scene fails alone;
+a group trained with one call per step gives the bytes of one call per plant."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+import torch
+
+import raster_reference as ref
+from plantdreamer import _core, rasterization
+from plantdreamer.errors import InputError
+from plantdreamer.rasterizer import rasterization_many
+
+W, H = 44, 36
+NAMES = ("means", "quats", "scales", "opacities", "colors")
+# (seed, Gaussians, sh_degree, render_mode, cameras, background)
+SCENES = [
+    (0, 150, 1, "RGB", 1, True),
+    (1, 260, 1, "RGB", 1, True),
+    (2, 90, 1, "RGB", 1, True),
+    (3, 200, 1, "RGB", 1, True),
+]
+
+
+def scene_call(seed, n, sh_degree, mode, n_cams, use_bg):
+    """rasterization's keyword arguments, with leaf parameters that need gradients."""
+    params = [p.clone().requires_grad_(True) for p in ref.plant_scene(seed, n, sh_degree)]
+    viewmats, ks = ref.scene_cameras(W, H, n=n_cams, distance=1.8 + 0.1 * seed)
+    bg = torch.full((n_cams, 3), 0.25) if use_bg else None
+    call = dict(zip(NAMES, params, strict=True))
+    call |= {"viewmats": viewmats, "Ks": ks, "width": W, "height": H, "sh_degree": sh_degree,
+             "backgrounds": bg, "render_mode": mode}  # fmt: skip
+    return call, params
+
+
+def upstream(render, alpha, seed):
+    g = torch.Generator().manual_seed(100 + seed)
+    return torch.rand(render.shape, generator=g) - 0.5, torch.rand(alpha.shape, generator=g)
+
+
+def bits(t):
+    return t.detach().contiguous().numpy().view(np.uint8).tobytes()
+
+
+def fingerprint(render, alpha, meta, params):
+    out = [bits(render), bits(alpha), bits(meta["means2d"].grad), bits(meta["radii"])]
+    out += [bits(meta["depths"])] + [bits(p.grad) for p in params]
+    return out
+
+
+def separate(threads):
+    prints = []
+    for spec in SCENES:
+        call, params = scene_call(*spec)
+        render, alpha, meta = rasterization(**call, threads=threads)
+        vr, va = upstream(render, alpha, spec[0])
+        torch.autograd.backward([render, alpha], [vr, va])
+        prints.append(fingerprint(render, alpha, meta, params))
+    return prints
+
+
+def together(threads, calls=None):
+    made = [scene_call(*spec) for spec in SCENES]
+    results = rasterization_many([c for c, _ in made], threads=threads)
+    roots, grads = [], []
+    for spec, (render, alpha, _) in zip(SCENES, results, strict=True):
+        vr, va = upstream(render, alpha, spec[0])
+        roots += [render, alpha]
+        grads += [vr, va]
+    torch.autograd.backward(roots, grads)
+    return [fingerprint(*r, p) for r, (_, p) in zip(results, made, strict=True)]
+
+
+@pytest.mark.parametrize("threads", [1, 2, 4])
+def test_many_scenes_give_the_bits_of_separate_calls(threads):
+    alone = separate(threads=1)
+    assert all(any(b != 0 for b in f[0]) for f in alone)  # images that are not empty
+    assert together(threads) == alone
+
+
+def test_a_bad_scene_fails_alone_and_is_named():
+    made = [scene_call(*spec) for spec in SCENES[:3]]
+    calls = [c for c, _ in made]
+    calls[1] = {**calls[1], "quats": calls[1]["quats"][:-1]}  # one row short
+    results = rasterization_many(calls, threads=2)
+    assert isinstance(results[1], InputError)
+    assert str(results[1]).startswith("scene 1: quats must have shape")
+    for k in (0, 2):
+        render, alpha, _ = rasterization(**scene_call(*SCENES[k])[0], threads=1)
+        assert bits(results[k][0]) == bits(render) and bits(results[k][1]) == bits(alpha)
+
+
+def test_the_core_returns_each_scenes_error_in_its_place():
+    call, _ = scene_call(*SCENES[0])
+    arrays = {k: call[k].detach().numpy() for k in NAMES}
+    good = {**arrays, "viewmats": call["viewmats"].numpy(), "Ks": call["Ks"].numpy(),
+            "width": W, "height": H, "sh_degree": 1}  # fmt: skip
+    bad_k = good["Ks"].copy()
+    bad_k[0, 0, 0] = np.nan  # refused by the core's camera check
+    out = _core.rasterize_forward_many([good, {**good, "Ks": bad_k}, {**good, "width": 0}])
+    assert isinstance(out[0], dict) and "state" in out[0]
+    assert isinstance(out[1], _core.InputError) and isinstance(out[2], _core.InputError)
+    alone = _core.rasterize_forward(*(good[k] for k in (*NAMES, "viewmats", "Ks")), W, H,
+                                    sh_degree=1)  # fmt: skip
+    assert out[0]["render"].tobytes() == alone["render"].tobytes()
+    v_render, v_alpha = np.ones_like(alone["render"]), np.ones_like(alone["alpha"])
+    grads = _core.rasterize_backward_many(
+        [out[0]["state"], alone["state"]], [v_render, v_render[..., :1]], [v_alpha, v_alpha]
+    )
+    assert isinstance(grads[0], dict) and isinstance(grads[1], _core.InputError)
+    assert "v_render" in str(grads[1])
+    one = _core.rasterize_backward(alone["state"], v_render, v_alpha)
+    assert grads[0]["means"].tobytes() == one["means"].tobytes()
+    with pytest.raises(_core.InputError, match="one v_render and one v_alpha per state"):
+        _core.rasterize_backward_many([alone["state"]], [], [])
+
+
+def test_a_group_trains_to_the_same_bytes_with_one_call_per_plant(tmp_path):
+    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
+    from plantdreamer.guidance.tiny import tiny_models
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline.step_schedule import StepSchedule
+
+    def run(folder, batched):
+        cfgs = [
+            GenerateConfig.of(species="bean", seed=s, steps=6, points=800, resolution=48,
+                              sds_resolution=64, eval_views=1, turntable="none")
+            for s in range(3)
+        ]  # fmt: skip
+        guidance = StableDiffusionDepthGuidance(
+            species="bean", components=tiny_models(), resolution=64, seed=0
+        )
+        StepSchedule.raster_batch = batched
+        try:
+            result = generate_group(cfgs, folder, guidance=guidance, show_progress=False)
+        finally:
+            StepSchedule.raster_batch = True
+        assert not result.failed
+        files = sorted(p for p in folder.rglob("*") if p.suffix in (".ply", ".png"))
+        return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in files}  # fmt: skip
+
+    one_call = run(tmp_path / "one", True)
+    per_plant = run(tmp_path / "per", False)
+    assert len(one_call) >= 6 and one_call == per_plant
