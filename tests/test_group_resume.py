@@ -69,9 +69,14 @@ def assert_resumes_to_straight(out, straight):
 
 def killed_in_a_subprocess(out, hook: str) -> None:
     """Runs the group in a fresh process whose ``hook`` (Python, with ``os``, ``signal`` and
-    the pipeline's modules at hand) SIGKILLs it; the process must die by SIGKILL."""
+    the pipeline's modules at hand) SIGKILLs it; the process must die by SIGKILL. It runs
+    torch on this process's thread count: the tiny networks' CPU kernels may round otherwise
+    with another count, and the resumes here continue its run."""
+    import torch
+
     script = "\n".join([
-        "import os, signal",
+        "import os, signal, torch",
+        f"torch.set_num_threads({torch.get_num_threads()})",
         "from plantdreamer.pipeline import run, checkpoint",
         "from plantdreamer.pipeline.group import generate_group",
         "from test_group_resume import configs, tiny_sds",

@@ -27,6 +27,7 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
     "large_gaussian_mask": [],
     "raster_defaults": [],
     "rasterize_backward": [("threads", 1)],
+    "rasterize_backward_many": [("threads", 1)],
     "rasterize_forward": [
         ("width", 1),
         ("height", 1),
@@ -34,6 +35,7 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
         ("tile_size", 0),
         ("threads", 1),
     ],
+    "rasterize_forward_many": [("tile_size", 0), ("threads", 1)],
     "read_ply_vertex": [],
     "remove_statistical_outliers": [("nb_neighbors", 1), ("threads", 1)],
     "voxel_downsample": [("threads", 1)],
@@ -64,6 +66,13 @@ def _scene() -> dict:
     }
 
 
+def _batch_scene() -> dict:
+    """_scene() as one scene of rasterize_forward_many (its keyword names)."""
+    scene = {k: v for k, v in _scene().items() if k not in ("tile_size", "threads")}
+    scene["Ks"] = scene.pop("ks")
+    return scene
+
+
 def _call(name: str, tmp_path, **override):
     """A valid call of `name`, with `override` replacing some arguments."""
     if name == "rasterize_backward":
@@ -74,6 +83,16 @@ def _call(name: str, tmp_path, **override):
             "v_alpha": np.ones_like(out["alpha"]),
             "threads": None,
         }
+    elif name == "rasterize_backward_many":
+        out = _core.rasterize_forward(**_scene())
+        args = {
+            "states": [out["state"]],
+            "v_renders": [np.ones_like(out["render"])],
+            "v_alphas": [np.ones_like(out["alpha"])],
+            "threads": None,
+        }
+    elif name == "rasterize_forward_many":
+        args = {"scenes": [_batch_scene()], "tile_size": 16, "threads": None}
     else:
         args = {
             "downsample_to_count": {"points": _PTS, "target": 20, "threads": None},
@@ -130,6 +149,18 @@ def test_bad_integers_are_input_errors(tmp_path, name, arg, low, bad):
     value = low - 1 if bad == "below" else bad
     with pytest.raises(InputError, match=arg):
         _call(name, tmp_path, **{arg: value})
+
+
+@pytest.mark.parametrize(("arg", "low"), [("width", 1), ("height", 1), ("sh_degree", 0)])
+@pytest.mark.parametrize("bad", [*BAD_VALUES, "below"], ids=repr)
+def test_a_batched_scenes_bad_integers_are_its_own_input_error(arg, low, bad):
+    """A scene of a batch with a bad integer fails alone: its entry is the InputError."""
+    scene = _batch_scene()
+    good = dict(scene)
+    scene[arg] = low - 1 if bad == "below" else bad
+    results = _core.rasterize_forward_many([good, scene])
+    assert isinstance(results[0], dict)
+    assert isinstance(results[1], InputError) and arg in str(results[1])
 
 
 @pytest.mark.parametrize("size", [(2**31, 2**31), (2**32 - 1, 2**32 - 1), (100_000, 100_000)])
