@@ -112,7 +112,7 @@ def generate_group(
     out_dir: str | Path,
     *,
     guidance: Guidance | None = None,
-    guidance_for: GuidanceFor = build_guidance,
+    guidance_for: GuidanceFor | None = None,
     resume: bool = False,
     overwrite: bool = False,
     show_progress: bool = True,
@@ -122,7 +122,8 @@ def generate_group(
 ) -> GroupResult:
     """Trains ``cfgs`` together into ``out_dir`` (or, with ``resume``, continues the group
     there). ``guidance`` overrides the one the configs name (tests inject tiny models);
-    else ``guidance_for`` builds it from the first plant's resolved config. ``plant_dirs``
+    else ``guidance_for`` (``build_guidance``, looked up when called) builds it from the first
+    plant's resolved config. ``plant_dirs``
     puts the plants in these folders (named by them) rather than in ``out_dir``, which then
     holds only ``group.json`` (a dataset's plant folders); the record is then made from
     ``cfgs`` with or without ``resume``, and a plant with a checkpoint resumes from it."""
@@ -154,7 +155,8 @@ def generate_group(
                     if not started:
                         continue
                     train_plants(
-                        started, out, guidance=guidance, guidance_for=guidance_for,
+                        started, out, guidance=guidance,
+                        guidance_for=guidance_for or build_guidance,
                         show_progress=show_progress, on_step=on_step, depth_ahead=depth_ahead,
                         on_failure=failure, on_done=done,
                     )  # fmt: skip
