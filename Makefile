@@ -30,6 +30,8 @@ CORE_PROFILE ?= release
 # pip builds the native module once (CORE_PROFILE) and installs every runtime + dev
 # dependency, and the viewer extra (viser), which the viewer's tests use.
 $(STAMP): pyproject.toml | $(PY)
+	@echo "pip: installing the dependencies, then compiling the native core ($(CORE_PROFILE)" \
+		"profile; minutes on 2 cores, and pip shows no progress while cargo runs)"
 	MATURIN_PEP517_ARGS="--profile $(CORE_PROFILE)" \
 		$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
 	touch $@
