@@ -218,7 +218,9 @@ def _train(started, record, out, guidance, result, show_progress, on_step, depth
         try:
             resolution = p.cfg.train.resolution
             assert resolution is not None
-            result.done[entry["name"]] = export_run(p.cfg, p.state, p.out_dir, resolution, device)
+            result.done[entry["name"]] = export_run(
+                p.cfg, p.state, p.out_dir, resolution, device, show_progress
+            )
             entry["status"] = "done"
         except Exception as exc:
             _fail(entry, result, exc)

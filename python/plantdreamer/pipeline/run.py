@@ -106,7 +106,7 @@ def generate(
         trainer = Trainer([PlantRun(cfg, state, out_dir)], guidance, depth_ahead=depth_ahead)
         trainer.run(show_progress, on_step)
         device = str(getattr(guidance, "device", "cpu"))
-        return export_run(cfg, state, out_dir, resolution, device)
+        return export_run(cfg, state, out_dir, resolution, device, show_progress)
 
 
 def remove_final_outputs(out_dir: Path) -> None:
