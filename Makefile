@@ -23,8 +23,8 @@ $(PY):
 
 # The Cargo profile of the native module in .venv: `release` (thin LTO, one codegen unit:
 # what users get) for the demo and the benchmarks; the tests build `ci` (the same code
-# without LTO, in parallel codegen units: the same bits, minutes less to compile), as the
-# test targets below set.
+# without LTO, in parallel codegen units: both cores compile the crate), as the test
+# targets below set.
 CORE_PROFILE ?= release
 
 # pip builds the native module once (CORE_PROFILE) and installs every runtime + dev
