@@ -167,7 +167,7 @@ def dataset(
         raise SystemExit(1)
     click.echo(
         f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: "
-        f"{report.out_dir}"
+        f"{out_dir}"
     )
     if report.labels is not None:
         click.echo(describe(report.labels))
