@@ -21,24 +21,36 @@ $(PY):
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 
-# pip builds the native module once (release) and installs every runtime + dev dependency,
-# and the viewer extra (viser), which the viewer's tests use.
+# The Cargo profile of the native module in .venv: `release` (thin LTO, one codegen unit:
+# what users get) for the demo and the benchmarks; the tests build `ci` (the same code
+# without LTO, in parallel codegen units: both cores compile the crate), as the test
+# targets below set.
+CORE_PROFILE ?= release
+
+# pip builds the native module once (CORE_PROFILE) and installs every runtime + dev
+# dependency, and the viewer extra (viser), which the viewer's tests use.
 $(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
+	@echo "pip: installing the dependencies, then compiling the native core ($(CORE_PROFILE)" \
+		"profile; minutes on 2 cores, and pip shows no progress while cargo runs)"
+	MATURIN_PEP517_ARGS="--profile $(CORE_PROFILE)" \
+		$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
 	touch $@
 
 setup: $(STAMP) system-libs ## Create .venv with plantdreamer (editable), its dev and viewer extras, and the Debian libraries they load
 
-build: $(STAMP) ## Rebuild the native module in place (release profile)
+build: $(STAMP) ## Rebuild the native module in place (CORE_PROFILE, release by default)
 	@# The module is _core.abi3.so; a version-specific one left by an older build would
 	@# shadow it (Python tries _core.cpython-3XY-*.so first).
 	rm -f python/plantdreamer/_core.cpython-*.so
-	$(VENV)/bin/maturin develop --release --skip-install
+	$(VENV)/bin/maturin develop --profile $(CORE_PROFILE) --skip-install
 
+# `cargo test` also builds the examples (to check they compile), into target/debug/examples:
+# tests/test_thread_scaling.py runs the raster_timing one from there.
 test-rust: ## Run the Rust tests (no Python needed)
 	cargo test --workspace
 
-test-python: build browser system-libs ## Run the Python tests
+test-python: CORE_PROFILE := ci
+test-python: build browser system-libs ## Run the Python tests (native module: ci profile)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
@@ -61,7 +73,8 @@ system-libs: ## Install Debian's libraries that Open3D and OpenCV load (when run
 		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $$missing; \
 		else echo "note: install Debian's$$missing for the Open3D and Ultralytics tests"; fi; fi
 
-WHEEL_FLAGS ?= --release --zig --compatibility manylinux2014
+WHEEL_PROFILE ?= release
+WHEEL_FLAGS ?= --profile $(WHEEL_PROFILE) --zig --compatibility manylinux2014
 
 wheel: $(STAMP) ## Build the abi3 wheel (manylinux2014, via zig) and the sdist into dist/
 	rm -f dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz
@@ -69,17 +82,29 @@ wheel: $(STAMP) ## Build the abi3 wheel (manylinux2014, via zig) and the sdist i
 	PATH="$(abspath $(VENV))/bin:$$PATH" $(VENV)/bin/maturin build $(WHEEL_FLAGS) --out dist
 	$(VENV)/bin/maturin sdist --out dist
 
-test-wheel: wheel ## Install the wheel in a fresh venv without Rust on PATH and run it
+# The check is of the packaging (abi3, manylinux2014 through zig, no Rust needed to run),
+# not of LTO: it builds the ci profile, as the Python tests do.
+test-wheel: WHEEL_PROFILE := ci
+test-wheel: CORE_PROFILE := ci
+test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust on PATH and run it
 	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
 	$(PY) scripts/check_sdist.py dist/plantdreamer-*.tar.gz
 
 test: test-rust test-python test-wheel ## Set up everything, then run all Rust and Python tests and the wheel check
 
+# The demo: SDS through the known-answer models the tests use (tests/data/known_answer/: a
+# VAE, UNet and depth ControlNet trained on bean seed 0's true views at 64 px), from noise
+# colours, scored against the plant's held-out true views. DEMO_OUT is replaced on each run.
 DEMO_OUT ?= out/demo
+DEMO_STEPS ?= 200
+DEMO_MODELS := tests/data/known_answer/bean_s0_r64
 
-demo: build ## Run the main job on its built-in defaults (bean, no diffusion weights needed)
-	$(VENV)/bin/plantdreamer info
-	$(VENV)/bin/plantdreamer generate --species bean --guidance none --out $(DEMO_OUT)
+demo: build ## Run the main job (SDS, tiny committed models) and score it against the truth
+	$(PY) -m plantdreamer.known_answer.demo $(DEMO_OUT) -- \
+		$(VENV)/bin/plantdreamer generate --species bean --seed 0 --points 100000 \
+		--resolution 64 --sds-resolution 64 --color-init noise --guidance sds \
+		--base-model $(DEMO_MODELS)/base --controlnet $(DEMO_MODELS)/controlnet \
+		--steps $(DEMO_STEPS) --eval-views 36 --out $(DEMO_OUT) --overwrite
 
 $(BENCH_STAMP): $(STAMP) | system-libs
 	$(PY) -m pip install --progress-bar off -e '.[dev,bench]'

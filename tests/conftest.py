@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any, NamedTuple
+
 import numpy as np
 import pytest
 
@@ -46,3 +49,56 @@ def bean(tmp_path_factory):
     from labelled_plant import make_plant
 
     return make_plant(tmp_path_factory.mktemp("bean") / "plant")
+
+
+@pytest.fixture(scope="session")
+def shared_ray():
+    """One Ray instance for the session (a 2-CPU head on 127.0.0.1, no dashboard), for the
+    tests that run plants on Ray without testing how `dataset` starts and stops its own:
+    they join it with ``dataset --address``. Yields the ``ray.cluster_utils.Cluster``; a test
+    may add nodes to it and must remove them."""
+    pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(
+        initialize_head=True,
+        head_node_args={"num_cpus": 2, "include_dashboard": False,
+                        "node_ip_address": "127.0.0.1"},
+    )  # fmt: skip
+    try:
+        yield cluster
+    finally:
+        cluster.shutdown()
+
+
+KNOWN_ANSWER_MODELS = Path(__file__).parent / "data" / "known_answer" / "bean_s0_r64"
+
+
+class KnownAnswerPlant(NamedTuple):
+    """The committed known-answer set's plant and its baseline: ``generate`` from noise
+    colours with the trained models, scored at step 0 and at ``CHECK_STEPS``."""
+
+    spec: Any  # known_answer.spec.KnownAnswerSpec
+    truth: Any  # known_answer.check.Truth: the true Gaussians and the held-out views
+    init_db: float  # masked PSNR of the noise-coloured start
+    final_db: float  # after CHECK_STEPS steps of SDS with the trained models
+    work: Path
+
+
+@pytest.fixture(scope="session")
+def known_answer_plant(tmp_path_factory) -> KnownAnswerPlant:
+    """Made once for every known-answer test: the truth and the baseline runs (what each test
+    compares its own runs with). Do not modify it."""
+    import json
+
+    from plantdreamer.known_answer.build import MANIFEST
+    from plantdreamer.known_answer.check import Truth, step_curve
+    from plantdreamer.known_answer.spec import CHECK_STEPS, KnownAnswerSpec
+
+    work = tmp_path_factory.mktemp("known_answer")
+    spec = KnownAnswerSpec(**json.loads((KNOWN_ANSWER_MODELS / MANIFEST).read_text())["spec"])
+    truth = Truth.of(spec, work)
+    start, end = step_curve(
+        spec, truth, KNOWN_ANSWER_MODELS, work / "baseline", [0, CHECK_STEPS], color_init="noise"
+    )
+    return KnownAnswerPlant(spec, truth, start.masked_psnr, end.masked_psnr, work)

@@ -1,8 +1,12 @@
 """`plantdreamer dataset` on real Ray instances: local (2 CPUs), a two-node loopback cluster,
 a SIGKILLed worker, a bad input among good ones, and a rerun that skips finished plants.
 
-Every Ray process a test starts is stopped by it: the command stops the local instance it
-starts, and the cluster fixture shuts its nodes down.
+The runs in this process (CliRunner) start and stop their own local Ray, as a user's do;
+the drivers run as subprocesses join one 2-CPU instance shared by the session (conftest's
+``shared_ray``: a Ray start-up costs 26-35 s on 2 cores), the two-node test with two nodes
+added to it. (Joined from this process after a local instance had stopped, the shared one
+left the driver waiting.) Every Ray process a test starts is stopped: the command stops the
+local instance it starts, and the fixtures their nodes.
 """
 
 import json
@@ -25,6 +29,11 @@ pytestmark = pytest.mark.slow
 SMALL = {"guidance": "none", "steps": 20, "points": 2000, "eval_views": 1, "resolution": 32}
 SMALL_FLAGS = ["--guidance", "none", "--steps", "20", "--points", "2000", "--eval-views", "1",
                "--resolution", "32", "--quiet", "--allow-empty-split"]  # fmt: skip
+
+
+def on_shared(cluster):
+    """The options that run a command on the shared instance instead of a local one."""
+    return ["--address", cluster.address]
 
 
 def loopback_env(**extra):
@@ -129,11 +138,11 @@ def test_bad_point_cloud_fails_alone(tmp_path):
     assert error and "\n" not in error and "ply" in error.lower()
 
 
-def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path):
+def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path, shared_ray):
     out = tmp_path / "out"
     env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count", "2",
-           "--local-cpus", "2", "--set", "checkpoint-every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
+           *on_shared(shared_ray), "--set", "checkpoint-every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
@@ -159,31 +168,29 @@ def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path):
 
 
 @pytest.fixture
-def two_node_cluster():
-    from ray.cluster_utils import Cluster
-
-    cluster = Cluster(
-        initialize_head=True,
-        head_node_args={
-            "num_cpus": 1, "resources": {"plant_slot": 1, "node_a": 1},
-            "include_dashboard": False, "node_ip_address": "127.0.0.1",
-        },
-    )  # fmt: skip
+def two_nodes(shared_ray):
+    """Two 1-CPU nodes with a ``plant_slot`` each, added to the shared instance (whose head
+    has none: only these two can run a plant that asks for one); their node ids."""
+    added = []
     try:
-        cluster.add_node(
-            num_cpus=1, resources={"plant_slot": 1, "node_b": 1}, node_ip_address="127.0.0.1"
-        )
-        cluster.wait_for_nodes()
-        yield cluster
+        for name in ("node_a", "node_b"):
+            added.append(
+                shared_ray.add_node(
+                    num_cpus=1, resources={"plant_slot": 1, name: 1}, node_ip_address="127.0.0.1"
+                )
+            )
+        shared_ray.wait_for_nodes()
+        yield {n.node_id for n in added}
     finally:
-        cluster.shutdown()
+        for node in added:
+            shared_ray.remove_node(node)
 
 
-def test_plants_spread_over_a_two_node_cluster(two_node_cluster, tmp_path):
-    nodes = {n.node_id for n in [two_node_cluster.head_node, *two_node_cluster.worker_nodes]}
+def test_plants_spread_over_a_two_node_cluster(shared_ray, two_nodes, tmp_path):
+    nodes = two_nodes
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean,kale",
-           "--count", "2", "--address", two_node_cluster.address, "--resource", "plant_slot=1",
+           "--count", "2", *on_shared(shared_ray), "--resource", "plant_slot=1",
            *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
     result = subprocess.run(cmd, env=loopback_env(), capture_output=True, text=True, timeout=400)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -192,11 +199,11 @@ def test_plants_spread_over_a_two_node_cluster(two_node_cluster, tmp_path):
     assert {r["node"] for r in records.values()} == nodes  # both nodes ran plants
 
 
-def _stopped_by(signum, out):
-    """Runs two long plants, sends ``signum`` to the driver once both have checkpointed,
-    and returns its exit status, output and manifest."""
+def _stopped_by(signum, out, cluster):
+    """Runs two long plants on ``cluster``, sends ``signum`` to the driver once both have
+    checkpointed, and returns its exit status, output and manifest."""
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count",
-           "2", "--local-cpus", "2", "--set", "checkpoint_every=5", *SMALL_FLAGS,
+           "2", *on_shared(cluster), "--set", "checkpoint_every=5", *SMALL_FLAGS,
            "--steps", "100000", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=loopback_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -216,8 +223,10 @@ def _stopped_by(signum, out):
     return proc.returncode, output, manifest(out)
 
 
-def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path):
-    runs = {s: _stopped_by(s, tmp_path / s.name) for s in (signal.SIGINT, signal.SIGTERM)}
+def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path, shared_ray):
+    runs = {
+        s: _stopped_by(s, tmp_path / s.name, shared_ray) for s in (signal.SIGINT, signal.SIGTERM)
+    }
     shapes = {}
     for signum, (code, output, records) in runs.items():
         assert code == 130, output
@@ -235,7 +244,7 @@ def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path):
 # -- --plants-per-gpu: packed groups ------------------------------------------------------
 
 PACKED = ["dataset", "--species", "bean", "--count", "3", "--plants-per-gpu", "2",
-          "--local-cpus", "2", *SMALL_FLAGS]  # fmt: skip
+          *SMALL_FLAGS]  # fmt: skip
 
 
 def _files(folder):
@@ -253,7 +262,8 @@ def packed_twice(tmp_path_factory):
     runs = []
     for name in ("first", "second"):
         out = tmp_path_factory.mktemp(name)
-        runs.append((out, CliRunner().invoke(main, [*PACKED, "--out", str(out)])))
+        args = [*PACKED, "--local-cpus", "2", "--out", str(out)]
+        runs.append((out, CliRunner().invoke(main, args)))
     return runs
 
 
@@ -281,11 +291,13 @@ def test_packed_plants_get_every_folder_record_and_export_and_the_same_bytes_twi
         assert files[ply] == direct_ply(tmp_path, species="bean", seed=seed), seed
 
 
-def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical(tmp_path):
+def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical(
+    tmp_path, shared_ray
+):
     out = tmp_path / "out"
     env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
-    cmd = [sys.executable, "-m", "plantdreamer.cli", *PACKED, "--set", "checkpoint-every=5",
-           "--out", str(out)]  # fmt: skip
+    cmd = [sys.executable, "-m", "plantdreamer.cli", *PACKED, *on_shared(shared_ray),
+           "--set", "checkpoint-every=5", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )

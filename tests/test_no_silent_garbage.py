@@ -124,6 +124,38 @@ def test_guidance_none_progress_says_what_the_run_does(tmp_path):
     assert "no training: density control and culling only" in result.output
     assert "initialised" in result.output and "exporting" in result.output
     assert "loss 0" not in result.output and "it/s" not in result.output
+    # The export counts its views, then says it writes the label files: never silent.
+    assert "export: views 1/1" in result.output and "export: label files" in result.output
+
+
+def test_a_counter_prints_each_tenth_and_nothing_when_disabled(capsys):
+    from plantdreamer.pipeline.progress import Counter
+
+    with Counter("render: views", 25) as counter:
+        for _ in range(25):
+            counter.advance()
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [f"render: views {k}/25" for k in (2, 4, 6, 8, 10, 12, 14, 16, 18, 20,
+                                                         22, 24, 25)]  # fmt: skip
+    with Counter("quiet", 5, enabled=False) as counter:
+        counter.advance()
+    assert capsys.readouterr().err == ""
+
+
+def test_render_counts_its_views(tmp_path):
+    out = tmp_path / "o"
+    made = CliRunner().invoke(
+        main, ["generate", "--species", "kale", "--guidance", "none", "--steps", "0",
+               "--points", "300", "--resolution", "32", "--eval-views", "1", "--quiet",
+               "--out", str(out)],
+    )  # fmt: skip
+    assert made.exit_code == 0, made.output
+    result = CliRunner().invoke(
+        main, ["render", str(out / "plant.ply"), "--out", str(tmp_path / "r"), "--eval-views",
+               "3", "--resolution", "32", "--turntable", "none"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "render: views 3/3" in result.output
 
 
 # --- render framing -------------------------------------------------------------------------

@@ -14,9 +14,14 @@ sys.path.insert(0, str(ROOT / "benches"))
 
 import thread_scaling  # noqa: E402
 
-BINARY = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / (
-    "release/examples/raster_timing"
-)
+# `make test`'s `cargo test` builds the examples into debug/ (the test profile, optimised);
+# a release build (`cargo build --release --examples`) is used when there is one.
+_TARGET = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+BINARY = next(
+    (p for p in (_TARGET / f"{profile}/examples/raster_timing" for profile in ("release", "debug"))
+     if p.is_file()),
+    _TARGET / "release/examples/raster_timing",
+)  # fmt: skip
 
 # raster_timing's output with BACKWARD=1 HASH=1 (crates/splat_core/examples/raster_timing.rs).
 SAMPLE = """20000 Gaussians @ 256^2, 2 thread(s), 3 calls

@@ -201,8 +201,7 @@ def dataset(
             click.echo(f"  {plant_id}: {error}", err=True)
         raise SystemExit(1)
     click.echo(
-        f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: "
-        f"{report.out_dir}"
+        f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: {out_dir}"
     )
     if report.labels is not None:
         click.echo(describe(report.labels))

@@ -203,22 +203,23 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
 
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
-    with torch.no_grad():
+    with torch.no_grad(), Counter("render: views", len(cameras)) as counter:
+
+        def render_view(camera):
+            image, _, meta = model.render([camera], background)
+            counter.advance()
+            return outputs.to_uint8(image[0].numpy()), meta
+
         if not ground_truth:
-            frames = [
-                outputs.to_uint8(model.render([cam], background)[0][0].numpy()) for cam in cameras
-            ]
+            frames = [render_view(camera)[0] for camera in cameras]
             outputs.write_renders(out, frames)
             return frames
         from plantdreamer.exports.plant import write_plant_exports
         from plantdreamer.exports.points import read_class_names
         from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
-
-        def render_view(camera):
-            image, _, meta = model.render([camera], background)
-            return outputs.to_uint8(image[0].numpy()), meta
 
         writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
         frames = render_views(model, writer, cameras, render_view)

@@ -53,16 +53,16 @@ def print_summary(
     from rich.table import Table
 
     statuses = ("done", "failed", "interrupted", "running", "pending")
-    table = Table(title="dataset")
+    # The table, with the run's rate under it; the command's last line says the rest (done,
+    # skipped, the folder) once.
+    rate = ran / seconds * 3600 if seconds > 0 and ran else 0.0
+    table = Table(
+        title="dataset",
+        caption=f"{ran} run in {seconds:.1f} s ({rate:.1f} plants/hour), {skipped} skipped",
+    )
     table.add_column("species")
     for status in statuses:
         table.add_column(status, justify="right")
     for species, row in sorted(totals.items()):
         table.add_row(species, *(str(row.get(s, 0)) for s in statuses))
-    console = Console(stderr=True)
-    console.print(table)
-    rate = ran / seconds * 3600 if seconds > 0 and ran else 0.0
-    console.print(
-        f"{ran} plants run in {seconds:.1f} s ({rate:.1f} plants/hour), "
-        f"{skipped} already complete and skipped"
-    )
+    Console(stderr=True).print(table)

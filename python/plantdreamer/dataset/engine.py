@@ -7,10 +7,13 @@ and leaves it running.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +29,10 @@ RAY_MISSING = (
 DEFAULT_CPUS = {"sds": 2.0, "none": 1.0}
 DEFAULT_GPUS = {"sds": 1.0, "none": 0.0}
 LOCAL_HOST = "127.0.0.1"
+# Where Ray logs, on every local start, that it turned token authentication on by itself
+# ("Set RAY_AUTH_MODE=disabled to opt out"): the instance is ours, on 127.0.0.1, and stops
+# with the command, so the warning only tells a user about a choice that is not theirs.
+RAY_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
 def import_ray() -> Any:
@@ -123,13 +130,14 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
     previous = signal.getsignal(signal.SIGTERM)
     try:
         if address is None:
-            ray.init(
-                address="local",
-                num_cpus=local_cpus or os.cpu_count() or 1,
-                include_dashboard=False,
-                _node_ip_address=LOCAL_HOST,
-                **common,
-            )
+            with _quiet_logger(RAY_AUTH_LOGGER):
+                ray.init(
+                    address="local",
+                    num_cpus=local_cpus or os.cpu_count() or 1,
+                    include_dashboard=False,
+                    _node_ip_address=LOCAL_HOST,
+                    **common,
+                )
         else:
             try:
                 ray.init(address=address, **common)
@@ -142,6 +150,18 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
         if threading.current_thread() is threading.main_thread() and previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return True
+
+
+@contextmanager
+def _quiet_logger(name: str) -> Iterator[None]:
+    """The logger ``name`` passes only errors within the block."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def check_feasible(demands: set[Demand]) -> None:

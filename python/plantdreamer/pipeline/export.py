@@ -5,6 +5,7 @@ finished). The run's periodic checkpoint is removed once everything else is writ
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.progress import Counter
 from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.versions import package_versions
@@ -39,9 +41,15 @@ class RunResult:
 
 
 def export_run(
-    cfg: GenerateConfig, state: RunState, out: Path, resolution: int, device: str
+    cfg: GenerateConfig,
+    state: RunState,
+    out: Path,
+    resolution: int,
+    device: str,
+    show_progress: bool = False,
 ) -> RunResult:
-    """Writes every output of a finished run into ``out``; a model that training left
+    """Writes every output of a finished run into ``out`` (``show_progress``: a count of
+    the views rendered, then a line before the label files); a model that training left
     without Gaussians is refused before anything is written."""
     final = state.model.to_gaussians()
     if len(final) == 0:
@@ -75,14 +83,19 @@ def export_run(
         cameras, eval_distance = outputs.eval_orbit(oc, scene, resolution)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
-        def render(camera):
-            image, _, meta = view_model.render([camera], cfg.train.background)
-            return outputs.to_uint8(image[0].numpy()), meta
+        with Counter("export: views", len(cameras), show_progress) as counter:
 
-        frames = render_views(view_model, writer, cameras, render)
+            def render(camera):
+                image, _, meta = view_model.render([camera], cfg.train.background)
+                counter.advance()
+                return outputs.to_uint8(image[0].numpy()), meta
+
+            frames = render_views(view_model, writer, cameras, render)
         outputs.write_renders(out / "renders", frames)
         outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
+    if show_progress:
+        print("export: label files (COCO, YOLO-seg, points.ply)", file=sys.stderr, flush=True)
     with timer("label files"):
         write_plant_exports(out)
     summary = _summary(cfg, state, final, device, export_offset)

@@ -10,6 +10,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+BAR_WIDTH = 16  # characters of a bar: the whole line fits an 80-column terminal
+
 
 class Progress:
     def __init__(self, total: int, start: int = 0, enabled: bool = True) -> None:
@@ -27,9 +29,10 @@ class Progress:
             )
             from rich.progress import Progress as RichProgress
 
+            # Fits 80 columns: 8 + 16 + 11 (3600/3600) + at most 33 of info + 7.
             self._bar = RichProgress(
                 TextColumn("[bold green]generate"),
-                BarColumn(),
+                BarColumn(bar_width=BAR_WIDTH),
                 MofNCompleteColumn(),
                 TextColumn("{task.fields[info]}"),
                 TimeRemainingColumn(),
@@ -45,13 +48,18 @@ class Progress:
             return
         done = step + 1
         rate = (done - self.start) / max(time.perf_counter() - self.t0, 1e-9)
+        if self._bar is not None:  # short: the bar's line fits 80 columns
+            if loss is None:
+                short = f"no guidance  {gaussians:,} G"
+            else:
+                short = f"loss {loss:<7.4g} {gaussians:,} G  {rate:.1f} it/s"
+            self._bar.update(self._task, completed=done, info=short)
+            return
         if loss is None:
             info = f"no training: density control and culling only  gaussians {gaussians}"
         else:
             info = f"loss {loss:.4g}  gaussians {gaussians}  {rate:.1f} it/s"
-        if self._bar is not None:
-            self._bar.update(self._task, completed=done, info=info)
-        elif done % self.every == 0 or done == self.total:
+        if done % self.every == 0 or done == self.total:
             eta = (
                 f"  eta {(self.total - done) / rate:.0f}s" if loss is not None and rate > 0 else ""
             )
@@ -69,6 +77,49 @@ class Progress:
     def close(self) -> None:
         if self._bar is not None:
             self._bar.stop()
+
+
+class Counter:
+    """Progress of a phase that counts items (the export's views): a bar on a terminal, a
+    line at each tenth otherwise, nothing when disabled. A with-block closes it."""
+
+    def __init__(self, label: str, total: int, enabled: bool = True) -> None:
+        self.label, self.total, self.done = label, total, 0
+        self.enabled = enabled and total > 0
+        self.every = max(1, total // 10)
+        self._bar: Any = None
+        if self.enabled and sys.stderr.isatty():
+            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+            from rich.progress import Progress as RichProgress
+
+            self._bar = RichProgress(
+                TextColumn(f"[bold green]{label}"),
+                BarColumn(bar_width=BAR_WIDTH),
+                MofNCompleteColumn(),
+                transient=True,
+            )
+            self._task = self._bar.add_task("", total=total)
+            self._bar.start()
+
+    def advance(self) -> None:
+        if not self.enabled:
+            return
+        self.done += 1
+        if self._bar is not None:
+            self._bar.update(self._task, completed=self.done)
+        elif self.done % self.every == 0 or self.done == self.total:
+            print(f"{self.label} {self.done}/{self.total}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+            self._bar = None
+
+    def __enter__(self) -> Counter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 class PhaseTimer:

@@ -199,7 +199,9 @@ def train_plants(
             resolution = p.cfg.train.resolution
             assert resolution is not None
             try:
-                results[p.out_dir] = export_run(p.cfg, p.state, p.out_dir, resolution, device)
+                results[p.out_dir] = export_run(
+                    p.cfg, p.state, p.out_dir, resolution, device, show_progress
+                )
             except Exception as exc:
                 if on_failure is None:
                     raise
