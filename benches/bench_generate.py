@@ -1,7 +1,7 @@
 """Per-step time breakdown of `plantdreamer generate` on this machine.
 
 Two configurations, both from the L-System bean (seed 0, 100k points, 512x512 renders):
-- `--guidance none`: the demo. Nothing is optimised, so no step renders; the time is the
+- `--guidance none` (no diffusion model). Nothing is optimised, so no step renders; the time is the
   preparation, culling rounds, export and the evaluation renders.
 - tiny SDS: the full training step (render, depth conditioning, SDS with random-weight tiny
   diffusion models, backward, Adam) for a few steps. The tiny UNet costs far less than
@@ -41,7 +41,7 @@ def main() -> int:
     rows = []
     demo = GenerateConfig.of(species="bean", guidance="none", resolution=512)
     wall, summary = run(demo)
-    rows.append(("none (demo, 3600 steps)", wall, summary))
+    rows.append(("none (no guidance, 3600 steps)", wall, summary))
 
     steps = 20
     sds_cfg = GenerateConfig.of(
