@@ -43,6 +43,33 @@ def random_gaussians():
     return make_random_gaussians
 
 
+# `make test` runs the suite on two pytest-xdist workers (`--dist loadgroup`). Each test file
+# stays on one worker, so its module fixtures are made once; the files that start Ray
+# (test_dataset_*.py, the only ones that may) run on one worker one after another, and the
+# files that share a session fixture run together so it is made once. The two largest
+# groups are handed out first.
+SHARED_SESSION_FIXTURES = ("known_answer_plant", "shared_ray")
+RAY_FILES = "test_dataset_"
+
+
+def pytest_collection_modifyitems(config, items):
+    if not getattr(config.option, "numprocesses", None):
+        return
+    groups: dict[str, str] = {}  # a test file's path -> its group
+    for item in items:
+        path = item.nodeid.split("::")[0]
+        group = groups.setdefault(path, path)
+        if Path(path).name.startswith(RAY_FILES):
+            groups[path] = "ray"
+        elif group == path:
+            shared = [f for f in SHARED_SESSION_FIXTURES if f in item.fixturenames]
+            groups[path] = shared[0] if shared else path
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group(groups[item.nodeid.split("::")[0]]))
+    first = {"ray": 0, "known_answer_plant": 1}
+    items.sort(key=lambda item: first.get(groups[item.nodeid.split("::")[0]], 2))
+
+
 @pytest.fixture(scope="module")
 def bean(tmp_path_factory):
     """A small generated bean's plant folder with its label files (do not modify it)."""

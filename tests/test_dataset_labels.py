@@ -250,6 +250,13 @@ def test_labels_twice_leave_no_hidden_files(dataset):
     assert hidden == []
 
 
+def test_the_summary_names_the_gallery_as_the_folder_was_typed(dataset, monkeypatch):
+    monkeypatch.chdir(dataset.parent)
+    result = cli("labels", dataset.name, "--allow-empty-split")
+    assert result.exit_code == 0, result.output
+    assert f"gallery: {dataset.name}/gallery.png" in result.output.splitlines()
+
+
 def test_label_maps_of_another_size_than_their_render_are_refused(dataset, tmp_path):
     import imageio.v3 as iio
 

@@ -204,7 +204,7 @@ def dataset(
         f"{report.done} plants done, {report.skipped} skipped, in {report.seconds:.1f} s: {out_dir}"
     )
     if report.labels is not None:
-        click.echo(describe(report.labels))
+        click.echo(describe(report.labels, out_dir))
 
 
 def _print_plan(plants, out_dir: str, plants_per_gpu: int) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
@@ -74,9 +75,10 @@ def make_label_options(
     )
 
 
-def describe(labels) -> str:
+def describe(labels, folder: str) -> str:
     """A dataset's label files in a few lines (a ``DatasetLabels``): per split the plants
-    of each species, the objects, then warnings."""
+    of each species, the objects, the gallery under FOLDER as the user typed it, then
+    warnings."""
     parts = []
     for split, ids in labels.splits.items():
         species = ", ".join(f"{n} {name}" for name, n in labels.species.get(split, {}).items())
@@ -84,7 +86,7 @@ def describe(labels) -> str:
     lines = [
         f"splits: {'; '.join(parts)} plants",
         labels.report.describe(labels.min_area),
-        f"gallery: {labels.gallery}",
+        f"gallery: {Path(folder) / labels.gallery.name}",
     ]
     lines += [f"warning: {w}" for w in labels.warnings]
     return "\n".join(lines)

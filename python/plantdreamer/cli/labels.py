@@ -37,4 +37,4 @@ def labels(
         r = write_plant_exports(root, options.min_area, options.stuff)
         click.echo(f"{r.describe(options.min_area)}: {root}")
         return
-    click.echo(describe(write_dataset_exports(root, options)))
+    click.echo(describe(write_dataset_exports(root, options), folder))
