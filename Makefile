@@ -31,13 +31,28 @@ $(PY):
 # targets below set.
 CORE_PROFILE ?= release
 
-# pip builds the native module once (CORE_PROFILE) and installs every runtime + dev
-# dependency, and the viewer extra (viser), which the viewer's tests use.
-$(STAMP): pyproject.toml | $(PY)
+# Every build of the native module (the editable install, `make build`, the wheel) is the
+# same maturin build: linked by zig against glibc 2.17 (manylinux2014). So the module the
+# tests load is the one the wheel ships, and cargo compiles it once for both (the editable
+# install runs .venv's own maturin and zig, without pip's build isolation).
+BUILD_ARGS = --profile $(CORE_PROFILE) --zig --compatibility manylinux2014
+BUILD_PATH = PATH="$(abspath $(VENV))/bin:$$PATH"
+EDITABLE_INSTALL = $(BUILD_PATH) MATURIN_PEP517_ARGS="$(BUILD_ARGS)" \
+	$(PY) -m pip install --no-build-isolation --progress-bar off
+BUILD_TOOLS := $(VENV)/.installed-build-tools
+
+# maturin and ziglang, as pyproject.toml pins them (scripts/build_tools.py reads them).
+$(BUILD_TOOLS): pyproject.toml | $(PY)
+	$(PY) scripts/build_tools.py > $(VENV)/build-tools.txt
+	$(PY) -m pip install --quiet -r $(VENV)/build-tools.txt
+	touch $@
+
+# pip installs every runtime + dev dependency and the viewer extra (viser), which the
+# viewer's tests use, and builds the native module once (CORE_PROFILE).
+$(STAMP): pyproject.toml $(BUILD_TOOLS)
 	@echo "pip: installing the dependencies, then compiling the native core ($(CORE_PROFILE)" \
 		"profile; minutes on 2 cores, and pip shows no progress while cargo runs)"
-	MATURIN_PEP517_ARGS="--profile $(CORE_PROFILE)" \
-		$(PY) -m pip install --progress-bar off -e '.[dev,viewer]'
+	$(EDITABLE_INSTALL) -e '.[dev,viewer]'
 	touch $@
 
 setup: $(STAMP) system-libs ## Create .venv with plantdreamer (editable), its dev and viewer extras, and the Debian libraries they load
@@ -46,7 +61,7 @@ build: $(STAMP) ## Rebuild the native module in place (CORE_PROFILE, release by 
 	@# The module is _core.abi3.so; a version-specific one left by an older build would
 	@# shadow it (Python tries _core.cpython-3XY-*.so first).
 	rm -f python/plantdreamer/_core.cpython-*.so
-	$(VENV)/bin/maturin develop --profile $(CORE_PROFILE) --skip-install
+	$(EDITABLE_INSTALL) --quiet --no-deps -e .
 
 # `cargo test` also builds the examples (to check they compile), into target/debug/examples:
 # tests/test_thread_scaling.py runs the raster_timing one from there.
@@ -80,18 +95,14 @@ system-libs: ## Install Debian's libraries that Open3D and OpenCV load (when run
 		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $$missing; \
 		else echo "note: install Debian's$$missing for the Open3D and Ultralytics tests"; fi; fi
 
-WHEEL_PROFILE ?= release
-WHEEL_FLAGS ?= --profile $(WHEEL_PROFILE) --zig --compatibility manylinux2014
-
 wheel: $(STAMP) ## Build the abi3 wheel (manylinux2014, via zig) and the sdist into dist/
 	rm -f dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz
 	@# The venv first on PATH: maturin finds zig as `python -m ziglang` (the dev extra's ziglang).
-	PATH="$(abspath $(VENV))/bin:$$PATH" $(VENV)/bin/maturin build $(WHEEL_FLAGS) --out dist
+	$(BUILD_PATH) $(VENV)/bin/maturin build $(BUILD_ARGS) --out dist
 	$(VENV)/bin/maturin sdist --out dist
 
 # The check is of the packaging (abi3, manylinux2014 through zig, no Rust needed to run),
-# not of LTO: it builds the ci profile, as the Python tests do.
-test-wheel: WHEEL_PROFILE := ci
+# not of LTO: it packs the ci profile's build that the Python tests ran.
 test-wheel: CORE_PROFILE := ci
 test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust on PATH and run it
 	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
