@@ -37,8 +37,9 @@ CORE_PROFILE ?= release
 # install runs .venv's own maturin and zig, without pip's build isolation).
 BUILD_ARGS = --profile $(CORE_PROFILE) --zig --compatibility manylinux2014
 BUILD_PATH = PATH="$(abspath $(VENV))/bin:$$PATH"
+# (-v: pip passes cargo's progress through.)
 EDITABLE_INSTALL = $(BUILD_PATH) MATURIN_PEP517_ARGS="$(BUILD_ARGS)" \
-	$(PY) -m pip install --no-build-isolation --progress-bar off
+	$(PY) -m pip install --no-build-isolation --progress-bar off -v
 BUILD_TOOLS := $(VENV)/.installed-build-tools
 
 # maturin and ziglang, as pyproject.toml pins them (scripts/build_tools.py reads them).
@@ -50,8 +51,8 @@ $(BUILD_TOOLS): pyproject.toml | $(PY)
 # pip installs every runtime + dev dependency and the viewer extra (viser), which the
 # viewer's tests use, and builds the native module once (CORE_PROFILE).
 $(STAMP): pyproject.toml $(BUILD_TOOLS)
-	@echo "pip: installing the dependencies, then compiling the native core ($(CORE_PROFILE)" \
-		"profile; minutes on 2 cores, and pip shows no progress while cargo runs)"
+	@echo "pip: installing the dependencies and compiling the native core ($(CORE_PROFILE)" \
+		"profile; minutes on 2 cores)"
 	$(EDITABLE_INSTALL) -e '.[dev,viewer]'
 	touch $@
 
@@ -61,7 +62,7 @@ build: $(STAMP) ## Rebuild the native module in place (CORE_PROFILE, release by 
 	@# The module is _core.abi3.so; a version-specific one left by an older build would
 	@# shadow it (Python tries _core.cpython-3XY-*.so first).
 	rm -f python/plantdreamer/_core.cpython-*.so
-	$(EDITABLE_INSTALL) --quiet --no-deps -e .
+	$(EDITABLE_INSTALL) --no-deps -e .
 
 # `cargo test` also builds the examples (to check they compile), into target/debug/examples:
 # tests/test_thread_scaling.py runs the raster_timing one from there.
