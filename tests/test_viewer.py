@@ -199,6 +199,27 @@ def test_a_stop_signal_stops_the_viewer_cleanly(tmp_path, random_gaussians, stop
     assert "viewer stopped" in out and "Traceback" not in out
 
 
+def test_a_signal_sent_the_moment_the_viewer_says_press_ctrl_c_stops_it_cleanly(
+    tmp_path, random_gaussians
+):
+    """A script that stops the viewer as soon as it says it is up: SIGTERM from inside the
+    very echo of "press Ctrl-C to stop" (the handlers were installed after it, once)."""
+    write_splat_ply(tmp_path / "g.ply", random_gaussians(50))
+    script = (
+        "import os, signal, sys\n"
+        "from plantdreamer.viewer.server import view_file\n"
+        "def echo(line):\n"
+        "    print(line, flush=True)\n"
+        "    if 'press Ctrl-C' in line:\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "view_file(sys.argv[1], int(sys.argv[2]), echo=echo)\n"
+    )
+    args = [sys.executable, "-c", script, str(tmp_path / "g.ply"), str(free_port())]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.splitlines()[-2:] == ["press Ctrl-C to stop", "viewer stopped"]
+
+
 def test_non_finite_gaussians_are_dropped_with_a_warning(tmp_path, random_gaussians):
     from types import SimpleNamespace
 

@@ -104,19 +104,6 @@ def start_viewer(
     return viewer
 
 
-def serve_until_interrupted(viewer: RunningViewer, poll_s: float = 0.2) -> None:
-    """Blocks until Ctrl-C or SIGTERM (see stop_signals), then stops the server."""
-    stop = threading.Event()
-    try:
-        with stop_signals_handled(lambda _sig, _frame: stop.set()):
-            while not stop.wait(poll_s):
-                pass
-    except KeyboardInterrupt:  # Ctrl-C just before the handlers were in place
-        pass
-    finally:
-        viewer.stop()
-
-
 def view_file(
     path: str, port: int = DEFAULT_PORT, show_labels: bool = False, echo: Callable = print
 ) -> None:
@@ -137,11 +124,26 @@ def view_files(
     scene = side_by_side(scenes)
     if show_labels and scene.labels is None:
         echo(f"note: {scene.name} has no 'label' property; showing colours")
-    viewer = start_viewer(scene, port, show_labels)
-    echo(f"viewing {scene.name} ({len(scene):,} Gaussians) at {viewer.url}")
-    echo("press Ctrl-C to stop")
-    serve_until_interrupted(viewer)
+    serve_until_stopped(scene, port, show_labels, echo)
     echo("viewer stopped")
+
+
+def serve_until_stopped(
+    scene: SplatScene, port: int, show_labels: bool, echo: Callable, poll_s: float = 0.2
+) -> None:
+    """Starts the viewer, says where, and blocks until Ctrl-C or SIGTERM (stop_signals); then
+    stops it. The handlers are in place before it starts, so a signal sent the moment
+    "press Ctrl-C" shows (or while it starts) stops it cleanly."""
+    stop = threading.Event()
+    with stop_signals_handled(lambda _sig, _frame: stop.set()):
+        viewer = start_viewer(scene, port, show_labels)
+        try:
+            echo(f"viewing {scene.name} ({len(scene):,} Gaussians) at {viewer.url}")
+            echo("press Ctrl-C to stop")
+            while not stop.wait(poll_s):
+                pass
+        finally:
+            viewer.stop()
 
 
 def _frame_camera(camera: Any, scene: SplatScene) -> None:
