@@ -12,7 +12,7 @@ BENCH_STAMP := $(VENV)/.installed-bench
 PYTEST_ARGS ?=
 # pytest-xdist workers for `make test-python`. Half the suite's time is subprocesses and
 # waits, so two workers on 2 cores took it from 494 s to 317 s (measured; tests/conftest.py
-# keeps each file, and the files that start Ray, on one worker).
+# schedules each file, and the files that start Ray, on one worker).
 PYTEST_WORKERS ?= 2
 
 .PHONY: help setup build test rust-tests test-rust test-python test-wheel wheel browser system-libs demo bench lint format clean
@@ -74,7 +74,7 @@ test-rust: ## Run the Rust tests (no Python needed)
 
 test-python: CORE_PROFILE := ci
 test-python: build browser system-libs ## Run the Python tests (native module: ci profile)
-	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS)
 
 browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
 	@# The browser test skips, saying why, when no Chromium can be found.

@@ -43,31 +43,51 @@ def random_gaussians():
     return make_random_gaussians
 
 
-# `make test` runs the suite on two pytest-xdist workers (`--dist loadgroup`). Each test file
-# stays on one worker, so its module fixtures are made once; the files that start Ray
-# (test_dataset_*.py, the only ones that may) run on one worker one after another, and the
-# files that share a session fixture run together so it is made once. The two largest
-# groups are handed out first.
-SHARED_SESSION_FIXTURES = ("known_answer_plant", "shared_ray")
-RAY_FILES = "test_dataset_"
+# `make test` runs the suite on two pytest-xdist workers with the scheduler below (xdist's
+# own `--dist loadgroup` reads markers through an attribute pytest 9 no longer uses). Each
+# test file stays on one worker, so its module fixtures are made once; the files that start
+# Ray (test_dataset_*.py, the only ones that may) run on one worker one after another, and
+# so do the known-answer files, which share a session fixture. Those two groups, the
+# largest, are handed out first.
+SESSION_FIXTURE_GROUPS = {"shared_ray": "ray", "known_answer_plant": "known_answer"}
+
+
+def file_group(path: str) -> str:
+    """The group of the test file at ``path``: the tests that run on one worker in turn."""
+    name = Path(path).name
+    if name.startswith("test_dataset_"):
+        return "ray"
+    if name.startswith("test_known_answer_"):
+        return "known_answer"
+    return path
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    if config.getvalue("dist") != "load":  # -n alone; another --dist is left as asked
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FileGroups(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return file_group(nodeid.split("::")[0])
+
+    config.option.loadscopereorder = False  # keep the workers' order (below)
+    return FileGroups(config, log)
 
 
 def pytest_collection_modifyitems(config, items):
-    if not getattr(config.option, "numprocesses", None):
+    if not hasattr(config, "workerinput"):  # not an xdist worker (they collect the tests)
         return
-    groups: dict[str, str] = {}  # a test file's path -> its group
     for item in items:
-        path = item.nodeid.split("::")[0]
-        group = groups.setdefault(path, path)
-        if Path(path).name.startswith(RAY_FILES):
-            groups[path] = "ray"
-        elif group == path:
-            shared = [f for f in SHARED_SESSION_FIXTURES if f in item.fixturenames]
-            groups[path] = shared[0] if shared else path
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group(groups[item.nodeid.split("::")[0]]))
-    first = {"ray": 0, "known_answer_plant": 1}
-    items.sort(key=lambda item: first.get(groups[item.nodeid.split("::")[0]], 2))
+        for fixture, group in SESSION_FIXTURE_GROUPS.items():
+            if fixture in item.fixturenames and file_group(item.nodeid.split("::")[0]) != group:
+                raise pytest.UsageError(
+                    f"{item.nodeid} uses {fixture}: its file must be in the {group} group "
+                    "(tests/conftest.py, file_group)"
+                )
+    rank = {"ray": 0, "known_answer": 1}
+    items.sort(key=lambda item: rank.get(file_group(item.nodeid.split("::")[0]), len(rank)))
 
 
 @pytest.fixture(scope="module")
