@@ -49,17 +49,16 @@ def random_gaussians():
 # Ray (test_dataset_*.py, the only ones that may) run on one worker one after another, and
 # so do the known-answer files, which share a session fixture. Those two groups, the
 # largest, are handed out first.
+FILE_GROUPS = {"test_dataset_": "ray", "test_known_answer_": "known_answer"}  # handed out first
 SESSION_FIXTURE_GROUPS = {"shared_ray": "ray", "known_answer_plant": "known_answer"}
 
 
-def file_group(path: str) -> str:
-    """The group of the test file at ``path``: the tests that run on one worker in turn."""
+def file_group(nodeid: str) -> str:
+    """The group of a test's file: the tests that run on one worker in turn (a file of no
+    group in FILE_GROUPS is a group of its own)."""
+    path = nodeid.split("::")[0]
     name = Path(path).name
-    if name.startswith("test_dataset_"):
-        return "ray"
-    if name.startswith("test_known_answer_"):
-        return "known_answer"
-    return path
+    return next((g for prefix, g in FILE_GROUPS.items() if name.startswith(prefix)), path)
 
 
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
@@ -70,24 +69,26 @@ def pytest_xdist_make_scheduler(config, log):
 
     class FileGroups(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return file_group(nodeid.split("::")[0])
+            return file_group(nodeid)
 
     config.option.loadscopereorder = False  # keep the workers' order (below)
     return FileGroups(config, log)
 
 
 def pytest_collection_modifyitems(config, items):
-    if not hasattr(config, "workerinput"):  # not an xdist worker (they collect the tests)
-        return
-    for item in items:
-        for fixture, group in SESSION_FIXTURE_GROUPS.items():
-            if fixture in item.fixturenames and file_group(item.nodeid.split("::")[0]) != group:
-                raise pytest.UsageError(
-                    f"{item.nodeid} uses {fixture}: its file must be in the {group} group "
-                    "(tests/conftest.py, file_group)"
-                )
-    rank = {"ray": 0, "known_answer": 1}
-    items.sort(key=lambda item: rank.get(file_group(item.nodeid.split("::")[0]), len(rank)))
+    if hasattr(config, "workerinput"):  # an xdist worker (they collect the tests)
+        rank = {group: i for i, group in enumerate(FILE_GROUPS.values())}
+        items.sort(key=lambda item: rank.get(file_group(item.nodeid), len(rank)))
+
+
+def pytest_runtest_setup(item):
+    for fixture, group in SESSION_FIXTURE_GROUPS.items():
+        if fixture in item.fixturenames and file_group(item.nodeid) != group:
+            pytest.fail(
+                f"{item.nodeid} uses {fixture}: its file must be in the {group} group "
+                "(tests/conftest.py, FILE_GROUPS)",
+                pytrace=False,
+            )
 
 
 @pytest.fixture(scope="module")
