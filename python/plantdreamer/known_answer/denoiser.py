@@ -81,8 +81,9 @@ def denoiser_error(guidance: Any, data: Any, steps: int = CHECK_STEPS) -> dict[s
         z_t, eps_text, _ = guidance.branch_predictions(z, noise, t, text, uncond, control)
         a = guidance.alphas_cumprod[t].view(-1, 1, 1, 1)
         x0 = (z_t - (1.0 - a).sqrt() * eps_text) / a.sqrt()
-        per_err = (x0 - z).flatten(1).pow(2).sum(1).double()
-        per_naive = (z_t / a.sqrt() - z).flatten(1).pow(2).sum(1).double()
+        # The sums are kept on the host, where the buckets are (one copy per batch).
+        per_err = (x0 - z).flatten(1).pow(2).sum(1).double().cpu()
+        per_naive = (z_t / a.sqrt() - z).flatten(1).pow(2).sum(1).double().cpu()
         for i, ti in enumerate(t.tolist()):
             drawn.append(int(ti))
             b = next(j for j, (lo, hi) in enumerate(BUCKETS) if lo <= ti < hi)
