@@ -31,7 +31,12 @@ torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome tr
 (``scripts/plot_timeline.py`` draws it). ``--raster-batch off on`` compares the group
 step's rasterizer calls, interleaved: one native call each way for the B plants (on, the
 default) against one call per plant on its own thread (off); ``--adam single foreach``
-compares torch's Adam implementations for the Gaussians (the same bits).
+compares torch's Adam implementations for the Gaussians (the same bits); ``--plant-work
+serial parallel`` compares each plant's host work around the native calls (arguments,
+background blends, gradient checks, Adam, density statistics) one plant after another on
+the step's thread against one task per plant on the schedule's pool (the same bits);
+``--cuda-wait spin sleep`` compares the host's wait for the device (CUDA only): CUDA's
+default spinning wait against a blocking event that lets the thread sleep.
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -72,6 +77,8 @@ class Variant:
     vae: str = "float32"
     raster_batch: str = "on"
     adam: str = "foreach"
+    plant_work: str = "parallel"
+    cuda_wait: str = "sleep"
 
     @property
     def label(self) -> str:
@@ -80,19 +87,29 @@ class Variant:
         parts += [self.vae] if self.vae != "float32" else []
         parts += ["per-plant-raster"] if self.raster_batch == "off" else []
         parts += [f"adam-{self.adam}"] if self.adam != "foreach" else []
+        parts += ["serial-plant-work"] if self.plant_work == "serial" else []
+        parts += ["spin-wait"] if self.cuda_wait == "spin" else []
         return "-".join(parts)
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
     out = []
-    for b, overlap, vae, batch, adam in itertools.product(
-        args.groups, args.overlap, args.vae, args.raster_batch, args.adam
+    for b, overlap, vae, batch, adam, work, wait in itertools.product(
+        args.groups,
+        args.overlap,
+        args.vae,
+        args.raster_batch,
+        args.adam,
+        args.plant_work,
+        args.cuda_wait,
     ):
         if overlap == "on" and b == 1:
             continue  # one plant has no halves
         if batch == "off" and b == 1 and "on" in args.raster_batch:
             continue  # one plant is one call either way
-        out.append(Variant(b, overlap, vae, batch, adam))
+        if work == "serial" and b == 1 and "parallel" in args.plant_work:
+            continue  # one plant is one task either way
+        out.append(Variant(b, overlap, vae, batch, adam, work, wait))
     return out
 
 
@@ -258,6 +275,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     """Trains one group of ``v.b`` plants; returns the run's figures."""
     import torch
 
+    from plantdreamer.guidance import in_flight
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.pipeline import GenerateConfig, model
     from plantdreamer.pipeline.group import generate_group
@@ -283,6 +301,8 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     if cuda:
         torch.cuda.reset_peak_memory_stats()
     StepSchedule.raster_batch = v.raster_batch == "on"
+    StepSchedule.plants_in_parallel = v.plant_work == "parallel"
+    in_flight.SLEEPING_WAIT = v.cuda_wait == "sleep"
     model.ADAM_IMPLEMENTATION = v.adam
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -291,6 +311,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
                                     on_step=hook)  # fmt: skip
         finally:
             StepSchedule.raster_batch, model.ADAM_IMPLEMENTATION = True, "foreach"
+            StepSchedule.plants_in_parallel, in_flight.SLEEPING_WAIT = True, True
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
@@ -300,7 +321,8 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
     timings = run["timings_s"]
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
-                           "raster_batch": v.raster_batch, "adam": v.adam}  # fmt: skip
+                           "raster_batch": v.raster_batch, "adam": v.adam,
+                           "plant_work": v.plant_work, "cuda_wait": v.cuda_wait}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
@@ -363,15 +385,18 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
         "phases: means over every step.",
         "",
-        "| B | overlap | VAE | rasterizer calls | Adam | ms per step | plants per hour | host core-ms "
-        "per plant-step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "| B | overlap | VAE | rasterizer calls | Adam | plants' host work | CUDA wait | "
+        "ms per step | plants per hour | host core-ms per plant-step | GPU busy | "
+        "peak GPU GiB | " + " | ".join(PHASES) + " |",
+        "|---:|---|---|---|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
         calls = "one per plant" if row["raster_batch"] == "off" else "one per group"
         lines.append(
             f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | {row['adam']} | "
+            f"{'on the pool' if row['plant_work'] == 'parallel' else 'one thread'} | "
+            f"{row['cuda_wait'] if report['device'] != 'cpu' else '-'} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
             f"{num(row['host_core_ms_per_plant_step'])} "
@@ -456,6 +481,20 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
         default=["foreach"],
         help="torch's Adam implementation for the Gaussians (the same bits)",
     )
+    p.add_argument(
+        "--plant-work",
+        nargs="+",
+        choices=("serial", "parallel"),
+        default=["parallel"],
+        help="each plant's host work on one thread or one pool task per plant (the same bits)",
+    )
+    p.add_argument(
+        "--cuda-wait",
+        nargs="+",
+        choices=("spin", "sleep"),
+        default=["sleep"],
+        help="the host's wait for the device: spinning (CUDA's default) or sleeping",
+    )
     p.add_argument("--steps", type=int, default=None if gpu_checks else 24)
     p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")
     p.add_argument("--repeats", type=int, default=1)
@@ -481,6 +520,8 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
     args.render = args.render or (128 if args.tiny else 768)
     args.sds = args.sds or (64 if args.tiny else 512)
     args.steps = args.steps or 24
+    if not args.device.startswith("cuda"):
+        args.cuda_wait = ["sleep"]  # no device to wait for: one run, not two the same
     if args.warmup < 1 or args.steps <= args.warmup:
         raise SystemExit(f"error: --steps ({args.steps}) must exceed --warmup ({args.warmup}) "
                          "and --warmup be at least 1")  # fmt: skip

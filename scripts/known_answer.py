@@ -50,6 +50,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="Run the guidance here: cpu, or cuda (cuda:N) to judge CUDA's precision, batching "
         "and overlap on CUDA; the rasterizer stays on the CPU.",
     )
+    p.add_argument(
+        "--vae-dtype",
+        choices=("float32", "bfloat16", "float16"),
+        help="The VAE's precision in the runs (generate's --vae-dtype; default: generate's).",
+    )
     p.add_argument("--json", type=Path, help="Write the figures here.")
     p.add_argument("--models", type=Path, help="A known-answer model folder to use as it is.")
     p.add_argument("--cache", type=Path, help="Model cache (default ~/.cache/plantdreamer/...).")
@@ -128,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
     settings: dict[str, object] = {"group": args.group} if args.group > 1 else {}
     if args.guidance_scale is not None:
         settings["guidance_scale"] = args.guidance_scale
+    if args.vae_dtype is not None:
+        settings["vae_dtype"] = args.vae_dtype
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work_dir or Path(tmp)

@@ -2,6 +2,7 @@
 figures and the report's schema, run with tiny networks on the CPU (the same script a CUDA
 host runs at full size)."""
 
+import argparse
 import json
 import math
 import subprocess
@@ -35,6 +36,20 @@ def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
     for step in range(5):
         clock(step)
     assert events == [("start", 2), ("stop", 5)]
+
+
+def test_the_variants_leave_out_what_one_plant_cannot_compare():
+    args = argparse.Namespace(
+        groups=[1, 4], overlap=["off", "on"], vae=["float32"], raster_batch=["on"],
+        adam=["foreach"], plant_work=["serial", "parallel"], cuda_wait=["spin", "sleep"],
+    )  # fmt: skip
+    labels = [v.label for v in bench_throughput.variants(args)]
+    assert labels == [
+        "1-spin-wait", "1",  # one plant: no halves, and one task either way
+        "4-serial-plant-work-spin-wait", "4-serial-plant-work", "4-spin-wait", "4",
+        "4-overlap-serial-plant-work-spin-wait", "4-overlap-serial-plant-work",
+        "4-overlap-spin-wait", "4-overlap",
+    ]  # fmt: skip
 
 
 def test_too_few_steps_for_the_warm_up_is_one_clear_error(tmp_path):
@@ -73,7 +88,8 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     assert {"render", "guidance", "backward", "optimizer"} <= names
     assert "| 2 | on | float32 |" in (out / "throughput.md").read_text()
     # The timeline drawn from that trace: the step's phases in one thread's lane, nested
-    # ranges (Adam's steps inside "optimizer") one level deeper.
+    # ranges (the Adams' zero_grad inside "backward") one level deeper, and each plant's
+    # Adam step off the step's thread (the schedule's pool: B = 2 is the traced run).
     sys.path.insert(0, str(ROOT / "scripts"))
     import plot_timeline
 
@@ -81,6 +97,9 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     main = next(lane for lane in found.values() if any(n == "render" for *_, n in lane["ranges"]))
     ranges = sorted(main["ranges"])
     depth = dict(zip((n for *_, n in ranges), plot_timeline.depths(ranges), strict=True))
-    assert depth["render"] == 0 and depth["Optimizer.step#Adam.step"] == 1
+    assert depth["render"] == 0 and depth["Optimizer.zero_grad#Adam.zero_grad"] == 1
+    adams = [lane for lane in found.values()
+             if any(n == "Optimizer.step#Adam.step" for *_, n in lane["ranges"])]  # fmt: skip
+    assert adams and main not in adams  # (one pool thread may take both tasks)
     assert plot_timeline.main([str(out / "step.json"), str(out / "step.png")]) == 0
     assert (out / "step.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -251,14 +251,16 @@ def test_the_script_passes_its_device_to_the_check(tmp_path: Path, monkeypatch, 
     seen = {}
 
     def fake_check(spec, trained, untrained, work, steps, curve, device="cpu", **settings):
-        seen.update(device=device, trained=trained, steps=steps)
+        seen.update(device=device, trained=trained, steps=steps, settings=settings)
         return {"psnr_final": 1.0}
 
     monkeypatch.setattr(check, "known_answer", fake_check)
     monkeypatch.setattr(build, "untrained_models", lambda spec, cache: tmp_path)
     argv = ["--models", str(MODELS), "--steps", "3", "--device", "cpu"]
     assert _script().main([*argv, "--json", str(tmp_path / "ka.json")]) == 0
-    assert seen == {"device": "cpu", "trained": MODELS, "steps": 3}
+    assert seen == {"device": "cpu", "trained": MODELS, "steps": 3, "settings": {}}
+    assert _script().main([*argv, "--vae-dtype", "bfloat16"]) == 0  # the VAE's precision
+    assert seen["settings"] == {"vae_dtype": "bfloat16"}
     assert json.loads((tmp_path / "ka.json").read_text())["device"] == "cpu"
 
 

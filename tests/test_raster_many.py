@@ -1,10 +1,12 @@
 """Many scenes in one native call (``rasterization_many``, ``_core.rasterize_*_many``): the
-bits of separate calls on any thread count, forward and gradients; a bad scene fails alone;
-a group trained with one call per step gives the bytes of one call per plant."""
+bits of separate calls on any thread count, forward and gradients, with the scenes' Python
+work on one thread or a pool's; a bad scene fails alone; a group trained with one call per
+step gives the bytes of one call per plant, and of its plants' host work on one thread."""
 
 from __future__ import annotations
 
 import hashlib
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -52,25 +54,33 @@ def fingerprint(render, alpha, meta, params):
     return out
 
 
-def separate(threads):
+def roots_and_grads(render, alpha, seed, used):
+    """The outputs that get a gradient and their upstream gradients: both, or only the
+    render or the alpha (``used``)."""
+    vr, va = upstream(render, alpha, seed)
+    pairs = {"both": [(render, vr), (alpha, va)], "render": [(render, vr)],
+             "alpha": [(alpha, va)]}[used]  # fmt: skip
+    return [r for r, _ in pairs], [g for _, g in pairs]
+
+
+def separate(threads, used="both"):
     prints = []
     for spec in SCENES:
         call, params = scene_call(*spec)
         render, alpha, meta = rasterization(**call, threads=threads)
-        vr, va = upstream(render, alpha, spec[0])
-        torch.autograd.backward([render, alpha], [vr, va])
+        torch.autograd.backward(*roots_and_grads(render, alpha, spec[0], used))
         prints.append(fingerprint(render, alpha, meta, params))
     return prints
 
 
-def together(threads, calls=None):
+def together(threads, used="both", map_scenes=None):
     made = [scene_call(*spec) for spec in SCENES]
-    results = rasterization_many([c for c, _ in made], threads=threads)
+    results = rasterization_many([c for c, _ in made], threads=threads, map_scenes=map_scenes)
     roots, grads = [], []
     for spec, (render, alpha, _) in zip(SCENES, results, strict=True):
-        vr, va = upstream(render, alpha, spec[0])
-        roots += [render, alpha]
-        grads += [vr, va]
+        r, g = roots_and_grads(render, alpha, spec[0], used)
+        roots += r
+        grads += g
     torch.autograd.backward(roots, grads)
     return [fingerprint(*r, p) for r, (_, p) in zip(results, made, strict=True)]
 
@@ -80,6 +90,26 @@ def test_many_scenes_give_the_bits_of_separate_calls(threads):
     alone = separate(threads=1)
     assert all(any(b != 0 for b in f[0]) for f in alone)  # images that are not empty
     assert together(threads) == alone
+
+
+@pytest.mark.parametrize("used", ["both", "render", "alpha"])
+def test_the_scenes_python_work_on_a_pool_gives_the_same_bits(used):
+    """The background blends run inside the many-scene node (on ``map_scenes``): its
+    gradients must equal the separate calls' whichever outputs get one."""
+    alone = separate(threads=1, used=used)
+    with ThreadPoolExecutor(3) as pool:
+        pooled = together(2, used=used, map_scenes=lambda fn, ks: list(pool.map(fn, ks)))
+    assert pooled == alone
+    assert together(2, used=used) == alone
+
+
+def test_a_pools_tasks_keep_the_callers_no_grad():
+    made = [scene_call(*spec) for spec in SCENES[:2]]
+    with ThreadPoolExecutor(2) as pool, torch.no_grad():
+        results = rasterization_many(
+            [c for c, _ in made], map_scenes=lambda fn, ks: list(pool.map(fn, ks))
+        )
+    assert not any(r[0].requires_grad or r[2]["means2d"].requires_grad for r in results)
 
 
 def test_a_bad_scene_fails_alone_and_is_named():
@@ -126,7 +156,7 @@ def test_a_group_trains_to_the_same_bytes_with_one_call_per_plant(tmp_path):
     from plantdreamer.pipeline.group import generate_group
     from plantdreamer.pipeline.step_schedule import StepSchedule
 
-    def run(folder, batched):
+    def run(folder, batched, in_parallel):
         cfgs = [
             GenerateConfig.of(species="bean", seed=s, steps=6, points=800, resolution=48,
                               sds_resolution=64, eval_views=1, turntable="none")
@@ -135,16 +165,17 @@ def test_a_group_trains_to_the_same_bytes_with_one_call_per_plant(tmp_path):
         guidance = StableDiffusionDepthGuidance(
             species="bean", components=tiny_models(), resolution=64, seed=0
         )
-        StepSchedule.raster_batch = batched
+        StepSchedule.raster_batch, StepSchedule.plants_in_parallel = batched, in_parallel
         try:
             result = generate_group(cfgs, folder, guidance=guidance, show_progress=False)
         finally:
-            StepSchedule.raster_batch = True
+            StepSchedule.raster_batch, StepSchedule.plants_in_parallel = True, True
         assert not result.failed
         files = sorted(p for p in folder.rglob("*") if p.suffix in (".ply", ".png"))
         return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
                 for p in files}  # fmt: skip
 
-    one_call = run(tmp_path / "one", True)
-    per_plant = run(tmp_path / "per", False)
-    assert len(one_call) >= 6 and one_call == per_plant
+    one_call = run(tmp_path / "one", True, True)
+    assert len(one_call) >= 6
+    assert run(tmp_path / "serial", True, False) == one_call  # the host work on one thread
+    assert run(tmp_path / "per", False, True) == one_call

@@ -6,7 +6,8 @@ docs/rasterizer.md) so code can move between them. The work runs in the Rust cor
 inputs, wraps the native pair in a ``torch.autograd.Function`` and applies backgrounds and
 expected depth with plain torch ops (so their gradients come from autograd).
 ``rasterization_many`` renders several scenes (a group's plants) in one native call each
-way, with the bits of separate calls.
+way, with the bits of separate calls; its per-scene Python work (argument checks, the
+background blend each way) can run on a caller's thread pool (``map_scenes``).
 
 Conventions and choices (documented behaviour):
 
@@ -28,7 +29,7 @@ Conventions and choices (documented behaviour):
 from __future__ import annotations
 
 import operator
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +44,27 @@ RASTER_DEFAULTS: dict[str, Any] = _core.raster_defaults()
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
 RASTERIZE_MODES = ("classic", "antialiased")
 GRAD_NAMES = ("means", "quats", "scales", "opacities", "colors", "means2d")
+# ``map_scenes(fn, indices)``: ``[fn(k) for k in indices]``, on any threads, in order.
+SceneMap = Callable[[Callable[[int], Any], Sequence[int]], list[Any]]
+
+
+def _one_after_another(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
+    return [fn(k) for k in indices]
+
+
+def in_callers_grad_mode(map_scenes: SceneMap) -> SceneMap:
+    """``map_scenes`` whose tasks run in the calling thread's autograd mode (a thread
+    pool's threads do not inherit ``torch.no_grad``)."""
+    enabled = torch.is_grad_enabled()
+
+    def run(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
+        def task(k: int) -> Any:
+            with torch.set_grad_enabled(enabled):
+                return fn(k)
+
+        return map_scenes(task, indices)
+
+    return run
 
 
 def _numpy(t: torch.Tensor) -> np.ndarray:
@@ -113,29 +135,67 @@ class _RasterizeManyFunction(torch.autograd.Function):
     """Autograd node of one ``rasterize_forward_many`` call (``rasterization_many``): the
     inputs of scene j are ``inputs[6 j : 6 j + 6]`` (means, quats, scales, opacities,
     colors, means2d), its outputs render and alpha ``2 j`` and ``2 j + 1``. The backward is
-    one ``rasterize_backward_many`` call for every scene."""
+    one ``rasterize_backward_many`` call for every scene.
+
+    A scene with a background in ``backgrounds`` gets it blended here (``_Background``'s
+    arithmetic, the same bits), so that the scenes' blends run through ``map_scenes`` both
+    ways rather than as one autograd node per scene, which the engine runs one at a time."""
 
     @staticmethod
     def forward(  # type: ignore[override]
-        ctx: Any, natives: list[dict[str, Any]], threads: int | None, *inputs: torch.Tensor
+        ctx: Any,
+        natives: list[dict[str, Any]],
+        backgrounds: list[np.ndarray | None],
+        threads: int | None,
+        map_scenes: SceneMap,
+        *inputs: torch.Tensor,
     ) -> tuple[torch.Tensor, ...]:
         ctx.states = [n["state"] for n in natives]
-        ctx.threads = threads
+        ctx.backgrounds, ctx.threads, ctx.map_scenes = backgrounds, threads, map_scenes
+        # A gradient that is None stays None: a blend's alpha gradient alone must not gain
+        # a "+ 0" (it would turn -0 into +0, where separate calls keep -0).
+        ctx.set_materialize_grads(False)
+
+        def render(j: int) -> torch.Tensor:
+            color, bg = natives[j]["render"], backgrounds[j]
+            return torch.from_numpy(color if bg is None else _blend(color, natives[j]["alpha"], bg))
+
+        renders = map_scenes(render, range(len(natives)))
         out: list[torch.Tensor] = []
-        for n in natives:
-            out += [torch.from_numpy(n["render"]), torch.from_numpy(n["alpha"]).unsqueeze(-1)]
+        for n, image in zip(natives, renders, strict=True):
+            out += [image, torch.from_numpy(n["alpha"]).unsqueeze(-1)]
+        ctx.shapes = [tuple(t.shape) for t in out]
         return tuple(out)
 
     @staticmethod
-    def backward(ctx: Any, *grads: torch.Tensor) -> tuple[Any, ...]:
-        need = ctx.needs_input_grad[2:]
+    def backward(ctx: Any, *grads: torch.Tensor | None) -> tuple[Any, ...]:
+        need = ctx.needs_input_grad[4:]
         b = len(ctx.states)
         # The groups any scene needs; a scene's unneeded ones are dropped below.
         wanted = [any(need[6 * j + i] for j in range(b)) for i in range(5)]
+
+        def upstream(j: int) -> tuple[np.ndarray, np.ndarray]:
+            """Scene j's gradients w.r.t. the premultiplied render and the alpha, as the
+            separate call's ``_Background`` node and autograd's sum would give them."""
+            v_render, v_alpha = grads[2 * j], grads[2 * j + 1]
+            bg = ctx.backgrounds[j]
+            v_a = None if v_alpha is None else _array(v_alpha).squeeze(-1)
+            if v_render is None:
+                v_r = np.zeros(ctx.shapes[2 * j], np.float32)
+            else:
+                v_r = _array(v_render)
+                if bg is not None:
+                    from_blend = _blend_alpha_grad(v_r, bg)[..., 0]
+                    v_a = from_blend if v_a is None else v_a + from_blend
+            if v_a is None:
+                v_a = np.zeros(ctx.shapes[2 * j + 1][:-1], np.float32)
+            return v_r, v_a
+
+        pairs = ctx.map_scenes(upstream, range(b))
         results = _core.rasterize_backward_many(
             ctx.states,
-            [_numpy(grads[2 * j].to(torch.float32)) for j in range(b)],
-            [_numpy(grads[2 * j + 1].to(torch.float32).squeeze(-1)) for j in range(b)],
+            [v_r for v_r, _ in pairs],
+            [v_a for _, v_a in pairs],
             means=wanted[0],
             quats=wanted[1],
             scales=wanted[2],
@@ -143,7 +203,7 @@ class _RasterizeManyFunction(torch.autograd.Function):
             colors=wanted[4],
             threads=ctx.threads,
         )
-        out: list[Any] = [None, None]
+        out: list[Any] = [None, None, None, None]
         for j, g in enumerate(results):
             if isinstance(g, BaseException):
                 raise type(g)(f"scene {j}: {g}") from None
@@ -153,9 +213,39 @@ class _RasterizeManyFunction(torch.autograd.Function):
         return tuple(out)
 
 
+def _array(t: torch.Tensor) -> np.ndarray:
+    """A gradient as a contiguous float32 numpy array (no copy when it is one already)."""
+    return _numpy(t.to(torch.float32))
+
+
+def _blend(color: np.ndarray, alpha: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """``color + bg * (1 - alpha)`` for [C, H, W, ch] colours, [C, H, W] alphas and [C, ch]
+    backgrounds: torch's float32 operations in its order, on one thread (``_Background``)."""
+    # Channel by channel: numpy broadcasting over a last axis of 3 is slow.
+    one_minus = np.float32(1.0) - alpha
+    out = np.empty_like(color)
+    for k in range(color.shape[-1]):
+        np.multiply(one_minus, bg[:, k, None, None], out=out[..., k])
+        np.add(color[..., k], out[..., k], out=out[..., k])
+    return out
+
+
+def _blend_alpha_grad(v: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """The blend's gradient w.r.t. alpha, [C, H, W, 1], from the output's ``v``: minus the
+    channel sum in torch's order, ((0 + v0 b0) + v1 b1) + v2 b2, where the leading + 0 turns
+    a -0 into +0 as torch's sum of 3 does (a sum of 1 is a copy)."""
+    acc = v[..., 0] * bg[:, 0, None, None]
+    if v.shape[-1] > 1:
+        acc += np.float32(0.0)
+    for k in range(1, v.shape[-1]):
+        acc = acc + v[..., k] * bg[:, k, None, None]
+    return -acc[..., None]
+
+
 class _Background(torch.autograd.Function):
-    """``color + bg * (1 - alpha)`` and its gradients, in numpy: the same float32 operations
-    in the same order as the torch expression (bit-identical, tested), on one thread.
+    """``color + bg * (1 - alpha)`` and its gradients, in numpy (``_blend``,
+    ``_blend_alpha_grad``): the same float32 operations in the same order as the torch
+    expression (bit-identical, tested), on one thread.
 
     A torch op on an image runs as an OpenMP parallel region, and on a loaded machine each
     region waits for every OpenMP worker to be scheduled: the blend's median cost was tens
@@ -168,29 +258,14 @@ class _Background(torch.autograd.Function):
     def forward(  # type: ignore[override]
         ctx: Any, color: torch.Tensor, alpha: torch.Tensor, bg: torch.Tensor
     ) -> torch.Tensor:
-        # Channel by channel: numpy broadcasting over a last axis of 3 is slow.
-        c, b = color.numpy(), bg.numpy()
-        one_minus = np.float32(1.0) - alpha.numpy()[..., 0]
-        out = np.empty_like(c)
-        for k in range(c.shape[-1]):
-            np.multiply(one_minus, b[:, k, None, None], out=out[..., k])
-            np.add(c[..., k], out[..., k], out=out[..., k])
-        ctx.bg = b
-        return torch.from_numpy(out)
+        ctx.bg = bg.numpy()
+        return torch.from_numpy(_blend(color.numpy(), alpha.numpy()[..., 0], ctx.bg))
 
     @staticmethod
     def backward(ctx: Any, v: torch.Tensor) -> tuple[Any, ...]:
         v_alpha = None
         if ctx.needs_input_grad[1]:
-            # The channel sum in torch's order: ((0 + v0 b0) + v1 b1) + v2 b2, where the
-            # leading +0 turns a -0 into +0 as torch's sum of 3 does (a sum of 1 is a copy).
-            vv, b = v.numpy(), ctx.bg
-            acc = vv[..., 0] * b[:, 0, None, None]
-            if vv.shape[-1] > 1:
-                acc += np.float32(0.0)
-            for k in range(1, vv.shape[-1]):
-                acc = acc + vv[..., k] * b[:, k, None, None]
-            v_alpha = torch.from_numpy(-acc[..., None])
+            v_alpha = torch.from_numpy(_blend_alpha_grad(v.numpy(), ctx.bg))
         return v, v_alpha, None
 
 
@@ -285,7 +360,10 @@ def rasterization(
 
 
 def rasterization_many(
-    calls: Sequence[Mapping[str, Any]], *, threads: int | None = None
+    calls: Sequence[Mapping[str, Any]],
+    *,
+    threads: int | None = None,
+    map_scenes: SceneMap | None = None,
 ) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
     """``rasterization`` of every call in ``calls`` (each a dict of its keyword arguments;
     the settings, as ``render_mode``, the same in all), as ONE native forward call whose
@@ -296,15 +374,25 @@ def rasterization_many(
     and comes back in its place in the list; a call with bad input comes back as its
     error (not raised), naming it (``scene K: ...``), and the others are rendered. The
     gradients of all the renders must be computed in one ``torch.autograd.backward`` (one
-    autograd node holds them all).
+    autograd node holds them all). ``map_scenes`` runs each scene's Python work, forward
+    and backward (a thread pool's ``map`` spreads it over the cores: numpy and torch
+    release the GIL); by default the scenes' work runs one after another.
     """
+    map_scenes = _one_after_another if map_scenes is None else in_callers_grad_mode(map_scenes)
     results: list[Any] = [None] * len(calls)
-    prepared: dict[int, _Call] = {}
-    for k, kwargs in enumerate(calls):
+
+    def prepare(k: int) -> _Call | InputError:
         try:
-            prepared[k] = _prepare(**kwargs)
+            return _prepare(**calls[k])
         except (InputError, TypeError) as exc:
-            results[k] = InputError(f"scene {k}: {exc}")
+            return InputError(f"scene {k}: {exc}")
+
+    prepared: dict[int, _Call] = {}
+    for k, call in enumerate(map_scenes(prepare, range(len(calls)))):
+        if isinstance(call, _Call):
+            prepared[k] = call
+        else:
+            results[k] = call
     ok = list(prepared)
     if ok:
         settings = prepared[ok[0]].settings
@@ -335,10 +423,19 @@ def rasterization_many(
         means2d = prepared[k].means2d(native)
         means2ds.append(means2d)
         inputs += [*prepared[k].params, prepared[k].color_in, means2d]
-    outputs = _RasterizeManyFunction.apply([n for _, n in rendered], threads, *inputs)
-    for j, (k, native) in enumerate(rendered):
+    backgrounds = [prepared[k].plain_background() for k, _ in rendered]
+    outputs = _RasterizeManyFunction.apply(
+        [n for _, n in rendered], backgrounds, threads, map_scenes, *inputs
+    )
+
+    def finish(j: int) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+        k, native = rendered[j]
         render, alpha = outputs[2 * j], outputs[2 * j + 1]
-        results[k] = prepared[k].finish(render, alpha, means2ds[j], native)
+        blended = backgrounds[j] is not None
+        return prepared[k].finish(render, alpha, means2ds[j], native, blended=blended)
+
+    for (k, _), result in zip(rendered, map_scenes(finish, range(len(rendered))), strict=True):
+        results[k] = result
     return results
 
 
@@ -391,14 +488,28 @@ class _Call:
         wants_grad = torch.is_grad_enabled() and any(p.requires_grad for p in inputs)
         return torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
 
+    def plain_background(self) -> np.ndarray | None:
+        """The background as a [C, ch] array where ``_Background`` (numpy) blends it: 1 or 3
+        colour channels, no depth channel, no gradient wanted for it; else None."""
+        bg = self.bg
+        if bg is None or self.render_depth or bg.requires_grad or self.n_color not in (1, 3):
+            return None
+        return bg.contiguous().numpy()
+
     def finish(
-        self, render: torch.Tensor, alpha: torch.Tensor, means2d: torch.Tensor, native: dict
+        self,
+        render: torch.Tensor,
+        alpha: torch.Tensor,
+        means2d: torch.Tensor,
+        native: dict,
+        blended: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
-        """Background, expected depth and ``meta`` on the native call's render and alpha."""
+        """Background (unless ``blended`` already), expected depth and ``meta`` on the
+        native call's render and alpha."""
         bg, n_color = self.bg, self.n_color
-        if bg is not None and not self.render_depth and not bg.requires_grad and n_color in (1, 3):
+        if bg is not None and not blended and self.plain_background() is not None:
             render = _Background.apply(render, alpha, bg.contiguous())
-        elif bg is not None:
+        elif bg is not None and not blended:
             # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
             color = render[..., :n_color] if self.render_depth else render
             color = color + bg[:, None, None, :] * (1.0 - alpha)

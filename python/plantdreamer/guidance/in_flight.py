@@ -9,6 +9,12 @@ memory of a device tensor), so the host can render the other half of a group mea
 ``InFlight.wait`` is the one synchronisation: it waits for the event and hands back the
 gradient and the figures. On the CPU every part runs at launch and ``wait`` returns at once.
 
+The event is a blocking one (``SLEEPING_WAIT``): the waiting thread sleeps until the device
+is done, where CUDA's default wait spins on a core for the whole of the networks' time. A
+group's host work (rasterizer, Adam, depth conditioning) needs every core of the host, and
+a spinning wait takes one from it; waking costs microseconds against steps of tens to
+hundreds of milliseconds.
+
 The backward is queued at launch, not at the wait: CUDA-graph replays keep their
 activations and input gradients in fixed buffers (``cuda_graph.py``), so one half's
 backward must be queued before the other half's forward overwrites them.
@@ -26,6 +32,10 @@ from plantdreamer.cameras import Camera
 from plantdreamer.guidance.base import PendingOutput
 from plantdreamer.guidance.conditioned import ConditionedGuidance, Timer
 from plantdreamer.guidance.transfer import to_device
+
+# The host thread sleeps while it waits for the device (module docstring); False spins, as
+# CUDA's default, kept for the comparison (benches/bench_throughput.py --cuda-wait).
+SLEEPING_WAIT = True
 
 
 @dataclass
@@ -88,6 +98,6 @@ def launch_guidance(
     host_grads.copy_(grads, non_blocking=True)
     host_figures = torch.empty(readback.shape, dtype=readback.dtype, pin_memory=True)
     host_figures.copy_(readback, non_blocking=True)
-    event = torch.cuda.Event()
+    event = torch.cuda.Event(blocking=SLEEPING_WAIT)
     event.record(torch.cuda.current_stream(device))
     return InFlight(host_grads, host_figures, pending, event)

@@ -8,7 +8,7 @@ and the labels (not trained) aligned with both.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -17,6 +17,9 @@ from plantdreamer.cameras import Camera, stack
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scales
 from plantdreamer.pipeline.train_config import LearningRates
+
+if TYPE_CHECKING:
+    from plantdreamer.rasterizer import SceneMap
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 # torch's Adam implementation for the Gaussians: "foreach" gives the bits of the
@@ -208,14 +211,55 @@ class GaussianModel:
                 group["foreach"] = ADAM_FOREACH[ADAM_IMPLEMENTATION]
 
 
+class RenderInputs:
+    """A render's inputs cut from the graph of the model's parameters: the render sees
+    detached leaves (``leaves``) in place of the activated scales, opacities and the
+    concatenated SH coefficients, and ``backward`` later carries the leaves' gradients
+    through those operations to the parameters. A group's first backward then stops at
+    the leaves, and each plant's ``backward`` (its share of the autograd graph) runs as
+    its own task: the same operations on the same values, so the same bits."""
+
+    CUT = ("scales", "opacities", "colors")
+
+    def __init__(self, call: dict[str, Any]) -> None:
+        self.inputs: list[torch.Tensor] = []
+        self.leaves: list[torch.Tensor] = []
+        for name in self.CUT:
+            t = call[name]
+            if t.grad_fn is not None:
+                leaf = t.detach().requires_grad_(True)
+                self.inputs.append(t)
+                self.leaves.append(leaf)
+                call[name] = leaf
+        self.call = call
+
+    def backward(self) -> None:
+        pairs = [(t, leaf.grad) for t, leaf in zip(self.inputs, self.leaves, strict=True)]
+        pairs = [(t, g) for t, g in pairs if g is not None]
+        if pairs:
+            torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
+
+
 def render_many(
-    models: Sequence[GaussianModel], cameras: Sequence[Camera], background: float
-) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
+    models: Sequence[GaussianModel],
+    cameras: Sequence[Camera],
+    background: float,
+    map_plants: SceneMap | None = None,
+) -> tuple[
+    list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError],
+    list[RenderInputs],
+]:
     """``models[k].render([cameras[k]], background)`` for every k, as one native call each
     way (``rasterization_many``: the same bits); a model whose render fails gets its
     error in its place. The renders' gradients must come from one
-    ``torch.autograd.backward`` over all of them."""
-    from plantdreamer.rasterizer import rasterization_many
+    ``torch.autograd.backward`` over all of them, which reaches the parameters' gradients
+    once every model's ``RenderInputs.backward`` ran (the second list). ``map_plants`` runs
+    each plant's Python work (a thread pool's ``map``; by default one after another)."""
+    from plantdreamer.rasterizer import in_callers_grad_mode, rasterization_many
 
-    calls = [m.render_call([c], background) for m, c in zip(models, cameras, strict=True)]
-    return rasterization_many(calls)
+    def cut(k: int) -> RenderInputs:
+        return RenderInputs(models[k].render_call([cameras[k]], background))
+
+    each = range(len(models))
+    inputs = in_callers_grad_mode(map_plants)(cut, each) if map_plants else list(map(cut, each))
+    return rasterization_many([i.call for i in inputs], map_scenes=map_plants), inputs

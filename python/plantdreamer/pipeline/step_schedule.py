@@ -3,7 +3,11 @@
 One batch (``overlap`` off, or a single plant): the plants render (one native call for all
 of them, their scenes side by side on the rasterizer's pool), one guidance call runs on the
 batch, its gradient goes back to the renders, the rasterizer backwards run (again one native
-call), then each plant's Adam update and density control.
+call), then each plant's Adam update and density control. Each plant's host work around
+the native calls (its arguments, background blend, gradient checks, Adam, density
+statistics) runs on the schedule's thread pool, one task per plant: numpy and torch
+release the GIL, so B plants' host work spreads over the cores rather than queueing on one
+thread (the same bits: each plant's operations are its own, in its own order).
 
 Two halves (``overlap`` on, two plants or more): the plants are split once, A the first
 ceil(B/2) and B the rest. A launch queues a half's device work and returns at once
@@ -26,7 +30,7 @@ order whether or not A(k+1) went early, so draining (and resuming) changes no bi
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -41,7 +45,7 @@ from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import GaussianModel, render_many
+from plantdreamer.pipeline.model import GaussianModel, RenderInputs, render_many
 from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.run_state import RunState
 
@@ -70,7 +74,9 @@ class _Launched:
     cameras: list[Camera]
     renders: list[tuple[torch.Tensor, torch.Tensor, dict]]
     flight: InFlight
-    batched: bool  # the renders came from one native call (one autograd node)
+    # The renders came from one native call (one autograd node) with their inputs cut
+    # from each plant's parameters (``RenderInputs``); empty: one call per plant.
+    cuts: list[RenderInputs]
 
 
 class StepSchedule:
@@ -81,6 +87,10 @@ class StepSchedule:
     # as one call per plant); False renders each plant on its own thread, kept for the
     # comparison (benches/bench_throughput.py --raster-batch).
     raster_batch: bool = True
+    # Each plant's host work on the pool, one task per plant; False runs it one plant after
+    # another on the calling thread, kept for the comparison (bench_throughput.py
+    # --plant-work). The same bits either way (tests/test_raster_many.py).
+    plants_in_parallel: bool = True
 
     def __init__(
         self,
@@ -150,10 +160,14 @@ class StepSchedule:
         for i in plants[1:]:
             self.plants[i].state.timer.totals[name] += first[name] - before
 
-    def _map(self, fn: Callable[[int], Any], items: list[int]) -> list[Any]:
+    def _map(self, fn: Callable[[int], Any], items: Sequence[int]) -> list[Any]:
         if self._pool is None or len(items) == 1:
             return [fn(i) for i in items]
         return list(self._pool.map(fn, items))
+
+    def _map_plants(self, fn: Callable[[int], Any], items: Sequence[int]) -> list[Any]:
+        """``_map`` where each plant's host work runs on the pool, else one after another."""
+        return self._map(fn, items) if self.plants_in_parallel else [fn(i) for i in items]
 
     def _launch(self, plants: list[int], step: int, more: bool) -> _Launched:
         group = [self.plants[i] for i in plants]
@@ -169,16 +183,33 @@ class StepSchedule:
             if batched:
                 models = [p.state.model for p in group]
                 renders = []
-                for p, r in zip(group, render_many(models, cameras, background), strict=True):
+                rendered, cuts = render_many(models, cameras, background, self._map_plants)
+                for p, r in zip(group, rendered, strict=True):
                     if isinstance(r, Exception):
                         raise type(r)(f"{p.out_dir.name}: {r}")
                     renders.append(r)
             else:
-                renders = self._map(render, list(range(len(group))))
-        images = [r[0] for r in renders]
-        batch = images[0] if len(images) == 1 else torch.cat(images)
+                renders, cuts = self._map(render, list(range(len(group)))), []
+        batch = self._batch([r[0] for r in renders])
         flight = launch_guidance(self.guidance, batch, plants, cameras, step, more, self._timed)
-        return _Launched(plants, cameras, renders, flight, batched)
+        return _Launched(plants, cameras, renders, flight, cuts)
+
+    def _batch(self, images: list[torch.Tensor]) -> torch.Tensor:
+        """The renders as one [B, H, W, 3] tensor (without their graph: the guidance takes
+        them detached), copied plant by plant on the pool. For a CUDA guidance it is pinned
+        memory, so that the copy to the device is one DMA transfer with no staging copy
+        (``transfer.to_device`` pins only what is not pinned yet)."""
+        pinned = self.guidance.device.type == "cuda"
+        if len(images) == 1 and not pinned:
+            return images[0]
+        first = images[0]
+        batch = torch.empty((len(images), *first.shape[1:]), dtype=first.dtype, pin_memory=pinned)
+
+        def copy(k: int) -> None:
+            batch[k : k + 1].copy_(images[k].detach())
+
+        self._map_plants(copy, range(len(images)))
+        return batch
 
     def _finish(self, work: _Launched, step: int) -> float:
         """Waits for a launched half's gradient, back-propagates it through the rasterizer
@@ -198,8 +229,9 @@ class StepSchedule:
                 with record_function(f"backward plant {work.plants[k]}"):
                     images[k].backward(grads[k : k + 1])
 
-            if work.batched:  # one node holds every render: one backward for all
+            if work.cuts:  # one node holds every render: one backward for all, to the cuts
                 torch.autograd.backward(images, [grads[k : k + 1] for k in range(len(group))])
+                self._map_plants(lambda k: work.cuts[k].backward(), range(len(group)))
             else:
                 self._map(backward, list(range(len(group))))
         loss = out.loss
@@ -210,7 +242,9 @@ class StepSchedule:
             culprits = {k for k in range(len(group)) if not bool(grads[k].isfinite().all())}
             culprits = culprits or set(range(len(group)))
         with self._timed("optimizer"):  # per-plant checks and Adam, the group's time
-            for k, p in enumerate(group):
+
+            def update(k: int) -> PlantDreamerError | None:
+                p = group[k]
                 try:
                     check_finite_gradients(p.state.model, step)
                     if k in culprits:
@@ -218,15 +252,32 @@ class StepSchedule:
                             f"loss became {loss} at step {step}; stopping (no output written)"
                         )
                 except PlantDreamerError as exc:
-                    if not self.isolate:
-                        raise
-                    p.error = str(exc)
-                    continue
+                    return exc
                 p.state.density.after_backward(step, work.renders[k][2], work.cameras[k])
                 p.state.model.optimizer.step()  # type: ignore[union-attr]
                 row = {"step": step, "loss": loss, "gaussians": len(p.state.model)}
                 p.state.log_rows.append(row | plant_stats(out.stats, k, len(group)))
+                return None
+
+            # A single run (not isolating) stops at its first failure, as in plant order.
+            run = self._map_plants if self.isolate else _one_after_another_until_failure
+            for p, failure in zip(group, run(update, range(len(group))), strict=False):
+                if failure is not None:
+                    if not self.isolate:
+                        raise failure
+                    p.error = str(failure)
         return loss
+
+
+def _one_after_another_until_failure(
+    fn: Callable[[int], PlantDreamerError | None], items: Sequence[int]
+) -> list[PlantDreamerError | None]:
+    out: list[PlantDreamerError | None] = []
+    for i in items:
+        out.append(fn(i))
+        if out[-1] is not None:
+            break
+    return out
 
 
 def plant_stats(stats: dict[str, float | list[float]], k: int, batch: int) -> dict[str, Any]:
