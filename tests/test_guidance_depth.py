@@ -77,6 +77,58 @@ def test_max_filter_equals_max_pooling(k):
     assert torch.equal(max_filter(image, k), pooled)
 
 
+def bits(t: torch.Tensor) -> bytes:
+    return t.contiguous().numpy().tobytes()
+
+
+def whole_map_normalise(depth, alpha, config):
+    """Steps 1-3 as plainly written (torch.isfinite, torch's boolean index, torch.quantile):
+    the reference ``normalise_depth`` must give bit for bit."""
+    mask = (alpha > config.alpha_threshold) & torch.isfinite(depth) & (depth > 0)
+    values = depth[mask].double()
+    near = values.min()
+    far = torch.quantile(values, config.far_quantile)
+    keep = mask & (depth <= far.to(depth.dtype))
+    span = float(far - near)
+    if span <= 1e-12:
+        n = torch.ones_like(depth)
+    else:
+        n = ((far - depth.double()) / span).clamp(0.0, 1.0).to(depth.dtype)
+    floor = config.min_intensity * config.intensity_scale
+    if config.rule == "stretch-lift":
+        mapped = ((n + config.min_intensity) * config.intensity_scale).clamp(max=1.0)
+    else:
+        mapped = floor + (1.0 - floor) * n
+    return torch.where(keep, mapped, torch.zeros_like(mapped))
+
+
+@pytest.mark.parametrize("rule", ["stretch", "stretch-lift"])
+def test_normalisation_has_the_bits_of_the_plain_formulation(rule):
+    d, a, _ = synthetic_plant()
+    d, a = d[0, ..., 0], a[0, ..., 0]
+    g = torch.Generator().manual_seed(3)
+    noisy = d + torch.rand(d.shape, generator=g) * (d > 0)  # many distinct depths
+    broken = noisy.clone()  # opaque pixels with no finite depth, or none in front
+    broken[40, 30:36] = torch.tensor([float("nan"), float("inf"), -float("inf"), -1.0, 0.0, -0.0])
+    for depth in (d, noisy, broken, torch.where(a > 0.5, 3.0, d)):  # the last: a flat plant
+        cfg = DepthCleaning(rule=rule)
+        got = normalise_depth(depth, a, cfg)
+        assert bits(got) == bits(whole_map_normalise(depth, a, cfg)) and bool((got > 0).any())
+
+
+@pytest.mark.parametrize("k", [3, 5, 7])
+def test_erosion_has_the_bits_of_the_negated_pooling_of_the_negated_map(k):
+    """On the maps clean_depth erodes (finite, +0 background, positive plant) the minimum
+    filter gives the bits the former -max(-x) did, signed zeros included."""
+    d, a, _ = synthetic_plant()
+    image = normalise_depth(d[0, ..., 0], a[0, ..., 0], DepthCleaning())[None, None]
+    g = torch.Generator().manual_seed(k)
+    speckled = torch.rand(2, 1, 31, 40, generator=g) * (torch.rand(2, 1, 31, 40, generator=g) > 0.3)
+    for x in (image, speckled):
+        pooled = -torch.nn.functional.max_pool2d(-x, k, stride=1, padding=k // 2)
+        assert bits(erode(x, k)) == bits(pooled)
+
+
 def test_normalisation_near_is_bright_and_background_halo_and_tail_are_removed():
     depth, alpha, disc = synthetic_plant()
     n = normalise_depth(depth[0, ..., 0], alpha[0, ..., 0], DepthCleaning()).numpy()
