@@ -33,7 +33,7 @@ step's rasterizer calls, interleaved: one native call each way for the B plants 
 default) against one call per plant on its own thread (off); ``--adam single foreach``
 compares torch's Adam implementations for the Gaussians (the same bits); ``--plant-work
 serial parallel`` compares each plant's host work around the native calls (arguments,
-background blends, gradient checks, Adam, density statistics) one plant after another on
+the backward past them, gradient checks, Adam, density statistics) one plant after another on
 the step's thread against one task per plant on the schedule's pool (the same bits);
 ``--cuda-wait spin sleep`` compares the host's wait for the device (CUDA only): CUDA's
 default spinning wait against a blocking event that lets the thread sleep.

@@ -49,6 +49,7 @@ CASES = [
     (1, "RGB+ED", True, True, 1),
     (None, "D", False, False, 1),
     (2, "RGB+D", True, False, 2),
+    (1, "RGB", True, True, 2),  # the background blended by the core
 ]
 
 
@@ -261,34 +262,42 @@ def test_feature_channel_counts_match_reference(channels):
 @pytest.mark.parametrize("size", [(2, 48, 64), (1, 512, 512)])
 @pytest.mark.parametrize("permuted_grad", [False, True])
 @pytest.mark.parametrize("channels", [1, 3])
-def test_background_blend_is_bit_identical_to_the_torch_expression(size, permuted_grad, channels):
-    # The wrapper blends the background in numpy (one thread); it must be the same bits as
-    # `color + bg * (1 - alpha)` through autograd, signed zeros included.
-    from plantdreamer.rasterizer import _Background
-
+@pytest.mark.parametrize("used", ["both", "render"])
+def test_the_core_blends_the_background_with_the_bits_of_the_torch_expression(
+    size, permuted_grad, channels, used
+):
+    """A background behind 1 or 3 colour channels is blended by the core: its render, alpha
+    and every gradient must be the bits of the call without it followed by
+    ``color + bg * (1 - alpha)`` through autograd, signed zeros included, whether the alpha
+    gets a gradient of its own or not."""
     c, h, w = size
-    g = torch.Generator().manual_seed(c * h)
-    color = torch.rand(c, h, w, channels, generator=g) * 2 - 0.5
-    alpha = torch.rand(c, h, w, 1, generator=g)
-    alpha[0, :3], alpha[0, 3:6], color[0, :2] = 0.0, 1.0, -0.0
+    g = torch.Generator().manual_seed(c * h + channels)
+    scene = ref.plant_scene(c * h, n=150)
+    scene[4] = scene[4][:, :channels].contiguous()
+    viewmats, ks = ref.scene_cameras(w, h, n=c)
     bg = torch.rand(c, channels, generator=g)
     bg[-1, 0] = 0.0
     v = torch.randn(c, channels, h, w, generator=g).permute(0, 2, 3, 1)
     if not permuted_grad:
         v = v.contiguous()
     v[0, :4], v[0, 4] = 0.0, -0.0
-    results = []
+    v_alpha = torch.randn(c, h, w, 1, generator=g)
 
-    def torch_blend(c_, a_):
-        return c_ + bg[:, None, None, :] * (1.0 - a_)
+    def run(in_core):
+        params = [p.clone().requires_grad_() for p in scene]
+        call = dict(zip(NAMES, params, strict=True))
+        call |= {"viewmats": viewmats, "Ks": ks, "width": w, "height": h}
+        if in_core:
+            render, alpha, meta = rasterization(**call, backgrounds=bg)
+        else:
+            color, alpha, meta = rasterization(**call)
+            render = color + bg[:, None, None, :] * (1.0 - alpha)
+        roots, grads = ([render, alpha], [v, v_alpha]) if used == "both" else ([render], [v])
+        torch.autograd.backward(roots, grads)
+        tensors = [render, alpha, meta["means2d"].grad, *(p.grad for p in params)]
+        return [t.detach().contiguous().view(torch.int32) for t in tensors]
 
-    def numpy_blend(c_, a_):
-        return _Background.apply(c_, a_, bg)
-
-    for blend in (torch_blend, numpy_blend):
-        c_, a_ = color.clone().requires_grad_(), alpha.clone().requires_grad_()
-        out = blend(c_, a_)
-        out.backward(v)
-        results.append([t.view(torch.int32) for t in (out, c_.grad, a_.grad)])
-    for want, got in zip(*results, strict=True):
-        assert torch.equal(want, got)
+    core, torch_expression = run(True), run(False)
+    assert bool((core[1] != 0).any())  # something was rendered
+    for got, want in zip(core, torch_expression, strict=True):
+        assert torch.equal(got, want)

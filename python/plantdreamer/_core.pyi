@@ -109,12 +109,13 @@ def rasterize_forward(
     t_min: float | None = None,
     simd: bool | None = None,
     threads: int | None = None,
+    background: npt.NDArray[np.float32] | None = None,  # [C, ch], behind the colours
 ) -> dict[str, Any]: ...
 def raster_defaults() -> dict[str, Any]: ...
 def rasterize_backward(
     state: RasterState,
     v_render: npt.NDArray[np.float32],
-    v_alpha: npt.NDArray[np.float32],
+    v_alpha: npt.NDArray[np.float32] | None,
     *,
     means: bool = True,
     quats: bool = True,
@@ -124,7 +125,7 @@ def rasterize_backward(
     threads: int | None = None,
 ) -> dict[str, Any]: ...
 def rasterize_forward_many(
-    scenes: list[dict[str, Any]],  # rasterize_forward's arrays, width, height, sh_degree
+    scenes: list[dict[str, Any]],  # rasterize_forward's arrays, sizes, sh_degree, background
     *,
     near_plane: float | None = None,
     far_plane: float | None = None,
@@ -142,7 +143,7 @@ def rasterize_forward_many(
 def rasterize_backward_many(
     states: list[RasterState],
     v_renders: list[npt.NDArray[np.float32]],
-    v_alphas: list[npt.NDArray[np.float32]],
+    v_alphas: list[npt.NDArray[np.float32] | None],
     *,
     means: bool = True,
     quats: bool = True,

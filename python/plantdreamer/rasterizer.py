@@ -3,11 +3,13 @@
 The function mirrors ``gsplat.rasterization`` (v1.5, "classic" semantics; see
 docs/rasterizer.md) so code can move between them. The work runs in the Rust core
 (``plantdreamer._core.rasterize_forward`` / ``rasterize_backward``); this module validates
-inputs, wraps the native pair in a ``torch.autograd.Function`` and applies backgrounds and
-expected depth with plain torch ops (so their gradients come from autograd).
+inputs and wraps the native pair in a ``torch.autograd.Function``. A background behind 1 or
+3 colour channels is blended by the core (torch's float32 operations in its order, the
+same bits as ``color + bg * (1 - alpha)`` through autograd); other backgrounds and the
+expected depth are plain torch ops (so their gradients come from autograd).
 ``rasterization_many`` renders several scenes (a group's plants) in one native call each
 way, with the bits of separate calls; its per-scene Python work (argument checks, the
-background blend each way) can run on a caller's thread pool (``map_scenes``).
+outputs' wrapping) can run on a caller's thread pool (``map_scenes``).
 
 Conventions and choices (documented behaviour):
 
@@ -97,17 +99,21 @@ class _RasterizeFunction(torch.autograd.Function):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         ctx.state = native["state"]
         ctx.threads = threads
+        # An output that gets no gradient stays None (``_upstream``).
+        ctx.set_materialize_grads(False)
         render = torch.from_numpy(native["render"])
         alpha = torch.from_numpy(native["alpha"]).unsqueeze(-1)
+        ctx.shapes = (tuple(render.shape), tuple(alpha.shape))
         return render, alpha
 
     @staticmethod
-    def backward(ctx: Any, v_render: torch.Tensor, v_alpha: torch.Tensor) -> tuple[Any, ...]:
+    def backward(
+        ctx: Any, v_render: torch.Tensor | None, v_alpha: torch.Tensor | None
+    ) -> tuple[Any, ...]:
         need = ctx.needs_input_grad
         g = _core.rasterize_backward(
             ctx.state,
-            _numpy(v_render.to(torch.float32)),
-            _numpy(v_alpha.to(torch.float32).squeeze(-1)),
+            *_upstream(v_render, v_alpha, ctx.shapes[0]),
             means=need[0],
             quats=need[1],
             scales=need[2],
@@ -131,71 +137,47 @@ class _RasterizeFunction(torch.autograd.Function):
         )
 
 
+def _upstream(
+    v_render: torch.Tensor | None, v_alpha: torch.Tensor | None, render_shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The native backward's dL/d(render) (zeros when the render got no gradient) and
+    dL/d(alpha) [C, H, W] (None when the alpha got none: the core then adds nothing, or a
+    blended background's own gradient, unchanged, as autograd would have passed it)."""
+    vr = np.zeros(render_shape, np.float32) if v_render is None else _array(v_render)
+    va = None if v_alpha is None else _array(v_alpha.squeeze(-1))
+    return vr, va
+
+
 class _RasterizeManyFunction(torch.autograd.Function):
     """Autograd node of one ``rasterize_forward_many`` call (``rasterization_many``): the
     inputs of scene j are ``inputs[6 j : 6 j + 6]`` (means, quats, scales, opacities,
     colors, means2d), its outputs render and alpha ``2 j`` and ``2 j + 1``. The backward is
-    one ``rasterize_backward_many`` call for every scene.
-
-    A scene with a background in ``backgrounds`` gets it blended here (``_Background``'s
-    arithmetic, the same bits), so that the scenes' blends run through ``map_scenes`` both
-    ways rather than as one autograd node per scene, which the engine runs one at a time."""
+    one ``rasterize_backward_many`` call for every scene."""
 
     @staticmethod
     def forward(  # type: ignore[override]
-        ctx: Any,
-        natives: list[dict[str, Any]],
-        backgrounds: list[np.ndarray | None],
-        threads: int | None,
-        map_scenes: SceneMap,
-        *inputs: torch.Tensor,
+        ctx: Any, natives: list[dict[str, Any]], threads: int | None, *inputs: torch.Tensor
     ) -> tuple[torch.Tensor, ...]:
         ctx.states = [n["state"] for n in natives]
-        ctx.backgrounds, ctx.threads, ctx.map_scenes = backgrounds, threads, map_scenes
-        # A gradient that is None stays None: a blend's alpha gradient alone must not gain
-        # a "+ 0" (it would turn -0 into +0, where separate calls keep -0).
-        ctx.set_materialize_grads(False)
-
-        def render(j: int) -> torch.Tensor:
-            color, bg = natives[j]["render"], backgrounds[j]
-            return torch.from_numpy(color if bg is None else _blend(color, natives[j]["alpha"], bg))
-
-        renders = map_scenes(render, range(len(natives)))
+        ctx.threads = threads
+        ctx.set_materialize_grads(False)  # as ``_RasterizeFunction``
         out: list[torch.Tensor] = []
-        for n, image in zip(natives, renders, strict=True):
-            out += [image, torch.from_numpy(n["alpha"]).unsqueeze(-1)]
+        for n in natives:
+            out += [torch.from_numpy(n["render"]), torch.from_numpy(n["alpha"]).unsqueeze(-1)]
         ctx.shapes = [tuple(t.shape) for t in out]
         return tuple(out)
 
     @staticmethod
     def backward(ctx: Any, *grads: torch.Tensor | None) -> tuple[Any, ...]:
-        need = ctx.needs_input_grad[4:]
+        need = ctx.needs_input_grad[2:]
         b = len(ctx.states)
         # The groups any scene needs; a scene's unneeded ones are dropped below.
         wanted = [any(need[6 * j + i] for j in range(b)) for i in range(5)]
-
-        def upstream(j: int) -> tuple[np.ndarray, np.ndarray]:
-            """Scene j's gradients w.r.t. the premultiplied render and the alpha, as the
-            separate call's ``_Background`` node and autograd's sum would give them."""
-            v_render, v_alpha = grads[2 * j], grads[2 * j + 1]
-            bg = ctx.backgrounds[j]
-            v_a = None if v_alpha is None else _array(v_alpha).squeeze(-1)
-            if v_render is None:
-                v_r = np.zeros(ctx.shapes[2 * j], np.float32)
-            else:
-                v_r = _array(v_render)
-                if bg is not None:
-                    from_blend = _blend_alpha_grad(v_r, bg)[..., 0]
-                    v_a = from_blend if v_a is None else v_a + from_blend
-            if v_a is None:
-                v_a = np.zeros(ctx.shapes[2 * j + 1][:-1], np.float32)
-            return v_r, v_a
-
-        pairs = ctx.map_scenes(upstream, range(b))
+        upstream = [_upstream(grads[2 * j], grads[2 * j + 1], ctx.shapes[2 * j]) for j in range(b)]
         results = _core.rasterize_backward_many(
             ctx.states,
-            [v_r for v_r, _ in pairs],
-            [v_a for _, v_a in pairs],
+            [vr for vr, _ in upstream],
+            [va for _, va in upstream],
             means=wanted[0],
             quats=wanted[1],
             scales=wanted[2],
@@ -203,7 +185,7 @@ class _RasterizeManyFunction(torch.autograd.Function):
             colors=wanted[4],
             threads=ctx.threads,
         )
-        out: list[Any] = [None, None, None, None]
+        out: list[Any] = [None, None]
         for j, g in enumerate(results):
             if isinstance(g, BaseException):
                 raise type(g)(f"scene {j}: {g}") from None
@@ -216,57 +198,6 @@ class _RasterizeManyFunction(torch.autograd.Function):
 def _array(t: torch.Tensor) -> np.ndarray:
     """A gradient as a contiguous float32 numpy array (no copy when it is one already)."""
     return _numpy(t.to(torch.float32))
-
-
-def _blend(color: np.ndarray, alpha: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """``color + bg * (1 - alpha)`` for [C, H, W, ch] colours, [C, H, W] alphas and [C, ch]
-    backgrounds: torch's float32 operations in its order, on one thread (``_Background``)."""
-    # Channel by channel: numpy broadcasting over a last axis of 3 is slow.
-    one_minus = np.float32(1.0) - alpha
-    out = np.empty_like(color)
-    for k in range(color.shape[-1]):
-        np.multiply(one_minus, bg[:, k, None, None], out=out[..., k])
-        np.add(color[..., k], out[..., k], out=out[..., k])
-    return out
-
-
-def _blend_alpha_grad(v: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """The blend's gradient w.r.t. alpha, [C, H, W, 1], from the output's ``v``: minus the
-    channel sum in torch's order, ((0 + v0 b0) + v1 b1) + v2 b2, where the leading + 0 turns
-    a -0 into +0 as torch's sum of 3 does (a sum of 1 is a copy)."""
-    acc = v[..., 0] * bg[:, 0, None, None]
-    if v.shape[-1] > 1:
-        acc += np.float32(0.0)
-    for k in range(1, v.shape[-1]):
-        acc = acc + v[..., k] * bg[:, k, None, None]
-    return -acc[..., None]
-
-
-class _Background(torch.autograd.Function):
-    """``color + bg * (1 - alpha)`` and its gradients, in numpy (``_blend``,
-    ``_blend_alpha_grad``): the same float32 operations in the same order as the torch
-    expression (bit-identical, tested), on one thread.
-
-    A torch op on an image runs as an OpenMP parallel region, and on a loaded machine each
-    region waits for every OpenMP worker to be scheduled: the blend's median cost was tens
-    of milliseconds against ~1 ms on one thread (BENCHMARKS.md, "Whole call and threads").
-    Used for 1 or 3 colour channels (the sums tested bit-identical) and when ``bg`` needs
-    no gradient (its own is a large reduction whose order numpy would not reproduce).
-    """
-
-    @staticmethod
-    def forward(  # type: ignore[override]
-        ctx: Any, color: torch.Tensor, alpha: torch.Tensor, bg: torch.Tensor
-    ) -> torch.Tensor:
-        ctx.bg = bg.numpy()
-        return torch.from_numpy(_blend(color.numpy(), alpha.numpy()[..., 0], ctx.bg))
-
-    @staticmethod
-    def backward(ctx: Any, v: torch.Tensor) -> tuple[Any, ...]:
-        v_alpha = None
-        if ctx.needs_input_grad[1]:
-            v_alpha = torch.from_numpy(_blend_alpha_grad(v.numpy(), ctx.bg))
-        return v, v_alpha, None
 
 
 def _tensor(name: str, value: Any) -> torch.Tensor:
@@ -352,7 +283,7 @@ def rasterization(
     native = _core.rasterize_forward(
         sc["means"], sc["quats"], sc["scales"], sc["opacities"], sc["colors"], sc["viewmats"],
         sc["Ks"], sc["width"], sc["height"], sh_degree=sc["sh_degree"], **call.settings,
-        threads=threads,
+        threads=threads, background=sc["background"],
     )  # fmt: skip
     means2d = call.means2d(native)
     render, alpha = _RasterizeFunction.apply(*call.params, call.color_in, means2d, native, threads)
@@ -374,9 +305,9 @@ def rasterization_many(
     and comes back in its place in the list; a call with bad input comes back as its
     error (not raised), naming it (``scene K: ...``), and the others are rendered. The
     gradients of all the renders must be computed in one ``torch.autograd.backward`` (one
-    autograd node holds them all). ``map_scenes`` runs each scene's Python work, forward
-    and backward (a thread pool's ``map`` spreads it over the cores: numpy and torch
-    release the GIL); by default the scenes' work runs one after another.
+    autograd node holds them all). ``map_scenes`` runs each scene's Python work (argument
+    checks, wrapping the outputs; a thread pool's ``map`` spreads it over the cores: numpy
+    and torch release the GIL); by default the scenes' work runs one after another.
     """
     map_scenes = _one_after_another if map_scenes is None else in_callers_grad_mode(map_scenes)
     results: list[Any] = [None] * len(calls)
@@ -423,16 +354,11 @@ def rasterization_many(
         means2d = prepared[k].means2d(native)
         means2ds.append(means2d)
         inputs += [*prepared[k].params, prepared[k].color_in, means2d]
-    backgrounds = [prepared[k].plain_background() for k, _ in rendered]
-    outputs = _RasterizeManyFunction.apply(
-        [n for _, n in rendered], backgrounds, threads, map_scenes, *inputs
-    )
+    outputs = _RasterizeManyFunction.apply([n for _, n in rendered], threads, *inputs)
 
     def finish(j: int) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         k, native = rendered[j]
-        render, alpha = outputs[2 * j], outputs[2 * j + 1]
-        blended = backgrounds[j] is not None
-        return prepared[k].finish(render, alpha, means2ds[j], native, blended=blended)
+        return prepared[k].finish(outputs[2 * j], outputs[2 * j + 1], means2ds[j], native)
 
     for (k, _), result in zip(rendered, map_scenes(finish, range(len(rendered))), strict=True):
         results[k] = result
@@ -480,6 +406,8 @@ class _Call:
             "width": self.width,
             "height": self.height,
             "sh_degree": self.sh_degree,
+            # Blended by the core when it can give autograd's bits (``plain_background``).
+            "background": self.plain_background(),
         }
 
     def means2d(self, native: dict[str, Any]) -> torch.Tensor:
@@ -489,27 +417,21 @@ class _Call:
         return torch.from_numpy(native["means2d"]).requires_grad_(wants_grad)
 
     def plain_background(self) -> np.ndarray | None:
-        """The background as a [C, ch] array where ``_Background`` (numpy) blends it: 1 or 3
-        colour channels, no depth channel, no gradient wanted for it; else None."""
+        """The background as a [C, ch] array where the core blends it (the bits of the torch
+        expression): 1 or 3 colour channels, no depth channel, no gradient wanted for it;
+        else None (``finish`` blends it with torch ops, or there is none)."""
         bg = self.bg
         if bg is None or self.render_depth or bg.requires_grad or self.n_color not in (1, 3):
             return None
         return bg.contiguous().numpy()
 
     def finish(
-        self,
-        render: torch.Tensor,
-        alpha: torch.Tensor,
-        means2d: torch.Tensor,
-        native: dict,
-        blended: bool = False,
+        self, render: torch.Tensor, alpha: torch.Tensor, means2d: torch.Tensor, native: dict
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
-        """Background (unless ``blended`` already), expected depth and ``meta`` on the
-        native call's render and alpha."""
+        """The background the core did not blend, expected depth and ``meta`` on the native
+        call's render and alpha."""
         bg, n_color = self.bg, self.n_color
-        if bg is not None and not blended and self.plain_background() is not None:
-            render = _Background.apply(render, alpha, bg.contiguous())
-        elif bg is not None and not blended:
+        if bg is not None and self.scene["background"] is None:
             # Whole-tensor ops where possible: slicing costs a zero-filled copy in backward.
             color = render[..., :n_color] if self.render_depth else render
             color = color + bg[:, None, None, :] * (1.0 - alpha)

@@ -121,6 +121,8 @@ pub(crate) struct ForwardArgs {
     pub(crate) n: usize,
     width: u32,
     height: u32,
+    /// [C, ch] colour behind the features (`forward_with_background`), if any.
+    background: Option<Vec<f32>>,
 }
 
 impl ForwardArgs {
@@ -189,7 +191,24 @@ impl ForwardArgs {
             n,
             width,
             height,
+            background: None,
         })
+    }
+
+    /// The [C, ch] background to blend behind the colours (None or Python None: none).
+    pub(crate) fn with_background(mut self, bg: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let Some(bg) = bg.filter(|b| !b.is_none()) else {
+            return Ok(self);
+        };
+        let (shape, values) = f32_array("background", bg, 2)?;
+        let channels = match self.mode {
+            ColorMode::Sh { .. } => 3,
+            ColorMode::Direct { channels } => channels,
+            ColorMode::None => 0,
+        };
+        expect_shape("background", &shape, &[Some(self.c), Some(channels)])?;
+        self.background = Some(values);
+        Ok(self)
     }
 
     /// The scene and cameras (the core's checks: finite matrices, ...); no GIL needed.
@@ -214,6 +233,7 @@ impl ForwardArgs {
             cameras,
             width,
             height,
+            background: self.background,
         })
     }
 }
@@ -285,8 +305,9 @@ pub(crate) fn forward_dict<'py>(
 /// Forward rasterization of N Gaussians into C cameras (gsplat 1.5 classic semantics).
 ///
 /// `colors` is [N, D] (used as is) or, with `sh_degree`, [N, K, 3] SH coefficients; it is
-/// ignored when `render_color` is false. Returns a dict: render [C, H, W, ch] (no
-/// background), alpha [C, H, W], radii [C, N, 2] int32, means2d [C, N, 2], depths [C, N],
+/// ignored when `render_color` is false. `background` [C, ch] (colours only) is blended
+/// behind the features: render + background (1 - alpha). Returns a dict: render
+/// [C, H, W, ch], alpha [C, H, W], radii [C, N, 2] int32, means2d [C, N, 2], depths [C, N],
 /// n_visible [C], n_intersections [C], profile (seconds per stage), state. Integer
 /// arguments are checked in `ints.rs`.
 ///
@@ -296,7 +317,7 @@ pub(crate) fn forward_dict<'py>(
     means, quats, scales, opacities, colors, viewmats, ks, width, height, *,
     sh_degree=None, near_plane=None, far_plane=None, eps2d=None, antialiased=None,
     render_color=true, render_depth=None, tile_size=None, footprint_sigma=None,
-    tile_ellipse=None, t_min=None, simd=None, threads=None
+    tile_ellipse=None, t_min=None, simd=None, threads=None, background=None
 ))]
 // One keyword per setting, as Python callers pass them.
 #[allow(clippy::too_many_arguments)]
@@ -324,6 +345,7 @@ fn rasterize_forward<'py>(
     t_min: Option<f32>,
     simd: Option<bool>,
     threads: Option<&Bound<'py, PyAny>>,
+    background: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let args = ForwardArgs::new(
         means,
@@ -337,7 +359,8 @@ fn rasterize_forward<'py>(
         height,
         sh_degree,
         render_color,
-    )?;
+    )?
+    .with_background(background)?;
     let opts = raster_options(
         near_plane,
         far_plane,
@@ -354,9 +377,7 @@ fn rasterize_forward<'py>(
     let (c, n) = (args.c, args.n);
     let (out, state) = run_native(py, || {
         let job = args.job()?;
-        with_threads(threads, || {
-            raster::forward(job.scene, job.cameras, job.width, job.height, opts)
-        })
+        with_threads(threads, || raster::forward_scene(job, opts))
     })?;
     forward_dict(py, out, state, c, n)
 }
@@ -392,8 +413,8 @@ fn decimal(v: f32) -> f64 {
 }
 
 /// Gradients of the forward call's inputs from dL/d(render) [C, H, W, ch] and
-/// dL/d(alpha) [C, H, W]. Groups switched off come back as None; means2d ([C, N, 2],
-/// pixels) is always returned.
+/// dL/d(alpha) [C, H, W] (None: the alpha got no gradient). Groups switched off come back
+/// as None; means2d ([C, N, 2], pixels) is always returned.
 #[pyfunction]
 #[pyo3(signature = (
     state, v_render, v_alpha, *, means=true, quats=true, scales=true, opacities=true,
@@ -405,7 +426,7 @@ fn rasterize_backward<'py>(
     py: Python<'py>,
     state: &Bound<'py, RasterState>,
     v_render: &Bound<'py, PyAny>,
-    v_alpha: &Bound<'py, PyAny>,
+    v_alpha: Option<&Bound<'py, PyAny>>,
     means: bool,
     quats: bool,
     scales: bool,
@@ -417,7 +438,8 @@ fn rasterize_backward<'py>(
     let st = &state.get().inner;
     // Read in place: the backward keeps nothing of them.
     let (vr_view, va_view) = upstream_views(st, v_render, v_alpha)?;
-    let (vr, va) = (flat("v_render", &vr_view)?, flat("v_alpha", &va_view)?);
+    let vr = flat("v_render", &vr_view)?;
+    let va = va_view.as_ref().map(|v| flat("v_alpha", v)).transpose()?;
     let want = GradRequest {
         means,
         quats,
@@ -431,13 +453,17 @@ fn rasterize_backward<'py>(
     grads_dict(py, grads, st)
 }
 
-/// dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W] of a forward state, borrowed.
+/// dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W] (None or Python None: none) of a
+/// forward state, borrowed.
 #[allow(clippy::type_complexity)]
 pub(crate) fn upstream_views<'py>(
     st: &ForwardState,
     v_render: &Bound<'py, PyAny>,
-    v_alpha: &Bound<'py, PyAny>,
-) -> PyResult<(PyReadonlyArrayDyn<'py, f32>, PyReadonlyArrayDyn<'py, f32>)> {
+    v_alpha: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(
+    PyReadonlyArrayDyn<'py, f32>,
+    Option<PyReadonlyArrayDyn<'py, f32>>,
+)> {
     let c = st.cameras.len();
     let (h, w) = (st.height as usize, st.width as usize);
     let vr_view = f32_view("v_render", v_render, 4)?;
@@ -446,9 +472,12 @@ pub(crate) fn upstream_views<'py>(
         vr_view.shape(),
         &[Some(c), Some(h), Some(w), Some(st.channels())],
     )?;
+    let Some(v_alpha) = v_alpha.filter(|v| !v.is_none()) else {
+        return Ok((vr_view, None));
+    };
     let va_view = f32_view("v_alpha", v_alpha, 3)?;
     expect_shape("v_alpha", va_view.shape(), &[Some(c), Some(h), Some(w)])?;
-    Ok((vr_view, va_view))
+    Ok((vr_view, Some(va_view)))
 }
 
 /// The Python result of one backward call (see `rasterize_backward`).

@@ -23,7 +23,7 @@ fn scene_error(py: Python<'_>, err: PyErr) -> Py<PyAny> {
 }
 
 /// One scene's `rasterize_forward` arguments from its dict: means, quats, scales, opacities,
-/// colors, viewmats, Ks, width, height and (optional) sh_degree.
+/// colors, viewmats, Ks, width, height and (optional) sh_degree and background.
 fn scene_args(scene: &Bound<'_, PyAny>, render_color: bool) -> PyResult<ForwardArgs> {
     let d = scene.cast::<PyDict>().map_err(|_| {
         InputError::new_err("each scene must be a dict of rasterize_forward's arrays")
@@ -33,6 +33,7 @@ fn scene_args(scene: &Bound<'_, PyAny>, render_color: bool) -> PyResult<ForwardA
             .ok_or_else(|| InputError::new_err(format!("the scene has no {key:?}")))
     };
     let sh_degree = d.get_item("sh_degree")?;
+    let background = d.get_item("background")?;
     ForwardArgs::new(
         &get("means")?,
         &get("quats")?,
@@ -45,11 +46,12 @@ fn scene_args(scene: &Bound<'_, PyAny>, render_color: bool) -> PyResult<ForwardA
         &get("height")?,
         sh_degree.as_ref(),
         render_color,
-    )
+    )?
+    .with_background(background.as_ref())
 }
 
 /// `rasterize_forward` of every scene in `scenes` (dicts of its positional arrays and
-/// sizes, and optionally sh_degree), the settings shared. Returns a list, in the scenes'
+/// sizes, and optionally sh_degree and background), the settings shared. Returns a list, in the scenes'
 /// order, of `rasterize_forward`'s dict or of the scene's exception.
 #[pyfunction]
 #[pyo3(signature = (
@@ -156,9 +158,9 @@ fn on_ok<T, U, E>(
 }
 
 /// `rasterize_backward` of every forward state in `states`, with its dL/d(render) and
-/// dL/d(alpha) from `v_renders` and `v_alphas` (one each per state), the gradient groups
-/// shared. Returns a list, in the states' order, of `rasterize_backward`'s dict or of the
-/// scene's exception.
+/// dL/d(alpha) from `v_renders` and `v_alphas` (one each per state; a v_alpha may be
+/// None), the gradient groups shared. Returns a list, in the states' order, of
+/// `rasterize_backward`'s dict or of the scene's exception.
 #[pyfunction]
 #[pyo3(signature = (
     states, v_renders, v_alphas, *, means=true, quats=true, scales=true, opacities=true,
@@ -192,7 +194,7 @@ fn rasterize_backward_many<'py>(
     let views: Vec<PyResult<_>> = inner
         .iter()
         .zip(v_renders.iter().zip(&v_alphas))
-        .map(|(st, (vr, va))| upstream_views(st, vr, va))
+        .map(|(st, (vr, va))| upstream_views(st, vr, Some(va)))
         .collect();
     let slices: Vec<PyResult<BackwardJob<'_>>> = views
         .iter()
@@ -201,7 +203,7 @@ fn rasterize_backward_many<'py>(
             Ok((vr, va)) => Ok(BackwardJob {
                 state: st,
                 v_render: flat("v_render", vr)?,
-                v_alpha: flat("v_alpha", va)?,
+                v_alpha: va.as_ref().map(|v| flat("v_alpha", v)).transpose()?,
             }),
             Err(e) => Err(e.clone_ref(py)),
         })

@@ -122,7 +122,7 @@ fn main() {
                 let grads = raster::backward(
                     &state,
                     &v_render,
-                    &v_alpha,
+                    Some(&v_alpha),
                     raster::GradRequest {
                         means: true,
                         quats: true,

@@ -55,7 +55,7 @@ fn check(mode: ColorMode, opts: RasterOptions, seed: u64) {
         opacities: true,
         colors: true,
     };
-    let g = raster::backward(&state, &vr, &va, want).unwrap();
+    let g = raster::backward(&state, &vr, Some(&va), want).unwrap();
     let groups = [g.means, g.quats, g.scales, g.opacities, g.colors];
     for (gi, grad) in groups.iter().enumerate() {
         let Some(grad) = grad else { continue };

@@ -141,7 +141,7 @@ fn degenerate_scenes_give_finite_images_and_gradients() {
         assert!(out.alpha.iter().all(|a| (0.0..=1.0).contains(a)));
         let vr: Vec<f32> = out.render.iter().map(|_| rng.normal()).collect();
         let va: Vec<f32> = out.alpha.iter().map(|_| rng.normal()).collect();
-        let g = raster::backward(&state, &vr, &va, all).unwrap();
+        let g = raster::backward(&state, &vr, Some(&va), all).unwrap();
         for (name, grad) in [
             ("means", g.means),
             ("quats", g.quats),
@@ -189,7 +189,7 @@ fn opaque_stack_on_one_pixel_has_finite_gradients() {
     let g = raster::backward(
         &state,
         &vec![1.0; out.render.len()],
-        &vec![1.0; out.alpha.len()],
+        Some(&vec![1.0; out.alpha.len()]),
         GradRequest {
             means: true,
             quats: true,

@@ -4,10 +4,11 @@ One batch (``overlap`` off, or a single plant): the plants render (one native ca
 of them, their scenes side by side on the rasterizer's pool), one guidance call runs on the
 batch, its gradient goes back to the renders, the rasterizer backwards run (again one native
 call), then each plant's Adam update and density control. Each plant's host work around
-the native calls (its arguments, background blend, gradient checks, Adam, density
-statistics) runs on the schedule's thread pool, one task per plant: numpy and torch
-release the GIL, so B plants' host work spreads over the cores rather than queueing on one
-thread (the same bits: each plant's operations are its own, in its own order).
+the native calls (its arguments, its share of the backward past them, gradient checks,
+Adam, density statistics) runs on the schedule's thread pool, one task per plant: numpy
+and torch release the GIL, so B plants' host work spreads over the cores rather than
+queueing on one thread (the same bits: each plant's operations are its own, in its own
+order).
 
 Two halves (``overlap`` on, two plants or more): the plants are split once, A the first
 ceil(B/2) and B the rest. A launch queues a half's device work and returns at once

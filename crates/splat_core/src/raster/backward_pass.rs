@@ -9,12 +9,16 @@
 //! gradients; each Gaussian then sums its own intersections in tile order and owns its
 //! output rows; cameras are accumulated one after another. No floating-point atomics.
 //!
+//! With a background blended in the forward (`forward_with_background`), each camera's
+//! alpha gradient gains the blend's (`background.rs`) before the blend backward.
+//!
 //! Where a gradient is undefined (culled Gaussians: behind the near plane, NaN/Inf
 //! parameters, zero quaternion, opacity < 1/255, off-screen; colour channels clamped at 0;
 //! alpha clamped at 0.99 for opacity and geometry) it is zero.
 
 use rayon::prelude::*;
 
+use super::background;
 use super::backward_blend::{intersection_gradients, zeroed_gradients};
 use super::backward_chain::{Chain, GradRows};
 use super::backward_index::SplatIntersections;
@@ -47,11 +51,12 @@ pub struct Gradients {
     pub means2d: Vec<f32>,
 }
 
-/// Gradients of all parameters given dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W].
+/// Gradients of all parameters given dL/d(render) [C, H, W, ch] and dL/d(alpha) [C, H, W]
+/// (None: the alpha got no gradient, zero unless a background was blended).
 pub fn backward(
     state: &ForwardState,
     v_render: &[f32],
-    v_alpha: &[f32],
+    v_alpha: Option<&[f32]>,
     want: GradRequest,
 ) -> CoreResult<Gradients> {
     let scene = &state.scene;
@@ -60,7 +65,9 @@ pub fn backward(
     let ch = state.channels();
     let pixels = state.width as usize * state.height as usize;
     check_len("v_render", v_render, c * pixels, ch)?;
-    check_len("v_alpha", v_alpha, c, pixels)?;
+    if let Some(va) = v_alpha {
+        check_len("v_alpha", va, c, pixels)?;
+    }
 
     let cw = scene.color_width();
     let output = |wanted: bool, w: usize| filled(if wanted { n * w } else { 0 }, 0.0f32);
@@ -72,7 +79,22 @@ pub fn backward(
     let mut means2d = filled(c * n * 2, 0.0f32);
     let stride = ISECT_FIXED + ch;
 
+    let no_alpha_gradient = match (v_alpha, &state.background) {
+        (None, None) => filled(pixels, 0.0f32),
+        _ => Vec::new(),
+    };
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
+        let v_render_ci = &v_render[ci * pixels * ch..(ci + 1) * pixels * ch];
+        let v_alpha_ci = v_alpha.map(|va| &va[ci * pixels..(ci + 1) * pixels]);
+        let blended;
+        let v_alpha_ci = match (&state.background, v_alpha_ci) {
+            (Some(bg), va) => {
+                blended = background::alpha_gradient(v_render_ci, va, &bg[ci * ch..(ci + 1) * ch]);
+                &blended[..]
+            }
+            (None, Some(va)) => va,
+            (None, None) => &no_alpha_gradient[..],
+        };
         // The index is one sequential pass; the zeroing runs beside it.
         let (index, isect) = rayon::join(
             || SplatIntersections::new(&cs.bins.isect_gid, n),
@@ -85,8 +107,8 @@ pub fn backward(
             &isect,
             state.width,
             state.height,
-            &v_render[ci * pixels * ch..(ci + 1) * pixels * ch],
-            &v_alpha[ci * pixels..(ci + 1) * pixels],
+            v_render_ci,
+            v_alpha_ci,
             state.opts.simd,
             false,
         );

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::background;
 use super::buffers::filled;
 use super::camera::{self, Camera};
 use super::forward_blend::{blend, Blended};
@@ -14,6 +15,7 @@ use super::scene::Scene;
 use super::tile_binning::{self, TileBins};
 use super::tile_geometry::{blend_records, BlendRecord};
 use super::{depth_sort, features, project_avx2};
+use crate::error::check_len;
 use crate::{CoreError, CoreResult};
 
 /// Seconds spent in each stage, summed over cameras.
@@ -50,6 +52,8 @@ pub struct ForwardState {
     pub width: u32,
     pub height: u32,
     pub per_camera: Vec<CameraState>,
+    /// [C, ch]: the background blended behind each camera's features, if any.
+    pub background: Option<Vec<f32>>,
 }
 
 impl ForwardState {
@@ -62,7 +66,7 @@ impl ForwardState {
 /// Images and per-Gaussian facts of a forward call. Arrays are row-major, camera first.
 #[derive(Debug, Clone, Default)]
 pub struct ForwardOutput {
-    /// [C, H, W, ch]: blended features without background.
+    /// [C, H, W, ch]: blended features (over the background when one was given).
     pub render: Vec<f32>,
     /// [C, H, W]: 1 - final transmittance.
     pub alpha: Vec<f32>,
@@ -189,7 +193,39 @@ pub fn forward(
         width,
         height,
         per_camera,
+        background: None,
     };
+    Ok((out, state))
+}
+
+/// `forward` with a background behind each camera's features, `bg` [C, ch] (colour
+/// channels only, no depth channel): the render is `features + bg (1 - alpha)`
+/// (`background.rs`), and `backward` adds the alpha gradient the blend makes.
+pub fn forward_with_background(
+    scene: Scene,
+    cameras: Vec<Camera>,
+    width: u32,
+    height: u32,
+    opts: RasterOptions,
+    bg: Vec<f32>,
+) -> CoreResult<(ForwardOutput, ForwardState)> {
+    if opts.with_depth {
+        return Err(CoreError::input(
+            "a background is blended behind colours only: the render has a depth channel",
+        ));
+    }
+    let (c, ch) = (cameras.len(), scene.color_channels());
+    check_len("background", &bg, c, ch)?;
+    let (mut out, mut state) = forward(scene, cameras, width, height, opts)?;
+    let pixels = width as usize * height as usize;
+    for ci in 0..c {
+        background::blend(
+            &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
+            &out.alpha[ci * pixels..(ci + 1) * pixels],
+            &bg[ci * ch..(ci + 1) * ch],
+        );
+    }
+    state.background = Some(bg);
     Ok((out, state))
 }
 

@@ -10,18 +10,20 @@ use rayon::prelude::*;
 
 use super::backward_pass::{backward, GradRequest, Gradients};
 use super::camera::Camera;
-use super::forward_pass::{forward, ForwardOutput, ForwardState};
+use super::forward_pass::{forward, forward_with_background, ForwardOutput, ForwardState};
 use super::options::RasterOptions;
 use super::scene::Scene;
 use crate::CoreResult;
 
-/// One scene of a `forward_many` call: what `forward` takes besides the options.
+/// One scene of a `forward_many` call: what `forward` takes besides the options, and the
+/// background of `forward_with_background` if any.
 #[derive(Debug, Clone)]
 pub struct SceneJob {
     pub scene: Scene,
     pub cameras: Vec<Camera>,
     pub width: u32,
     pub height: u32,
+    pub background: Option<Vec<f32>>,
 }
 
 /// One scene's result, or the error of that scene alone.
@@ -31,17 +33,25 @@ pub type ForwardResult = CoreResult<(ForwardOutput, ForwardState)>;
 /// pool (`threads::with_threads`), each also parallel inside.
 pub fn forward_many(jobs: Vec<SceneJob>, opts: RasterOptions) -> Vec<ForwardResult> {
     jobs.into_par_iter()
-        .map(|j| forward(j.scene, j.cameras, j.width, j.height, opts))
+        .map(|j| forward_scene(j, opts))
         .collect()
 }
 
+/// One job's `forward`, or `forward_with_background` when it has a background.
+pub fn forward_scene(j: SceneJob, opts: RasterOptions) -> ForwardResult {
+    match j.background {
+        Some(bg) => forward_with_background(j.scene, j.cameras, j.width, j.height, opts, bg),
+        None => forward(j.scene, j.cameras, j.width, j.height, opts),
+    }
+}
+
 /// One scene of a `backward_many` call: its forward state and the gradients of its
-/// render [C, H, W, ch] and alpha [C, H, W].
+/// render [C, H, W, ch] and alpha [C, H, W] (None: none, as in `backward`).
 #[derive(Debug, Clone, Copy)]
 pub struct BackwardJob<'a> {
     pub state: &'a ForwardState,
     pub v_render: &'a [f32],
-    pub v_alpha: &'a [f32],
+    pub v_alpha: Option<&'a [f32]>,
 }
 
 /// `backward` of every job, in the jobs' order, in parallel as `forward_many`.
@@ -82,6 +92,7 @@ mod tests {
             cameras: vec![camera],
             width: 40,
             height: 36,
+            background: None,
         }
     }
 
@@ -147,7 +158,7 @@ mod tests {
                     )
                     .unwrap();
                     let (vr, va) = upstream(&out, 100 + i as u64);
-                    fingerprint(&out, &backward(&st, &vr, &va, ALL).unwrap())
+                    fingerprint(&out, &backward(&st, &vr, Some(&va), ALL).unwrap())
                 })
                 .collect())
         })
@@ -172,7 +183,7 @@ mod tests {
                 .map(|((_, st), (vr, va))| BackwardJob {
                     state: st,
                     v_render: vr,
-                    v_alpha: va,
+                    v_alpha: Some(va),
                 })
                 .collect();
             let grads = backward_many(&back, ALL);
@@ -224,12 +235,12 @@ mod tests {
             BackwardJob {
                 state: states[0],
                 v_render: &vr,
-                v_alpha: &va,
+                v_alpha: Some(&va),
             },
             BackwardJob {
                 state: states[1],
                 v_render: &short,
-                v_alpha: &va,
+                v_alpha: Some(&va),
             },
         ];
         let grads = backward_many(&back, ALL);
@@ -240,5 +251,79 @@ mod tests {
             .unwrap()
             .to_string()
             .contains("v_render"));
+    }
+
+    #[test]
+    fn scenes_with_backgrounds_give_each_its_own_bits() {
+        let plain = RasterOptions::default(); // colours only: a background needs no depth
+        let jobs: Vec<_> = (0..3)
+            .map(|i| SceneJob {
+                background: (i != 1).then(|| vec![0.25, 0.5 + 0.1 * i as f32, 1.0]),
+                ..job(40 + i, 130)
+            })
+            .collect();
+        for threads in [1, 3] {
+            let done = with_threads(Some(threads), || Ok(forward_many(jobs.clone(), plain)));
+            for (j, d) in jobs.iter().zip(done.unwrap()) {
+                let (out, st) = d.unwrap();
+                let (alone, alone_st) =
+                    with_threads(Some(1), || forward_scene(j.clone(), plain)).unwrap();
+                assert_eq!(bits(&out.render), bits(&alone.render));
+                let (vr, va) = upstream(&out, 5);
+                for v_alpha in [None, Some(&va[..])] {
+                    let job = BackwardJob {
+                        state: &st,
+                        v_render: &vr,
+                        v_alpha,
+                    };
+                    let g = backward_many(&[job], ALL).remove(0).unwrap();
+                    let g_alone = backward(&alone_st, &vr, v_alpha, ALL).unwrap();
+                    assert_eq!(fingerprint(&out, &g), fingerprint(&alone, &g_alone));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_background_is_the_plain_render_plus_bg_times_one_minus_alpha() {
+        let plain = RasterOptions::default();
+        let j = job(50, 140);
+        let (out, st) = forward(j.scene.clone(), j.cameras.clone(), 40, 36, plain).unwrap();
+        let bg = vec![0.2, 0.7, 0.0];
+        let (over, over_st) = forward_with_background(
+            j.scene.clone(),
+            j.cameras.clone(),
+            40,
+            36,
+            plain,
+            bg.clone(),
+        )
+        .unwrap();
+        let want: Vec<f32> = out
+            .render
+            .chunks_exact(3)
+            .zip(&out.alpha)
+            .flat_map(|(px, &a)| (0..3).map(move |k| px[k] + (1.0 - a) * [0.2, 0.7, 0.0][k]))
+            .collect();
+        assert_eq!(bits(&over.render), bits(&want));
+        assert_eq!(bits(&over.alpha), bits(&out.alpha));
+        // With no render gradient, the alpha's gradient is the caller's alone: v_alpha
+        // reaches the Gaussians unchanged (plus -0 from the zero render gradient).
+        let zeros = vec![0.0f32; out.render.len()];
+        let (_, va) = upstream(&out, 9);
+        let g_over = backward(&over_st, &zeros, Some(&va), ALL).unwrap();
+        let g_plain = backward(&st, &zeros, Some(&va), ALL).unwrap();
+        assert_eq!(g_over.opacities, g_plain.opacities);
+        // A background for a depth channel, or of the wrong size, is refused.
+        let depth = RasterOptions {
+            with_depth: true,
+            ..plain
+        };
+        let err = forward_with_background(j.scene.clone(), j.cameras.clone(), 40, 36, depth, bg)
+            .unwrap_err();
+        assert!(err.to_string().contains("depth channel"), "{err}");
+        let err =
+            forward_with_background(j.scene, j.cameras, 40, 36, plain, vec![0.5; 2]).unwrap_err();
+        assert!(err.to_string().contains("background"), "{err}");
     }
 }

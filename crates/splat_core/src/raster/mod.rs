@@ -40,6 +40,7 @@
 //! (O(intersections)), and the final transmittance and last-contributor count per pixel
 //! (O(pixels)). Nothing per (pixel, splat) pair is stored.
 
+mod background;
 mod backward_blend;
 mod backward_chain;
 mod backward_index;
@@ -76,7 +77,11 @@ pub use backward_pass::{backward, GradRequest, Gradients};
 pub use camera::Camera;
 pub use eval_count::{count_evaluations, Evaluations};
 pub use forward_blend::{blend_kernel, Blended};
-pub use forward_pass::{forward, CameraState, ForwardOutput, ForwardState, Profile};
-pub use many_scenes::{backward_many, forward_many, BackwardJob, ForwardResult, SceneJob};
+pub use forward_pass::{
+    forward, forward_with_background, CameraState, ForwardOutput, ForwardState, Profile,
+};
+pub use many_scenes::{
+    backward_many, forward_many, forward_scene, BackwardJob, ForwardResult, SceneJob,
+};
 pub use options::{Footprint, RasterOptions, ALPHA_MAX, ALPHA_MIN};
 pub use scene::{ColorMode, Scene};
