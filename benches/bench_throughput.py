@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import itertools
 import json
 import math
@@ -90,6 +91,18 @@ class Variant:
         parts += ["serial-plant-work"] if self.plant_work == "serial" else []
         parts += ["spin-wait"] if self.cuda_wait == "spin" else []
         return "-".join(parts)
+
+
+# The switches a run compares side by side (each a Variant field, its default the field's):
+# (field, choices, help).
+SWITCHES = (
+    ("raster_batch", ("off", "on"), "one native rasterizer call for the group (on) or one per plant"),
+    ("adam", ("single", "foreach"), "torch's Adam implementation for the Gaussians (the same bits)"),
+    ("plant_work", ("serial", "parallel"),
+     "each plant's host work on one thread or one pool task per plant (the same bits)"),
+    ("cuda_wait", ("spin", "sleep"),
+     "the host's wait for the device: spinning (CUDA's default) or sleeping"),
+)  # fmt: skip
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
@@ -467,34 +480,10 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
     p.add_argument("--overlap", nargs="+", choices=("off", "on"), default=["off", "on"])
     p.add_argument("--vae", nargs="+", choices=("float32", "bfloat16"), help="VAE precision "
                    "(default float32 bfloat16 on CUDA, float32 on the CPU)")  # fmt: skip
-    p.add_argument(
-        "--raster-batch",
-        nargs="+",
-        choices=("off", "on"),
-        default=["on"],
-        help="one native rasterizer call for the group (on) or one per plant",
-    )
-    p.add_argument(
-        "--adam",
-        nargs="+",
-        choices=("single", "foreach"),
-        default=["foreach"],
-        help="torch's Adam implementation for the Gaussians (the same bits)",
-    )
-    p.add_argument(
-        "--plant-work",
-        nargs="+",
-        choices=("serial", "parallel"),
-        default=["parallel"],
-        help="each plant's host work on one thread or one pool task per plant (the same bits)",
-    )
-    p.add_argument(
-        "--cuda-wait",
-        nargs="+",
-        choices=("spin", "sleep"),
-        default=["sleep"],
-        help="the host's wait for the device: spinning (CUDA's default) or sleeping",
-    )
+    defaults = {f.name: f.default for f in dataclasses.fields(Variant)}
+    for name, choices, text in SWITCHES:
+        flag = "--" + name.replace("_", "-")
+        p.add_argument(flag, nargs="+", choices=choices, default=[defaults[name]], help=text)
     p.add_argument("--steps", type=int, default=None if gpu_checks else 24)
     p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")
     p.add_argument("--repeats", type=int, default=1)

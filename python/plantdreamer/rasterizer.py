@@ -50,13 +50,12 @@ GRAD_NAMES = ("means", "quats", "scales", "opacities", "colors", "means2d")
 SceneMap = Callable[[Callable[[int], Any], Sequence[int]], list[Any]]
 
 
-def _one_after_another(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
-    return [fn(k) for k in indices]
-
-
-def in_callers_grad_mode(map_scenes: SceneMap) -> SceneMap:
-    """``map_scenes`` whose tasks run in the calling thread's autograd mode (a thread
-    pool's threads do not inherit ``torch.no_grad``)."""
+def scene_map(map_scenes: SceneMap | None) -> SceneMap:
+    """The map a many-scene call runs its per-scene work with: ``map_scenes`` with each
+    task in the calling thread's autograd mode (a thread pool's threads do not inherit
+    ``torch.no_grad``), or, for None, one scene after another on the calling thread."""
+    if map_scenes is None:
+        return lambda fn, indices: [fn(k) for k in indices]
     enabled = torch.is_grad_enabled()
 
     def run(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
@@ -309,7 +308,7 @@ def rasterization_many(
     checks, wrapping the outputs; a thread pool's ``map`` spreads it over the cores: numpy
     and torch release the GIL); by default the scenes' work runs one after another.
     """
-    map_scenes = _one_after_another if map_scenes is None else in_callers_grad_mode(map_scenes)
+    each_scene = scene_map(map_scenes)
     results: list[Any] = [None] * len(calls)
 
     def prepare(k: int) -> _Call | InputError:
@@ -319,7 +318,7 @@ def rasterization_many(
             return InputError(f"scene {k}: {exc}")
 
     prepared: dict[int, _Call] = {}
-    for k, call in enumerate(map_scenes(prepare, range(len(calls)))):
+    for k, call in enumerate(each_scene(prepare, range(len(calls)))):
         if isinstance(call, _Call):
             prepared[k] = call
         else:
@@ -360,7 +359,7 @@ def rasterization_many(
         k, native = rendered[j]
         return prepared[k].finish(outputs[2 * j], outputs[2 * j + 1], means2ds[j], native)
 
-    for (k, _), result in zip(rendered, map_scenes(finish, range(len(rendered))), strict=True):
+    for (k, _), result in zip(rendered, each_scene(finish, range(len(rendered))), strict=True):
         results[k] = result
     return results
 

@@ -255,11 +255,10 @@ def render_many(
     ``torch.autograd.backward`` over all of them, which reaches the parameters' gradients
     once every model's ``RenderInputs.backward`` ran (the second list). ``map_plants`` runs
     each plant's Python work (a thread pool's ``map``; by default one after another)."""
-    from plantdreamer.rasterizer import in_callers_grad_mode, rasterization_many
+    from plantdreamer.rasterizer import rasterization_many, scene_map
 
     def cut(k: int) -> RenderInputs:
         return RenderInputs(models[k].render_call([cameras[k]], background))
 
-    each = range(len(models))
-    inputs = in_callers_grad_mode(map_plants)(cut, each) if map_plants else list(map(cut, each))
+    inputs = scene_map(map_plants)(cut, range(len(models)))
     return rasterization_many([i.call for i in inputs], map_scenes=map_plants), inputs

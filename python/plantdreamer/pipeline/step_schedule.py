@@ -199,7 +199,7 @@ class StepSchedule:
         """The renders as one [B, H, W, 3] tensor (without their graph: the guidance takes
         them detached), copied plant by plant on the pool. For a CUDA guidance it is pinned
         memory, so that the copy to the device is one DMA transfer with no staging copy
-        (``transfer.to_device`` pins only what is not pinned yet)."""
+        (``transfer.to_device``'s ``pin_memory`` returns a pinned tensor as it is)."""
         pinned = self.guidance.device.type == "cuda"
         if len(images) == 1 and not pinned:
             return images[0]
