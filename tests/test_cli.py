@@ -44,3 +44,99 @@ def test_help_does_not_import_torch():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# --- one concept, one name in every command ---------------------------------------------------
+
+# Each concept the commands share, under its one option name, with the other spellings it has
+# had (kept hidden, for old command lines) or could be given: no command shows one of them.
+CONCEPTS = {
+    "--out": ("--output", "--out-dir", "--output-dir", "--dest"),
+    "--seeds": ("--count", "--seed-start", "--num-plants", "--plants"),
+    "--seed": ("--random-seed", "--rng-seed"),
+    "--species": ("--plant", "--species-list"),
+    "--pointcloud": ("--pointclouds", "--point-cloud", "--cloud"),
+    "--points": ("--target", "--n-points", "--num-points"),
+    "--scene-size": ("--size", "--normalize-size"),
+    "--eval-views": ("--views", "--n-views"),
+    "--eval-distance": ("--distance",),
+    "--eval-elevation-deg": ("--elevation",),
+    "--eval-fovy-deg": ("--fovy", "--fov"),
+    "--resolution": ("--image-size", "--res"),
+    "--background": ("--bg", "--background-color"),
+    "--prompt-template": ("--caption-template", "--template"),
+    "--color-init": ("--colors", "--colour-init"),
+    "--lr": ("--learning-rate",),
+    "--overwrite": ("--force",),
+}
+OTHER_SPELLING = {old: new for new, olds in CONCEPTS.items() for old in olds}
+# Commands whose options of a generate setting's name are their own settings, not generate's
+# with generate's default: `dataset` applies given ones over a spec (unset: generate's), and
+# `lora train` is another run (LoraTrainConfig: its steps, resolution, seed).
+OWN_DEFAULTS = {"dataset", "lora train"}
+# Options of a generate setting's name whose default is their command's own, and why.
+OWN_DEFAULT = {
+    ("render", "--labels"): "a PLY of another tool has no labels: ground truth when asked",
+    ("view", "--labels"): "the viewer opens coloured as rendered unless asked",
+}
+
+
+def every_command():
+    """(path, command) of every command, the groups' subcommands too, walked from `main`."""
+    import click
+
+    ctx = click.Context(main)
+
+    def walk(group, path):
+        for name in group.list_commands(ctx):
+            command = group.get_command(ctx, name)
+            yield f"{path} {name}".strip(), command
+            if isinstance(command, click.Group):
+                yield from walk(command, f"{path} {name}")
+
+    return list(walk(main, ""))
+
+
+def ctx(command):
+    import click
+
+    return click.Context(command)
+
+
+def shown_options(command):
+    import click
+
+    return [p for p in command.params if isinstance(p, click.Option) and not p.hidden]
+
+
+def test_every_command_spells_each_concept_one_way_with_generates_default():
+    from plantdreamer import settings
+    from plantdreamer.pipeline.config import GenerateConfig
+
+    generate = {f"--{s.name}": s.default for s in settings.walk(GenerateConfig)}
+    problems = []
+    for path, command in every_command():
+        shown = CliRunner().invoke(main, [*path.split(), "--help"])
+        assert shown.exit_code == 0, (path, shown.output)
+        for option in shown_options(command):
+            for name in option.opts + option.secondary_opts:
+                if not name.startswith("--") or name == "--help":
+                    continue
+                if name not in shown.output:
+                    problems.append(f"{path} {name}: not in its --help")
+                if name in OTHER_SPELLING:
+                    problems.append(f"{path} {name}: spelled {OTHER_SPELLING[name]} elsewhere")
+                own = path in OWN_DEFAULTS or (path, name) in OWN_DEFAULT or option.multiple
+                default = None if option.required else option.get_default(ctx(command))
+                if name in generate and not own and default != generate[name]:
+                    problems.append(f"{path} {name}: default {default!r}, "
+                                    f"generate's {generate[name]!r}")  # fmt: skip
+            if not (option.help or "").strip():
+                problems.append(f"{path} {option.opts[0]}: no help text")
+    assert not problems, "\n".join(problems)
+
+
+def test_the_concept_table_names_options_that_exist():
+    """The table's names are the commands' names (a renamed option must update the table)."""
+    shown = {n for _, c in every_command() for o in shown_options(c) for n in o.opts}
+    assert set(CONCEPTS) <= shown, set(CONCEPTS) - shown

@@ -171,6 +171,44 @@ def test_render_bad_numbers(files, tmp_path, args, message):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
+        (["render", "{model}", "--out", "{d}/r", "--views", 3, "--eval-views", 4], "--views"),
+        (["render", "{model}", "--out", "{d}/r", "--distance", 3, "--eval-distance", 4],
+         "--distance"),
+        (["prepare", "{cloud}", "-o", "{d}/p.ply", "--target", 300, "--points", 200], "--target"),
+        (["prepare", "{cloud}", "-o", "{d}/p.ply", "--size", 2, "--scene-size", 3], "--size"),
+        (["prepare", "{cloud}", "-o", "{d}/p.ply", "--output", "{d}/q.ply"], "--output"),
+        (["lsystem", "bean", "-o", "{d}/p.ply", "--output", "{d}/q.ply"], "--output"),
+        (["dataset", "--species", "bean", "--seeds", "0-3", "--count", 3, "--dry-run",
+          "--out", "{d}/ds"], "--count / --seed-start"),
+        (["ablate", "--pointcloud", "{cloud}", "--dataset", "{d}", "--colors", "noise",
+          "--color-init", "black", "--out", "{d}/a"], "--colors"),
+        (["lora", "train", "{d}", "--out", "{d}/l", "--caption-template", "a {species}",
+          "--prompt-template", "the {species}"], "--caption-template"),
+    ],
+)  # fmt: skip
+def test_an_earlier_option_name_beside_its_new_name_with_another_value_is_refused(
+    files, tmp_path, args, message
+):
+    """Neither name silently wins: one error line naming both, before anything is written."""
+    paths = {"{model}": files / "model.ply", "{cloud}": files / "cloud.ply", "{d}": tmp_path}
+    for key, path in paths.items():
+        args = [a.replace(key, str(path)) if isinstance(a, str) else a for a in args]
+    result = run(*args)
+    assert_one_error(result, message)
+    assert "give --" in result.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_earlier_option_name_with_the_same_value_is_the_same_request(files, tmp_path):
+    out = tmp_path / "p.ply"
+    result = run("prepare", files / "cloud.ply", "-o", out, "--target", 300, "--points", 300)
+    assert result.exit_code == 0, result.output
+    assert out.is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
         (["--device", "banana"], "banana"),
         (["--seed", 2**70], "seed"),
         (["--resume"], "nothing to resume"),

@@ -69,6 +69,21 @@ def test_a_rerun_with_one_setting_changed_stops_with_a_count_and_deletes_nothing
     assert files(tmp_path) == before
 
 
+def test_redo_changed_on_the_command_line_lifts_the_refusal(tmp_path, monkeypatch):
+    """The refusal asks for --redo-changed; given, the run plans the redo and goes on to Ray."""
+    from plantdreamer.errors import PlantDreamerError
+
+    def reached(*_args):
+        raise PlantDreamerError("reached Ray")
+
+    monkeypatch.setattr(runner.engine, "connect", reached)
+    finished(tmp_path, expand(spec_of(2, steps=0)))
+    args = ["--species", "bean", "--seeds", "0-1", *FAST, "--steps", 1, "--out", tmp_path]
+    one_error(invoke(*args), "pass --redo-changed")
+    one_error(invoke(*args, "--redo-changed"), "reached Ray")
+    assert not (tmp_path / "plants" / "bean-s0000" / "plant.ply").exists()  # cleared for redo
+
+
 def test_redo_changed_clears_them_and_a_new_plant_alone_is_no_redo(tmp_path):
     finished(tmp_path, expand(spec_of(2, steps=0)))
     grown = expand(spec_of(3, steps=0))  # one more plant, same settings: nothing to redo

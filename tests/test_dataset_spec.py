@@ -61,11 +61,11 @@ def test_a_preset_in_the_spec_applies_under_the_spec_settings(tmp_path):
     ("group", "message"),
     [
         ('species = "bean"\nsteps_typo = 3', "unknown setting 'steps-typo'; did you mean 'steps'"),
-        ('species = "bean"\nseeds = [1, 1]', "duplicates"),
-        ('species = "bean"\nseeds = [1]\ncount = 2', "not both"),
-        ('species = "bean"\nseed = 3', "chosen per plant"),
-        ('pointclouds = "nothing/*.ply"', "no files match"),
-        ("count = 2", "needs 'species' or 'pointclouds'"),
+        ('species = "bean"\nseeds = [1, 1]', "distinct seeds"),
+        ('species = "bean"\nseeds = [1]\ncount = 2', "give 'seeds' once"),
+        ('species = "bean"\nseed = 3', "chosen per group"),
+        ('pointcloud = "nothing/*.ply"', "no files match"),
+        ("count = 2", "needs 'species' or 'pointcloud'"),
         ('species = "bean"\ncolor_init = "blue"', "color init must be one of"),
     ],
 )
@@ -129,3 +129,67 @@ def test_without_ray_the_command_says_what_to_install(tmp_path, monkeypatch):
     assert result.exit_code == 1
     assert RAY_MISSING in result.output
     assert "pip install 'plantdreamer[cluster]'" in result.output
+
+
+def test_dataset_seeds_name_the_plants_generate_seeds_names(tmp_path):
+    """`dataset --seeds 0-3 --species bean` and `generate --seeds 0-3 --species bean`: the
+    same plants (ids as generate's folders, the same settings), whatever spelling of the set."""
+    import json
+
+    from plantdreamer.cli import generate as generate_cli
+
+    generate = CliRunner().invoke(main, ["generate", "--species", "bean", "--seeds", "0-3",
+                                         "--guidance", "none", "--print-config"])  # fmt: skip
+    assert generate.exit_code == 0, generate.output
+    shown = [c["config"] for c in json.loads(generate.output)]
+    named = [f"{c['species']}-s{c['seed']:04d}" for c in shown]
+    assert named == ["bean-s0000", "bean-s0001", "bean-s0002", "bean-s0003"]
+    for seeds in (["--seeds", "0-3"], ["--seeds", "0,1,2-3"], ["--count", "4"],
+                  ["--seeds", "0-3", "--count", "4", "--seed-start", "0"]):  # fmt: skip
+        result = CliRunner().invoke(main, ["dataset", "--species", "bean", *seeds, "--guidance",
+                                           "none", "--dry-run", "--out", str(tmp_path)])  # fmt: skip
+        assert result.exit_code == 0, result.output
+        assert [line.split()[-1] for line in result.output.splitlines()[1:]] == named, seeds
+    args = ["--species", "bean", "--guidance", "none"]
+    with generate_cli.generate.make_context("generate", args) as ctx:
+        made = generate_cli._configs(dict(ctx.params), "0-3")
+    spec = {"group": [{"species": "bean", "seeds": "0-3"}], "defaults": {"guidance": "none"}}
+    assert [p.config for p in expand(spec)] == made
+
+
+@pytest.mark.parametrize(
+    ("group", "message"),
+    [
+        ({"seeds": "0-3", "count": 3}, "name seeds 0-2 and 'seeds' 0-3; give 'seeds' once"),
+        ({"seeds": "3-1"}, "3-1 is a reversed range"),
+        ({"seeds": "0,0"}, "distinct seeds"),
+        ({"seeds": 3}, "'seeds' must be ranges"),
+        ({"pointcloud": "a.ply", "pointclouds": "b.ply"}, "give 'pointcloud' once"),
+    ],
+)
+def test_a_groups_earlier_spelling_beside_its_new_one_must_agree(tmp_path, group, message):
+    (tmp_path / "a.ply").write_bytes(b"")
+    spec = {"base_dir": str(tmp_path), "group": [{"species": "bean", **group}]}
+    with pytest.raises(InputError, match=message):
+        expand(spec)
+
+
+def test_a_group_spells_seeds_and_pointcloud_as_the_options_do(tmp_path):
+    (tmp_path / "a.ply").write_bytes(b"")
+    new = {"base_dir": str(tmp_path), "group": [
+        {"species": "bean", "pointcloud": "a.ply", "seeds": "2-3,7"}]}  # fmt: skip
+    old = {"base_dir": str(tmp_path), "group": [
+        {"species": "bean", "pointclouds": "a.ply", "seeds": [2, 3, 7]}]}  # fmt: skip
+    same = {"base_dir": str(tmp_path), "group": [
+        {"species": "bean", "pointcloud": "a.ply", "pointclouds": "a.ply", "seeds": "2-3",
+         "count": 2, "seed-start": 2}]}  # fmt: skip
+    assert [p.id for p in expand(new)] == ["a-s0002", "a-s0003", "a-s0007"]
+    assert [p.config for p in expand(old)] == [p.config for p in expand(new)]
+    assert [p.id for p in expand(same)] == ["a-s0002", "a-s0003"]
+    folder = str(tmp_path / "a.ply")
+    result = CliRunner().invoke(main, ["dataset", "--pointcloud", folder, "--species", "bean",
+                                       "--seeds", "2-3,7", "--dry-run", "--out",
+                                       str(tmp_path / "d")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert [line.split()[-1] for line in result.output.splitlines()[1:]] == [
+        "a-s0002", "a-s0003", "a-s0007"]  # fmt: skip

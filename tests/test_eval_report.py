@@ -15,7 +15,6 @@ from eval_synthetic import (
 )
 from plantdreamer.cameras import orbit_ring
 from plantdreamer.cli import main
-from plantdreamer.cli.eval import parse_background
 from plantdreamer.errors import InputError
 from plantdreamer.eval import evaluate, load_dataset
 from plantdreamer.eval.report import (
@@ -93,13 +92,13 @@ def test_ablation_table_and_bar_plot(tmp_path):
         write_ablation_table({"noise": float("nan")}, tmp_path)
 
 
-def test_parse_background():
-    assert parse_background("0.75,0.75,0.75") == (0.75, 0.75, 0.75)
-    assert parse_background(" 1, 0 ,0.5") == (1.0, 0.0, 0.5)
-    assert parse_background("0.5") == (0.5, 0.5, 0.5)  # one grey, as generate's --background
-    for bad in ("1,1", "a,b,c", "2,0,0", "", "1.5"):
-        with pytest.raises(InputError):
-            parse_background(bad)
+@pytest.mark.parametrize("grey", ["1.5", "-0.1", "nan"])
+def test_eval_background_is_generates_grey_level(tmp_path, grey):
+    ply = tmp_path / "m.ply"
+    ply.write_bytes(b"ply\n")
+    res = CliRunner().invoke(main, ["eval", str(ply), "--dataset", str(tmp_path),
+                                    "--background", grey])  # fmt: skip
+    assert res.exit_code == 1 and "error: --background must be a grey level" in res.output
 
 
 def test_eval_command_errors_are_one_line(tmp_path):

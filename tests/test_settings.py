@@ -282,7 +282,7 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
         ("render", "render", TrainConfig, "background", "background", 0.5),
         ("prepare", "prepare", SourceConfig, "sor_std", "sor_std", 2.5),
         ("prepare", "prepare", SourceConfig, "points", "points", 1234),
-        ("eval", "eval_command", TrainConfig, "background", "background", "0.5"),
+        ("eval", "eval_command", TrainConfig, "background", "background", 0.5),
     ],
 )
 def test_render_prepare_and_eval_read_generates_declaration(
@@ -293,7 +293,7 @@ def test_render_prepare_and_eval_read_generates_declaration(
     import importlib
 
     mod = importlib.import_module(f"plantdreamer.cli.{module}")
-    patch_default(monkeypatch, cls, field, float(value) if isinstance(value, str) else value)
+    patch_default(monkeypatch, cls, field, value)
     try:
         other = getattr(importlib.reload(mod), command)
         defaults = {p.name: p.default for p in other.params}

@@ -6,7 +6,12 @@ from pathlib import Path
 
 import click
 
-from plantdreamer.cli.options import config_from_options, config_options
+from plantdreamer.cli.options import (
+    apply_old_names,
+    config_from_options,
+    config_options,
+    hidden_old_name,
+)
 from plantdreamer.pipeline.config import GenerateConfig
 
 # The generation settings an ablation varies only through the command line.
@@ -21,14 +26,25 @@ SETTINGS = (
     "--pointcloud", required=True, type=click.Path(dir_okay=False), help="Input cloud (PLY)."
 )
 @click.option("--dataset", required=True, type=click.Path(), help="Posed ground-truth images.")
-@click.option("--colors", default="original,noise,black,white", show_default=True)
 @click.option(
-    "--out", "out_dir", type=click.Path(file_okay=False), default="ablation", show_default=True
+    "--color-init",
+    multiple=True,
+    help="The colour initialisations compared, as generate's --color-init (repeat it: "
+    "--color-init noise --color-init black).  [default: every one]",
+)
+@hidden_old_name("--colors", "--color-init")  # earlier: one comma-separated list
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="ablation",
+    show_default=True,
+    help="The folder of the table, the plot and one generate run per colour initialisation.",
 )
 @config_options(GenerateConfig, only=SETTINGS)
 @click.option("--overwrite", is_flag=True, help="Replace the results of an earlier ablation.")
-@click.option("--quiet", is_flag=True)
-def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) -> None:
+@click.option("--quiet", is_flag=True, help="No progress output.")
+def ablate(pointcloud, dataset, color_init, out_dir, overwrite, quiet, **options) -> None:
     """Generate once per colour initialisation, score each against the dataset (masked PSNR),
     and write the paper-style table and bar plot."""
     from plantdreamer.errors import InputError
@@ -36,11 +52,14 @@ def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) ->
     from plantdreamer.output_folder import claim_folder
     from plantdreamer.pipeline.init import COLOR_INITS
 
+    given = {"color_init": ",".join(color_init) or None, "old_colors": options.pop("old_colors")}
+    apply_old_names(given, {"--colors": "color-init"})
+    colors = given["color_init"] or ",".join(COLOR_INITS)
     base = config_from_options(GenerateConfig, options)
     settings = [c.strip() for c in colors.split(",") if c.strip()]
     unknown = sorted(set(settings) - set(COLOR_INITS))
     if not settings or unknown:
-        raise InputError(f"--colors takes a list of {', '.join(COLOR_INITS)}; got {colors!r}")
+        raise InputError(f"--color-init takes {', '.join(COLOR_INITS)}; got {colors!r}")
     frames = scan_dataset(dataset)  # fail on a bad dataset before hours of generation
     out = Path(out_dir)
     owned = ("ablation.md", "ablation.png", *COLOR_INITS)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from plantdreamer.cli.label_options import label_options
@@ -38,10 +40,31 @@ def _toml_value(text: str) -> object:
 
 @click.command()
 @click.argument("spec_file", required=False, type=click.Path(dir_okay=False, exists=True))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False))
-@click.option("--species", help="Without a spec: comma-separated species, e.g. bean,mint,kale.")
-@click.option("--count", type=click.IntRange(1), default=1, show_default=True)
-@click.option("--seed-start", type=click.IntRange(0), default=0, show_default=True)
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="The dataset folder (plants/, manifest.jsonl, coco/, yolo/, gallery.png).",
+)
+@click.option(
+    "--species",
+    multiple=True,
+    help="Without a spec: an L-System species, one group of plants each (repeat it: "
+    "--species bean --species mint); with --pointcloud, the plant named in the prompts.",
+)
+@click.option(
+    "--pointcloud",
+    help="Without a spec: real plant point clouds (PLY), a file or a glob ('scans/*.ply'); "
+    "each file is a plant per seed.",
+)
+@click.option(
+    "--seeds",
+    help="Without a spec: the seeds of each group's plants, as generate's: 0-7, 0,3,5 or both.",
+    show_default="0",
+)
+@click.option("--count", type=click.IntRange(1), hidden=True)  # earlier: --seeds S-(S+N-1)
+@click.option("--seed-start", type=click.IntRange(0), hidden=True)
 @config_options(
     GenerateConfig,
     QUICK_SETTINGS,
@@ -98,9 +121,11 @@ def _toml_value(text: str) -> object:
 def dataset(
     spec_file: str | None,
     out_dir: str,
-    species: str | None,
-    count: int,
-    seed_start: int,
+    species: tuple[str, ...],
+    pointcloud: str | None,
+    seeds: str | None,
+    count: int | None,
+    seed_start: int | None,
     settings: tuple[str, ...],
     address: str | None,
     local_cpus: int | None,
@@ -120,15 +145,15 @@ def dataset(
 ) -> None:
     """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
 
-    SPEC_FILE (TOML) lists groups of plants and their settings; without one, --species,
-    --count and --seed-start give one group per species. Settings given here apply to
+    SPEC_FILE (TOML) lists groups of plants and their settings; without one, --species
+    (or --pointcloud) and --seeds give them, as generate's do. Settings given here apply to
     every plant, over the spec's [defaults]. Plants already complete in OUT are skipped;
     finished plants of other settings are kept, and the run refused, unless --redo-changed.
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
     from plantdreamer.cli.label_options import describe, make_label_options
-    from plantdreamer.dataset import RunOptions, expand, load_spec, run_dataset
+    from plantdreamer.dataset import RunOptions, expand, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.packing import packing_from
     from plantdreamer.dataset.runner import DatasetStopped
@@ -137,15 +162,7 @@ def dataset(
 
     if not dry_run:
         import_ray()  # fail first, with what to install, when Ray is missing
-    if spec_file is not None:
-        if species is not None:
-            raise InputError("give a spec file or --species, not both")
-        spec = load_spec(spec_file)
-    elif species is not None:
-        groups = [s.strip() for s in species.split(",") if s.strip()]
-        spec = {"group": [{"species": s, "count": count, "seed_start": seed_start} for s in groups]}
-    else:
-        raise InputError("give a spec file or --species")
+    spec = _spec(spec_file, species, pointcloud, seeds, count, seed_start)
     packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
@@ -173,6 +190,7 @@ def dataset(
         max_retries=max_retries,
         plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
+        redo_changed=redo_changed,
         labels=make_label_options(
             split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
         ),
@@ -207,10 +225,45 @@ def dataset(
         click.echo(describe(report.labels, out_dir))
 
 
+def _spec(
+    spec_file: str | None,
+    species: tuple[str, ...],
+    pointcloud: str | None,
+    seeds: str | None,
+    count: int | None,
+    seed_start: int | None,
+) -> dict:
+    """The spec file, or the one that --species / --pointcloud and --seeds describe."""
+    from plantdreamer.cli.options import one_value
+    from plantdreamer.dataset import load_spec
+    from plantdreamer.errors import InputError
+    from plantdreamer.seeds import parse_seeds, seed_range, seeds_text
+
+    named = [n.strip() for text in species for n in text.split(",") if n.strip()]  # a,b: earlier
+    if spec_file is not None:
+        given = [name for name, value in (("--species", named), ("--pointcloud", pointcloud),
+                 ("--seeds", seeds), ("--count", count), ("--seed-start", seed_start)) if value]  # fmt: skip
+        if given:
+            raise InputError(f"give a spec file or {', '.join(given)}, not both")
+        return load_spec(spec_file)
+    chosen = parse_seeds(seeds) if seeds is not None else None
+    if count is not None or seed_start is not None or chosen is None:
+        counted = seed_range(count or 1, seed_start or 0)
+        if chosen is not None:
+            one_value("--count / --seed-start", seeds_text(counted), "--seeds", seeds_text(chosen))
+        chosen = counted
+    if pointcloud is not None:
+        if len(named) > 1:
+            raise InputError("--pointcloud names its plant with one --species, not several")
+        group = {"pointcloud": str(Path(pointcloud).resolve()), "seeds": chosen}
+        return {"group": [{**group, "species": name} for name in named] or [group]}
+    if not named:
+        raise InputError("give a spec file, --species or --pointcloud")
+    return {"group": [{"species": name, "seeds": chosen} for name in named]}
+
+
 def _print_plan(plants, out_dir: str, plants_per_gpu: int) -> None:
     """``--dry-run``: the plan from OUT's records and folders; nothing is written."""
-    from pathlib import Path
-
     from plantdreamer.dataset.manifest import Manifest
     from plantdreamer.dataset.plan import describe_plan
 

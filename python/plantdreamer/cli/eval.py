@@ -6,28 +6,8 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.settings import by_name
-
-# generate's --background (the grey its views are rendered on), the default here too.
-GREY = by_name(GenerateConfig)["background"].default
-
-
-def parse_background(value: str) -> tuple[float, float, float]:
-    """``"R,G,B"`` with components in [0, 1] (e.g. ``0.75,0.75,0.75``), or one grey level
-    as generate and render take it (``0.75``)."""
-    from plantdreamer.errors import InputError
-
-    parts = [p.strip() for p in value.split(",")]
-    try:
-        rgb = tuple(float(p) for p in parts)
-    except ValueError:
-        rgb = ()
-    if len(rgb) == 1:
-        rgb = rgb * 3
-    if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
-        raise InputError(f"--background must be a grey level or R,G,B in [0, 1], got {value!r}")
-    return (rgb[0], rgb[1], rgb[2])
 
 
 @click.command(name="eval")
@@ -45,23 +25,27 @@ def parse_background(value: str) -> tuple[float, float, float]:
     show_default=True,
     help="Markdown report; the JSON and the image strip are written beside it.",
 )
+@config_options(GenerateConfig, only=("background",))  # generate's, its name and default
 @click.option(
-    "--background",
-    default=str(GREY),
+    "--strip-views",
+    type=click.IntRange(0),
+    default=4,
     show_default=True,
-    help="Render background: a grey level (as generate's) or R,G,B, in [0, 1]; RGBA images "
-    "are composited over it too.",
+    help="Views shown in the image strip.",
 )
-@click.option("--strip-views", default=4, show_default=True, help="Views shown in the image strip.")
 @click.option("--overwrite", is_flag=True, help="Replace an earlier report at --out.")
 def eval_command(
-    ply: Path, dataset: Path, out: Path, background: str, strip_views: int, overwrite: bool
+    ply: Path, dataset: Path, out: Path, strip_views: int, overwrite: bool, **options: float
 ) -> None:
-    """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
+    """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU.
+    RGBA ground truth is composited over --background too."""
     from plantdreamer.errors import InputError
     from plantdreamer.output_folder import claim_files, output_file
 
-    bg = parse_background(background)
+    grey = options_to_settings(GenerateConfig, options)["background"]
+    if not 0.0 <= grey <= 1.0:  # also refuses NaN
+        raise InputError(f"--background must be a grey level in [0, 1], got {grey}")
+    bg = (grey, grey, grey)
     if not ply.is_file():
         raise FileNotFoundError(f"model not found: {ply}")
     out = output_file(out, "--out")

@@ -29,7 +29,12 @@ def build_command() -> click.Command:
     @click.command(name="generate")
     @config_options(GenerateConfig)
     @click.option(
-        "--out", "out_dir", type=click.Path(file_okay=False), default="out", show_default=True
+        "--out",
+        "out_dir",
+        type=click.Path(file_okay=False),
+        default="out",
+        show_default=True,
+        help="The run's folder (with --seeds, one folder per plant in it).",
     )
     @click.option(
         "--resume",

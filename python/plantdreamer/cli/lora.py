@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import click
 
-from plantdreamer.cli.options import config_options, options_to_settings
+from plantdreamer.cli.options import (
+    apply_old_names,
+    config_options,
+    hidden_old_name,
+    options_to_settings,
+)
 from plantdreamer.lora.config import LoraTrainConfig
+
+OLD_NAMES = {"--caption-template": "prompt-template"}  # its earlier name (hidden)
 
 
 @click.group()
@@ -16,12 +23,14 @@ def lora() -> None:
 @lora.command()
 @click.argument("images_dir", type=click.Path(file_okay=False, path_type=str))
 @config_options(LoraTrainConfig)
+@hidden_old_name("--caption-template", "--prompt-template")
 def train(images_dir: str, **options: object) -> None:
     """Train a LoRA on the photos in IMAGES_DIR (captions from <name>.txt or the template)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from plantdreamer.lora.train import train_lora
 
+    apply_old_names(options, OLD_NAMES)
     values = options_to_settings(LoraTrainConfig, options)
     config = LoraTrainConfig.from_settings(images_dir, values)
     with Progress(

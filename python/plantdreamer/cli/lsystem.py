@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.cli.options import apply_old_names, hidden_old_name
+from plantdreamer.prepare import TARGET_POINTS
+
 MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
 
 
@@ -15,28 +18,33 @@ MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
               help="Random seed; the same species and seed give the same files.")  # fmt: skip
 @click.option(
     "-o",
-    "--output",
+    "--out",
     type=click.Path(dir_okay=False, path_type=Path),
     help="Point cloud PLY (binary; colours, normals, label and instance per point).",
 )
+@hidden_old_name("--output", "--out", type=click.Path(dir_okay=False, path_type=Path))
 @click.option(
     "--mesh",
     "mesh_path",
     type=click.Path(dir_okay=False, path_type=Path),
     help="Mesh file with vertex colours; format from the suffix: " + ", ".join(MESH_FORMATS),
 )
-@click.option("--points", type=click.IntRange(min=1), default=100_000, show_default=True,
-              help="Number of points sampled uniformly over the surface for -o.")  # fmt: skip
+@click.option("--points", type=click.IntRange(min=1), default=TARGET_POINTS, show_default=True,
+              help="Points sampled uniformly over the surface for -o (generate's default).")  # fmt: skip
 @click.option("--list", "list_only", is_flag=True, help="List the species and exit.")
 def lsystem(
     species: str | None,
     seed: int,
-    output: Path | None,
+    out: Path | None,
     mesh_path: Path | None,
     points: int,
     list_only: bool,
+    **old: Path | None,
 ) -> None:
     """Grow a potted SPECIES plant from a stochastic L-System (metres, z up, soil at z = 0)."""
+    old["out"] = out
+    apply_old_names(old, {"--output": "out"})
+    output = old["out"]
     from plantdreamer.lsystem import list_species
     from plantdreamer.lsystem.species import get_species
 

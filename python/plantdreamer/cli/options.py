@@ -104,16 +104,49 @@ def old_names(cls: type, aliases: dict[str, str]) -> Callable[[F], F]:
     return decorate
 
 
-def apply_old_names(values: dict[str, Any], aliases: dict[str, str]) -> set[str]:
+def hidden_old_name(old: str, new: str, **kwargs: Any) -> Callable[[F], F]:
+    """A hidden option under an option's earlier name (``--output`` for ``--out``), of the
+    same type as ``new``; ``apply_old_names(values, {old: new})`` moves a typed one onto it."""
+    return click.option(old, _old_param(old), hidden=True, **kwargs)
+
+
+def apply_old_names(
+    values: dict[str, Any], aliases: dict[str, str], ctx: click.Context | None = None
+) -> set[str]:
     """Consumes the ``old_names`` options from ``values``: each one typed replaces its
-    setting's value. Returns the settings' parameters so given."""
+    setting's value, and one typed beside its new name with another value is refused
+    (``one_value``). Returns the settings' parameters so given."""
+    typed = typed_options(ctx)
     given = set()
     for old, name in aliases.items():
         value = values.pop(_old_param(old))
-        if value is not None:
-            values[name.replace("-", "_")] = value
-            given.add(name.replace("-", "_"))
+        if value is None:
+            continue
+        param = name.lstrip("-").replace("-", "_")
+        new = "--" + name.lstrip("-")
+        if param in typed:
+            one_value(old, value, new, values[param])
+        values[param] = value
+        given.add(param)
     return given
+
+
+def one_value(old: str, old_value: Any, new: str, new_value: Any) -> None:
+    """An earlier option name given beside its new name: the same value is the same request;
+    another is refused in one line (neither silently wins)."""
+    if old_value != new_value:
+        from plantdreamer.errors import InputError
+
+        raise InputError(
+            f"{old} (the earlier name of {new}) gives {_shown(old_value)} and {new} gives "
+            f"{_shown(new_value)}; give {new} once"
+        )
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, (list, tuple)):
+        return ",".join(map(str, value))
+    return str(value)
 
 
 def _old_param(old: str) -> str:

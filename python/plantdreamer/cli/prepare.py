@@ -7,7 +7,13 @@ from typing import Any
 
 import click
 
-from plantdreamer.cli.options import apply_old_names, config_options, old_names, options_to_settings
+from plantdreamer.cli.options import (
+    apply_old_names,
+    config_options,
+    hidden_old_name,
+    old_names,
+    options_to_settings,
+)
 from plantdreamer.pipeline.config import GenerateConfig
 
 # generate's input-section settings that prepare applies, under their names and defaults.
@@ -15,6 +21,7 @@ PREPARE_SETTINGS = (
     "points", "sor-neighbors", "sor-std", "sor-after-voxel", "downsample-tolerance", "scene-size",
 )  # fmt: skip
 OLD_NAMES = {"--target": "points", "--size": "scene-size"}  # prepare's earlier names (hidden)
+OLD_OUT = {"--output": "out"}  # -o's earlier long name, as lsystem's
 
 
 def transform_path(output: Path) -> Path:
@@ -24,7 +31,8 @@ def transform_path(output: Path) -> Path:
 
 @click.command()
 @click.argument("input_ply", metavar="INPUT.ply", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Output PLY.")
+@click.option("-o", "--out", type=click.Path(path_type=Path), help="Output PLY.  [required]")
+@hidden_old_name("--output", "--out", type=click.Path(path_type=Path))
 @config_options(GenerateConfig, only=PREPARE_SETTINGS)
 @old_names(GenerateConfig, OLD_NAMES)
 @click.option(
@@ -32,26 +40,35 @@ def transform_path(output: Path) -> Path:
     "do_normalize",
     is_flag=True,
     help="Centre on the bounding-box midpoint, longest side --scene-size; writes "
-    "OUTPUT.transform.json to restore the original frame.",
+    "OUT.transform.json to restore the original frame.",
 )
 @click.option("--ascii", is_flag=True, help="Write an ascii PLY instead of binary.")
-@click.option("--overwrite", is_flag=True, help="Replace OUTPUT (and its transform) if they exist.")
+@click.option("--overwrite", is_flag=True, help="Replace OUT (and its transform) if they exist.")
 def prepare(
-    input_ply: Path, output: Path, do_normalize: bool, ascii: bool, overwrite: bool, **options: Any
+    input_ply: Path,
+    out: Path | None,
+    do_normalize: bool,
+    ascii: bool,
+    overwrite: bool,
+    **options: Any,
 ) -> None:
     """Remove outliers, downsample and (optionally) normalise INPUT.ply, as generate
     prepares a --pointcloud (the same settings, names and defaults).
 
     Steps: drop non-finite points, statistical outlier removal (Open3D semantics; 0
-    --sor-neighbors skips it), voxel grid to --points (0 keeps every point), normalisation.
+    --sor-neighbors skips it), voxel grid to --points (0 keeps every point, as generate's),
+    normalisation.
     Prints the count after each step.
     """
     from plantdreamer.errors import InputError
     from plantdreamer.output_folder import claim_files, output_file
 
-    output = output_file(output, "-o/--output")
-
     apply_old_names(options, OLD_NAMES)
+    options["out"] = out
+    apply_old_names(options, OLD_OUT)
+    if options["out"] is None:
+        raise click.UsageError("Missing option '-o' / '--out'.")
+    output = output_file(options.pop("out"), "-o/--out")
     values = options_to_settings(GenerateConfig, options)
     for name in ("points", "sor-neighbors"):
         if values[name] < 0:

@@ -19,11 +19,12 @@ from plantdreamer.cli.options import (
 )
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.rerender import ORBIT
+from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
 from plantdreamer.turntable import TURNTABLE_FRAMES
 
-# The orbit, background and turntable are generate's settings, under generate's names and
-# defaults; the render size is render's own (generate's --resolution is decided at run time).
-ORBIT_SETTINGS = (*(name for name in ORBIT if name != "resolution"), "turntable")
+# The orbit, render size, background and turntable are generate's settings, under generate's
+# names and defaults (a size left open is generate's on the CPU, where render renders).
+ORBIT_SETTINGS = (*ORBIT, "turntable")
 # The names render gave them before (hidden, still accepted).
 OLD_NAMES = {
     "--views": "eval-views", "--distance": "eval-distance", "--elevation": "eval-elevation-deg",
@@ -50,11 +51,15 @@ RENDER_OUTPUTS = (
 @click.command()
 @click.argument("ply", type=click.Path())
 @click.option(
-    "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="renders",
+    show_default=True,
+    help="The folder of the views (and, with --labels, their ground truth).",
 )
 @config_options(GenerateConfig, only=ORBIT_SETTINGS)
 @old_names(GenerateConfig, OLD_NAMES)
-@click.option("--resolution", default=512, show_default=True, help="Render size.")
 @click.option(
     "--up",
     type=click.Choice(["z", "y", "x", "-z", "-y", "-x"]),
@@ -86,7 +91,6 @@ def render(
     ctx: click.Context,
     ply: str,
     out_dir: str,
-    resolution: int,
     transforms: str | None,
     ground_truth: bool,
     overwrite: bool,
@@ -115,12 +119,14 @@ def render(
     if not path.is_file():
         raise FileNotFoundError(f"PLY not found: {path}")
     given = typed_options(ctx) | apply_old_names(options, OLD_NAMES)
-    orbit = {**options_to_settings(GenerateConfig, options), "resolution": resolution}
+    orbit = options_to_settings(GenerateConfig, options)
     target = None if center is None else parse_center(center)
     frame = GenerateFrame.beside(path) if up == "z" and target is None else None
     if frame is not None:  # generate's orbit, for the settings not given here
         typed = {k for k in frame.orbit if k.replace("-", "_") in given}
         orbit.update({k: v for k, v in frame.orbit.items() if k not in typed})
+    if orbit["resolution"] is None:
+        orbit["resolution"] = AUTO_RESOLUTION["cpu"]
     views, resolution = int(orbit["eval-views"]), int(orbit["resolution"])
     distance, elevation = orbit["eval-distance"], orbit["eval-elevation-deg"]
     fovy, background, turntable = orbit["eval-fovy-deg"], orbit["background"], orbit["turntable"]

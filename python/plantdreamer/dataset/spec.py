@@ -10,13 +10,18 @@ A spec is a TOML file::
 
     [[group]]
     species = "bean"
-    count = 3               # seeds seed-start .. seed-start + count - 1 (or: seeds = [0, 7])
+    seeds = "0-2"           # as `generate --seeds`: 0-7, 0,3,5 or both (or a list: [0, 7])
 
     [[group]]
     name = "scans"
-    pointclouds = "scans/*.ply"   # a glob, relative to the spec file
+    pointcloud = "scans/*.ply"    # a file or a glob, relative to the spec file
     species = "bean"              # names the plant in the prompts
     points = 50000
+
+A group's keys are spelled as `generate`'s and `dataset`'s options (``species``,
+``pointcloud``, ``seeds``); the earlier ``pointclouds``, ``count`` and ``seed-start``
+(``count = 3`` is ``seeds = "0-2"``) are still read, and refused beside their new name when
+they name other plants.
 
 Every plant becomes one ``GenerateConfig`` built like `generate`'s (``preset = "released"``
 applies that preset under the spec's own settings), so any setting `generate` knows is
@@ -43,6 +48,7 @@ from plantdreamer.dataset.plant import Plant, config_hash, file_digest
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.presets import resolve_config
+from plantdreamer.seeds import parse_seeds, seed_range, seeds_text
 from plantdreamer.settings import by_name, canonical
 
 if sys.version_info >= (3, 11):
@@ -51,7 +57,8 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 # Keys of a group that choose its plants; every other key is a generate setting.
-_PLANT_KEYS = ("name", "species", "pointclouds", "seeds", "count", "seed-start")
+# `pointclouds`, `count` and `seed-start` are earlier spellings of `pointcloud` and `seeds`.
+_PLANT_KEYS = ("name", "species", "pointcloud", "seeds", "pointclouds", "count", "seed-start")
 # A group name: a folder-name part that is never a path (no separator, no leading dot).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 _UNSAFE_CHARACTERS = re.compile(r"[^A-Za-z0-9._-]")
@@ -122,24 +129,23 @@ def _group_plants(
     for key in ("pointcloud", "seed"):
         if key in settings:
             raise InputError(
-                f"spec: {where}: {key!r} is chosen per plant; use 'pointclouds' (a glob) "
-                "or 'seeds' / 'count' in the group"
+                f"spec: {where}: {key!r} is chosen per group; give 'pointcloud' (a file or "
+                "a glob) or 'seeds' in each [[group]]"
             )
     seeds = _seeds(table, where)
     # The group's own species, else the one of [defaults] or --set (every group's).
     species = table.get("species", settings.get("species"))
+    pattern = _pointcloud(table, where)
     sources: list[tuple[str | None, str]]
-    if "pointclouds" in table:
-        if not isinstance(table["pointclouds"], str):
-            raise InputError(f"spec: {where}: 'pointclouds' must be a glob pattern (a string)")
-        files = _glob(table["pointclouds"], base_dir, where)
+    if pattern is not None:
+        files = _glob(pattern, base_dir, where)
         sources = [(str(f), _UNSAFE_CHARACTERS.sub("_", f.stem).lstrip(".")) for f in files]
     elif species is not None:
         if not isinstance(species, str):
             raise InputError(f"spec: {where}: 'species' must be a string")
         sources = [(None, species)]
     else:
-        raise InputError(f"spec: {where} needs 'species' or 'pointclouds'")
+        raise InputError(f"spec: {where} needs 'species' or 'pointcloud'")
     plants = []
     for pointcloud, stem in sources:
         digest = None
@@ -159,6 +165,22 @@ def _group_plants(
             plant_id = f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}"
             plants.append(Plant(plant_id, name or f"group{index}", cfg, config_hash(cfg, digest)))
     return plants
+
+
+def _pointcloud(table: dict[str, Any], where: str) -> str | None:
+    """The group's point clouds: ``pointcloud``, a file or a glob (relative to the spec
+    file), or its earlier spelling ``pointclouds``; both given must be the same."""
+    given = {key: table[key] for key in ("pointcloud", "pointclouds") if key in table}
+    for key, value in given.items():
+        if not isinstance(value, str):
+            raise InputError(f"spec: {where}: {key!r} must be a file or glob pattern (a string)")
+    if len(set(given.values())) > 1:
+        raise InputError(
+            f"spec: {where}: 'pointclouds' (the earlier spelling of 'pointcloud') gives "
+            f"{given['pointclouds']!r} and 'pointcloud' {given['pointcloud']!r}; give "
+            "'pointcloud' once"
+        )
+    return next(iter(given.values()), None)
 
 
 def _group_name(name: Any, where: str) -> str:
@@ -183,21 +205,33 @@ def _check_species(cfg: GenerateConfig) -> None:
 
 
 def _seeds(table: dict[str, Any], where: str) -> list[int]:
-    if "seeds" in table and "count" in table:
-        raise InputError(f"spec: {where}: give 'seeds' or 'count', not both")
+    """The group's seeds: ``seeds`` in ``--seeds``' grammar (``"0-7,9"``) or a list, else
+    the earlier ``count`` / ``seed-start``; both given must name the same seeds."""
+    named = None
     if "seeds" in table:
         seeds = table["seeds"]
-        if not isinstance(seeds, list) or not all(_is_int(s) for s in seeds):
-            raise InputError(f"spec: {where}: 'seeds' must be a list of integers")
-        if not seeds:
-            raise InputError(f"spec: {where}: 'seeds' is empty; a group needs at least one seed")
-        if len(set(seeds)) != len(seeds):
-            raise InputError(f"spec: {where}: 'seeds' has duplicates")
-        return list(seeds)
-    count, start = table.get("count", 1), table.get("seed-start", 0)
-    if not _is_int(count) or count < 1 or not _is_int(start) or start < 0:
-        raise InputError(f"spec: {where}: 'count' must be an integer >= 1 and 'seed-start' >= 0")
-    return list(range(start, start + count))
+        if isinstance(seeds, str):
+            named = parse_seeds(seeds, what=f"spec: {where}: 'seeds'")
+        elif isinstance(seeds, list) and all(_is_int(s) for s in seeds):
+            named = parse_seeds(",".join(map(str, seeds)), what=f"spec: {where}: 'seeds'")
+        else:
+            raise InputError(
+                f"spec: {where}: 'seeds' must be ranges and numbers like \"0-7,9\" or a list "
+                "of integers"
+            )
+    if named is None or "count" in table or "seed-start" in table:
+        counted = seed_range(
+            table.get("count", 1),
+            table.get("seed-start", 0),
+            f"spec: {where}: 'count' / 'seed-start'",
+        )
+        if named is not None and counted != named:
+            raise InputError(
+                f"spec: {where}: 'count' / 'seed-start' (the earlier spelling of 'seeds') name "
+                f"seeds {seeds_text(counted)} and 'seeds' {seeds_text(named)}; give 'seeds' once"
+            )
+        named = counted
+    return named
 
 
 def _is_int(value: Any) -> bool:

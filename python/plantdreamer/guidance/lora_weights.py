@@ -157,7 +157,9 @@ def recorded_template(lora: str | Path) -> str | None:
     if not meta.is_file():
         return None
     try:
-        template = json.loads(meta.read_text())["config"]["caption_template"]
+        config = json.loads(meta.read_text())["config"]
+        # Saved under the typed name; files before it under the field's, caption_template.
+        template = config["prompt-template" if "prompt-template" in config else "caption_template"]
     except (ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{meta} has no readable config.caption_template: {exc}") from None
+        raise InputError(f"{meta} has no readable config.prompt-template: {exc}") from None
     return str(template)

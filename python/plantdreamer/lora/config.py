@@ -4,7 +4,7 @@ CLI builds its options from it at start-up."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,7 +34,9 @@ class LoraTrainConfig:
     seed: int = setting(0, "Seed of the image order, crops, flips and noise.")
     caption_template: str = setting(
         DEFAULT_PROMPT_TEMPLATE,
-        "Caption for images without a <name>.txt beside them (generate's prompt template).",
+        "Caption for images without a <name>.txt beside them; recorded in lora.json, it is "
+        "generate's --prompt-template with this LoRA.",
+        option="--prompt-template",
     )
     checkpoint_every: int = setting(500, "Steps between checkpoints.")
     resume: bool = setting(False, "Continue from the latest checkpoint in --out.")
@@ -60,6 +62,21 @@ class LoraTrainConfig:
             raise InputError(settings.unknown_message(exc.args[0], list(known))) from None
         return cls(images_dir, **fields)
 
+    def record(self) -> dict[str, Any]:
+        """``lora.json``'s ``config``: every setting under the name typed for it (``lr`` for
+        ``--lr``), the photo folder and the output folder used."""
+        values = {s.name: settings.value_at(self, s.path) for s in settings.walk(type(self))}
+        return {"images-dir": self.images_dir, **values, "out": self.out_dir,
+                "validation-steps": self.validation_steps}  # fmt: skip
+
+    @classmethod
+    def typed_names(cls, saved: Mapping[str, Any]) -> dict[str, Any]:
+        """A record's keys under the typed names: older ``lora.json`` files and checkpoints
+        saved the field names (``learning_rate``, ``caption_template``)."""
+        names = {s.path[-1]: s.name for s in settings.walk(cls)}
+        names.update(images_dir="images-dir", validation_steps="validation-steps")
+        return {names.get(key, key): value for key, value in saved.items()}
+
     def check(self) -> None:
         try:
             settings.check_types(self)  # integers are integers, numbers finite
@@ -83,18 +100,9 @@ class LoraTrainConfig:
 
     def fingerprint(self, examples: Sequence[Any]) -> dict[str, Any]:
         """What a resumed run must share with its checkpoint (``steps`` may grow)."""
-        keys = [
-            "species",
-            "base_model",
-            "rank",
-            "alpha",
-            "resolution",
-            "learning_rate",
-            "batch_size",
-            "grad_accum",
-            "seed",
-            "caption_template",
-        ]
-        fp: dict[str, Any] = {k: getattr(self, k) for k in keys}
+        keys = ["species", "base-model", "rank", "alpha", "resolution", "lr", "batch-size",
+                "grad-accum", "seed", "prompt-template"]  # fmt: skip
+        record = self.record()
+        fp: dict[str, Any] = {k: record[k] for k in keys}
         fp["images"] = [e.path.name for e in examples]
         return fp

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -164,7 +164,8 @@ def _train(
         state = load_checkpoint(path)
         if not isinstance(state["fingerprint"], dict):
             raise CheckpointError(f"checkpoint {str(path)!r}: damaged fingerprint")
-        check_fingerprint(path, state["fingerprint"], fingerprint)
+        saved = LoraTrainConfig.typed_names(state["fingerprint"])  # older: field names
+        check_fingerprint(path, saved, fingerprint)
         try:
             set_peft_model_state_dict(parts.unet, state["lora"], adapter_name=ADAPTER)
             optimizer.load_state_dict(state["optimizer"])
@@ -239,7 +240,7 @@ def _train(
             {
                 "format": "diffusers LoRA (unet.<module>.lora.down/up.weight), alpha folded in",
                 "target_modules": list(TARGET_MODULES),
-                "config": {**asdict(config), "out": config.out_dir},
+                "config": config.record(),
                 "images": fingerprint["images"],
                 "captions": sorted({e.caption for e in examples}),
                 "steps_done": len(losses),

@@ -83,7 +83,7 @@ class GenerateConfig:
             section.validate()
         if self.source.species is None and self.source.pointcloud is None:
             raise InputError("give an input: a species (L-System) or a point cloud")
-        if self.train.steps < 0 or self.source.points <= 0 or self.outputs.eval_views < 0:
+        if self.train.steps < 0 or self.source.points < 0 or self.outputs.eval_views < 0:
             raise InputError("steps, points and views must not be negative")
         dens = self.density
         if self.train.checkpoint_every <= 0 or dens.densify.every <= 0 or dens.cull.every <= 0:
@@ -108,7 +108,8 @@ class GenerateConfig:
 
         if not 0 <= self.seed < 2**32:
             raise InputError(f"seed must be in 0..{2**32 - 1}, got {self.seed}")
-        check_point_count(self.source.points, "points")
+        if self.source.points != 0 or self.source.pointcloud is None:  # 0: the cloud whole
+            check_point_count(self.source.points, "points")
         if self.sds.guidance_scale < 0:
             raise InputError(f"guidance scale must be >= 0, got {self.sds.guidance_scale}")
         if not 0.0 <= self.train.background <= 1.0:

@@ -77,34 +77,18 @@ class GroupResult:
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``0-7``, ``0,3,5`` or both (``0-3,8``), in the order given; duplicates refused, and
-    no more than a group holds (counted before the list is made)."""
-    parts: list[range] = []
+    """``--seeds`` (``plantdreamer.seeds``' grammar), no more than a group holds."""
+    from plantdreamer.seeds import TooManySeeds
+    from plantdreamer.seeds import parse_seeds as parse
+
     try:
-        for part in (p.strip() for p in text.split(",") if p.strip()):
-            low, dash, high = part.partition("-")
-            if dash and int(low) > int(high):
-                raise InputError(
-                    f"--seeds: {part} is a reversed range; write {high.strip()}-{low.strip()}"
-                )
-            parts.append(
-                range(int(low), int(high) + 1) if dash else range(int(part), int(part) + 1)
-            )
-    except ValueError:
+        return parse(text, MAX_GROUP_PLANTS)
+    except TooManySeeds as many:
         raise InputError(
-            f"--seeds takes numbers and ranges like 0-7 or 0,3,5, got {text!r}"
-        ) from None
-    count = sum(len(r) for r in parts)
-    if count > MAX_GROUP_PLANTS:
-        raise InputError(
-            f"--seeds {text} makes a group of {count} plants; one trainer holds at most "
+            f"--seeds {text} makes a group of {many.count} plants; one trainer holds at most "
             f"{MAX_GROUP_PLANTS} (as --plants-per-gpu): train them as several groups, or with "
-            "`plantdreamer dataset`"
-        )
-    seeds = [seed for r in parts for seed in r]
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise InputError(f"--seeds needs distinct seeds, got {text!r}")
-    return seeds
+            "`plantdreamer dataset --seeds`"
+        ) from None
 
 
 def generate_group(

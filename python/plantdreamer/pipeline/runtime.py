@@ -11,6 +11,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.models import DiffusionComponents
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
 
 
 def check_inputs(cfg: GenerateConfig) -> None:
@@ -38,7 +39,7 @@ def resolve_runtime(cfg: GenerateConfig) -> None:
     # The networks' device (checked by check_inputs): CUDA when usable unless one is named.
     cuda = torch.cuda.is_available() if sds.device is None else sds.device.startswith("cuda")
     if cfg.train.resolution is None:
-        cfg.train.resolution = 768 if cuda else 512
+        cfg.train.resolution = AUTO_RESOLUTION["cuda" if cuda else "cpu"]
     if sds.network_dtype == "auto":
         sds.network_dtype = "float16" if cuda else "float32"
     if sds.prompt_template is None:

@@ -36,7 +36,9 @@ class SourceConfig:
         choices=STRUCTURES,
     )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
-    points: int = setting(prepare.TARGET_POINTS, "Points to start from.")
+    points: int = setting(
+        prepare.TARGET_POINTS, "Points to start from (0: every point of a --pointcloud)."
+    )
     sor_neighbors: int = setting(
         prepare.SOR_NEIGHBORS, "Statistical outlier removal: neighbours per point."
     )
@@ -105,7 +107,7 @@ def load_source(src: SourceConfig, seed: int, *, surface: bool) -> Source:
                 raw.attributes[name] = as_int_labels(name, raw.attributes[name])
         cloud, transform, report = prepare.prepare_cloud(
             raw,
-            target=src.points,
+            target=src.points or None,  # 0: no downsampling, as `prepare --points 0`
             sor_neighbors=src.sor_neighbors,
             sor_std=src.sor_std,
             normalize_size=src.scene_size,

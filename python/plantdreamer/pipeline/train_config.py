@@ -81,11 +81,17 @@ class CameraRanges:
             )
 
 
+# The render size when none is given, by the device the networks run on (render: the CPU).
+AUTO_RESOLUTION = {"cpu": 512, "cuda": 768}
+
+
 @dataclass
 class TrainConfig:
     steps: int = setting(3600, "Optimisation steps.")
     resolution: int | None = setting(
-        None, "Training render size.", default_text="512 on CPU, 768 on GPU"
+        None,
+        "Render size of the training and evaluation views.",
+        default_text=f"{AUTO_RESOLUTION['cpu']} on CPU, {AUTO_RESOLUTION['cuda']} on GPU",
     )
     background: float = setting(0.75, "Grey level of the background renders are made on.")
     elevation_sampling: str = setting(
