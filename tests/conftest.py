@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -43,52 +44,74 @@ def random_gaussians():
     return make_random_gaussians
 
 
-# `make test` runs the suite on two pytest-xdist workers with the scheduler below (xdist's
-# own `--dist loadgroup` reads markers through an attribute pytest 9 no longer uses). Each
-# test file stays on one worker, so its module fixtures are made once; the files that start
-# Ray (test_dataset_*.py, the only ones that may) run on one worker one after another, and
-# so do the known-answer files, which share a session fixture. Those two groups, the
-# largest, are handed out first.
-FILE_GROUPS = {"test_dataset_": "ray", "test_known_answer_": "known_answer"}  # handed out first
+# `make test-python` runs the suite in two steps, on public pytest and pytest-xdist behaviour
+# only (xdist's `--dist loadgroup` reads marks through a node id that pytest 9 no longer
+# uses). First the two largest groups, side by side, each in one pytest process of its own:
+# the files that start Ray (test_dataset_*.py, the only ones that may), one after another, and
+# the known-answer files, which share a session fixture. Then every other file on xdist
+# workers, `--dist loadfile` (pyproject's addopts): each file on one worker, so its module
+# fixtures are made once. `--file-group NAME` picks a group's files (`other`: the rest).
+FILE_GROUPS = {"test_dataset_": "ray", "test_known_answer_": "known_answer"}
 SESSION_FIXTURE_GROUPS = {"shared_ray": "ray", "known_answer_plant": "known_answer"}
+OTHER = "other"  # --file-group of the files in no group
 
 
 def file_group(nodeid: str) -> str:
-    """The group of a test's file: the tests that run on one worker in turn (a file of no
-    group in FILE_GROUPS is a group of its own)."""
-    path = nodeid.split("::")[0]
-    name = Path(path).name
-    return next((g for prefix, g in FILE_GROUPS.items() if name.startswith(prefix)), path)
+    """The group of a test's file (a node id or a file path): FILE_GROUPS' or OTHER."""
+    name = Path(nodeid.split("::")[0]).name
+    return next((g for prefix, g in FILE_GROUPS.items() if name.startswith(prefix)), OTHER)
 
 
-@pytest.hookimpl(tryfirst=True, optionalhook=True)
-def pytest_xdist_make_scheduler(config, log):
-    if config.getvalue("dist") != "load":  # -n alone; another --dist is left as asked
-        return None
-    from xdist.scheduler import LoadScopeScheduling
+def pytest_addoption(parser):
+    parser.addoption(
+        "--file-group",
+        choices=(*FILE_GROUPS.values(), OTHER),
+        help="Only the test files of this group (tests/conftest.py: FILE_GROUPS; other: the "
+        "files of none); `make test-python` runs each.",
+    )
 
-    class FileGroups(LoadScopeScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            return file_group(nodeid)
 
-    config.option.loadscopereorder = False  # keep the workers' order (below)
-    return FileGroups(config, log)
+def pytest_ignore_collect(collection_path, config):
+    wanted = config.getoption("file_group")
+    if wanted is not None and collection_path.suffix == ".py":
+        if collection_path.name.startswith("test_") and file_group(str(collection_path)) != wanted:
+            return True
+    return None  # the other hooks decide
 
 
 def pytest_collection_modifyitems(config, items):
-    if hasattr(config, "workerinput"):  # an xdist worker (they collect the tests)
-        rank = {group: i for i, group in enumerate(FILE_GROUPS.values())}
-        items.sort(key=lambda item: rank.get(file_group(item.nodeid), len(rank)))
+    wanted = config.getoption("file_group")  # files named on the command line are collected
+    if wanted is not None:
+        other = [item for item in items if file_group(item.nodeid) != wanted]
+        if other:
+            config.hook.pytest_deselected(items=other)
+            items[:] = [item for item in items if file_group(item.nodeid) == wanted]
 
 
 def pytest_runtest_setup(item):
-    for fixture, group in SESSION_FIXTURE_GROUPS.items():
-        if fixture in item.fixturenames and file_group(item.nodeid) != group:
+    group = file_group(item.nodeid)
+    for fixture, fixture_group in SESSION_FIXTURE_GROUPS.items():
+        if fixture in item.fixturenames and group != fixture_group:
             pytest.fail(
-                f"{item.nodeid} uses {fixture}: its file must be in the {group} group "
+                f"{item.nodeid} uses {fixture}: its file must be in the {fixture_group} group "
                 "(tests/conftest.py, FILE_GROUPS)",
                 pytrace=False,
             )
+    # Several xdist workers could run two files of a group at once (two Rays; the session
+    # fixture made twice): a group runs in a process of its own.
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if group != OTHER and workers > 1 and len(_group_files(item.session, group)) > 1:
+        pytest.fail(
+            f"the {group} files run one after another in one process: run them with "
+            f"`--file-group {group}` and no -n, as `make test-python` does",
+            pytrace=False,
+        )
+
+
+def _group_files(session, group: str) -> set[str]:
+    return {
+        item.nodeid.split("::")[0] for item in session.items if file_group(item.nodeid) == group
+    }
 
 
 @pytest.fixture(scope="module")
