@@ -12,7 +12,7 @@ from safetensors.torch import load_file
 
 from plantdreamer.cli import main
 from plantdreamer.errors import CheckpointError, InputError, ModelNotFoundError
-from plantdreamer.guidance.lora_weights import load_lora
+from plantdreamer.guidance.lora_weights import load_lora, recorded_template
 from plantdreamer.guidance.tiny import save_tiny_models, tiny_models, tiny_pipeline
 from plantdreamer.lora.dataset import load_examples
 from plantdreamer.lora.train import LoraTrainConfig, train_lora
@@ -94,6 +94,9 @@ def test_short_run_lowers_the_loss_and_writes_a_loadable_file(images, tmp_path):
     assert down.shape[0] == 4  # rank 4
     meta = json.loads(result.metadata.read_text())
     assert meta["config"]["rank"] == 4 and meta["steps_done"] == 20
+    # Saved under the names typed for them (--lr, --prompt-template), read back as generate's.
+    assert meta["config"]["lr"] == 1e-2 and "learning_rate" not in meta["config"]
+    assert recorded_template(result.weights) == meta["config"]["prompt-template"]
     assert meta["eval_loss_after"] < meta["eval_loss_before"]
 
     # A fresh tiny pipeline: our loader and diffusers' load_lora_weights agree, and differ
@@ -164,6 +167,35 @@ def test_resume_with_other_settings_is_refused(images, tmp_path):
         train_lora(config(images, tmp_path, steps=2), components=tiny_models())
     with pytest.raises(CheckpointError, match="rank"):
         train_lora(config(images, tmp_path, steps=4, rank=8, resume=True), components=tiny_models())
+
+
+def test_records_of_earlier_versions_read_under_the_typed_names(images, tmp_path):
+    """lora.json and checkpoint fingerprints saved under the field names still read: an old
+    checkpoint of the same settings resumes, and its template reaches generate."""
+    from plantdreamer.lora.checkpoint import check_fingerprint
+    from plantdreamer.lora.config import LoraTrainConfig as Config
+
+    cfg = config(images, tmp_path, learning_rate=3e-4, caption_template="{species} leaves")
+    new = cfg.fingerprint(load_examples(images, "bean", RES))
+    fields = {
+        "learning_rate": "lr",
+        "caption_template": "prompt-template",
+        "base_model": "base-model",
+        "batch_size": "batch-size",
+        "grad_accum": "grad-accum",
+    }
+    old = {next((f for f, n in fields.items() if n == k), k): v for k, v in new.items()}
+    assert "learning_rate" in old and Config.typed_names(old) == new
+    check_fingerprint(tmp_path / "ckpt", Config.typed_names(old), new)  # the same run
+    changed = config(images, tmp_path, learning_rate=1e-3, caption_template="{species} leaves")
+    with pytest.raises(CheckpointError, match=r"lr: checkpoint 0\.0003, now 0\.001"):
+        check_fingerprint(
+            tmp_path / "ckpt",
+            Config.typed_names(old),
+            changed.fingerprint(load_examples(images, "bean", RES)),
+        )
+    (tmp_path / "lora.json").write_text(json.dumps({"config": {"caption_template": "a {species}"}}))
+    assert recorded_template(tmp_path) == "a {species}"
 
 
 def test_bad_image_folders_are_clear_errors(tmp_path):

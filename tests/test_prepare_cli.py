@@ -85,3 +85,25 @@ def test_prepare_errors_are_one_line(tmp_path):
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n")
     result = runner.invoke(main, ["prepare", str(tmp_path / "bad.ply"), "-o", "x.ply"])
     assert result.exit_code == 1 and "error:" in result.output
+
+
+def test_points_0_keeps_a_point_cloud_whole_in_generate_as_in_prepare(tmp_path):
+    """`--points 0` means one thing in both commands: every point of the cloud (after the
+    outlier removal); an L-System plant, sampled by count, still needs a count."""
+    import pytest
+
+    from plantdreamer.errors import InputError
+    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.source import load_source
+
+    write_ply(tmp_path / "in.ply", plant_like(3000))
+    out = tmp_path / "out.ply"
+    args = ["prepare", str(tmp_path / "in.ply"), "-o", str(out), "--points", "0", "--normalize"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    cfg = GenerateConfig.of(pointcloud=str(tmp_path / "in.ply"), points=0)
+    cfg.validate()
+    source = load_source(cfg.source, cfg.seed, surface=False)
+    assert "downsampled" not in source.counts
+    np.testing.assert_array_equal(source.points, read_ply(out).positions)
+    with pytest.raises(InputError, match="points must be a positive integer"):
+        GenerateConfig.of(species="bean", points=0).validate()

@@ -87,3 +87,16 @@ def test_sizes_that_are_not_whole_pixel_counts_are_refused(model, tmp_path, valu
     assert result.exit_code == 1 and len(errors) == 1, result.output
     assert "w must be a whole number of pixels" in errors[0] and shown in errors[0], errors
     assert not list(tmp_path.glob("out/**/*.png"))
+
+
+def test_the_orbit_size_left_open_is_generates_on_the_cpu(model, tmp_path):
+    """`render --resolution` is generate's setting: unset, generate's size on the CPU, where
+    render renders (a plant folder's run.json gives the size it was made at)."""
+    from PIL import Image
+
+    from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+
+    result = run("render", model, "--eval-views", 1, "--turntable", "none", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    side = AUTO_RESOLUTION["cpu"]
+    assert Image.open(tmp_path / "view_000.png").size == (side, side)
