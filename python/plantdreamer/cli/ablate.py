@@ -13,6 +13,7 @@ from plantdreamer.cli.options import (
     hidden_old_name,
 )
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.init import COLOR_INITS
 
 # The generation settings an ablation varies only through the command line.
 SETTINGS = (
@@ -28,6 +29,7 @@ SETTINGS = (
 @click.option("--dataset", required=True, type=click.Path(), help="Posed ground-truth images.")
 @click.option(
     "--color-init",
+    type=click.Choice(COLOR_INITS),
     multiple=True,
     help="The colour initialisations compared, as generate's --color-init (repeat it: "
     "--color-init noise --color-init black).  [default: every one]",
@@ -50,7 +52,6 @@ def ablate(pointcloud, dataset, color_init, out_dir, overwrite, quiet, **options
     from plantdreamer.errors import InputError
     from plantdreamer.eval import scan_dataset
     from plantdreamer.output_folder import claim_folder
-    from plantdreamer.pipeline.init import COLOR_INITS
 
     given = {"color_init": ",".join(color_init) or None, "old_colors": options.pop("old_colors")}
     apply_old_names(given, {"--colors": "color-init"})

@@ -60,8 +60,8 @@ def _toml_value(text: str) -> object:
 )
 @click.option(
     "--seeds",
-    help="Without a spec: the seeds of each group's plants, as generate's: 0-7, 0,3,5 or both.",
-    show_default="0",
+    help="Without a spec: the seeds of each group's plants, as generate's: 0-7, 0,3,5 or "
+    "both.  [default: 0]",
 )
 @click.option("--count", type=click.IntRange(1), hidden=True)  # earlier: --seeds S-(S+N-1)
 @click.option("--seed-start", type=click.IntRange(0), hidden=True)
