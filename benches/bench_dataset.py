@@ -65,8 +65,9 @@ def dataset(tmp: Path, cpus: int) -> dict[str, float]:
     started (Ray and worker start-up), the median time of a plant on a worker that already
     ran one, and the median gap between one plant's end and the next start on a worker."""
     out = tmp / f"ray{cpus}"
-    cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", ",".join(SPECIES),
-           "--count", str(len(SEEDS)), "--local-cpus", str(cpus), *FLAGS, "--quiet",
+    species = [arg for name in SPECIES for arg in ("--species", name)]
+    cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", *species, "--seeds",
+           f"{SEEDS[0]}-{SEEDS[-1]}", "--local-cpus", str(cpus), *FLAGS, "--quiet",
            "--out", str(out)]  # fmt: skip
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, capture_output=True)

@@ -46,7 +46,7 @@ def _one_run(args: argparse.Namespace, b: int, base: Path, control: Path, out: P
     shutil.rmtree(work, ignore_errors=True)
     cmd = [
         sys.executable, "-m", "plantdreamer", "dataset", "--species", args.species,
-        "--count", str(args.plants), "--plants-per-gpu", str(b), "--steps", str(args.steps),
+        "--seeds", f"0-{args.plants - 1}", "--plants-per-gpu", str(b), "--steps", str(args.steps),
         "--points", str(args.points), "--resolution", str(args.resolution),
         "--eval-views", "2", "--quiet", "--set", f"base-model={json.dumps(str(base))}",
         "--set", f"controlnet={json.dumps(str(control))}", "--set",
