@@ -32,6 +32,8 @@ def parse_seeds(text: str, most: int = MAX_SEEDS, what: str = "--seeds") -> list
         raise InputError(
             f"{what} takes numbers and ranges like 0-7 or 0,3,5, got {text!r}"
         ) from None
+    if not parts:
+        raise InputError(f"{what} is empty; give at least one seed")
     count = sum(len(r) for r in parts)
     if count > most:
         raise TooManySeeds(f"{what} {text} names {count} plants; at most {most} at once", count)
@@ -51,12 +53,17 @@ class TooManySeeds(InputError):
         self.count = count
 
 
-def seed_range(count: Any, start: Any, what: str = "--count / --seed-start") -> list[int]:
-    """The earlier spelling: ``count`` seeds from ``start`` (``--seed-start``)."""
+def seed_range(
+    count: Any, start: Any, names: tuple[str, str] = ("--count", "--seed-start")
+) -> list[int]:
+    """The earlier spelling: ``count`` seeds from ``start``; ``names``: theirs in messages."""
     if not _is_int(count) or count < 1 or not _is_int(start) or start < 0:
-        raise InputError(f"{what}: the count must be an integer >= 1 and the start >= 0")
+        raise InputError(f"{names[0]} must be an integer >= 1 and {names[1]} >= 0")
     if count > MAX_SEEDS or start + count - 1 > MAX_SEED:
-        raise InputError(f"{what}: {count} seeds from {start} are more than one set holds")
+        raise InputError(
+            f"{names[0]} {count} from {names[1]} {start}: at most {MAX_SEEDS} seeds, each in "
+            f"0..{MAX_SEED}"
+        )
     return list(range(start, start + count))
 
 

@@ -220,11 +220,8 @@ def _seeds(table: dict[str, Any], where: str) -> list[int]:
                 "of integers"
             )
     if named is None or "count" in table or "seed-start" in table:
-        counted = seed_range(
-            table.get("count", 1),
-            table.get("seed-start", 0),
-            f"spec: {where}: 'count' / 'seed-start'",
-        )
+        names = (f"spec: {where}: 'count'", "'seed-start'")
+        counted = seed_range(table.get("count", 1), table.get("seed-start", 0), names)
         if named is not None and counted != named:
             raise InputError(
                 f"spec: {where}: 'count' / 'seed-start' (the earlier spelling of 'seeds') name "
