@@ -3,7 +3,9 @@
 ``config_options(GenerateConfig)`` adds one click option per setting, sections included,
 named by the setting's one name, with the field's default, choices, range and help;
 ``options_to_settings`` turns the parsed values back into ``{name: value}``. A new setting is
-one field: no edit here.
+one field: no edit here. An option renamed keeps its earlier name as a hidden option
+(``old_names``, ``hidden_old_name``); ``apply_old_names`` moves its value onto the new name and
+refuses the two given with different values (``one_value``), so neither silently wins.
 """
 
 from __future__ import annotations
@@ -98,7 +100,9 @@ def old_names(cls: type, aliases: dict[str, str]) -> Callable[[F], F]:
         for old, name in aliases.items():
             s = known[name]
             kind = _click_type(s)
-            command = click.option(old, _old_param(old), type=kind, hidden=True)(command)
+            command = click.option(
+                old, _old_param(old), type=kind, hidden=True, help=f"Earlier name of --{name}."
+            )(command)
         return command
 
     return decorate
@@ -107,7 +111,7 @@ def old_names(cls: type, aliases: dict[str, str]) -> Callable[[F], F]:
 def hidden_old_name(old: str, new: str, **kwargs: Any) -> Callable[[F], F]:
     """A hidden option under an option's earlier name (``--output`` for ``--out``), of the
     same type as ``new``; ``apply_old_names(values, {old: new})`` moves a typed one onto it."""
-    return click.option(old, _old_param(old), hidden=True, **kwargs)
+    return click.option(old, _old_param(old), hidden=True, help=f"Earlier name of {new}.", **kwargs)
 
 
 def apply_old_names(
