@@ -28,9 +28,9 @@ PACKAGE = Path(__file__).resolve().parents[1] / "python" / "plantdreamer"
 LAYERS: list[tuple[str, set[str]]] = [
     ("native", {"_core"}),
     (
-        "foundation: errors, files, settings, process state",
+        "foundation: errors, files, settings, seeds, process state",
         {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder"}
-        | {"settings", "thread_policy", "stop_signals"},
+        | {"settings", "seeds", "thread_policy", "stop_signals"},
     ),
     (
         "the model and its I/O: clouds, Gaussians, cameras, PLY, the rasterizer, plants",
