@@ -33,8 +33,10 @@ def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) ->
     and write the paper-style table and bar plot."""
     from plantdreamer.errors import InputError
     from plantdreamer.eval import scan_dataset
-    from plantdreamer.output_folder import claim_folder
+    from plantdreamer.output_folder import claim_folder, tree
     from plantdreamer.pipeline.init import COLOR_INITS
+    from plantdreamer.pipeline.run_outputs import RUN_OUTPUTS
+    from plantdreamer.pipeline.runtime import check_inputs, check_models
 
     base = config_from_options(GenerateConfig, options)
     settings = [c.strip() for c in colors.split(",") if c.strip()]
@@ -42,9 +44,13 @@ def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) ->
     if not settings or unknown:
         raise InputError(f"--colors takes a list of {', '.join(COLOR_INITS)}; got {colors!r}")
     frames = scan_dataset(dataset)  # fail on a bad dataset before hours of generation
+    first = GenerateConfig.from_settings({**base.settings(), "pointcloud": pointcloud})
+    check_inputs(first)
+    check_models(first)
     out = Path(out_dir)
-    owned = ("ablation.md", "ablation.png", *COLOR_INITS)
-    with claim_folder(out, overwrite=overwrite, owned=owned):
+    runs = [e for color in COLOR_INITS for e in tree(color, *RUN_OUTPUTS, "eval.json")]
+    owned = ("ablation.md", "ablation.png", *runs)
+    with claim_folder(out, overwrite=overwrite, owned=owned, inputs=[pointcloud]):
         _ablate(base, pointcloud, frames, settings, out, quiet)
 
 

@@ -59,11 +59,12 @@ def eval_command(
 ) -> None:
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU."""
     from plantdreamer.errors import InputError
+    from plantdreamer.eval import scan_dataset
+    from plantdreamer.io import check_ply_file
     from plantdreamer.output_folder import claim_files, output_file
 
     bg = parse_background(background)
-    if not ply.is_file():
-        raise FileNotFoundError(f"model not found: {ply}")
+    check_ply_file(ply, "model")
     out = output_file(out, "--out")
     if out.suffix.lower() == ".json":  # the JSON report is written beside the markdown
         raise InputError(
@@ -71,15 +72,19 @@ def eval_command(
             f"{out.with_suffix('.md')} rather than {out}"
         )
     strip_path = out.with_name(out.stem + "_strip.png")
-    with claim_files([out, out.with_suffix(".json"), strip_path], overwrite=overwrite):
-        _evaluate(ply, dataset, out, bg, strip_views, strip_path)
+    frames = scan_dataset(dataset)  # checked before --overwrite deletes the earlier report
+    inputs = [ply, *(p for f in frames for p in (f.image_path, f.mask_path) if p is not None)]
+    outs = [out, out.with_suffix(".json"), strip_path]
+    with claim_files(outs, overwrite=overwrite, inputs=inputs):
+        _evaluate(ply, dataset, frames, out, bg, strip_views, strip_path)
 
 
-def _evaluate(ply: Path, dataset: Path, out: Path, bg, strip_views: int, strip_path: Path) -> None:
-    from plantdreamer.eval import FrameMetrics, evaluate, scan_dataset
+def _evaluate(
+    ply: Path, dataset: Path, frames: list, out: Path, bg, strip_views: int, strip_path: Path
+) -> None:
+    from plantdreamer.eval import FrameMetrics, evaluate
     from plantdreamer.eval.report import write_image_strip, write_json, write_markdown
 
-    frames = scan_dataset(dataset)  # images are read one at a time during evaluation
     try:
         from plantdreamer.io import read_splat_ply
     except ImportError as exc:

@@ -47,9 +47,11 @@ def prepare(
     Prints the count after each step.
     """
     from plantdreamer.errors import InputError
+    from plantdreamer.io import check_ply_file
     from plantdreamer.output_folder import claim_files, output_file
 
     output = output_file(output, "-o/--output")
+    check_ply_file(input_ply, "INPUT.ply")  # before --overwrite deletes anything
 
     apply_old_names(options, OLD_NAMES)
     values = options_to_settings(GenerateConfig, options)
@@ -57,7 +59,7 @@ def prepare(
         if values[name] < 0:
             raise InputError(f"--{name} must not be negative, got {values[name]}")
     # The transform is claimed too: a stale one beside a new, unnormalised output would lie.
-    with claim_files([output, transform_path(output)], overwrite=overwrite):
+    with claim_files([output, transform_path(output)], overwrite=overwrite, inputs=[input_ply]):
         _prepare(input_ply, output, values, do_normalize, ascii)
 
 
