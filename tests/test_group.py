@@ -318,3 +318,30 @@ def test_a_group_record_never_leads_a_resume_out_of_its_folder(tmp_path, hostile
     after = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if not p.is_symlink()}
     assert after == before  # nothing made, removed or changed, inside or out
     assert not (tmp_path / "escaped").exists() and not os.path.exists("/tmp/escaped")
+
+
+def test_resume_tries_every_failed_plant_again_and_says_how_many(tmp_path, monkeypatch):
+    """A plant failed on a full disk (recorded as the trainer reports it: its message): after
+    space is freed, `generate --resume` finishes it, as a dataset rerun would."""
+    from plantdreamer.pipeline import run
+
+    export = run.export_run
+
+    def disk_full_for_the_second(cfg, state, folder, *args):
+        if folder.name == "bean-s0001":
+            raise OSError(28, "No space left on device")
+        return export(cfg, state, folder, *args)
+
+    monkeypatch.setattr(run, "export_run", disk_full_for_the_second)
+    out = tmp_path / "g"
+    args = ["generate", "--species", "bean", "--seeds", "0,1", "--guidance", "none", "--steps",
+            "1", "--points", "300", "--resolution", "16", "--eval-views", "1", "--turntable",
+            "none"]  # fmt: skip
+    first = CliRunner().invoke(main, [*args, "--out", str(out), "--quiet"])
+    assert first.exit_code == 1 and "No space left" in first.output, first.output
+    monkeypatch.setattr(run, "export_run", export)
+    again = CliRunner().invoke(main, ["generate", "--resume", str(out)])
+    assert again.exit_code == 0, again.output
+    assert "retrying 1 plants that failed before: bean-s0001" in again.output
+    statuses = [p["status"] for p in json.loads((out / "group.json").read_text())["plants"]]
+    assert statuses == ["done", "done"] and (out / "bean-s0001" / "run.json").is_file()

@@ -71,9 +71,18 @@ def plan(
             # The record changes first, so a stop while the files go never leaves a
             # `done` that has none.
             manifest.replace(plant.id, {**base_record(plant, plants_per_gpu), "status": "pending"})
-            remove_owned(plant_dir(out_dir, plant), PLANT_FILES)
+            clear_plant_folder(plant_dir(out_dir, plant))
         todo.append(plant)
     return todo, skipped
+
+
+def clear_plant_folder(folder: Path) -> None:
+    """Deletes what the dataset wrote in a plant folder, then the folder once empty."""
+    remove_owned(folder, PLANT_FILES)
+    try:
+        folder.rmdir()
+    except FileNotFoundError:
+        pass
 
 
 def finished_files(folder: Path) -> bool:

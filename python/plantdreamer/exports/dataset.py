@@ -57,6 +57,7 @@ from plantdreamer.output_folder import remove_temporaries, replace_entries, surv
 
 SPLITS_FILE = "splits.json"
 _SPLIT = "(?:" + "|".join(SPLITS) + ")"
+_VIEW = r"[^/]+__view_\d{3,}"  # <plant id>__<view>: a plant's view, flattened
 # What the exports write in a dataset folder (output_folder.Owned).
 DATASET_EXPORTS = (
     SPLITS_FILE,
@@ -65,8 +66,8 @@ DATASET_EXPORTS = (
     *tree(
         "yolo",
         "data.yaml",
-        *tree("images", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/[^/]+\.png")),
-        *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/[^/]+\.txt")),
+        *tree("images", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.png")),
+        *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.txt")),
     ),
 )
 EXPORT_ENTRIES = (SPLITS_FILE, "coco", "yolo", GALLERY_FILE)  # replaced together
