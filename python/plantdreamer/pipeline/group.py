@@ -136,14 +136,17 @@ def generate_group(
         record = read_record(out)
     else:
         record = new_record(cfgs or [], plant_dirs)
-    for cfg in cfgs or []:  # every plant's inputs and models, before anything is deleted
-        check_inputs(cfg)
-    if guidance is None and cfgs:  # the plants share their models
+    if guidance is None and cfgs:  # the plants share their models: found before anything
         check_models(cfgs[0])
-    names = [p["name"] for p in record["plants"]]
     owned = [GROUP_FILE]
-    if plant_dirs is None:
-        owned += [entry for name in names for entry in tree(name, *RUN_OUTPUTS)]
+    if plant_dirs is None and not resume:  # a plant whose inputs fail, fails alone, untouched
+        for entry, cfg in zip(record["plants"], cfgs or [], strict=True):
+            try:
+                check_inputs(cfg)
+            except (PlantDreamerError, OSError) as exc:
+                mark_failed(entry, exc)
+                continue
+            owned += tree(entry["name"], *RUN_OUTPUTS)
     inputs = [c.source.pointcloud for c in cfgs or [] if c.source.pointcloud is not None]
     with claim_folder(out, overwrite=overwrite and not resume, owned=owned,
                       allow_existing=resume, inputs=inputs):  # fmt: skip

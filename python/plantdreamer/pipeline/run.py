@@ -118,6 +118,8 @@ def start_plant(
     ``cfg`` (``start`` None), or from the checkpoint at ``start`` = (step, file name) with
     ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint)."""
     resume = start is not None
+    if cfg is not None:  # a fresh start: its inputs checked before its folder is claimed
+        check_inputs(cfg)
     inputs = [cfg.source.pointcloud] if cfg is not None and cfg.source.pointcloud else []
     stack.enter_context(
         claim_folder(out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS,
