@@ -120,7 +120,7 @@ def test_a_bad_point_cloud_fails_alone(tmp_path):
                               guidance="none", **SMALL) for n in "abc"]  # fmt: skip
     result = generate_group(cfgs, tmp_path / "g", show_progress=False)
     assert sorted(result.done) == ["a-s0000", "c-s0000"]
-    assert list(result.failed) == ["b-s0000"] and "not a PLY" in result.failed["b-s0000"]
+    assert list(result.failed) == ["b-s0000"] and "PlyError" in result.failed["b-s0000"]
     status = {
         p["name"]: p["status"]
         for p in json.loads((tmp_path / "g" / "group.json").read_text())["plants"]

@@ -101,7 +101,7 @@ def check_ply_file(path: PathLike, what: str = "PLY") -> None:
     except OSError as exc:
         raise InputError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
     if not (head.startswith((b"ply\n", b"ply\r\n")) and b"end_header" in head):
-        raise InputError(f"{what} {path} is not a PLY file (no PLY header)")
+        raise PlyError(f"{what} {path} is not a PLY file (no PLY header)")
 
 
 def read_ply_columns(path: PathLike, *, strict: bool = False) -> dict[str, np.ndarray]:

@@ -30,7 +30,7 @@ from typing import Any
 
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.output_folder import claim_folder, tree
+from plantdreamer.output_folder import Owned, claim_folder, tree
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_FILES, PlantCheckpoints, common_starts
 from plantdreamer.pipeline.config import GenerateConfig
@@ -138,7 +138,7 @@ def generate_group(
         record = new_record(cfgs or [], plant_dirs)
     if guidance is None and cfgs:  # the plants share their models: found before anything
         check_models(cfgs[0])
-    owned = [GROUP_FILE]
+    owned: list[Owned] = [GROUP_FILE]
     if plant_dirs is None and not resume:  # a plant whose inputs fail, fails alone, untouched
         for entry, cfg in zip(record["plants"], cfgs or [], strict=True):
             try:
