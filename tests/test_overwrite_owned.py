@@ -7,6 +7,7 @@ glob characters; an output path that names a folder is refused, never emptied.
 
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
@@ -195,6 +196,13 @@ def test_generate_overwrite_refuses_its_folders_holding_a_users_files(tmp_path):
     one_error(result, "renders/notes.txt")
     assert "labels/mine.json" in result.output and "depth/scan.exr" in result.output
     assert snapshot(out) == before and intact(out)
+    # A link where the command writes a folder is refused too, never followed.
+    shutil.rmtree(out / "renders")
+    sentinels(tmp_path / "elsewhere")
+    (out / "renders").symlink_to(tmp_path / "elsewhere")
+    one_error(run("generate", "--species", "bean", *TINY, "--out", out, "--overwrite"),
+              "renders (a link)")  # fmt: skip
+    assert intact(tmp_path / "elsewhere")
 
 
 def test_generate_overwrite_deletes_its_own_files_and_keeps_the_users(tmp_path):
