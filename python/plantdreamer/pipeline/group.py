@@ -136,8 +136,8 @@ def generate_group(
         record = read_record(out)
     else:
         record = new_record(cfgs or [], plant_dirs)
-    if guidance is None and cfgs:  # the plants share their models: found before anything
-        check_models(cfgs[0])
+    if guidance is None:  # the plants share their models: found before anything
+        check_models(cfgs[0] if cfgs else GenerateConfig.from_dict(record["plants"][0]["config"]))
     owned: list[Owned] = [GROUP_FILE]
     if plant_dirs is None and not resume:  # a plant whose inputs fail, fails alone, untouched
         for entry, cfg in zip(record["plants"], cfgs or [], strict=True):

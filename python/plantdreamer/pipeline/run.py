@@ -95,7 +95,7 @@ def generate(
             start = (max(found), found[max(found)]) if found else (0, CHECKPOINT_NAME)
         started = start_plant(
             stack, cfg, out_dir, start=start, changes=changes or {}, overwrite=overwrite,
-            show_progress=show_progress,
+            show_progress=show_progress, models=guidance is None,
         )  # fmt: skip
         results = train_plants(
             [started], out_dir, guidance=guidance, show_progress=show_progress,
@@ -113,10 +113,12 @@ def start_plant(
     changes: dict[str, Any],
     overwrite: bool,
     show_progress: bool,
+    models: bool = False,
 ) -> Started:
     """Claims ``out_dir`` (for the life of ``stack``) and starts its plant: afresh from
     ``cfg`` (``start`` None), or from the checkpoint at ``start`` = (step, file name) with
-    ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint)."""
+    ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint).
+    ``models``: a resumed config's models are checked too before its final outputs go."""
     resume = start is not None
     if cfg is not None:  # a fresh start: its inputs checked before its folder is claimed
         check_inputs(cfg)
@@ -131,6 +133,8 @@ def start_plant(
         saved = files.read(start[1])
         cfg, note = resumed_config(saved, changes, out_dir)
         check_inputs(cfg)
+        if models:
+            check_models(cfg)
         if cfg.source.pointcloud is not None:
             from plantdreamer.output_folder import check_inputs_outside
 
