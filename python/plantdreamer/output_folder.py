@@ -43,6 +43,7 @@ from plantdreamer.errors import InputError
 __all__ = [
     "LOCK_NAME",
     "Owned",
+    "check_inputs_outside",
     "check_name",
     "claim_files",
     "claim_folder",
@@ -142,12 +143,14 @@ class Survey:
                 f" and {len(self.foreign) - 5} more" if len(self.foreign) > 5 else ""
             )
             raise InputError(
-                f"{root} holds what this command does not write where it writes ({shown}); "
+                f"{root} holds, where this command writes, what it does not write: {shown}; "
                 "nothing was deleted: move them away, or choose another output folder"
             )
 
 
 class _Owned:
+    """A command's ``Owned`` entries, checked, with its folders apart."""
+
     def __init__(self, owned: Iterable[Owned]) -> None:
         self.entries = list(owned)
         for entry in self.entries:
