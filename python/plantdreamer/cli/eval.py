@@ -64,7 +64,8 @@ def eval_command(
     from plantdreamer.output_folder import claim_files, output_file
 
     bg = parse_background(background)
-    check_ply_file(ply, "model")
+    if not ply.is_file():
+        raise FileNotFoundError(f"model not found: {ply}")
     out = output_file(out, "--out")
     if out.suffix.lower() == ".json":  # the JSON report is written beside the markdown
         raise InputError(
@@ -73,6 +74,7 @@ def eval_command(
         )
     strip_path = out.with_name(out.stem + "_strip.png")
     frames = scan_dataset(dataset)  # checked before --overwrite deletes the earlier report
+    check_ply_file(ply, "model")
     inputs = [ply, *(p for f in frames for p in (f.image_path, f.mask_path) if p is not None)]
     outs = [out, out.with_suffix(".json"), strip_path]
     with claim_files(outs, overwrite=overwrite, inputs=inputs):
