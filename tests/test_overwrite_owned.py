@@ -238,6 +238,7 @@ def test_resume_removes_a_killed_writes_temporary(tmp_path):
         (["--guidance", "sds", "--base-model", "{d}/no-such-model"], "no-such-model"),
         (["--pointcloud", "{d}/notes.txt"], "not a PLY"),
         (["--lora", "{d}/missing/path"], "LoRA"),
+        (["--guidance", "sds", "--lora", "{d}/missing/path"], "LoRA"),
     ],
 )
 def test_generate_overwrite_checks_the_new_run_before_deleting(tmp_path, monkeypatch, args,
