@@ -128,7 +128,8 @@ test: ## Set up everything, then run all Rust and Python tests and the wheel che
 
 # The demo: SDS through the known-answer models the tests use (tests/data/known_answer/: a
 # VAE, UNet and depth ControlNet trained on bean seed 0's true views at 64 px), from noise
-# colours, scored against the plant's held-out true views. DEMO_OUT is replaced on each run.
+# colours, scored against the plant's held-out true views. Each run replaces its own files in
+# DEMO_OUT (generate's outputs, demo.json, demo.png); anything else there is left alone.
 DEMO_OUT ?= out/demo
 DEMO_STEPS ?= 200
 DEMO_MODELS := tests/data/known_answer/bean_s0_r64

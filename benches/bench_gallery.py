@@ -78,7 +78,7 @@ CHILD = """
 import resource, sys
 from plantdreamer.cli import main
 try:
-    main(["gallery", sys.argv[1], "--out", sys.argv[2]])
+    main(["gallery", sys.argv[1], "--out", sys.argv[2], "--overwrite"])
 except SystemExit as exit:
     assert not exit.code, exit.code
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)

@@ -78,7 +78,7 @@ WRITERS = {
     "mesh": (
         "plant.obj",
         "from click.testing import CliRunner\nfrom plantdreamer.cli import main\n"
-        "r = CliRunner().invoke(main, ['lsystem', 'bean', '--mesh', str(path)])\n"
+        "r = CliRunner().invoke(main, ['lsystem', 'bean', '--mesh', str(path), '--overwrite'])\n"
         "print(r.output)\n"
         "sys.exit(3 if r.exit_code == 1 and 'error:' in r.output else 4)",
     ),

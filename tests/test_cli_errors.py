@@ -424,13 +424,27 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
         assert not stale.exists()  # the stale companion is gone, not left beside new output
 
 
+def fake_base(folder):
+    """A folder laid out as a Stable Diffusion model (found by the checks, never loaded)."""
+    base = folder / "base"
+    for part in ("unet", "vae", "text_encoder"):
+        (base / part).mkdir(parents=True)
+        (base / part / "config.json").write_text("{}")
+        (base / part / "model.safetensors").write_bytes(b"")
+    (base / "tokenizer").mkdir()
+    (base / "tokenizer" / "vocab.json").write_text("{}")
+    (base / "scheduler").mkdir()
+    (base / "scheduler" / "scheduler_config.json").write_text("{}")
+    return base
+
+
 @pytest.mark.parametrize("command", ["ablate", "lora"])
 def test_folders_of_earlier_runs_are_refused(files, tmp_path, command):
     out = tmp_path / "o"
     out.mkdir()
     (out / "lora.json" if command == "lora" else out / "ablation.md").write_text("earlier run")
-    if command == "lora":
-        args = ["lora", "train", files, "--out", out, "--base-model", tmp_path / "no-model"]
+    if command == "lora":  # a base model that is found: the folder is what is refused
+        args = ["lora", "train", files, "--out", out, "--base-model", fake_base(tmp_path)]
     else:
         args = ["ablate", "--pointcloud", files / "cloud.ply", "--dataset",
                 transforms(tmp_path / "ds"), "--guidance", "none", "--out", out]  # fmt: skip

@@ -335,3 +335,62 @@ def test_an_empty_folder_is_one_error_line(tmp_path):
         result = cli(command, tmp_path)
         assert result.exit_code == 1
         assert result.output.strip().startswith("error:") and "Traceback" not in result.output
+
+
+# -- the exports are the dataset's own, written whole or not at all, under its lock -----------
+
+
+def _copy(dataset, tmp_path):
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    assert cli("labels", copy, "--allow-empty-split").exit_code == 0
+    return copy
+
+
+def _exports(folder):
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for name in ("splits.json", "coco", "yolo", "gallery.png")
+        for p in ([folder / name] if (folder / name).is_file() else (folder / name).rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_labels_refuses_foreign_files_in_its_folders_and_links(dataset, tmp_path):
+    copy = _copy(dataset, tmp_path)
+    mine = copy / "yolo" / "labels" / "train" / "mine.txt"
+    mine.parent.mkdir(parents=True, exist_ok=True)
+    mine.write_text("a user's labels")
+    result = cli("labels", copy, "--allow-empty-split")
+    assert result.exit_code == 1 and "yolo/labels/train/mine.txt" in result.output, result.output
+    assert mine.read_text() == "a user's labels"
+    mine.unlink()
+    elsewhere = tmp_path / "elsewhere"
+    shutil.move(copy / "yolo", elsewhere)
+    (copy / "yolo").symlink_to(elsewhere)
+    before = {p: p.read_bytes() for p in elsewhere.rglob("*") if p.is_file()}
+    result = cli("labels", copy, "--allow-empty-split")
+    assert result.exit_code == 1 and "yolo (a link)" in result.output, result.output
+    assert {p: p.read_bytes() for p in elsewhere.rglob("*") if p.is_file()} == before
+
+
+def test_a_failed_export_leaves_the_previous_one_whole(dataset, tmp_path):
+    copy = _copy(dataset, tmp_path)
+    before = _exports(copy)
+    bad = copy / "plants" / sorted(PLANTS)[-1] / "instances" / "view_001.png"
+    bad.write_bytes(b"not a png")
+    result = cli("labels", copy, "--split", "1,1,1", "--split-seed", 1, "--allow-empty-split")
+    assert result.exit_code == 1, result.output
+    assert _exports(copy) == before
+    assert not [p for p in copy.iterdir() if p.name.startswith(".staging")]
+
+
+def test_labels_waits_for_no_run_it_is_refused_while_one_holds_the_folder(dataset, tmp_path):
+    from plantdreamer.output_folder import LOCK_NAME, locked
+
+    copy = _copy(dataset, tmp_path)
+    before = _exports(copy)
+    with locked(copy / LOCK_NAME, "dataset folder", "`plantdreamer dataset`"):
+        result = cli("labels", copy, "--split", "1,1,1", "--allow-empty-split")
+    assert result.exit_code == 1 and "in use" in result.output, result.output
+    assert _exports(copy) == before

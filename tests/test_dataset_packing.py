@@ -244,3 +244,15 @@ def test_a_plant_failed_before_a_stop_is_recorded_failed_not_interrupted(tmp_pat
         "a-s0000": "interrupted", "b-s0000": "failed", "c-s0000": "interrupted"
     }  # fmt: skip
     assert "PlyError" in results["b-s0000"]["error"]
+
+
+def test_a_worker_checks_the_lora_before_any_model_loads(tmp_path):
+    settings = {**SMALL, "guidance": "sds", "lora": str(tmp_path / "missing" / "bean")}
+    (plant,) = expand({"group": [{"species": "bean", **settings}]})
+    (tmp_path / LOCK_NAME).touch()  # the driver's lock: the worker sees the folder
+
+    def no_load(cfg):
+        raise AssertionError("a model was loaded")
+
+    record = run_unit(_request(tmp_path, [plant]), FakeBoard(), no_load, None)[plant.id]
+    assert record["status"] == "failed" and "LoRA" in record["error"], record

@@ -124,14 +124,14 @@ def test_the_record_changes_before_any_file_is_deleted(tmp_path, monkeypatch):
     no longer `done`."""
     spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
     _finished_dataset(tmp_path, expand(spec))
-    real_rmtree, seen = plan.shutil.rmtree, []
+    real_clear, seen = plan.clear_plant_folder, []
 
-    def checked_rmtree(folder, *args, **kwargs):
+    def checked_clear(folder):
         assert Manifest(tmp_path).get(folder.name)["status"] == "pending"
         seen.append(folder.name)
-        real_rmtree(folder, *args, **kwargs)
+        real_clear(folder)
 
-    monkeypatch.setattr(plan.shutil, "rmtree", checked_rmtree)
+    monkeypatch.setattr(plan, "clear_plant_folder", checked_clear)
     changed = {**spec, "defaults": {"steps": 7}}
     todo, skipped = plan.plan(expand(changed), Manifest(tmp_path), tmp_path, 1, redo_changed=True)
     assert len(todo) == 2 and not skipped and sorted(seen) == ["bean-s0000", "bean-s0001"]
@@ -285,3 +285,51 @@ def test_changing_plants_per_gpu_keeps_finished_plants_and_restarts_unfinished_o
         "pending",
         2,
     )
+
+
+# -- the exports' folders are the dataset's own; a finished plant is found by its files ------
+
+
+def test_a_dataset_into_a_project_with_its_own_yolo_files_is_refused(tmp_path):
+    project = tmp_path / "project"
+    mine = project / "yolo" / "images" / "train" / "mine.png"
+    mine.parent.mkdir(parents=True)
+    mine.write_bytes(b"a user's picture")
+    (project / "coco").mkdir()
+    (project / "coco" / "train.json").write_text("a user's labels")  # a name the export writes
+    result = invoke("--out", project, "--species", "bean", *FAST, "--split", "1,0,0")
+    one_line_error(result, "yolo/images/train/mine.png")
+    assert mine.read_bytes() == b"a user's picture"
+    assert not (project / "plants").exists()
+
+
+def _finished_plant_without_record(out, plant, config=None):
+    folder = out / "plants" / plant.id
+    folder.mkdir(parents=True)
+    (folder / "plant.ply").write_text("x")
+    run_json = {"config": (config or plant.config).to_dict()}
+    (folder / "run.json").write_text(json.dumps(run_json))
+    return folder
+
+
+def test_a_finished_plant_whose_line_was_deleted_is_kept_and_the_dry_run_agrees(tmp_path):
+    spec = {"group": [{"species": "bean", "count": 2, "guidance": "none"}]}
+    plants = expand(spec)
+    folder = _finished_plant_without_record(tmp_path, plants[0])
+    lines = plan.describe_plan(plants, Manifest(tmp_path, read_only=True), tmp_path, 1)
+    assert "skip    bean-s0000" in lines and "make    bean-s0001" in lines
+    todo, skipped = plan.plan(plants, Manifest(tmp_path), tmp_path, 1)
+    assert [p.id for p in skipped] == ["bean-s0000"] and [p.id for p in todo] == ["bean-s0001"]
+    assert (folder / "plant.ply").read_text() == "x"
+    assert Manifest(tmp_path).get("bean-s0000")["status"] == "done"
+
+
+def test_a_finished_plant_of_other_settings_without_its_line_is_a_redo(tmp_path):
+    (plant,) = expand({"group": [{"species": "bean", "guidance": "none", "steps": 3}]})
+    (other,) = expand({"group": [{"species": "bean", "guidance": "none", "steps": 5}]})
+    folder = _finished_plant_without_record(tmp_path, plant, other.config)
+    lines = plan.describe_plan([plant], Manifest(tmp_path, read_only=True), tmp_path, 1)
+    assert "redo    bean-s0000" in lines
+    with pytest.raises(InputError, match="--redo-changed"):
+        plan.plan([plant], Manifest(tmp_path), tmp_path, 1)
+    assert (folder / "plant.ply").read_text() == "x"

@@ -127,6 +127,7 @@ def test_eval_command_writes_the_reports(tmp_path, monkeypatch):
     plant = synthetic_plant()
     fake_io = types.ModuleType("plantdreamer.io")
     fake_io.read_splat_ply = lambda path: plant
+    fake_io.check_ply_file = lambda path, what="PLY": None
     monkeypatch.setitem(sys.modules, "plantdreamer.io", fake_io)
     monkeypatch.setattr(evaluate_module, "render_view", render_dense)
     write_transforms_dataset(

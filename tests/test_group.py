@@ -158,7 +158,7 @@ def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
     assert (tmp_path / "g" / "mint-s0002" / "plant.ply").is_file()
 
 
-def test_a_plant_failed_before_ctrl_c_stays_failed_on_resume(tmp_path):
+def test_a_plant_failed_before_ctrl_c_is_tried_again_on_resume(tmp_path):
     import torch
 
     from plantdreamer.guidance.base import PhotometricGuidance
@@ -181,11 +181,13 @@ def test_a_plant_failed_before_ctrl_c_stays_failed_on_resume(tmp_path):
     assert status["mint-s0001"].startswith("failed: ")  # written on the way out
     # Stopped, not still "running" (the record says where the others stopped).
     assert status["mint-s0000"] == status["mint-s0002"] == "interrupted at step 3"
+    # The resume tries it again (alone, from step 0: it failed before any checkpoint, and
+    # the guidance fails only the second of three).
     resumed = generate_group(None, tmp_path / "g", guidance=guidance, resume=True,
                              show_progress=False)  # fmt: skip
-    assert sorted(resumed.done) == ["mint-s0000", "mint-s0002"]
-    assert resumed.failed["mint-s0001"] == status["mint-s0001"].removeprefix("failed: ")
-    assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
+    assert resumed.retried == ["mint-s0001"] and not resumed.failed
+    assert sorted(resumed.done) == ["mint-s0000", "mint-s0001", "mint-s0002"]
+    assert (tmp_path / "g" / "mint-s0001" / "plant.ply").is_file()
 
 
 # --- the command line: one path for one plant or a group ------------------------------------
@@ -318,3 +320,34 @@ def test_a_group_record_never_leads_a_resume_out_of_its_folder(tmp_path, hostile
     after = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if not p.is_symlink()}
     assert after == before  # nothing made, removed or changed, inside or out
     assert not (tmp_path / "escaped").exists() and not os.path.exists("/tmp/escaped")
+
+
+def test_resume_tries_every_failed_plant_again_and_says_how_many(tmp_path, monkeypatch):
+    """A plant failed on a full disk (recorded as the trainer reports it: its message): after
+    space is freed, `generate --resume` finishes it, as a dataset rerun would."""
+    from plantdreamer.pipeline import run
+
+    export = run.export_run
+
+    def disk_full_for_the_second(cfg, state, folder, *args):
+        if folder.name == "bean-s0001":
+            raise OSError(28, "No space left on device")
+        return export(cfg, state, folder, *args)
+
+    monkeypatch.setattr(run, "export_run", disk_full_for_the_second)
+    out = tmp_path / "g"
+    args = ["generate", "--species", "bean", "--seeds", "0,1", "--guidance", "none", "--steps",
+            "1", "--points", "300", "--resolution", "16", "--eval-views", "1", "--turntable",
+            "none"]  # fmt: skip
+    first = CliRunner().invoke(main, [*args, "--out", str(out), "--quiet"])
+    assert first.exit_code == 1 and "No space left" in first.output, first.output
+    record = json.loads((out / "group.json").read_text())
+    for entry in record["plants"]:  # as a failure in training is recorded: its message only
+        entry.pop("retry", None)
+    (out / "group.json").write_text(json.dumps(record))
+    monkeypatch.setattr(run, "export_run", export)
+    again = CliRunner().invoke(main, ["generate", "--resume", str(out)])
+    assert again.exit_code == 0, again.output
+    assert "retrying 1 plants that failed before: bean-s0001" in again.output
+    statuses = [p["status"] for p in json.loads((out / "group.json").read_text())["plants"]]
+    assert statuses == ["done", "done"] and (out / "bean-s0001" / "run.json").is_file()

@@ -7,13 +7,18 @@ entry is flushed too. If anything fails (a full disk, a file-size limit, Ctrl-C)
 temporary file is removed and the previous file is left as it was.
 
 The temporary name keeps the target's suffix (``.plant.ply.k3j9.tmp.ply``), so writers that
-pick a format from the suffix (imageio, Pillow, matplotlib, trimesh) work unchanged.
+pick a format from the suffix (imageio, Pillow, matplotlib, trimesh) work unchanged. A
+process killed inside a write (SIGKILL, a power cut) cannot remove its temporary: names of
+that form (``TEMPORARY``) are removed by the next run that claims the folder
+(``output_folder``). Several outputs replaced together are built in a ``staging_folder``
+and moved in by ``output_folder.replace_entries``.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,6 +28,7 @@ from typing import Any
 __all__ = [
     "atomic_path",
     "atomic_write",
+    "staging_folder",
     "write_bytes",
     "write_image",
     "write_json",
@@ -30,6 +36,10 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike[str]
+# A temporary of ``atomic_path`` (``.NAME.<8 random>.tmp.SUFFIX``), a ``staging_folder``
+# (``.staging.<8 random>.tmp``) or a hard link on its way (``.NAME.link``,
+# ``exports.yolo.link_image``): what a killed write leaves.
+TEMPORARY = re.compile(r"\..+\.(?:[a-z0-9_]{8}\.tmp(?:\.[^.]+)?|link)")
 
 
 @contextmanager
@@ -54,6 +64,12 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
         raise
     _fsync_dir(target.parent)
+
+
+def staging_folder(folder: PathLike) -> Path:
+    """A new, empty folder inside ``folder`` (same file system: its entries move in by
+    rename), named as a temporary."""
+    return Path(tempfile.mkdtemp(prefix=".staging.", suffix=".tmp", dir=folder))
 
 
 def atomic_write(path: PathLike, write: Callable[[Path], object]) -> None:

@@ -55,7 +55,14 @@ from plantdreamer.errors import InputError, PlyError, PlyWarning
 from plantdreamer.gaussians import Gaussians, sh_coeff_count
 from plantdreamer.labels import NO_INSTANCE, as_int_labels
 
-__all__ = ["read_ply", "read_ply_columns", "read_splat_ply", "write_ply", "write_splat_ply"]
+__all__ = [
+    "check_ply_file",
+    "read_ply",
+    "read_ply_columns",
+    "read_splat_ply",
+    "write_ply",
+    "write_splat_ply",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -79,6 +86,22 @@ def _read_fields(
         # stacklevel 3: the caller of the public reader.
         warnings.warn(problem, PlyWarning, stacklevel=3)
     return fields
+
+
+def check_ply_file(path: PathLike, what: str = "PLY") -> None:
+    """A quick look before a command deletes or loads anything: ``path`` is a readable file
+    that opens with a PLY header (the full read comes later and checks the rest)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} not found: {path}") from None
+    except IsADirectoryError:
+        raise InputError(f"{what} {path} is a folder, not a PLY file") from None
+    except OSError as exc:
+        raise InputError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
+    if not (head.startswith((b"ply\n", b"ply\r\n")) and b"end_header" in head):
+        raise PlyError(f"{what} {path} is not a PLY file (no PLY header)")
 
 
 def read_ply_columns(path: PathLike, *, strict: bool = False) -> dict[str, np.ndarray]:

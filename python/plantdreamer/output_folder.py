@@ -1,17 +1,25 @@
-"""Claiming where a command writes: one run at a time, and never a mix of two runs.
+"""Claiming where a command writes: one run at a time, its own files only, never a mix of
+two runs.
 
-A command that writes a set of outputs first *claims* them:
+Every command that writes follows one ownership rule:
 
+- it checks first that it can run (inputs readable, models found, settings valid: the
+  caller's checks, made before the claim) and that none of its inputs lies among the
+  outputs it would replace (``inputs``);
 - it takes an exclusive lock (``fcntl.flock`` on a lock file beside the outputs), so a
-  second run on the same outputs fails at once with a clear message instead of
-  interleaving its files with the first one's;
+  second run on the same outputs fails at once instead of interleaving its files;
 - it refuses outputs that already exist, unless ``overwrite`` is given; then it deletes the
-  previous run's outputs (the files this command writes, and nothing else) before writing,
-  so a run that is interrupted never leaves new files beside old ones. What a command
-  owns is named exactly: literal entry names (a plant named ``*-s0000`` owns that folder,
-  not every name ending in ``-s0000``) or a regular expression an entry's whole name must
-  match (``view_NNN.png``, never ``*.png``, which would take a user's pictures); an
-  output file that is a folder is refused, never emptied.
+  files and folders it writes itself and nothing else. What a command owns is declared
+  exactly (``Owned``): literal relative paths (a plant named ``*-s0000`` owns that folder,
+  not every name ending in ``-s0000``), folders it makes (``tree``: ``renders/`` and the
+  ``view_NNN.png`` in it) and regular expressions a relative path must match whole
+  (``view_NNN.png``, never ``*.png``, which would take a user's pictures). Before anything
+  is deleted the folder is surveyed: a folder of the command's own name that holds a file
+  it does not write, a link where it writes a folder, or a folder where it writes a file
+  is refused with the list, and nothing is deleted. Links are never followed: a link the
+  command owns is removed itself, its target left alone;
+- the temporaries of atomic writes that a killed run left (``atomic.TEMPORARY``) are
+  removed when the next run claims the folder.
 
 Creating the lock file is also the writability check (a fixed probe name that is created
 and deleted would race between two runs). The lock file is removed when the claim ends.
@@ -20,21 +28,43 @@ and deleted would race between two runs). The lock file is removed when the clai
 from __future__ import annotations
 
 import fcntl
+import glob
 import os
 import re
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
+from plantdreamer.atomic import TEMPORARY
 from plantdreamer.errors import InputError
 
-__all__ = ["LOCK_NAME", "Owned", "claim_files", "claim_folder", "locked", "output_file"]
+__all__ = [
+    "LOCK_NAME",
+    "Owned",
+    "check_inputs_outside",
+    "check_name",
+    "claim_files",
+    "claim_folder",
+    "locked",
+    "new_file",
+    "output_file",
+    "remove_owned",
+    "remove_temporaries",
+    "replace_entries",
+    "survey",
+    "tree",
+]
 
+PathLike = str | os.PathLike[str]
 LOCK_NAME = ".plantdreamer.lock"
-# An entry a command writes in its folder: a literal name (a relative path inside the
-# folder) or a pattern the whole name of an entry of the folder matches.
+# An entry a command writes in its folder, as a relative POSIX path: a literal file name,
+# a literal folder name ending in "/" (its contents: the entries under it), or a pattern a
+# file's whole relative path matches.
 Owned = str | re.Pattern[str]
+# A value that becomes one part of a path (a species, a plant name): never a path itself.
+PATH_PART = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._ -]{0,99}")
 
 
 @contextmanager
@@ -75,49 +105,197 @@ def locked(lock_path: Path, what: str, holder: str = "plantdreamer run") -> Iter
         os.close(fd)
 
 
+def tree(name: str, *contents: Owned) -> tuple[Owned, ...]:
+    """A folder ``name`` the command makes, and what it writes in it (relative to it)."""
+    _check_name(name)
+    out: list[Owned] = [name.rstrip("/") + "/"]
+    for entry in contents:
+        if isinstance(entry, str):
+            out.append(f"{name.rstrip('/')}/{entry}")
+        else:
+            out.append(re.compile(f"{re.escape(name.rstrip('/'))}/(?:{entry.pattern})"))
+    return tuple(out)
+
+
+def check_name(value: str, what: str) -> str:
+    """``value`` (a species, a plant name) as one plain part of a path; InputError else."""
+    if not isinstance(value, str) or not PATH_PART.fullmatch(value) or value.strip() != value:
+        raise InputError(
+            f"{what} {value!r} becomes part of a path: use letters, digits, '-', '_', '.' "
+            "or spaces (not first), never a path"
+        )
+    return value
+
+
+@dataclass
+class Survey:
+    """What a command owns in a folder as it is now: its files (in ``owned`` order: the
+    file that marks a finished run first), its folders (deepest first) and anything in its
+    way (foreign files in its folders, links or folders where it writes)."""
+
+    files: list[Path] = field(default_factory=list)
+    folders: list[Path] = field(default_factory=list)
+    foreign: list[str] = field(default_factory=list)
+
+    def refuse(self, root: Path) -> None:
+        if self.foreign:
+            shown = ", ".join(self.foreign[:5]) + (
+                f" and {len(self.foreign) - 5} more" if len(self.foreign) > 5 else ""
+            )
+            raise InputError(
+                f"{root} holds, where this command writes, what it does not write: {shown}; "
+                "nothing was deleted: move them away, or choose another output folder"
+            )
+
+
+class _Owned:
+    """A command's ``Owned`` entries, checked, with its folders apart."""
+
+    def __init__(self, owned: Iterable[Owned]) -> None:
+        self.entries = list(owned)
+        for entry in self.entries:
+            if isinstance(entry, str):
+                _check_name(entry)
+        self.folders = {
+            e.rstrip("/") for e in self.entries if isinstance(e, str) and e.endswith("/")
+        }
+
+    def file_rank(self, rel: str) -> int | None:
+        for i, entry in enumerate(self.entries):
+            if entry == rel if isinstance(entry, str) else entry.fullmatch(rel):
+                return i
+        return None
+
+    def holds(self, rel: str) -> bool:
+        """Whether the relative path is one of the outputs or lies in an output folder."""
+        if self.file_rank(rel) is not None:
+            return True
+        return any(rel == d or rel.startswith(d + "/") for d in self.folders)
+
+
+def survey(folder: Path, owned: Iterable[Owned]) -> Survey:
+    """What the command owns in ``folder`` now (see ``Survey``); reads only, follows no link.
+    The temporaries of killed atomic writes, at the top and in its folders, are its own."""
+    spec = _Owned(owned)
+    found = Survey()
+    ranked: list[tuple[int, Path]] = []
+
+    def walk(rel_dir: str) -> None:
+        inside = bool(rel_dir)
+        with os.scandir(folder / rel_dir if inside else folder) as entries:
+            listing = sorted(entries, key=lambda e: e.name)
+        for entry in listing:
+            rel = f"{rel_dir}/{entry.name}" if inside else entry.name
+            is_link = entry.is_symlink()
+            is_dir = entry.is_dir(follow_symlinks=False)
+            if not inside and entry.name == LOCK_NAME:
+                continue
+            if TEMPORARY.fullmatch(entry.name) and not is_link:
+                ranked.append((-1, folder / rel))  # a killed write's temporary: first
+            elif rel in spec.folders:
+                if is_dir:
+                    walk(rel)
+                    found.folders.append(folder / rel)
+                else:
+                    found.foreign.append(f"{rel} ({'a link' if is_link else 'a file'})")
+            elif (rank := spec.file_rank(rel)) is not None:
+                if is_dir:
+                    found.foreign.append(f"{rel}/ (a folder)")
+                else:
+                    ranked.append((rank, folder / rel))
+            elif inside:
+                found.foreign.append(rel + ("/" if is_dir else ""))
+
+    if folder.is_dir():  # the folder itself as given (a link the user chose); none inside
+        walk("")
+    found.files = [path for _, path in sorted(ranked, key=lambda r: r[0])]
+    return found
+
+
+def remove_owned(folder: Path, owned: Iterable[Owned]) -> None:
+    """Deletes what the command owns in ``folder``, after refusing (deleting nothing) when
+    anything in its way is not its own."""
+    found = survey(folder, owned)
+    found.refuse(folder)
+    for path in found.files:
+        if path.is_dir() and not path.is_symlink():  # a killed export's staging folder
+            shutil.rmtree(path)
+        else:
+            path.unlink(missing_ok=True)
+    for path in found.folders:
+        try:
+            path.rmdir()
+        except OSError:  # something appeared since the survey: left, never emptied
+            pass
+
+
+def check_inputs_outside(folder: Path, owned: Iterable[Owned], inputs: Iterable[PathLike]) -> None:
+    """Refuses inputs that lie among the outputs the command writes in ``folder``."""
+    spec = _Owned(owned)
+    root = folder.resolve()
+    for given in inputs:
+        path = Path(given).resolve()
+        if path == root:
+            continue
+        if path.is_relative_to(root) and spec.holds(path.relative_to(root).as_posix()):
+            raise InputError(
+                f"{given} is an input of this command and lies among the outputs it writes in "
+                f"{folder}; write the outputs to another folder"
+            )
+
+
 @contextmanager
 def claim_folder(
-    folder: str | os.PathLike[str],
+    folder: PathLike,
     *,
     overwrite: bool = False,
     owned: Iterable[Owned] = (),
     allow_existing: bool = False,
+    inputs: Iterable[PathLike] = (),
 ) -> Iterator[Path]:
     """Locks ``folder`` and checks it is empty (``allow_existing``: continuing a run there).
 
-    With ``overwrite``, the ``owned`` entries (literal names, or compiled patterns matched
-    against whole entry names) are deleted first, in the given order (put the file that
-    marks a finished run, such as run.json, first). A literal name that is not a plain
-    relative path inside ``folder`` is refused before anything is deleted.
+    ``inputs`` lying among the ``owned`` outputs are refused first. With ``overwrite``, the
+    owned outputs are deleted (``remove_owned``: refused, nothing deleted, when anything in
+    the way is not the command's). A killed run's temporaries are removed in every case.
     """
     path = Path(folder)
     owned = list(owned)
-    for entry in owned:
-        if isinstance(entry, str):
-            _check_name(entry)
+    spec = _Owned(owned)  # checks the literal names before anything else
+    check_inputs_outside(path, owned, inputs)
     if path.exists() and not path.is_dir():
         raise PermissionError(f"output folder {path} is not writable: it is a file")
     with locked(path / LOCK_NAME, f"output folder {path}"):
         if overwrite:
-            _remove(path, owned)
-        elif not allow_existing:
-            entries = sorted(p.name for p in path.iterdir() if p.name != LOCK_NAME)
-            if entries:
-                shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
-                raise InputError(
-                    f"output folder {path} is not empty ({shown}); pass --overwrite to "
-                    "replace its outputs, or choose another folder"
-                )
+            remove_owned(path, spec.entries)
+        else:
+            remove_temporaries(path, spec.entries)
+            if not allow_existing:
+                entries = sorted(p.name for p in path.iterdir() if p.name != LOCK_NAME)
+                if entries:
+                    shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+                    raise InputError(
+                        f"output folder {path} is not empty ({shown}); pass --overwrite to "
+                        "replace its outputs, or choose another folder"
+                    )
         yield path
 
 
 @contextmanager
 def claim_files(
-    paths: Iterable[str | os.PathLike[str]], *, overwrite: bool = False
+    paths: Iterable[PathLike], *, overwrite: bool = False, inputs: Iterable[PathLike] = ()
 ) -> Iterator[list[Path]]:
     """Locks the outputs ``paths`` (one folder) and refuses existing ones unless ``overwrite``;
-    with ``overwrite`` they are all deleted first, so no stale companion file survives."""
+    with ``overwrite`` they are all deleted first, so no stale companion file survives. An
+    input that is one of them is refused before anything is deleted."""
     files = [output_file(p) for p in paths]
+    resolved = {p.resolve() for p in files}
+    for given in inputs:
+        if Path(given).resolve() in resolved:
+            raise InputError(
+                f"{given} is an input of this command and would be replaced by its output; "
+                "name another output file"
+            )
     first = files[0]
     with locked(first.with_name(f".{first.name}.lock"), str(first)):
         existing = [p for p in files if p.exists() or p.is_symlink()]
@@ -132,11 +310,41 @@ def claim_files(
                 f"{existing[0]} exists; pass --overwrite to replace it, or choose another output"
             )
         for p in existing:
-            _delete(p)
+            p.unlink(missing_ok=True)  # a link goes itself; its target stays
+        for p in files:  # a killed write's temporaries of these files
+            if p.parent.is_dir():
+                for stale in p.parent.glob(f".{glob.escape(p.name)}.*.tmp*"):
+                    if TEMPORARY.fullmatch(stale.name) and stale.is_file():
+                        stale.unlink(missing_ok=True)
         yield files
 
 
-def output_file(path: str | os.PathLike[str], what: str = "output") -> Path:
+def new_file(path: PathLike, what: str, *, overwrite: bool = False) -> Path:
+    """A single output file the command replaces atomically (the previous one stays whole
+    until the new one is complete): refused when it names a folder, and when it exists
+    unless ``overwrite``."""
+    out = output_file(path, what)
+    if (out.exists() or out.is_symlink()) and not overwrite:
+        raise InputError(f"{out} exists; pass --overwrite to replace it, or choose another {what}")
+    return out
+
+
+def replace_entries(folder: Path, stage: Path, names: Iterable[str]) -> None:
+    """Moves each of ``names`` from the staging folder ``stage`` (made in ``folder`` by
+    ``atomic.staging_folder``) over the same name in ``folder``: every new entry complete
+    before any old one goes, so a failure while staging leaves the previous ones whole."""
+    retired = stage / ".retired"
+    retired.mkdir()
+    for name in names:
+        new, old = stage / name, folder / name
+        if old.exists() or old.is_symlink():
+            os.rename(old, retired / name)
+        if new.exists():
+            os.rename(new, old)
+    shutil.rmtree(stage)
+
+
+def output_file(path: PathLike, what: str = "output") -> Path:
     """``path`` as a file to write: refused when it names a folder (``.``, ``dir/``, an
     existing folder), so no companion name is made from it and nothing in it is touched."""
     out = Path(path)
@@ -145,24 +353,25 @@ def output_file(path: str | os.PathLike[str], what: str = "output") -> Path:
     return out
 
 
+def remove_temporaries(folder: Path, owned: Iterable[Owned]) -> None:
+    """The temporaries a killed atomic write left at the top of ``folder`` or in its
+    command's folders (whatever else is there)."""
+    if not folder.is_dir():
+        return
+    spec = _Owned(owned)
+    places = [folder, *(folder / d for d in sorted(spec.folders))]
+    for place in places:
+        if place.is_symlink() or not place.is_dir():
+            continue
+        for entry in place.iterdir():
+            if TEMPORARY.fullmatch(entry.name) and not entry.is_symlink():
+                if entry.is_dir():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink(missing_ok=True)
+
+
 def _check_name(name: str) -> None:
     parts = PurePath(name).parts
     if not parts or PurePath(name).is_absolute() or ".." in parts:
         raise InputError(f"{name!r} is not a name inside the output folder")
-
-
-def _remove(folder: Path, owned: Iterable[Owned]) -> None:
-    for entry in owned:
-        if isinstance(entry, str):
-            _delete(folder / entry)
-        elif folder.is_dir():
-            for p in sorted(folder.iterdir()):
-                if entry.fullmatch(p.name):
-                    _delete(p)
-
-
-def _delete(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    else:
-        path.unlink(missing_ok=True)

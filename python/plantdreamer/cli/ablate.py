@@ -51,7 +51,9 @@ def ablate(pointcloud, dataset, color_init, out_dir, overwrite, quiet, **options
     and write the paper-style table and bar plot."""
     from plantdreamer.errors import InputError
     from plantdreamer.eval import scan_dataset
-    from plantdreamer.output_folder import claim_folder
+    from plantdreamer.output_folder import claim_folder, tree
+    from plantdreamer.pipeline.run_outputs import RUN_OUTPUTS
+    from plantdreamer.pipeline.runtime import check_inputs, check_models
 
     given = {"color_init": ",".join(color_init) or None, "old_colors": options.pop("old_colors")}
     apply_old_names(given, {"--colors": "color-init"})
@@ -62,9 +64,13 @@ def ablate(pointcloud, dataset, color_init, out_dir, overwrite, quiet, **options
     if not settings or unknown:
         raise InputError(f"--color-init takes {', '.join(COLOR_INITS)}; got {colors!r}")
     frames = scan_dataset(dataset)  # fail on a bad dataset before hours of generation
+    first = GenerateConfig.from_settings({**base.settings(), "pointcloud": pointcloud})
+    check_inputs(first)
+    check_models(first)
     out = Path(out_dir)
-    owned = ("ablation.md", "ablation.png", *COLOR_INITS)
-    with claim_folder(out, overwrite=overwrite, owned=owned):
+    runs = [e for color in COLOR_INITS for e in tree(color, *RUN_OUTPUTS, "eval.json")]
+    owned = ("ablation.md", "ablation.png", *runs)
+    with claim_folder(out, overwrite=overwrite, owned=owned, inputs=[pointcloud]):
         _ablate(base, pointcloud, frames, settings, out, quiet)
 
 

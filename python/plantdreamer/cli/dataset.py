@@ -177,6 +177,9 @@ def dataset(
             )
     spec = with_settings(spec, overrides)
     plants = expand(spec)  # every plant's config is checked here, before Ray starts
+    from plantdreamer.dataset.plan import check_models
+
+    check_models(plants)  # the LoRA and models found, before any plan or model load
     if dry_run:
         _print_plan(plants, out_dir, packing.plants_per_gpu)
         return

@@ -40,6 +40,8 @@ def eval_command(
     """Render PLY at every ground-truth camera and report masked PSNR, PSNR, SSIM and IoU.
     RGBA ground truth is composited over --background too."""
     from plantdreamer.errors import InputError
+    from plantdreamer.eval import scan_dataset
+    from plantdreamer.io import check_ply_file
     from plantdreamer.output_folder import claim_files, output_file
 
     grey = options_to_settings(GenerateConfig, options)["background"]
@@ -55,15 +57,20 @@ def eval_command(
             f"{out.with_suffix('.md')} rather than {out}"
         )
     strip_path = out.with_name(out.stem + "_strip.png")
-    with claim_files([out, out.with_suffix(".json"), strip_path], overwrite=overwrite):
-        _evaluate(ply, dataset, out, bg, strip_views, strip_path)
+    frames = scan_dataset(dataset)  # checked before --overwrite deletes the earlier report
+    check_ply_file(ply, "model")
+    inputs = [ply, *(p for f in frames for p in (f.image_path, f.mask_path) if p is not None)]
+    outs = [out, out.with_suffix(".json"), strip_path]
+    with claim_files(outs, overwrite=overwrite, inputs=inputs):
+        _evaluate(ply, dataset, frames, out, bg, strip_views, strip_path)
 
 
-def _evaluate(ply: Path, dataset: Path, out: Path, bg, strip_views: int, strip_path: Path) -> None:
-    from plantdreamer.eval import FrameMetrics, evaluate, scan_dataset
+def _evaluate(
+    ply: Path, dataset: Path, frames: list, out: Path, bg, strip_views: int, strip_path: Path
+) -> None:
+    from plantdreamer.eval import FrameMetrics, evaluate
     from plantdreamer.eval.report import write_image_strip, write_json, write_markdown
 
-    frames = scan_dataset(dataset)  # images are read one at a time during evaluation
     try:
         from plantdreamer.io import read_splat_ply
     except ImportError as exc:

@@ -19,12 +19,16 @@ from plantdreamer.exports.gallery import MAX_PLANTS
     show_default=True,
     help="The most plants drawn; more are sampled evenly over their ids.",
 )
-def gallery(folder: str, out: str | None, max_plants: int) -> None:
+@click.option("--overwrite", is_flag=True, help="Replace the PNG if it exists.")
+def gallery(folder: str, out: str | None, max_plants: int, overwrite: bool) -> None:
     """Draw FOLDER's gallery.png: each plant's first view beside its label view. FOLDER is a
     dataset folder, a `generate --seeds` group folder or one plant folder."""
     from pathlib import Path
 
-    from plantdreamer.exports.gallery import write_gallery
+    from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
+    from plantdreamer.output_folder import new_file
 
-    path = write_gallery(Path(folder), None if out is None else Path(out), max_plants)
+    target = new_file(Path(folder) / GALLERY_FILE if out is None else out, "--out",
+                      overwrite=overwrite)  # fmt: skip
+    path = write_gallery(Path(folder), target, max_plants)
     click.echo(f"wrote {path}")

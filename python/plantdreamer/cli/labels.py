@@ -26,6 +26,8 @@ def labels(
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.errors import InputError
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
+    from plantdreamer.exports.plant import LABEL_FILES
+    from plantdreamer.output_folder import LOCK_NAME, locked, survey
 
     options = make_label_options(
         split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
@@ -33,8 +35,12 @@ def labels(
     root = Path(folder)
     if (root / "run.json").is_file() and not (root / "transforms.json").is_file():
         raise InputError(f"{root} is a plant made with --eval-views 0: it has no views to label")
-    if (root / "transforms.json").is_file():
-        r = write_plant_exports(root, options.min_area, options.stuff)
-        click.echo(f"{r.describe(options.min_area)}: {root}")
-        return
-    click.echo(describe(write_dataset_exports(root, options), folder))
+    # The lock of generate and dataset: never a folder a run is writing.
+    with locked(root / LOCK_NAME, f"folder {root}"):
+        if (root / "transforms.json").is_file():
+            survey(root, LABEL_FILES).refuse(root)
+            r = write_plant_exports(root, options.min_area, options.stuff)
+            click.echo(f"{r.describe(options.min_area)}: {root}")
+            return
+        labels = write_dataset_exports(root, options)
+    click.echo(describe(labels, folder))

@@ -32,6 +32,7 @@ MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
 @click.option("--points", type=click.IntRange(min=1), default=TARGET_POINTS, show_default=True,
               help="Points sampled uniformly over the surface for -o (generate's default).")  # fmt: skip
 @click.option("--list", "list_only", is_flag=True, help="List the species and exit.")
+@click.option("--overwrite", is_flag=True, help="Replace -o and --mesh if they exist.")
 def lsystem(
     species: str | None,
     seed: int,
@@ -39,6 +40,7 @@ def lsystem(
     mesh_path: Path | None,
     points: int,
     list_only: bool,
+    overwrite: bool,
     **old: Path | None,
 ) -> None:
     """Grow a potted SPECIES plant from a stochastic L-System (metres, z up, soil at z = 0)."""
@@ -63,6 +65,14 @@ def lsystem(
 
     from plantdreamer.errors import PlantDreamerError
     from plantdreamer.lsystem import OrganClass, generate_plant, sample_points
+    from plantdreamer.output_folder import new_file
+
+    if output is not None:
+        output = new_file(output, "-o", overwrite=overwrite)
+    if mesh_path is not None:
+        mesh_path = new_file(mesh_path, "--mesh", overwrite=overwrite)
+    if output is not None and mesh_path is not None and output.resolve() == mesh_path.resolve():
+        raise click.UsageError("-o and --mesh name the same file")
 
     if output is not None:
         try:

@@ -61,6 +61,7 @@ def prepare(
     Prints the count after each step.
     """
     from plantdreamer.errors import InputError
+    from plantdreamer.io import check_ply_file
     from plantdreamer.output_folder import claim_files, output_file
 
     apply_old_names(options, OLD_NAMES)
@@ -69,12 +70,13 @@ def prepare(
     if options["out"] is None:
         raise click.UsageError("Missing option '-o' / '--out'.")
     output = output_file(options.pop("out"), "-o/--out")
+    check_ply_file(input_ply, "INPUT.ply")  # before --overwrite deletes anything
     values = options_to_settings(GenerateConfig, options)
     for name in ("points", "sor-neighbors"):
         if values[name] < 0:
             raise InputError(f"--{name} must not be negative, got {values[name]}")
     # The transform is claimed too: a stale one beside a new, unnormalised output would lie.
-    with claim_files([output, transform_path(output)], overwrite=overwrite):
+    with claim_files([output, transform_path(output)], overwrite=overwrite, inputs=[input_ply]):
         _prepare(input_ply, output, values, do_normalize, ascii)
 
 

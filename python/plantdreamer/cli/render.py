@@ -31,21 +31,26 @@ OLD_NAMES = {
     "--fovy": "eval-fovy-deg",
 }  # fmt: skip
 
-# What render writes into --out; --overwrite deletes these first (and, with --transforms,
-# the views it names): its own views, never a user's other pictures.
-RENDER_OUTPUTS = (
-    "turntable.gif",
-    "turntable.mp4",
-    re.compile(r"view_\d{3,}\.png"),
-    "renders",
-    "labels",
-    "instances",
-    "depth",
-    "transforms.json",
-    "coco.json",
-    "yolo",
-    "points.ply",
-)
+# What render writes into --out in each mode (output_folder.Owned); --overwrite deletes
+# these first, never a user's other pictures nor what another mode writes.
+TURNTABLES = ("turntable.gif", "turntable.mp4")
+ORBIT_OUTPUTS = (*TURNTABLES, re.compile(r"view_\d{3,}\.png"))  # the views, the turntable
+
+
+def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tuple:
+    """What a render of this mode writes: with ``ground_truth``, generate's layout of the
+    views (``FINAL_OUTPUTS`` less plant.ply and run.json; the turntable only on the orbit);
+    at a transforms.json's cameras, the ``files`` named from its frames; else the orbit's
+    views and turntable."""
+    if ground_truth:
+        from plantdreamer.pipeline.run_outputs import FINAL_OUTPUTS
+
+        kept = tuple(e for e in FINAL_OUTPUTS if e not in ("run.json", "plant.ply", *TURNTABLES))
+        return kept if transforms else (*TURNTABLES, *kept)
+    if transforms:
+        folders = sorted({p for f in files for p in map(str, PurePath(f).parents) if p != "."})
+        return (*(f"{d}/" for d in folders), *files)
+    return ORBIT_OUTPUTS
 
 
 @click.command()
@@ -147,12 +152,17 @@ def render(
     out = Path(out_dir)
     views_at: list = []
     files: list[str] = []
-    if transforms is not None and not ground_truth:
-        from plantdreamer.eval.datasets import scan_transforms_json
+    inputs: list[Path] = [path]
+    if transforms is not None:
+        from plantdreamer.eval.datasets import _transforms_file, scan_transforms_json
 
-        views_at = scan_transforms_json(transforms, images_required=False)
-        files = view_files(views_at, transforms)
-    with claim_folder(out, overwrite=overwrite, owned=(*RENDER_OUTPUTS, *files)):
+        inputs.append(_transforms_file(Path(transforms)))
+        if not ground_truth:
+            views_at = scan_transforms_json(transforms, images_required=False)
+            files = view_files(views_at, transforms)
+            inputs += [Path(p) for v in views_at for p in (v.image_path, v.mask_path) if p]
+    owned = render_outputs(ground_truth, transforms is not None, files)
+    with claim_folder(out, overwrite=overwrite, owned=owned, inputs=inputs):
         if views_at:
             _render_dataset_views(gaussians, views_at, files, out, background)
             return

@@ -107,7 +107,8 @@ def _parse(line: bytes, where: str) -> dict[str, Any]:
     if record.get("status") not in STATUSES:
         raise InputError(
             f"{where}: plant {record['id']!r} has status {record.get('status')!r}, not one of "
-            f"{', '.join(STATUSES)}; fix or delete the line (the plant then runs again)"
+            f"{', '.join(STATUSES)}; fix or delete the line (a plant whose finished files are "
+            "there is then kept, any other runs again)"
         )
     return record
 

@@ -9,7 +9,6 @@ finished plants)."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -18,14 +17,19 @@ from plantdreamer.dataset.manifest import Manifest
 from plantdreamer.dataset.packing import pack
 from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.scheduler import Unit
-from plantdreamer.dataset.tasks import LOG_NAME
+from plantdreamer.dataset.tasks import HELD_MARKER, LOG_NAME
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.exports.listing import PLANTS_DIR
+from plantdreamer.output_folder import remove_owned, survey
+from plantdreamer.pipeline.run_outputs import CHECKPOINT_FILES, RUN_OUTPUTS
 
 # A plant's files that make it complete (with a `done` record of the same config).
 COMPLETE_FILES = ("plant.ply", "run.json")
 GROUPS_DIR = "groups"  # DIR/groups/<first plant>/group.json while a packed group trains
 ACTIONS = ("make", "resume", "skip", "redo")  # what a run does with a plant
+# What a dataset writes in a plant folder (output_folder.Owned): a run's outputs, the log of
+# its worker, the test hook's marker. Clearing a plant deletes these only.
+PLANT_FILES = (*RUN_OUTPUTS, LOG_NAME, HELD_MARKER)
 
 
 def plan(
@@ -52,29 +56,71 @@ def plan(
             "this run would delete and remake them: pass --redo-changed to do so, or write "
             "to another --out (--dry-run lists the plan)"
         )
+    for plant, _, clear in decided:  # nothing cleared unless every folder is the plant's own
+        if clear:
+            survey(plant_dir(out_dir, plant), PLANT_FILES).refuse(plant_dir(out_dir, plant))
     todo, skipped = [], []
     for plant, action, clear in decided:
         if action == "skip":
+            if manifest.get(plant.id) is None:  # found by its files: recorded again
+                record = {**base_record(plant, plants_per_gpu), "status": "done"}
+                manifest.replace(plant.id, record)
             skipped.append(plant)
             continue
         if clear:
             # The record changes first, so a stop while the files go never leaves a
             # `done` that has none.
             manifest.replace(plant.id, {**base_record(plant, plants_per_gpu), "status": "pending"})
-            folder = plant_dir(out_dir, plant)
-            if folder.exists():
-                shutil.rmtree(folder)
+            clear_plant_folder(plant_dir(out_dir, plant))
         todo.append(plant)
     return todo, skipped
+
+
+def clear_plant_folder(folder: Path) -> None:
+    """Deletes what the dataset wrote in a plant folder, then the folder once empty."""
+    remove_owned(folder, PLANT_FILES)
+    try:
+        folder.rmdir()
+    except FileNotFoundError:
+        pass
+
+
+def finished_files(folder: Path) -> bool:
+    """A plant folder whose run finished: its complete files there, no checkpoint left."""
+    return all((folder / name).is_file() for name in COMPLETE_FILES) and not any(
+        (folder / name).exists() for name in CHECKPOINT_FILES
+    )
+
+
+def same_settings(folder: Path, plant: Plant) -> bool:
+    """Whether a finished plant's run.json records ``plant``'s settings (those the run
+    decided itself, left open in the plan, aside). A point cloud's contents are not in
+    run.json: such a plant is never taken as the same without its record."""
+    import json
+
+    from plantdreamer.pipeline.config import GenerateConfig
+
+    if plant.config.source.pointcloud is not None:
+        return False
+    try:
+        run = json.loads((folder / "run.json").read_text())
+        recorded = GenerateConfig.from_dict(run["config"]).to_dict()
+    except (OSError, ValueError, KeyError, TypeError, PlantDreamerError):
+        return False
+    wanted = plant.config.to_dict()
+    return all(recorded.get(k) == v for k, v in wanted.items() if v not in (None, "auto"))
 
 
 def decide(
     plant: Plant, manifest: Manifest, out_dir: Path, plants_per_gpu: int
 ) -> tuple[str, bool]:
     """What a run does with ``plant`` (one of ACTIONS) and whether its record and folder
-    are cleared first; reads only."""
+    are cleared first; reads only. A finished plant without a record (its line deleted) is
+    found by its own files: kept when its run.json has the plant's settings, else a redo."""
     record = manifest.get(plant.id)
     folder = plant_dir(out_dir, plant)
+    if record is None and finished_files(folder):
+        return ("skip", False) if same_settings(folder, plant) else ("redo", True)
     same_config = record is not None and record.get("config_hash") == plant.config_hash
     done = same_config and record is not None and record["status"] == "done"
     if done and all((folder / name).is_file() for name in COMPLETE_FILES):
@@ -98,6 +144,20 @@ def decide(
         if (folder / CHECKPOINT_NAME).is_file():
             return "resume", False
     return "make", clear
+
+
+def check_models(plants: list[Plant]) -> None:
+    """Every plant's LoRA, base model and ControlNet found (not loaded), before a plan is
+    made or a folder cleared; each distinct set of models once."""
+    from plantdreamer.pipeline.runtime import check_models as check
+
+    seen = set()
+    for plant in plants:
+        sds = plant.config.sds
+        key = (sds.guidance, sds.lora, sds.base_model, sds.controlnet)
+        if key not in seen:
+            seen.add(key)
+            check(plant.config)
 
 
 def describe_plan(

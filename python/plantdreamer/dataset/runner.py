@@ -25,16 +25,19 @@ from plantdreamer.dataset import engine
 from plantdreamer.dataset.display import DatasetProgress, print_summary
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
-from plantdreamer.dataset.plan import GROUPS_DIR, base_record, plan, work_units
+from plantdreamer.dataset.plan import GROUPS_DIR, base_record, check_models, plan, work_units
 from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.scheduler import Dispatcher, Unit
 from plantdreamer.dataset.tasks import HOLD_ENV, StatusBoard, first_line
 from plantdreamer.exports.dataset import (
+    DATASET_EXPORTS,
     DatasetLabels,
     LabelOptions,
+    check_exports_owned,
     check_planned_splits,
     write_dataset_exports,
 )
+from plantdreamer.output_folder import remove_temporaries
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
@@ -105,7 +108,12 @@ class _DatasetRun:
         self.ray_nodes: int | None = None
 
     def run(self) -> DatasetReport:
-        demands = {  # checked before _plan clears any folder
+        # Everything checked before _plan clears any folder: the export folders are the
+        # dataset's own, the models are there, the plants' demands fit.
+        check_exports_owned(self.out_dir)
+        remove_temporaries(self.out_dir, DATASET_EXPORTS)  # a killed run's temporaries
+        check_models(self.plants)
+        demands = {
             p.id: engine.plant_demand(
                 p.config,
                 self.options.cpus_per_plant,

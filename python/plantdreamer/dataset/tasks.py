@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 LOG_NAME = "generate.log"
+HELD_MARKER = ".held"  # a plant the test hook held once (its retry runs through)
 # Test hook: "PLANT_ID:STEP" makes that plant (or its group) stop after STEP, once, and
 # wait to be killed, so tests can SIGKILL a worker at a known point of its run.
 HOLD_ENV = "PLANTDREAMER_DATASET_HOLD"
@@ -224,7 +225,7 @@ def chain_hooks(hooks: list[StepHook | None]) -> StepHook | None:
 
 def hold_hook(plant_id: str, plant_dir: Path, log: Any) -> StepHook | None:
     target = os.environ.get(HOLD_ENV, "")
-    marker = plant_dir / ".held"  # the plant held once: its retry runs through
+    marker = plant_dir / HELD_MARKER
     if marker.exists() or not target.startswith(f"{plant_id}:"):
         return None
     hold_step = int(target.rsplit(":", 1)[1])

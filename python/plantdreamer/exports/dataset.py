@@ -10,6 +10,12 @@
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
 - ``gallery.png``, the contact sheet (``exports.gallery``).
 
+These are the files the exports own in ``DIR`` (``DATASET_EXPORTS``; ``output_folder``):
+they are built in a staging folder beside them and moved in only when all are complete, so
+a failed export (an unreadable view) leaves the previous one whole; a ``yolo/`` or
+``coco/`` that holds anything else, or is a link, is refused before anything is written.
+The caller holds the folder's lock (``dataset``, ``labels``).
+
 The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
 its own label files left as they are.
@@ -19,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +35,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
 from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
-from plantdreamer.exports.gallery import write_gallery
+from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
     PlantClasses,
@@ -46,8 +53,24 @@ from plantdreamer.exports.splits import (
     species_gaps,
     split_plants,
 )
+from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
 
 SPLITS_FILE = "splits.json"
+_SPLIT = "(?:" + "|".join(SPLITS) + ")"
+_VIEW = r"[^/]+__view_\d{3,}"  # <plant id>__<view>: a plant's view, flattened
+# What the exports write in a dataset folder (output_folder.Owned).
+DATASET_EXPORTS = (
+    SPLITS_FILE,
+    GALLERY_FILE,
+    *tree("coco", re.compile(rf"{_SPLIT}\.json")),
+    *tree(
+        "yolo",
+        "data.yaml",
+        *tree("images", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.png")),
+        *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.txt")),
+    ),
+)
+EXPORT_ENTRIES = (SPLITS_FILE, "coco", "yolo", GALLERY_FILE)  # replaced together
 
 
 @dataclass(frozen=True)
@@ -111,12 +134,31 @@ def check_planned_splits(dataset_dir: Path, plant_ids: list[str], options: Label
     check_splits(splits, options.ratios, options.allow_empty_split)
 
 
+def check_exports_owned(dataset_dir: Path) -> None:
+    """Refuses a dataset folder whose export folders hold what the exports do not write
+    (or are links): checked before a run starts and again before an export."""
+    survey(Path(dataset_dir), DATASET_EXPORTS).refuse(Path(dataset_dir))
+
+
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
-    """Writes the dataset's splits, COCO and YOLO files and gallery; a plant whose own
-    label files were made with another area limit gets them remade with this one."""
-    options = options or LabelOptions()
-    ratios, seed, min_area = options.ratios, options.seed, options.min_area
+    """Writes the dataset's splits, COCO and YOLO files and gallery, replacing the previous
+    ones together (see the module's docstring); a plant whose own label files were made
+    with another area limit gets them remade with this one."""
     dataset_dir = Path(dataset_dir)
+    check_exports_owned(dataset_dir)
+    remove_temporaries(dataset_dir, DATASET_EXPORTS)  # a killed export's staging folder
+    stage = atomic.staging_folder(dataset_dir)
+    try:
+        labels = _write_exports(dataset_dir, stage, options or LabelOptions())
+        replace_entries(dataset_dir, stage, EXPORT_ENTRIES)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return labels
+
+
+def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> DatasetLabels:
+    """The exports of ``dataset_dir`` written into ``stage``."""
+    ratios, seed, min_area = options.ratios, options.seed, options.min_area
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
@@ -138,7 +180,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     species = species_counts(splits, species_of)
     warnings += species_gaps(splits, species_of, ratios)
     atomic.write_json(
-        dataset_dir / SPLITS_FILE,
+        stage / SPLITS_FILE,
         {
             "seed": seed,
             "ratios": dict(zip(SPLITS, ratios, strict=True)),
@@ -149,10 +191,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
     views = dataset_views(labelled)
     index = yolo.class_index(things)
-    yolo_dir = dataset_dir / "yolo"
-    for split in SPLITS:  # stale links and labels of plants that moved split
-        shutil.rmtree(yolo_dir / "images" / split, ignore_errors=True)
-        shutil.rmtree(yolo_dir / "labels" / split, ignore_errors=True)
+    yolo_dir = stage / "yolo"
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
     for split in SPLITS:
@@ -173,9 +212,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             yolo.write_labels(yolo_dir / "labels" / split / f"{flat}.txt", lines)
             report += LabelReport.of(objects)
         (yolo_dir / "images" / split).mkdir(parents=True, exist_ok=True)
-        (dataset_dir / "coco").mkdir(exist_ok=True)
+        (stage / "coco").mkdir(exist_ok=True)
         info = report.info(f"{split} split", min_area, options.stuff)
-        coco.write(dataset_dir / "coco" / f"{split}.json", info)
+        coco.write(stage / "coco" / f"{split}.json", info)
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
     if classes.remapped:
@@ -183,7 +222,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             f"class ids of {', '.join(classes.remapped)} renumbered by class name "
             f"({', '.join(f'{i} {n}' for i, n in classes.names.items())})"
         )
-    return DatasetLabels(splits, total, write_gallery(dataset_dir), min_area, species, warnings)
+    write_gallery(dataset_dir, stage / GALLERY_FILE)
+    gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
+    return DatasetLabels(splits, total, gallery, min_area, species, warnings)
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:

@@ -10,6 +10,7 @@ same folder.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,11 +27,23 @@ from plantdreamer.exports.instances import (
     read_view_objects,
 )
 from plantdreamer.exports.points import write_points_ply
+from plantdreamer.output_folder import tree
 
 POINTS_FILE = "points.ply"
 COCO_FILE = "coco.json"
 YOLO_DIR = "yolo"
-LABEL_FILES = (POINTS_FILE, COCO_FILE, YOLO_DIR)  # what write_plant_exports writes
+VIEW_PNG = re.compile(r"view_\d{3,}\.png")  # a view's picture: renders/, labels/, yolo/
+# What write_plant_exports writes (output_folder.Owned).
+LABEL_FILES = (
+    POINTS_FILE,
+    COCO_FILE,
+    *tree(
+        YOLO_DIR,
+        "data.yaml",
+        *tree("images", VIEW_PNG),
+        *tree("labels", re.compile(r"view_\d{3,}\.txt")),
+    ),
+)
 PLANT = ""  # the one plant of a plant folder's class table
 # COCOeval's maxDets, torchvision's box_detections_per_img and Detectron2's
 # TEST.DETECTIONS_PER_IMAGE all default to 100.

@@ -272,6 +272,35 @@ def _load_errors() -> tuple[type[BaseException], ...]:
     return (OSError, HFValidationError)
 
 
+def check_model_present(identifier: str, kind: str) -> None:
+    """Raises ModelNotFoundError when the ``kind`` ("base" or "controlnet") model cannot be
+    there, found without loading it or reaching the network: a local folder that lacks a
+    part, a path that does not exist, or (offline) a hub id the cache does not hold."""
+    what, option = (
+        ("Stable Diffusion base model", "--base-model")
+        if kind == "base"
+        else ("depth ControlNet", "--controlnet")
+    )
+    folder = Path(identifier)
+    if folder.is_dir():
+        missing = missing_base_parts(folder) if kind == "base" else missing_controlnet_parts(folder)
+        if missing:
+            raise model_not_found(identifier, what, option, True, "missing " + ", ".join(missing))
+        return
+    if folder.exists():
+        raise model_not_found(identifier, what, option, True, "it is a file, not a folder")
+    # A hub id is "owner/name"; anything else that names no folder is a path that is not there.
+    parts = identifier.split("/")
+    if identifier.startswith((".", "/", "~")) or len(parts) != 2 or not all(parts):
+        raise model_not_found(identifier, what, option, False, "no such folder")
+    if hub_offline():
+        from huggingface_hub import try_to_load_from_cache
+
+        config = "unet/config.json" if kind == "base" else "config.json"
+        if not isinstance(try_to_load_from_cache(identifier, config), str):
+            raise model_not_found(identifier, what, option, True)
+
+
 def load_base_model(
     base_model: str, dtype: torch.dtype, offline: bool, vae_dtype: torch.dtype | None = None
 ) -> tuple[Any, Any, Any, Any, Any]:

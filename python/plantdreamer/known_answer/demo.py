@@ -8,7 +8,9 @@ Gaussians (the same run with 0 steps) with ``plantdreamer eval``'s masked PSNR o
 plant's held-out true views, as the known-answer check does (``known_answer.check``). It
 prints ``masked PSNR: A dB -> B dB in S s``, and writes ``demo.json`` (``psnr_start``,
 ``psnr_end``, ``seconds``, ``steps``) and ``demo.png`` (start, end and truth side by side
-on three held-out views) into OUT.
+on three held-out views) into OUT. Those two are the demo's own files: they go before the
+command runs, so a failed rerun never leaves an earlier score beside another run (or
+beside nothing); anything else in OUT that generate does not write is left alone.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     out, command = Path(args[0]), args[2:]
+    for name in (DEMO_JSON, DEMO_PNG):  # the score of the run about to be replaced
+        (out / name).unlink(missing_ok=True)
     t0 = time.perf_counter()
     code = subprocess.call(command)
     seconds = time.perf_counter() - t0

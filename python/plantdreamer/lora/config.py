@@ -78,6 +78,9 @@ class LoraTrainConfig:
         return {names.get(key, key): value for key, value in saved.items()}
 
     def check(self) -> None:
+        from plantdreamer.output_folder import check_name
+
+        check_name(self.species, "--species")  # the default --out is lora/<species>
         try:
             settings.check_types(self)  # integers are integers, numbers finite
         except ValueError as exc:

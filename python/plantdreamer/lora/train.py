@@ -16,6 +16,7 @@ Outputs in ``out``: ``pytorch_lora_weights.safetensors`` (diffusers format), ``l
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -29,6 +30,7 @@ from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
 from plantdreamer.guidance.models import (
     DiffusionComponents,
+    check_model_present,
     load_base_model,
     local_files_only,
     resolve_device,
@@ -44,10 +46,17 @@ from plantdreamer.lora.config import LoraTrainConfig
 from plantdreamer.lora.dataset import load_examples
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
-from plantdreamer.output_folder import claim_folder
+from plantdreamer.output_folder import claim_folder, tree
 from plantdreamer.versions import package_versions
 
 TARGET_MODULES = ("to_q", "to_k", "to_v", "to_out.0")
+# What a training writes in its folder (output_folder.Owned): --overwrite deletes these only.
+LORA_OUTPUTS = (
+    "lora.json",
+    LORA_WEIGHT_NAME,
+    *tree("validation", re.compile(r"sample-\d{2,}\.png")),
+    *tree(CHECKPOINT_DIR, re.compile(r"step-\d{6,}\.pt")),
+)
 ADAPTER = "default"
 
 
@@ -129,25 +138,33 @@ def train_lora(
             f"{str(out)!r} holds checkpoints of an earlier run; pass --resume to continue it, "
             "--overwrite to start afresh, or choose another --out folder"
         )
-    owned = ("lora.json", LORA_WEIGHT_NAME, "validation", CHECKPOINT_DIR)
-    with claim_folder(out, overwrite=config.overwrite, owned=owned, allow_existing=config.resume):
-        return _train(config, components, progress)
+    # Everything checked before anything in ``out`` is deleted: the device, the photos, the
+    # base model (found, not loaded) and that no photo lies among the outputs.
+    device = resolve_device(config.device)
+    mixed = config.mixed_precision if config.mixed_precision is not None else device.type == "cuda"
+    if mixed and device.type != "cuda":
+        raise InputError("mixed precision needs a CUDA GPU; run without --mixed-precision")
+    examples = load_examples(
+        config.images_dir, config.species, config.resolution, config.caption_template
+    )
+    if components is None:
+        check_model_present(config.base_model, "base")
+    inputs = [e.path for e in examples]
+    with claim_folder(out, overwrite=config.overwrite, owned=LORA_OUTPUTS,
+                      allow_existing=config.resume, inputs=inputs):  # fmt: skip
+        return _train(config, components, progress, examples, device, mixed)
 
 
 def _train(
     config: LoraTrainConfig,
     components: DiffusionComponents | Mapping[str, Any] | None,
     progress: Callable[[int, int, float], None] | None,
+    examples: list[Any],
+    device: torch.device,
+    mixed: bool,
 ) -> LoraTrainResult:
-    device = resolve_device(config.device)
-    mixed = config.mixed_precision if config.mixed_precision is not None else device.type == "cuda"
-    if mixed and device.type != "cuda":
-        raise InputError("mixed precision needs a CUDA GPU; run without --mixed-precision")
     weight_dtype = torch.float16 if mixed else torch.float32
     out = Path(config.out_dir)
-    examples = load_examples(
-        config.images_dir, config.species, config.resolution, config.caption_template
-    )
     fingerprint = config.fingerprint(examples)
     parts = prepare_models(config, components, device, weight_dtype)
     objective = NoiseLoss(parts, device, weight_dtype)

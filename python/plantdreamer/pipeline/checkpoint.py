@@ -19,14 +19,12 @@ from typing import TYPE_CHECKING, Any
 from plantdreamer.atomic import _umask  # noqa: F401  (tests check the file mode with it)
 from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.pipeline.run_outputs import CHECKPOINT_FILES, CHECKPOINT_NAME, PREVIOUS_NAME
 
 if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
     from plantdreamer.pipeline.run_state import RunState
 
-CHECKPOINT_NAME = "checkpoint.pt"
-PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
-CHECKPOINT_FILES = (CHECKPOINT_NAME, PREVIOUS_NAME)
 # 2: nested config sections, plain data only (weights_only loads);
 # 3: the config records init_shape (format 2 runs began from spheres, the default is now discs,
 #    so resuming one would record a shape its model was not made with);

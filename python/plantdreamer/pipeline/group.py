@@ -12,7 +12,8 @@ alone with SDS (docs/scaling.md).
 
 A resume reconciles the record with the plant folders: a plant whose folder holds its
 finished outputs is done, one whose record is stale (``running``) resumes from its
-checkpoint or, with none, starts again, and one that failed on a full disk is tried again.
+checkpoint or, with none, starts again, and one that failed is tried again (as a dataset
+rerun does: "run the same command again" finishes what failed; it says how many).
 Plants resume together from their last common checkpoint (``checkpoint.common_starts``), so
 no plant skips or repeats a step.
 """
@@ -20,6 +21,7 @@ no plant skips or repeats a step.
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -28,7 +30,7 @@ from typing import Any
 
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.output_folder import claim_folder
+from plantdreamer.output_folder import Owned, claim_folder, tree
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_FILES, PlantCheckpoints, common_starts
 from plantdreamer.pipeline.config import GenerateConfig
@@ -46,6 +48,7 @@ from plantdreamer.pipeline.group_record import (
     read_record,
 )
 from plantdreamer.pipeline.run import (
+    RUN_OUTPUTS,
     GuidanceFor,
     PlantFailure,
     RunInterrupted,
@@ -53,7 +56,7 @@ from plantdreamer.pipeline.run import (
     start_plant,
     train_plants,
 )
-from plantdreamer.pipeline.runtime import build_guidance
+from plantdreamer.pipeline.runtime import build_guidance, check_inputs, check_models
 from plantdreamer.pipeline.trainer import PlantRun
 
 __all__ = [
@@ -74,6 +77,7 @@ class GroupResult:
     failed: dict[str, str] = field(default_factory=dict)  # plant -> one-line error
     resumed_from: dict[str, int] = field(default_factory=dict)  # plant -> its checkpoint's step
     trained_with: dict[str, list[str]] = field(default_factory=dict)  # plant -> its part
+    retried: list[str] = field(default_factory=list)  # failed plants a resume tries again
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -116,14 +120,31 @@ def generate_group(
         record = read_record(out)
     else:
         record = new_record(cfgs or [], plant_dirs)
-    names = [p["name"] for p in record["plants"]]
-    with claim_folder(out, overwrite=overwrite and not resume, owned=(GROUP_FILE, *names),
-                      allow_existing=resume):  # fmt: skip
+    if guidance is None:  # the plants share their models: found before anything
+        check_models(cfgs[0] if cfgs else GenerateConfig.from_dict(record["plants"][0]["config"]))
+    owned: list[Owned] = [GROUP_FILE]
+    if plant_dirs is None and not resume:  # a plant whose inputs fail, fails alone, untouched
+        for entry, cfg in zip(record["plants"], cfgs or [], strict=True):
+            try:
+                check_inputs(cfg)
+            except (PlantDreamerError, OSError) as exc:
+                mark_failed(entry, exc)
+                continue
+            owned += tree(entry["name"], *RUN_OUTPUTS)
+    inputs = [c.source.pointcloud for c in cfgs or [] if c.source.pointcloud is not None]
+    with claim_folder(out, overwrite=overwrite and not resume, owned=owned,
+                      allow_existing=resume, inputs=inputs):  # fmt: skip
         result = GroupResult(out)
         part: list[dict[str, Any]] = []
         try:
             with ExitStack() as stack:
                 parts = _reconcile(record, out, resume, plant_dirs is None, result, stack)
+                if result.retried and show_progress:
+                    print(
+                        f"retrying {len(result.retried)} plants that failed before: "
+                        f"{', '.join(result.retried)}",
+                        file=sys.stderr,
+                    )
                 outputs.write_json(out / GROUP_FILE, record)
                 by_dir = {plant_dir(out, e): e for e in record["plants"]}
 
@@ -177,8 +198,10 @@ def _reconcile(
     for entry in record["plants"]:
         folder = plant_dir(out, entry)
         status = entry["status"]
-        if resume and entry.pop("retry", False):
-            entry["status"] = status = "running"  # failed on the machine: tried again
+        entry.pop("retry", None)  # the mark of records written before every failure retried
+        if resume and status.startswith("failed"):
+            result.retried.append(entry["name"])
+            entry["status"] = status = "running"
         if status.startswith("failed"):
             continue
         if by_folders and resume:  # done if its outputs say so, whatever the record says

@@ -3,14 +3,13 @@ they may differ in and the largest group. Plain data and checks only (no torch),
 command line and ``dataset/packing.py`` read it without loading the trainer.
 
 A plant's status is ``running``, ``done``, ``interrupted at step N`` or ``failed: <error>``
-(``retry``: true when the failure came from the machine, a full disk, and not the plant). A
-record read back for a resume is checked before anything is written: a plant name is a plain
+(a resume tries a failed plant again, whatever failed: a full disk since freed, a file
+since fixed). A record read back for a resume is checked before anything is written: a plant name is a plain
 folder name, and a plant's folder is ``OUT/<name>`` unless the caller gives the folders.
 """
 
 from __future__ import annotations
 
-import errno
 import json
 import re
 from pathlib import Path
@@ -29,8 +28,6 @@ MAX_GROUP_PLANTS = 64
 # A plant's folder name: never a path (no separator, no leading dot, not ".." ).
 PLANT_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]")
-# Failures of the machine, not of the plant: a resume tries the plant again.
-_RETRIED = (errno.ENOSPC, errno.EDQUOT)
 
 
 def plant_name(cfg: GenerateConfig) -> str:
@@ -134,6 +131,4 @@ def mark_failed(entry: dict[str, Any], exc: BaseException, plain: bool = False) 
     lines = str(exc).strip().splitlines() or [type(exc).__name__]
     line = lines[0] if plain else f"{type(exc).__name__}: {lines[0]}"
     entry["status"] = f"failed: {line}"
-    if isinstance(exc, OSError) and exc.errno in _RETRIED:
-        entry["retry"] = True
     return line

@@ -7,7 +7,6 @@ is ``trainer.py``, the outputs ``export.py``, the state ``run_state.py``, the ch
 from __future__ import annotations
 
 import copy
-import shutil
 import sys
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -16,40 +15,28 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.errors import CheckpointError, InputError
-from plantdreamer.exports.plant import LABEL_FILES
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.output_folder import claim_folder
+from plantdreamer.output_folder import claim_folder, remove_owned
 from plantdreamer.pipeline.checkpoint import (
-    CHECKPOINT_FILES,
     CHECKPOINT_NAME,
     PlantCheckpoints,
     restore_noise_state,
 )
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
+from plantdreamer.pipeline.run_outputs import FINAL_OUTPUTS, RUN_OUTPUTS
 from plantdreamer.pipeline.run_state import RunState
-from plantdreamer.pipeline.runtime import build_guidance, check_inputs, resolve_runtime
+from plantdreamer.pipeline.runtime import (
+    build_guidance,
+    check_inputs,
+    check_models,
+    resolve_runtime,
+)
 from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
 from plantdreamer.settings import canonical
 
 __all__ = ["RunInterrupted", "RunResult", "check_inputs", "generate"]
 
-# What a finished run writes at its end, the file that marks it finished first (deleted
-# first by --overwrite; made anew by a resumed run).
-FINAL_OUTPUTS = (
-    "run.json",
-    "plant.ply",
-    "turntable.gif",
-    "turntable.mp4",
-    "renders",
-    "labels",
-    "instances",
-    "depth",
-    "transforms.json",
-    *LABEL_FILES,
-)
-# Everything a run writes.
-RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES)
 # Settings a resumed run may change: more steps continue the same run further.
 RESUME_CHANGEABLE = ("steps",)
 
@@ -92,8 +79,10 @@ def generate(
     out_dir = Path(out_dir)
     if cfg is None and not resume:
         raise InputError("a config is needed unless resuming")
-    if cfg is not None:
+    if cfg is not None:  # everything checked before anything is deleted or loaded
         check_inputs(cfg)
+        if guidance is None:
+            check_models(cfg)
     if not resume and not overwrite and (out_dir / CHECKPOINT_NAME).is_file():
         raise InputError(
             f"{out_dir} holds a checkpoint of an earlier run; continue it with --resume "
@@ -106,7 +95,7 @@ def generate(
             start = (max(found), found[max(found)]) if found else (0, CHECKPOINT_NAME)
         started = start_plant(
             stack, cfg, out_dir, start=start, changes=changes or {}, overwrite=overwrite,
-            show_progress=show_progress,
+            show_progress=show_progress, models=guidance is None,
         )  # fmt: skip
         results = train_plants(
             [started], out_dir, guidance=guidance, show_progress=show_progress,
@@ -124,14 +113,19 @@ def start_plant(
     changes: dict[str, Any],
     overwrite: bool,
     show_progress: bool,
+    models: bool = False,
 ) -> Started:
     """Claims ``out_dir`` (for the life of ``stack``) and starts its plant: afresh from
     ``cfg`` (``start`` None), or from the checkpoint at ``start`` = (step, file name) with
-    ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint)."""
+    ``cfg`` None. The plant's own failures raise (CheckpointError for a damaged checkpoint).
+    ``models``: a resumed config's models are checked too before its final outputs go."""
     resume = start is not None
+    if cfg is not None:  # a fresh start: its inputs checked before its folder is claimed
+        check_inputs(cfg)
+    inputs = [cfg.source.pointcloud] if cfg is not None and cfg.source.pointcloud else []
     stack.enter_context(
         claim_folder(out_dir, overwrite=overwrite and not resume, owned=RUN_OUTPUTS,
-                     allow_existing=resume)
+                     allow_existing=resume, inputs=inputs)
     )  # fmt: skip
     files = PlantCheckpoints(out_dir)
     saved = note = None
@@ -139,6 +133,12 @@ def start_plant(
         saved = files.read(start[1])
         cfg, note = resumed_config(saved, changes, out_dir)
         check_inputs(cfg)
+        if models:
+            check_models(cfg)
+        if cfg.source.pointcloud is not None:
+            from plantdreamer.output_folder import check_inputs_outside
+
+            check_inputs_outside(out_dir, FINAL_OUTPUTS, [cfg.source.pointcloud])
         remove_final_outputs(out_dir)
     assert cfg is not None
     cfg = copy.deepcopy(cfg)  # the caller's config is not changed
@@ -217,13 +217,8 @@ class PlantFailure(Exception):
 
 
 def remove_final_outputs(out_dir: Path) -> None:
-    """A resumed run's final outputs are made anew."""
-    for name in FINAL_OUTPUTS:
-        path = out_dir / name
-        if path.is_dir():
-            shutil.rmtree(path)
-        else:
-            path.unlink(missing_ok=True)
+    """A resumed run's final outputs are made anew (its own files only)."""
+    remove_owned(out_dir, FINAL_OUTPUTS)
 
 
 def resumed_config(

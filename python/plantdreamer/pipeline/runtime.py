@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 
 from plantdreamer.errors import InputError
@@ -15,20 +13,43 @@ from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
 
 
 def check_inputs(cfg: GenerateConfig) -> None:
-    """Fails fast on inputs that cannot work, before any model is loaded."""
+    """Fails fast on inputs that cannot work, before any model is loaded or any output
+    deleted (the models themselves: ``check_models``)."""
     cfg.validate()
     src = cfg.source
     if cfg.sds.guidance != "none":
         from plantdreamer.guidance.models import resolve_device
 
         resolve_device(cfg.sds.device)
-    if src.pointcloud is not None and not Path(src.pointcloud).is_file():
-        raise FileNotFoundError(f"point cloud not found: {src.pointcloud}")
+    if src.pointcloud is not None:
+        from plantdreamer.io import check_ply_file
+
+        check_ply_file(src.pointcloud, "point cloud")
     if src.pointcloud is None:
         from plantdreamer.lsystem import list_species
 
         if cfg.source.structure() not in list_species():
             raise InputError(f"unknown species {src.species!r}; known: {', '.join(list_species())}")
+
+
+def check_models(cfg: GenerateConfig) -> None:
+    """The models a config's guidance loads are there, looked at without loading them: the
+    LoRA file (and the template it recorded), and the base model and ControlNet when they
+    are local folders or paths (offline, hub ids must be in the Hugging Face cache).
+    ModelNotFoundError or InputError naming what is missing. A LoRA given is checked even
+    when no guidance loads it (a wrong path is a mistake either way)."""
+    sds = cfg.sds
+    if sds.lora is not None:
+        from plantdreamer.guidance.lora_weights import find_lora_file, recorded_template
+
+        find_lora_file(sds.lora)
+        recorded_template(sds.lora)
+    if sds.guidance == "none":
+        return
+    from plantdreamer.guidance.models import check_model_present
+
+    check_model_present(sds.base_model, "base")
+    check_model_present(sds.controlnet, "controlnet")
 
 
 def resolve_runtime(cfg: GenerateConfig) -> None:

@@ -1,0 +1,29 @@
+"""What a generation run writes in its folder, declared once (``output_folder.Owned``):
+``--overwrite`` deletes these and nothing else, a resume remakes the final ones, a dataset
+clears a plant's. Torch-free, so a dataset's dry run reads it without loading the trainer."""
+
+from __future__ import annotations
+
+from plantdreamer.exports.plant import LABEL_FILES, VIEW_PNG
+from plantdreamer.output_folder import tree
+
+CHECKPOINT_NAME = "checkpoint.pt"
+PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
+CHECKPOINT_FILES = (CHECKPOINT_NAME, PREVIOUS_NAME)
+
+# What a finished run writes at its end, the file that marks it finished first (deleted
+# first by --overwrite; made anew by a resumed run).
+FINAL_OUTPUTS = (
+    "run.json",
+    "plant.ply",
+    "turntable.gif",
+    "turntable.mp4",
+    *tree("renders", VIEW_PNG),
+    *tree("labels", VIEW_PNG, *tree("preview", VIEW_PNG)),
+    *tree("instances", VIEW_PNG),
+    *tree("depth", VIEW_PNG),
+    "transforms.json",
+    *LABEL_FILES,
+)
+# Everything a run writes.
+RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES)
