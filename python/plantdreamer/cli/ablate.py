@@ -21,13 +21,23 @@ SETTINGS = (
     "--pointcloud", required=True, type=click.Path(dir_okay=False), help="Input cloud (PLY)."
 )
 @click.option("--dataset", required=True, type=click.Path(), help="Posed ground-truth images.")
-@click.option("--colors", default="original,noise,black,white", show_default=True)
 @click.option(
-    "--out", "out_dir", type=click.Path(file_okay=False), default="ablation", show_default=True
+    "--colors",
+    default="original,noise,black,white",
+    show_default=True,
+    help="Colour initialisations to compare, comma-separated (the paper's four).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="ablation",
+    show_default=True,
+    help="Folder of the runs (one per colour), the table and the bar plot.",
 )
 @config_options(GenerateConfig, only=SETTINGS)
 @click.option("--overwrite", is_flag=True, help="Replace the results of an earlier ablation.")
-@click.option("--quiet", is_flag=True)
+@click.option("--quiet", is_flag=True, help="No progress output.")
 def ablate(pointcloud, dataset, colors, out_dir, overwrite, quiet, **options) -> None:
     """Generate once per colour initialisation, score each against the dataset (masked PSNR),
     and write the paper-style table and bar plot."""

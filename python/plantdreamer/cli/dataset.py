@@ -38,10 +38,28 @@ def _toml_value(text: str) -> object:
 
 @click.command()
 @click.argument("spec_file", required=False, type=click.Path(dir_okay=False, exists=True))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False))
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="The dataset's folder: plants/<id>/, manifest.jsonl, coco/, yolo/, README.md.",
+)
 @click.option("--species", help="Without a spec: comma-separated species, e.g. bean,mint,kale.")
-@click.option("--count", type=click.IntRange(1), default=1, show_default=True)
-@click.option("--seed-start", type=click.IntRange(0), default=0, show_default=True)
+@click.option(
+    "--count",
+    type=click.IntRange(1),
+    default=1,
+    show_default=True,
+    help="Without a spec: plants per species (seeds --seed-start onwards).",
+)
+@click.option(
+    "--seed-start",
+    type=click.IntRange(0),
+    default=0,
+    show_default=True,
+    help="Without a spec: the first plant's seed.",
+)
 @config_options(
     GenerateConfig,
     QUICK_SETTINGS,

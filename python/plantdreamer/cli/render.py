@@ -50,7 +50,12 @@ RENDER_OUTPUTS = (
 @click.command()
 @click.argument("ply", type=click.Path())
 @click.option(
-    "--out", "out_dir", type=click.Path(file_okay=False), default="renders", show_default=True
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="renders",
+    show_default=True,
+    help="Folder of the views (and their ground truth with --labels).",
 )
 @config_options(GenerateConfig, only=ORBIT_SETTINGS)
 @old_names(GenerateConfig, OLD_NAMES)

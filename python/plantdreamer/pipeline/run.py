@@ -27,6 +27,7 @@ from plantdreamer.pipeline.checkpoint import (
 )
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult, export_run
+from plantdreamer.pipeline.progress_pictures import PROGRESS_FILES
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.pipeline.runtime import build_guidance, check_inputs, resolve_runtime
 from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
@@ -49,7 +50,7 @@ FINAL_OUTPUTS = (
     *LABEL_FILES,
 )
 # Everything a run writes.
-RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES)
+RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES, *PROGRESS_FILES)
 # Settings a resumed run may change: more steps continue the same run further.
 RESUME_CHANGEABLE = ("steps",)
 
