@@ -8,7 +8,9 @@
   (``dataset_views``);
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
-- ``gallery.png``, the contact sheet (``exports.gallery``).
+- ``gallery.png``, the contact sheet (``exports.gallery``);
+- ``README.md`` and the ``card`` of ``dataset.json``: the dataset's card (``exports.card``),
+  which also fills the COCO files' ``info`` and ``licenses``.
 
 The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
@@ -20,12 +22,14 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
+from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
 from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.gallery import write_gallery
@@ -148,6 +152,10 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
     views = dataset_views(labelled)
+    images = Counter(split_of[v.plant.id] for v in views)
+    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
+    coco_fields, licenses, licence_of = coco_info(card)
+    guidance = {p.id: plant_guidance(p.folder) for p in labelled}
     index = yolo.class_index(things)
     yolo_dir = dataset_dir / "yolo"
     for split in SPLITS:  # stale links and labels of plants that moved split
@@ -156,7 +164,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
     for split in SPLITS:
-        coco = CocoBuilder(things, annotation_ids)
+        coco = CocoBuilder(things, annotation_ids, licenses=licenses)
         report = LabelReport()
         for view in views:
             plant = view.plant
@@ -166,7 +174,8 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             objects = objects.without(stuff_ids)
             image = Path(view.frame["file_path"])
             relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
-            coco.add(view.image_id, relative, objects, plant_id=plant.id)
+            coco.add(view.image_id, relative, objects, plant_id=plant.id,
+                     license=licence_of[guidance[plant.id]])  # fmt: skip
             flat = f"{plant.id}__{image.stem}"
             yolo.link_image(plant.folder / image, yolo_dir / "images" / split / f"{flat}.png")
             lines = yolo.label_lines(objects, index)
@@ -174,7 +183,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             report += LabelReport.of(objects)
         (yolo_dir / "images" / split).mkdir(parents=True, exist_ok=True)
         (dataset_dir / "coco").mkdir(exist_ok=True)
-        info = report.info(f"{split} split", min_area, options.stuff)
+        info = {**coco_fields, **report.info(f"{split} split", min_area, options.stuff)}
         coco.write(dataset_dir / "coco" / f"{split}.json", info)
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
@@ -183,7 +192,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
             f"class ids of {', '.join(classes.remapped)} renumbered by class name "
             f"({', '.join(f'{i} {n}' for i, n in classes.names.items())})"
         )
-    return DatasetLabels(splits, total, write_gallery(dataset_dir), min_area, species, warnings)
+    gallery = write_gallery(dataset_dir)
+    warnings += [w for w in [write_card(dataset_dir, card)] if w]
+    return DatasetLabels(splits, total, gallery, min_area, species, warnings)
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:
