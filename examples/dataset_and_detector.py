@@ -13,6 +13,8 @@ import sys
 import torch
 from torchvision.models.detection import MaskRCNN
 from torchvision.models.detection.backbone_utils import resnet_fpn_backbone
+from torchvision.models.detection.faster_rcnn import FastRCNNPredictor
+from torchvision.models.detection.mask_rcnn import MaskRCNNHeads, MaskRCNNPredictor
 
 import plantdreamer
 from plantdreamer.data import PlantViews, collate
@@ -24,6 +26,7 @@ dataset = plantdreamer.make_dataset(
     out,
     species="bean",  # real: "bean,mint,kale", or a spec file: make_dataset(out, "spec.toml")
     count=2,  # real: hundreds of plants per species
+    plants_per_gpu=2,  # trained together in one worker; real: 8 to 16 on one GPU
     split="1,0,0",  # real: "0.8,0.1,0.1" (the default), whole plants per split
     address=address,  # None: a local Ray; "auto" or HOST:PORT: a cluster
     guidance="none",  # real: "sds" (the default), with the weights and a LoRA per species
@@ -39,14 +42,24 @@ print(f"COCO: {dataset.coco['train']}; YOLO: {dataset.yolo}")
 
 views = PlantViews(dataset.folder, split="train")
 loader = torch.utils.data.DataLoader(views, batch_size=2, shuffle=True, collate_fn=collate)
-# Real: maskrcnn_resnet50_fpn(weights="DEFAULT") fine-tuned at 768 px for tens of epochs.
+# Real: maskrcnn_resnet50_fpn(weights="DEFAULT") with its predictors made for
+# views.num_classes, at 768 px for tens of epochs. Here a ResNet-18 and a light mask head
+# (the full one costs a CPU seconds per iteration), from random weights: nothing to download.
 backbone = resnet_fpn_backbone(backbone_name="resnet18", weights=None, trainable_layers=5)
-model = MaskRCNN(backbone, num_classes=views.num_classes, min_size=64, max_size=64)
+model = MaskRCNN(
+    backbone,
+    min_size=64,
+    max_size=64,
+    box_batch_size_per_image=64,
+    box_predictor=FastRCNNPredictor(1024, views.num_classes),
+    mask_head=MaskRCNNHeads(256, [64], 1),
+    mask_predictor=MaskRCNNPredictor(64, 64, views.num_classes),
+)
 optimizer = torch.optim.SGD(model.parameters(), lr=0.005, momentum=0.9)
 
 torch.manual_seed(0)
 model.train()
-iterations = 3  # real: epochs over the whole train split
+iterations = 2  # real: epochs over the whole train split
 step = 0
 while step < iterations:
     for images, targets in loader:

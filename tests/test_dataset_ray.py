@@ -344,8 +344,8 @@ def test_the_dataset_example_makes_a_dataset_with_its_card_and_trains_a_detector
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     assert f"2 plants in {out}; card: {out / 'README.md'}" in done.stdout
-    assert [line.split(":")[0] for line in done.stdout.splitlines()[-3:]] == [
-        f"iteration {i}" for i in (1, 2, 3)
+    assert [line.split(":")[0] for line in done.stdout.splitlines()[-2:]] == [
+        f"iteration {i}" for i in (1, 2)
     ]
     card = json.loads((out / "dataset.json").read_text())["card"]
     assert card["plantdreamer"] == plantdreamer.__version__

@@ -2,7 +2,8 @@
 at before it ends:
 
 - ``progress/step_NNNNNN.png``: the Gaussians at that checkpoint, one small view from the
-  evaluation orbit's first camera (framed on the model as it is then);
+  evaluation orbit's first camera (elevation, field of view and azimuth), at the distance
+  that frames the model as it is then;
 - ``progress.png``: those pictures side by side, the latest on the right (at most
   ``STRIP_FRAMES``, evenly picked), each under its step;
 - ``loss.png``: the loss of every trained step so far (``log.csv``) and its running mean,
@@ -55,17 +56,21 @@ def _picture(model: Any, cfg: Any) -> np.ndarray:
     import torch
 
     from plantdreamer.cameras import orbit
-    from plantdreamer.framing import framed_distance
+    from plantdreamer.errors import InputError
+    from plantdreamer.framing import orbit_distance
     from plantdreamer.pipeline.outputs import to_uint8
 
     oc, px = cfg.outputs, PICTURE_PX
-    if len(model) == 0:  # everything culled: a blank picture says so
+
+    def camera(distance: float) -> Any:
+        return orbit(distance, oc.eval_elevation_deg, -180.0, oc.eval_fovy_deg, px, px)
+
+    try:  # framed for this one camera (the orbit's framing looks all around: 5x the time)
+        distance = orbit_distance(model.to_gaussians(), [camera(1.0)])
+    except InputError:  # nothing visible is left: a blank picture says so
         return np.full((px, px, 3), to_uint8(np.float32(cfg.train.background)), np.uint8)
-    distance = framed_distance(model.to_gaussians(), 1, oc.eval_elevation_deg,
-                               oc.eval_fovy_deg, px, px)  # fmt: skip
-    camera = orbit(distance, oc.eval_elevation_deg, -180.0, oc.eval_fovy_deg, px, px)
     with torch.no_grad():
-        image, _, _ = model.render([camera], cfg.train.background)
+        image, _, _ = model.render([camera(distance)], cfg.train.background)
     return to_uint8(image[0].numpy())
 
 
