@@ -112,7 +112,8 @@ def build_command() -> click.Command:
         **options,
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
-        and ground truth per view: labels/, instances/, depth/, transforms.json."""
+        and ground truth per view: labels/, instances/, depth/, transforms.json. At each
+        checkpoint progress.png (the Gaussians so far) and loss.png show how it goes."""
         from plantdreamer.pipeline import RunInterrupted
 
         started = time.perf_counter()

@@ -25,7 +25,8 @@ from plantdreamer.pipeline.config import GenerateConfig
     help="A species LoRA (folder or .safetensors file) to check; repeat for several.",
 )
 def info(check: bool, base_model: str, controlnet: str, loras: tuple[str, ...]) -> None:
-    """Show versions, CPU threads, the blending kernel, CUDA devices and network dtypes."""
+    """Show versions, CPU threads, the blending kernel, CUDA devices and network dtypes;
+    with --check, whether the weights, LoRAs and optional extras are present."""
     import torch
 
     from plantdreamer import _core
