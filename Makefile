@@ -151,14 +151,14 @@ bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
 lint: $(STAMP) ## cargo fmt --check, clippy -D warnings, ruff, mypy
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches scripts
-	$(VENV)/bin/ruff format --check python tests benches scripts
+	$(VENV)/bin/ruff check python tests benches scripts examples
+	$(VENV)/bin/ruff format --check python tests benches scripts examples
 	$(VENV)/bin/mypy python/plantdreamer
 
 format: $(STAMP) ## Format Rust and Python sources
 	cargo fmt --all
-	$(VENV)/bin/ruff format python tests benches scripts
-	$(VENV)/bin/ruff check --fix python tests benches scripts
+	$(VENV)/bin/ruff format python tests benches scripts examples
+	$(VENV)/bin/ruff check --fix python tests benches scripts examples
 
 clean: ## Remove build outputs (keeps .venv)
 	cargo clean

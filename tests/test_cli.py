@@ -1,5 +1,6 @@
 """The plantdreamer command: help, version, and one-line errors."""
 
+import dataclasses
 import subprocess
 import sys
 
@@ -140,3 +141,46 @@ def test_the_concept_table_names_options_that_exist():
     """The table's names are the commands' names (a renamed option must update the table)."""
     shown = {n for _, c in every_command() for o in shown_options(c) for n in o.opts}
     assert set(CONCEPTS) <= shown, set(CONCEPTS) - shown
+
+
+def test_generate_help_lists_its_options_by_section_then_examples():
+    from plantdreamer.cli.help_sections import SECTION_TITLES
+    from plantdreamer.pipeline.config import GenerateConfig
+
+    result = CliRunner().invoke(main, ["generate", "--help"])
+    assert result.exit_code == 0
+    headings = [line[:-1] for line in result.output.splitlines()
+                if line.endswith(":") and not line.startswith(" ")]  # fmt: skip
+    # Every section of the config has its heading, in the config's order; nothing is left
+    # under a catch-all heading.
+    sections = [f.name for f in dataclasses.fields(GenerateConfig) if f.name in SECTION_TITLES]
+    assert headings == [SECTION_TITLES[""], *(SECTION_TITLES[s] for s in sections)]
+    assert "\n  Examples:\n" in result.output
+    text = result.output
+    assert text.index("--points") < text.index("Initial Gaussians:") < text.index("--sh-degree ")
+    assert text.index("--eval-views") > text.index("Outputs:")
+    assert text.index("--resume") < text.index("Input: species")  # the run's own options
+    assert "  plantdreamer generate --resume bean" in text
+
+
+def test_info_check_says_what_is_present_and_fails_on_a_missing_lora(tmp_path):
+    from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
+
+    lora = tmp_path / "bean"
+    lora.mkdir()
+    (lora / LORA_WEIGHT_NAME).write_bytes(b"")
+    base = tmp_path / "base"
+    base.mkdir()
+    args = ["info", "--check", "--base-model", str(base), "--lora", str(lora)]
+    result = CliRunner().invoke(main, args)
+    rows = {
+        line[: line.index("  ")].strip(): line[line.index("  ") :].strip()
+        for line in result.output.splitlines()
+    }
+    assert rows["base model"].startswith(f"incomplete: folder {base} lacks unet/config.json")
+    assert rows[f"LoRA {lora}"] == f"present: {lora / LORA_WEIGHT_NAME}"
+    assert "extra [cluster]" in rows and "extra [dev]" not in rows
+    assert result.exit_code == 1  # a model is missing
+    result = CliRunner().invoke(main, ["info", "--check", "--lora", str(tmp_path / "nothere")])
+    assert f"LoRA {tmp_path / 'nothere'}" in result.output and "missing: LoRA" in result.output
+    assert result.exit_code == 1

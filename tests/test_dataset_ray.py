@@ -323,3 +323,44 @@ def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical
         seed = int(plant_id[-1])
         expected = direct_ply(tmp_path, species="bean", seed=seed)
         assert (out / "plants" / plant_id / "plant.ply").read_bytes() == expected
+
+
+def test_the_dataset_example_makes_a_dataset_with_its_card_and_trains_a_detector(
+    tmp_path, shared_ray
+):
+    """examples/dataset_and_detector.py as a user runs it (on the shared instance):
+    ``make_dataset``, then a few Mask R-CNN iterations on its ``PlantViews``. The dataset
+    has its card: README.md, dataset.json's ``card``, COCO's ``info`` and ``licenses``."""
+    pytest.importorskip("torchvision")
+    from pathlib import Path
+
+    import plantdreamer
+
+    out = tmp_path / "ds"
+    example = Path(__file__).parents[1] / "examples" / "dataset_and_detector.py"
+    done = subprocess.run(
+        [sys.executable, str(example), str(out), shared_ray.address],
+        env=loopback_env(), capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"2 plants in {out}; card: {out / 'README.md'}" in done.stdout
+    assert [line.split(":")[0] for line in done.stdout.splitlines()[-2:]] == [
+        f"iteration {i}" for i in (1, 2)
+    ]
+    card = json.loads((out / "dataset.json").read_text())["card"]
+    assert card["plantdreamer"] == plantdreamer.__version__
+    assert [(c["id"], c["name"]) for c in card["classes"]] == [
+        (1, "leaf"), (2, "stem"), (3, "pot"), (4, "soil")
+    ]  # fmt: skip
+    assert card["species"] == {"bean": 2} and card["splits"]["train"]["plants"] == 2
+    assert card["splits"]["train"]["images"] == 4  # two views per plant
+    assert card["models"] == [] and card["licences"]["weights"] is None  # no guidance
+    assert card["licences"]["code"] == "Apache-2.0" and "2505.15528" in card["citation"]
+    readme = (out / "README.md").read_text()
+    assert readme.startswith("# A plantdreamer dataset")
+    assert "| 1 | leaf | #1f77b4 | yes |" in readme and "| train | 2 | 4 | 2 bean |" in readme
+    coco = json.loads((out / "coco" / "train.json").read_text())
+    assert coco["info"]["version"] == plantdreamer.__version__
+    assert coco["info"]["date_created"] == card["date"]
+    assert [lic["id"] for lic in coco["licenses"]] == [1, 2]
+    assert {image["license"] for image in coco["images"]} == {2}  # renders, no weights

@@ -193,3 +193,20 @@ def test_a_group_spells_seeds_and_pointcloud_as_the_options_do(tmp_path):
     assert result.exit_code == 0, result.output
     assert [line.split()[-1] for line in result.output.splitlines()[1:]] == [
         "a-s0002", "a-s0003", "a-s0007"]  # fmt: skip
+
+
+def test_log_mode_numbers_each_finished_plant_and_gives_the_time_left(capsys, monkeypatch):
+    """Without a terminal (Slurm, nohup) each finished plant is one line: [k/N], its status,
+    its time, and the time left at the rate so far."""
+    from plantdreamer.dataset import display
+
+    clock = iter([100.0, 130.0, 160.0])  # start, then two plants 30 s apart
+    monkeypatch.setattr(display.time, "monotonic", lambda: next(clock))
+    progress = display.DatasetProgress(4, enabled=True)
+    progress.finished("bean-s0000", {"status": "done", "seconds": 28.0})
+    progress.finished("bean-s0001", {"status": "failed", "error": "no such file"})
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        "[1/4] done        bean-s0000  28.0 s  eta 1 min 30 s",
+        "[2/4] failed      bean-s0001  no such file  eta 1 min 00 s",
+    ]

@@ -122,6 +122,18 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
         None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
     )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
+    # The progress pictures of each checkpoint (5, 10, 12) and the loss plot: the same bytes.
+    for name in (
+        "progress.png",
+        "loss.png",
+        "progress/step_000005.png",
+        "progress/step_000012.png",
+    ):
+        assert (tmp_path / "full" / name).read_bytes() == (tmp_path / "cut" / name).read_bytes()
+    from PIL import Image
+
+    with Image.open(tmp_path / "full" / "progress.png") as strip:
+        assert strip.width == 3 * 128  # one picture per checkpoint, side by side
     masks = sorted((tmp_path / "full").glob("[lid]*/view_*.png"))  # labels, instances, depth
     assert len(masks) == 12
     for png in masks:  # the masks too are bit-identical
@@ -329,6 +341,11 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
     assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
     run = json.loads((out / "run.json").read_text())
     assert {"render", "depth", "guidance", "backward", "optimizer"} <= set(run["per_step_s"])
+    # The run ends saying what it wrote, how long it took and what to type next.
+    assert f"wrote {out / 'plant.ply'} (" in result.output
+    assert "progress.png, loss.png" in result.output and "done in " in result.output
+    assert f"next: plantdreamer view {out / 'plant.ply'}" in result.output
+    assert (out / "loss.png").read_bytes().startswith(b"\x89PNG")
 
 
 def test_render_command_orbit_and_transforms(tmp_path):

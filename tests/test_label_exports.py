@@ -459,3 +459,53 @@ def test_transforms_json_follows_nerfstudio_and_names_the_point_cloud(bean):
         to_plant = centre - c2w[:3, 3]
         assert np.dot(-c2w[:3, 2], to_plant / np.linalg.norm(to_plant)) > 0.8
         assert (bean / frame["file_path"]).is_file()
+
+
+def test_a_dataset_card_names_the_models_their_hashes_and_the_weights_licence(
+    bean, tmp_path, monkeypatch
+):
+    """Two plants, one recorded as made with SDS from local weights and a LoRA: the card
+    hashes those files, names the weights' licence, and the COCO images carry the licence
+    of how each was made. A README.md the card did not write is kept."""
+    import hashlib
+    import shutil
+
+    from plantdreamer.exports import LabelOptions, write_dataset_exports
+
+    base, lora = tmp_path / "base", tmp_path / "bean.safetensors"
+    (base / "unet").mkdir(parents=True)
+    (base / "unet" / "diffusion_pytorch_model.safetensors").write_bytes(b"weights")
+    lora.write_bytes(b"lora")
+    root = tmp_path / "ds"
+    for plant_id in ("bean-a", "bean-b"):
+        shutil.copytree(bean, root / "plants" / plant_id)
+    record = root / "plants" / "bean-b" / "run.json"
+    run = json.loads(record.read_text())
+    run["config"].update({"guidance": "sds", "base-model": str(base), "lora": str(lora)})
+    record.write_text(json.dumps(run))
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1750000000")  # 2025-06-15
+    write_dataset_exports(root, LabelOptions(ratios=(1.0, 0.0, 0.0), allow_empty_split=True))
+
+    card = json.loads((root / "dataset.json").read_text())["card"]
+    assert card["date"] == "2025-06-15" and card["guided_plants"] == 1
+    models = {m["role"]: m for m in card["models"]}
+    unet = hashlib.sha256(b"weights").hexdigest()
+    expected = hashlib.sha256(b"unet/diffusion_pytorch_model.safetensors\0" + unet.encode())
+    assert models["base model"]["hash"] == "sha256:" + expected.hexdigest()
+    assert models["species LoRA"]["hash"] == "sha256:" + hashlib.sha256(b"lora").hexdigest()
+    assert models["depth ControlNet"]["id"] == "thibaud/controlnet-sd21-depth-diffusers"
+    assert card["licences"]["weights"]["name"] == "CreativeML Open RAIL++-M"
+    assert "Attachment A" in card["licences"]["images"]
+    coco = json.loads((root / "coco" / "train.json").read_text())
+    assert coco["info"]["date_created"] == "2025-06-15" and coco["info"]["year"] == 2025
+    licence_of = {image["plant_id"]: image["license"] for image in coco["images"]}
+    assert licence_of == {"bean-a": 2, "bean-b": 1}
+    readme = (root / "README.md").read_text()
+    assert "CreativeML Open RAIL++-M" in readme and "1 of 2 plants" in readme
+
+    (root / "README.md").write_text("# my notes\n")
+    labels = write_dataset_exports(
+        root, LabelOptions(ratios=(1.0, 0.0, 0.0), allow_empty_split=True)
+    )
+    assert (root / "README.md").read_text() == "# my notes\n"
+    assert any("is not a dataset card" in w for w in labels.warnings)

@@ -46,7 +46,7 @@ LAYERS: list[tuple[str, set[str]]] = [
         {"pipeline", "lora", "data"},
     ),
     ("drivers of many runs: datasets on Ray, the known answer", {"dataset", "known_answer"}),
-    ("the command line", {"cli", "__main__"}),
+    ("the Python API and the command line", {"api", "install_check", "cli", "__main__"}),
 ]
 
 # (importing module, imported module): why the upward import is deliberate. Empty today;

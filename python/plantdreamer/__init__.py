@@ -23,21 +23,38 @@ __version__: str = _core.__version__
 
 __all__ = [
     "CheckpointError",
+    "DatasetResult",
+    "GenerateConfig",
+    "GeneratedPlant",
     "InputError",
     "ModelNotFoundError",
     "PlantDreamerError",
     "PlyError",
     "PlyWarning",
     "__version__",
+    "generate",
+    "make_dataset",
     "rasterization",
 ]
 
 
-def __getattr__(name: str) -> Any:
-    # torch-backed names load on first use so `import plantdreamer` (and the CLI) stay light.
-    if name == "rasterization":
-        from plantdreamer.rasterizer import rasterization
+# Names loaded on first use, so `import plantdreamer` (and the CLI) stay light: the Python
+# API (plantdreamer.api) and the torch-backed rasterizer.
+_LAZY = {
+    "DatasetResult": "plantdreamer.api",
+    "GenerateConfig": "plantdreamer.pipeline.config",
+    "GeneratedPlant": "plantdreamer.api",
+    "generate": "plantdreamer.api",
+    "make_dataset": "plantdreamer.api",
+    "rasterization": "plantdreamer.rasterizer",
+}
 
-        globals()[name] = rasterization
-        return rasterization
-    raise AttributeError(f"module 'plantdreamer' has no attribute {name!r}")
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module 'plantdreamer' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value

@@ -45,7 +45,7 @@ def _toml_value(text: str) -> object:
     "out_dir",
     required=True,
     type=click.Path(file_okay=False),
-    help="The dataset folder (plants/, manifest.jsonl, coco/, yolo/, gallery.png).",
+    help="The dataset folder (plants/, manifest.jsonl, coco/, yolo/, gallery.png, README.md).",
 )
 @click.option(
     "--species",
@@ -162,7 +162,7 @@ def dataset(
 
     if not dry_run:
         import_ray()  # fail first, with what to install, when Ray is missing
-    spec = _spec(spec_file, species, pointcloud, seeds, count, seed_start)
+    spec = spec_of_options(spec_file, species, pointcloud, seeds, count, seed_start)
     packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
@@ -228,7 +228,7 @@ def dataset(
         click.echo(describe(report.labels, out_dir))
 
 
-def _spec(
+def spec_of_options(
     spec_file: str | None,
     species: tuple[str, ...],
     pointcloud: str | None,

@@ -9,11 +9,13 @@ choices and help come from the sections' dataclasses); this module only adds the
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
 import click
 
+from plantdreamer.cli.help_sections import SECTION_TITLES, SectionedCommand, setting_sections
 from plantdreamer.cli.options import (
     config_options,
     given_on_command_line,
@@ -22,11 +24,48 @@ from plantdreamer.cli.options import (
 )
 from plantdreamer.pipeline.config import GenerateConfig
 
+# Options of the command that are no settings of the run: listed under the run's heading.
+RUN_OPTIONS = (
+    "out_dir",
+    "resume_dir",
+    "overwrite",
+    "seeds",
+    "quiet",
+    "view",
+    "print_config",
+    "help",
+)
+# What the end-of-run line lists, when the run wrote it.
+FINISHED_FILES = ("renders", "labels", "turntable.gif", "turntable.mp4", "coco.json",
+                  "progress.png", "loss.png", "run.json")  # fmt: skip
+# \b keeps click from rewrapping the lines that follow it.
+EXAMPLES = """Examples:
+
+\b
+  # a bean by the paper's method (the weights: `plantdreamer info --check`)
+  plantdreamer generate --species bean --lora lora/bean --out bean
+  # a real scan, named in the prompts
+  plantdreamer generate --pointcloud scan.ply --species kale --out kale
+  # four beans trained together, one folder each under beans/
+  plantdreamer generate --species bean --seeds 0-3 --out beans
+  # seconds on a CPU, no weights: a quick look at the outputs
+  plantdreamer generate --species bean --guidance none --points 2000 \\
+      --steps 2 --eval-views 2 --resolution 64 --turntable none --out quick
+  # continue a run stopped by Ctrl-C
+  plantdreamer generate --resume bean
+
+\b
+Every setting above also goes into a dataset spec and `dataset --set NAME=VALUE`.
+"""
+
 
 def build_command() -> click.Command:
     """The command, with options read from ``GenerateConfig`` as it is now."""
 
-    @click.command(name="generate")
+    run = SECTION_TITLES[""]
+    sections = {**setting_sections(GenerateConfig), **dict.fromkeys(RUN_OPTIONS, run)}
+
+    @click.command(name="generate", cls=SectionedCommand, sections=sections, epilog=EXAMPLES)
     @config_options(GenerateConfig)
     @click.option(
         "--out",
@@ -73,9 +112,11 @@ def build_command() -> click.Command:
         **options,
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
-        and ground truth per view: labels/, instances/, depth/, transforms.json."""
+        and ground truth per view: labels/, instances/, depth/, transforms.json. At each
+        checkpoint progress.png (the Gaussians so far) and loss.png show how it goes."""
         from plantdreamer.pipeline import RunInterrupted
 
+        started = time.perf_counter()
         given = typed_options(ctx)
         try:
             if resume_dir is not None:
@@ -107,17 +148,31 @@ def build_command() -> click.Command:
                 fg="yellow",
             )
             raise SystemExit(130) from None
-        for result in results:
-            click.echo(
-                f"wrote {result.ply_path} ({result.gaussians} Gaussians) "
-                f"and renders in {Path(result.out_dir)}"
-            )
+        for line in finished_lines(results, time.perf_counter() - started, view):
+            click.echo(line)
         if view:
             from plantdreamer.viewer.server import view_files
 
             view_files([str(r.ply_path) for r in results], echo=click.echo)
 
     return generate
+
+
+def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
+    """The end of a run: what each plant wrote, the time it took and the next command."""
+    lines = []
+    for r in results:
+        folder = Path(r.out_dir)
+        made = [name for name in FINISHED_FILES if (folder / name).exists()]
+        lines.append(f"wrote {r.ply_path} ({r.gaussians:,} Gaussians) and {', '.join(made)} "
+                     f"in {folder}")  # fmt: skip
+    from plantdreamer.pipeline.progress import duration_text
+
+    lines.append(f"done in {duration_text(seconds)}")
+    if results and not viewing:
+        plys = " ".join(str(r.ply_path) for r in results[:4]) + (" ..." if len(results) > 4 else "")
+        lines.append(f"next: plantdreamer view {plys}")
+    return lines
 
 
 def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:

@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 # Literal copies of exports' defaults would drift; these are read from there (light imports).
+from plantdreamer.exports.card import README_FILE as CARD_FILE
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
 from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED
 
@@ -77,8 +78,8 @@ def make_label_options(
 
 def describe(labels, folder: str) -> str:
     """A dataset's label files in a few lines (a ``DatasetLabels``): per split the plants
-    of each species, the objects, the gallery under FOLDER as the user typed it, then
-    warnings."""
+    of each species, the objects, the gallery and the card under FOLDER as the user typed
+    it, then warnings."""
     parts = []
     for split, ids in labels.splits.items():
         species = ", ".join(f"{n} {name}" for name, n in labels.species.get(split, {}).items())
@@ -87,6 +88,7 @@ def describe(labels, folder: str) -> str:
         f"splits: {'; '.join(parts)} plants",
         labels.report.describe(labels.min_area),
         f"gallery: {Path(folder) / labels.gallery.name}",
+        f"card: {Path(folder) / CARD_FILE} (classes, splits, models, licences, citation)",
     ]
     lines += [f"warning: {w}" for w in labels.warnings]
     return "\n".join(lines)

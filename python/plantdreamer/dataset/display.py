@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 from typing import Any
+
+from plantdreamer.pipeline.progress import duration_text
 
 
 class DatasetProgress:
@@ -13,6 +16,7 @@ class DatasetProgress:
 
     def __init__(self, total: int, enabled: bool) -> None:
         self.total, self.enabled = total, enabled
+        self.finished_count, self.t0 = 0, time.monotonic()
         self._bar: Any = None
         if enabled and sys.stderr.isatty():
             from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
@@ -36,10 +40,17 @@ class DatasetProgress:
         self._bar.update(self._task, completed=finished, info=info)
 
     def finished(self, plant_id: str, record: dict[str, Any]) -> None:
+        """Log mode (no terminal: Slurm, nohup): ``[k/N]``, the plant, and the time left at
+        the rate of the plants finished so far."""
+        self.finished_count += 1
         if not self.enabled or self._bar is not None:
             return
+        k, n = self.finished_count, self.total
         detail = record.get("error") or f"{record.get('seconds', 0):.1f} s"
-        print(f"{record['status']:<11} {plant_id}  {detail}", file=sys.stderr, flush=True)
+        left = (time.monotonic() - self.t0) / k * (n - k)
+        eta = f"  eta {duration_text(left)}" if k < n else ""
+        print(f"[{k}/{n}] {record['status']:<11} {plant_id}  {detail}{eta}",
+              file=sys.stderr, flush=True)  # fmt: skip
 
     def close(self) -> None:
         if self._bar is not None:

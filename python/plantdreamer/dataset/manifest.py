@@ -25,9 +25,10 @@ from typing import Any
 
 from plantdreamer.atomic import atomic_write
 from plantdreamer.errors import InputError
+from plantdreamer.exports.card import CARD_KEY, SUMMARY_FILE
 
 MANIFEST_NAME = "manifest.jsonl"
-SUMMARY_NAME = "dataset.json"
+SUMMARY_NAME = SUMMARY_FILE
 STATUSES = ("pending", "running", "done", "failed", "interrupted")
 # Compaction when the file holds this many lines per plant (plus a few, for tiny datasets).
 COMPACT_RATIO = 3
@@ -114,6 +115,14 @@ def _parse(line: bytes, where: str) -> dict[str, Any]:
 
 
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:
+    """``dataset.json``; the card the last label export wrote there is kept (it describes
+    the label files on disk until the next export remakes both)."""
+    try:
+        card = json.loads((out_dir / SUMMARY_NAME).read_text()).get(CARD_KEY)
+    except (OSError, ValueError, AttributeError):
+        card = None
+    if card is not None:
+        summary = {**summary, CARD_KEY: card}
     text = json.dumps(summary, indent=2, sort_keys=True) + "\n"
     atomic_write(out_dir / SUMMARY_NAME, lambda tmp: tmp.write_text(text))
 

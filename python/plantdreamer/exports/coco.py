@@ -34,6 +34,7 @@ class CocoBuilder:
     annotation_ids: Iterator[int] = field(default_factory=lambda: itertools.count(1))
     images: list[dict[str, Any]] = field(default_factory=list)
     annotations: list[dict[str, Any]] = field(default_factory=list)
+    licenses: list[dict[str, Any]] = field(default_factory=list)  # COCO's "licenses"
 
     def add(self, image_id: int, file_name: str, objects: ViewObjects, **extra: Any) -> None:
         """One image and its objects (``extra``: more keys of the image record)."""
@@ -67,6 +68,7 @@ class CocoBuilder:
     def to_dict(self, info: dict[str, Any]) -> dict[str, Any]:
         return {
             "info": info,
+            **({"licenses": self.licenses} if self.licenses else {}),
             "images": self.images,
             "annotations": self.annotations,
             "categories": [

@@ -8,7 +8,9 @@
   (``dataset_views``);
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
-- ``gallery.png``, the contact sheet (``exports.gallery``).
+- ``gallery.png``, the contact sheet (``exports.gallery``);
+- ``README.md`` and the ``card`` of ``dataset.json``: the dataset's card (``exports.card``),
+  which also fills the COCO files' ``info`` and ``licenses``.
 
 These are the files the exports own in ``DIR`` (``DATASET_EXPORTS``; ``output_folder``):
 they are built in a staging folder beside them and moved in only when all are complete, so
@@ -27,12 +29,15 @@ import itertools
 import json
 import re
 import shutil
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
+from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
 from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
@@ -149,14 +154,18 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     remove_temporaries(dataset_dir, DATASET_EXPORTS)  # a killed export's staging folder
     stage = atomic.staging_folder(dataset_dir)
     try:
-        labels = _write_exports(dataset_dir, stage, options or LabelOptions())
+        labels, card = _write_exports(dataset_dir, stage, options or LabelOptions())
         replace_entries(dataset_dir, stage, EXPORT_ENTRIES)
+        # The card (README.md, dataset.json's card) once the exports it describes are in.
+        labels.warnings += [w for w in [write_card(dataset_dir, card)] if w]
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return labels
 
 
-def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> DatasetLabels:
+def _write_exports(
+    dataset_dir: Path, stage: Path, options: LabelOptions
+) -> tuple[DatasetLabels, dict[str, Any]]:
     """The exports of ``dataset_dir`` written into ``stage``."""
     ratios, seed, min_area = options.ratios, options.seed, options.min_area
     plants = finished_plants(dataset_dir)
@@ -190,12 +199,16 @@ def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> Dat
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
     views = dataset_views(labelled)
+    images = Counter(split_of[v.plant.id] for v in views)
+    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
+    coco_fields, licenses, licence_of = coco_info(card)
+    guidance = {p.id: plant_guidance(p.folder) for p in labelled}
     index = yolo.class_index(things)
     yolo_dir = stage / "yolo"
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
     for split in SPLITS:
-        coco = CocoBuilder(things, annotation_ids)
+        coco = CocoBuilder(things, annotation_ids, licenses=licenses)
         report = LabelReport()
         for view in views:
             plant = view.plant
@@ -205,7 +218,8 @@ def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> Dat
             objects = objects.without(stuff_ids)
             image = Path(view.frame["file_path"])
             relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
-            coco.add(view.image_id, relative, objects, plant_id=plant.id)
+            coco.add(view.image_id, relative, objects, plant_id=plant.id,
+                     license=licence_of[guidance[plant.id]])  # fmt: skip
             flat = f"{plant.id}__{image.stem}"
             yolo.link_image(plant.folder / image, yolo_dir / "images" / split / f"{flat}.png")
             lines = yolo.label_lines(objects, index)
@@ -213,7 +227,7 @@ def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> Dat
             report += LabelReport.of(objects)
         (yolo_dir / "images" / split).mkdir(parents=True, exist_ok=True)
         (stage / "coco").mkdir(exist_ok=True)
-        info = report.info(f"{split} split", min_area, options.stuff)
+        info = {**coco_fields, **report.info(f"{split} split", min_area, options.stuff)}
         coco.write(stage / "coco" / f"{split}.json", info)
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
@@ -224,7 +238,7 @@ def _write_exports(dataset_dir: Path, stage: Path, options: LabelOptions) -> Dat
         )
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
-    return DatasetLabels(splits, total, gallery, min_area, species, warnings)
+    return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:

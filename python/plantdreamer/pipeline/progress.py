@@ -13,6 +13,16 @@ from typing import Any
 BAR_WIDTH = 16  # characters of a bar: the whole line fits an 80-column terminal
 
 
+def duration_text(seconds: float) -> str:
+    """``4.2 s``, ``5 min 12 s``, ``2 h 03 min``."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(round(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {secs:02d} s"
+    return f"{minutes // 60} h {minutes % 60:02d} min"
+
+
 class Progress:
     def __init__(self, total: int, start: int = 0, enabled: bool = True) -> None:
         self.total, self.start = total, start

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from plantdreamer.exports.plant import LABEL_FILES, VIEW_PNG
 from plantdreamer.output_folder import tree
+from plantdreamer.pipeline.progress_pictures import FRAME_NAME, LOSS_PLOT, PROGRESS_DIR, PROGRESS_STRIP
 
 CHECKPOINT_NAME = "checkpoint.pt"
 PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
@@ -26,4 +27,6 @@ FINAL_OUTPUTS = (
     *LABEL_FILES,
 )
 # Everything a run writes.
-RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES)
+# The pictures of the trainings progress (pipeline.progress_pictures).
+PROGRESS_OUTPUTS = (*tree(PROGRESS_DIR, FRAME_NAME), PROGRESS_STRIP, LOSS_PLOT)
+RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES, *PROGRESS_OUTPUTS)

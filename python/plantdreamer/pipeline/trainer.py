@@ -31,6 +31,7 @@ from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
+from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP, write_progress
 from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
 from plantdreamer.stop_signals import stop_signals_handled
 
@@ -150,6 +151,7 @@ class Trainer:
                 )
                 if (step + 1) % self.cfg.train.checkpoint_every == 0 and step + 1 < steps:
                     self.checkpoint(step + 1)
+                    progress.note(f"checkpoint at step {step + 1}: {self._pictures()}")
                 if on_step is not None:
                     on_step(step)
                 if not self.alive():
@@ -163,6 +165,11 @@ class Trainer:
             progress.close()
             self.guidance.close()
             self.schedule.close()
+
+    def _pictures(self) -> str:
+        """Where the latest progress pictures are (the first plant's, for a group)."""
+        first = self.plants[0].out_dir / PROGRESS_STRIP
+        return f"{first} (each plant's folder)" if len(self.plants) > 1 else str(first)
 
     def _request_stop(self, signum, frame) -> None:
         if self._stop_requested:  # a second Ctrl-C or SIGTERM: stop now
@@ -185,5 +192,6 @@ class Trainer:
                 }
                 PlantCheckpoints(p.out_dir).write(record)
                 outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
+                write_progress(p, step)
         for p in alive:
             PlantCheckpoints(p.out_dir).commit()
