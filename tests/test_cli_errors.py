@@ -344,7 +344,8 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert json.loads((out / "run.json").read_text())["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
         "coco.json", "depth", "instances", "labels", "log.csv", "plant.ply", "points.ply",
-        "renders", "run.json", "transforms.json", "turntable.gif", "yolo",
+        "progress", "progress.png", "renders", "run.json", "transforms.json", "turntable.gif",
+        "yolo",
     ]  # fmt: skip
 
 

@@ -157,7 +157,7 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
         labels, card = _write_exports(dataset_dir, stage, options or LabelOptions())
         replace_entries(dataset_dir, stage, EXPORT_ENTRIES)
         # The card (README.md, dataset.json's card) once the exports it describes are in.
-        labels.warnings += [w for w in [write_card(dataset_dir, card)] if w]
+        labels.warnings.extend(w for w in [write_card(dataset_dir, card)] if w)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return labels
