@@ -6,7 +6,12 @@ from __future__ import annotations
 
 from plantdreamer.exports.plant import LABEL_FILES, VIEW_PNG
 from plantdreamer.output_folder import tree
-from plantdreamer.pipeline.progress_pictures import FRAME_NAME, LOSS_PLOT, PROGRESS_DIR, PROGRESS_STRIP
+from plantdreamer.pipeline.progress_pictures import (
+    FRAME_NAME,
+    LOSS_PLOT,
+    PROGRESS_DIR,
+    PROGRESS_STRIP,
+)
 
 CHECKPOINT_NAME = "checkpoint.pt"
 PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
