@@ -9,6 +9,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-dev
 BENCH_STAMP := $(VENV)/.installed-bench
+DOCS_STAMP := $(VENV)/.installed-docs
 PYTEST_ARGS ?=
 # pytest-xdist workers for `make test-python`. Half the suite's time is subprocesses and
 # waits, so two workers on 2 cores took it from 494 s to 317 s (measured; tests/conftest.py
@@ -18,7 +19,7 @@ PYTEST_WORKERS ?= 2
 # only when every run collected none, so an empty suite still fails (.ci/run).
 PYTEST_STATUS = && status 0 || status $$?
 
-.PHONY: help setup build test rust-tests test-rust test-python test-wheel wheel browser system-libs demo bench lint format clean
+.PHONY: help setup build test rust-tests test-rust test-python test-wheel wheel browser system-libs demo bench docs lint format clean
 
 help: ## List the developer commands
 	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | \
@@ -148,7 +149,19 @@ $(BENCH_STAMP): $(STAMP) | system-libs
 bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
 	$(PY) benches/run_all.py
 
-lint: $(STAMP) ## cargo fmt --check, clippy -D warnings, ruff, mypy
+# The docs extra's packages alone: the editable install is there already, and `pip install
+# -e '.[docs]'` would build the native module again.
+$(DOCS_STAMP): $(STAMP)
+	$(PY) scripts/build_tools.py --extra docs > $(VENV)/docs-requirements.txt
+	$(PY) -m pip install --quiet -r $(VENV)/docs-requirements.txt
+	touch $@
+
+# mkdocs (strict: a broken link or anchor is an error); the CLI reference is generated from
+# the click commands, so the package must import.
+docs: $(DOCS_STAMP) ## Build the documentation site into site/, warnings as errors
+	$(VENV)/bin/mkdocs build --strict
+
+lint: $(STAMP) docs ## cargo fmt --check, clippy -D warnings, ruff, mypy, the docs site
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check python tests benches scripts examples

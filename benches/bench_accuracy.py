@@ -3,6 +3,7 @@ known answer (docs/known_answer.md), over steps and seconds.
 
     python benches/bench_accuracy.py [--seeds 0,1,2] [--jobs N] [--cache DIR]
     python benches/bench_accuracy.py --from-json benches/results/accuracy.json
+    python benches/bench_accuracy.py --replot   # the plot alone, from results/accuracy.md's table
 
 For each plant seed, the known-answer models are built (or reused from the cache), then
 ``generate`` runs from each colour init (noise, black, white, original) at CFG 100, from
@@ -260,42 +261,70 @@ def findings(results: list[dict[str, Any]]) -> list[str]:
     return out
 
 
-def plot(results: list[dict[str, Any]], path: Path) -> None:
+# The plot's runs: at most six, so that each keeps a colour of its own; every run, and every
+# size and model set, is in the table.
+PLOTTED = [
+    "noise, CFG 100",
+    "original, CFG 100",
+    "black, CFG 100",
+    "white, CFG 100",
+    "noise, CFG 7.5",
+    "noise, CFG 100, untrained models",
+]
+Curve = tuple[str, list[int], list[float], float | None]
+
+
+def curves(results: list[dict[str, Any]]) -> tuple[str, list[Curve]]:
+    """The plotted runs of the first size and model set: (that set, [(run, steps, mean masked
+    PSNR per step, median s/100 steps)]), the figures the table shows."""
+    first = sets_of(results)[0]
+    out: list[Curve] = []
+    for name, px, models, rows in grouped(results):
+        if name in PLOTTED and (px, models) == first:
+            steps = sorted({p["steps"] for r in rows for p in r["curve"]})
+            means = [m for m in (_mean_at(rows, s) for s in steps) if m is not None]
+            per100 = [p["seconds"] for r in rows for p in r["curve"] if p["steps"] == 100]
+            out.append((name, steps, means, statistics.median(per100) if per100 else None))
+    return f"{first[0]} px, {first[1]}", sorted(out, key=lambda c: PLOTTED.index(c[0]))
+
+
+def curves_from_table(text: str) -> tuple[str, list[Curve]]:
+    """``curves`` read back from a written table (benches/results/accuracy.md): `--replot`
+    redraws the plot from the committed figures, without the raw results."""
+    rows = [line.strip("|").split("|") for line in text.splitlines() if line.startswith("|")]
+    head = [c.strip() for c in rows[0]]
+    step_cols = [
+        (i, int(c.removeprefix("step "))) for i, c in enumerate(head) if c.startswith("step ")
+    ]
+    body = [[c.strip() for c in r] for r in rows[2:]]
+    first = body[0][1], body[0][2]
+    out: list[Curve] = []
+    for r in body:
+        if r[0] in PLOTTED and (r[1], r[2]) == first:
+            cells = [(step, r[i].split(" ± ")[0]) for i, step in step_cols if r[i] != "-"]
+            per100 = r[head.index("s/100 steps")]
+            out.append((r[0], [c[0] for c in cells], [float(c[1]) for c in cells],
+                        None if per100 == "-" else float(per100)))  # fmt: skip
+    return f"{first[0]} px, {first[1]}", sorted(out, key=lambda c: PLOTTED.index(c[0]))
+
+
+def plot(title: str, plotted: list[Curve], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(13, 4.5))
-    sets = sets_of(results)
-    # A label names the size and the models only where the plot has more than one.
-    many_sizes = len({px for px, _ in sets}) > 1
-    many_models = len({m for _, m in sets}) > 1
-    names = [n for n, _, _ in CONFIGS]
-    colours = plt.get_cmap("tab20")
-    for name, px, models, rows in grouped(results):
-        label = ", ".join([name] + [f"{px} px"] * many_sizes + [models] * many_models)
-        # One colour per run, one line style per size and models (solid: the first).
-        style = {"color": colours(names.index(name) % 20), "marker": "o",
-                 "linestyle": ("-", "--", ":")[sets.index((px, models)) % 3]}  # fmt: skip
-        steps = sorted({p["steps"] for r in rows for p in r["curve"]})
-        mean = [
-            statistics.mean(p["masked_psnr"] for r in rows for p in r["curve"] if p["steps"] == s)
-            for s in steps
-        ]
-        secs = [
-            statistics.median(p["seconds"] for r in rows for p in r["curve"] if p["steps"] == s)
-            for s in steps
-        ]
-        by_step.plot(steps, mean, label=label, **style)
-        by_time.plot(secs, mean, label=label, **style)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    colours = plt.get_cmap("tab10")
+    for k, (name, steps, means, per100) in enumerate(plotted):
+        label = name + (f" ({per100:.1f} s/100 steps)" if per100 is not None else "")
+        ax.plot(steps, means, label=label, color=colours(k), marker="o")
     # The true colours score 100 dB (exact) before any step; the axis is cut below that
     # so that the runs from wrong colours stay readable.
-    for ax in (by_step, by_time):
-        ax.set_ylim(top=min(ax.get_ylim()[1], 45.0))
-    by_step.set(xlabel="SDS steps", ylabel="masked PSNR (dB), mean over seeds (cut at 45)")
-    by_time.set(xlabel="seconds (whole run)", ylabel="masked PSNR (dB)")
-    by_time.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    ax.set_ylim(top=min(ax.get_ylim()[1], 45.0))
+    ax.set(xlabel="SDS steps", ylabel="masked PSNR (dB), mean over seeds (cut at 45)")
+    ax.set_title(f"The known answer, {title}", fontsize=9)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -306,7 +335,7 @@ def write(results: list[dict[str, Any]], machine: str, command: str) -> None:
 
     seeds = sorted({r["seed"] for r in results})
     write_text(RESULTS / "accuracy.json", json.dumps({"machine": machine, "results": results}))
-    plot(results, PLOT)
+    plot(*curves(results), PLOT)
     text = f"""## Accuracy: the known answer over steps and seconds (`bench_accuracy.py`)
 
 `{command}`, on {machine}. Masked PSNR (dB) of `generate` at the size given (px) against 16 held-out
@@ -324,7 +353,7 @@ What it says:
 
 {chr(10).join(findings(results))}
 
-![masked PSNR against steps and seconds](../docs/images/known_answer_accuracy.png)
+![masked PSNR against steps, six of the runs](docs/images/known_answer_accuracy.png)
 """
     write_text(RESULTS / "accuracy.md", text)
 
@@ -361,7 +390,13 @@ def main(argv: list[str] | None = None) -> int:
         "bits scripts/known_answer.py makes; more: faster, other bits).",
     )
     p.add_argument("--from-json", type=Path, help="Only rewrite the table and plot from this.")
+    p.add_argument(
+        "--replot", action="store_true", help="Only redraw the plot from results/accuracy.md."
+    )
     args = p.parse_args(argv)
+    if args.replot:
+        plot(*curves_from_table((RESULTS / "accuracy.md").read_text()), PLOT)
+        return 0
     if args.from_json is not None:
         data = json.loads(args.from_json.read_text())
         write(data["results"], data["machine"], data["command"])

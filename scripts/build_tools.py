@@ -5,6 +5,8 @@ builds the editable install with .venv's own maturin and zig (no build isolation
 `make wheel` builds the wheel, and cargo compiles the core once for both.
 
 Usage: python scripts/build_tools.py > requirements.txt
+       python scripts/build_tools.py --extra docs   # an extra's own requirements (`make docs`:
+                                                    # installed without rebuilding the core)
 """
 
 from __future__ import annotations
@@ -31,4 +33,8 @@ def build_tools(pyproject: dict) -> list[str]:
 
 if __name__ == "__main__":
     with (ROOT / "pyproject.toml").open("rb") as f:
-        print("\n".join(build_tools(tomllib.load(f))))
+        pyproject = tomllib.load(f)
+    if sys.argv[1:2] == ["--extra"]:
+        print("\n".join(pyproject["project"]["optional-dependencies"][sys.argv[2]]))
+    else:
+        print("\n".join(build_tools(pyproject)))

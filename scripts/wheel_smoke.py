@@ -1,12 +1,14 @@
 """Runs an installed plantdreamer the way a user would; `scripts/check_wheel.sh` runs it in a
 fresh venv holding only the wheel (no Rust toolchain on PATH).
 
-Checks: the package and its native module come from the venv (the stable-ABI build),
-`plantdreamer info`, a small `plantdreamer render`, and a rasterization with gradients.
+Checks: the package and its native module come from the venv (the stable-ABI build), the
+wheel's metadata carries the Apache-2.0 licence text and the project's URLs, `plantdreamer
+info`, a small `plantdreamer render`, and a rasterization with gradients.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import shutil
 import subprocess
 import sys
@@ -37,6 +39,15 @@ def main() -> None:
     package = Path(plantdreamer.__file__).resolve().parent
     check(package.parent == site, f"plantdreamer imported from {package}, not from {site}")
     check(Path(_core.__file__).name == "_core.abi3.so", f"native module is {_core.__file__}")
+
+    meta = importlib.metadata.distribution("plantdreamer")
+    check(meta.metadata["License-Expression"] == "Apache-2.0", "no licence expression")
+    licence = [f for f in meta.files or [] if f.name == "LICENSE"]
+    check(len(licence) == 1, f"the wheel ships {len(licence)} LICENSE files, not 1")
+    text = licence[0].read_text(encoding="utf-8")
+    check("Apache License" in text and "Version 2.0" in text, "LICENSE is not Apache-2.0")
+    urls = meta.metadata.get_all("Project-URL") or []
+    check(any(u.startswith("Documentation, ") for u in urls), f"no Documentation URL: {urls}")
 
     cli = [str(Path(sys.executable).with_name("plantdreamer"))]
     info = subprocess.run([*cli, "info"], capture_output=True, text=True, check=True).stdout

@@ -75,3 +75,23 @@ def test_a_gap_under_half_a_hundredth_is_not_printed_as_zero() -> None:
     assert (
         "The VAE in float16 (64 px, version 6, VAE 1600 steps, 1 seeds): within 0.005 dB" in found
     )
+
+
+def test_the_plot_shows_at_most_six_runs_and_the_table_gives_them_back() -> None:
+    """The plot's figures are the table's: read back from the written table (`--replot`),
+    they are those computed from the results, for at most six runs of the first set."""
+    short = {0: 10.0, 50: 11.0, 100: 12.0, 200: 13.0}
+    results = [
+        _run(name, s, {k: v + s + i for k, v in short.items()}, secs=1.0 + i)
+        for i, (name, _, curve) in enumerate(bench_accuracy.CONFIGS)
+        if curve == bench_accuracy.SHORT
+        for s in (0, 1)
+    ]
+    results.append(_run("noise, CFG 100", 0, short, models="version 6, VAE 800 steps"))
+    title, computed = bench_accuracy.curves(results)
+    assert len(computed) == len(bench_accuracy.PLOTTED) <= 6
+    assert {c[0] for c in computed} == set(bench_accuracy.PLOTTED)
+    assert bench_accuracy.curves_from_table(bench_accuracy.table(results)) == (
+        title,
+        [(n, st, [round(m, 2) for m in ms], round(p, 1)) for n, st, ms, p in computed],
+    )

@@ -3,11 +3,15 @@
 import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
+import click
 from click.testing import CliRunner
 
 import plantdreamer
+from plantdreamer import cli
 from plantdreamer.cli import COMMANDS, main
+from plantdreamer.dataset.spec import tomllib
 
 
 def test_help_lists_every_registered_command():
@@ -15,6 +19,25 @@ def test_help_lists_every_registered_command():
     assert result.exit_code == 0
     for name in COMMANDS:
         assert name in result.output
+
+
+@click.command()
+def _boom() -> None:
+    raise RuntimeError("a bug")
+
+
+def test_help_and_internal_errors_point_at_the_documentation(monkeypatch):
+    # The URLs a wheel user has: the same as the wheel's metadata (pyproject.toml).
+    pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+    urls = tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["urls"]
+    assert (urls["Documentation"], urls["Issues"]) == (cli.DOCS_URL, cli.ISSUES_URL)
+    assert cli.DOCS_URL in CliRunner().invoke(main, ["--help"]).output
+
+    monkeypatch.setitem(COMMANDS, "boom", f"{__name__}:_boom")
+    monkeypatch.delenv("PLANTDREAMER_TRACEBACK", raising=False)
+    result = CliRunner().invoke(main, ["boom"])
+    assert result.exit_code == 1 and "internal error" in result.output
+    assert cli.ISSUES_URL in result.output and cli.DOCS_URL in result.output
 
 
 def test_version():

@@ -183,11 +183,11 @@ def test_ultralytics_reads_each_split_of_a_dataset(bean, ultralytics_read):
 
 
 def readme_yolo_command():
-    """The README's Ultralytics block: its environment and its ``yolo`` command line."""
+    """The Ultralytics block of docs/datasets.md: its environment and its ``yolo`` command line."""
     import re
     import shlex
 
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    readme = (Path(__file__).parents[1] / "docs" / "datasets.md").read_text()
     (block,) = [b for b in re.findall(r"```bash\n(.*?)```", readme, re.S) if "yolo segment" in b]
     lines = block.replace("\\\n", " ").splitlines()
     env = dict(w.split("=", 1) for w in shlex.split(lines[0].removeprefix("export ")))

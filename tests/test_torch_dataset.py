@@ -13,7 +13,7 @@ from plantdreamer.data import PlantViews, object_keys
 from plantdreamer.errors import InputError
 
 torchvision = pytest.importorskip("torchvision")
-README = Path(__file__).parents[1] / "README.md"
+RECIPES = Path(__file__).parents[1] / "docs" / "datasets.md"
 
 
 def test_items_have_the_dtypes_detection_models_take(bean):
@@ -112,15 +112,15 @@ def test_bad_roots_are_clear_errors(bean, tmp_path):
 
 
 def readme_block(containing):
-    """The README's python code block that contains ``containing``."""
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    """The python code block of docs/datasets.md's recipes that contains ``containing``."""
+    blocks = re.findall(r"```python\n(.*?)```", RECIPES.read_text(), flags=re.S)
     (block,) = [b for b in blocks if containing in b]
     return block
 
 
 @pytest.fixture(scope="module")
 def two_views(tmp_path_factory):
-    """A plant of two views: one batch of the README's loader, the same every epoch."""
+    """A plant of two views: one batch of the recipe's loader, the same every epoch."""
     from labelled_plant import make_plant
 
     return make_plant(tmp_path_factory.mktemp("two") / "plant", eval_views=2, resolution=64)
@@ -128,7 +128,7 @@ def two_views(tmp_path_factory):
 
 @pytest.mark.slow  # 6 Mask R-CNN iterations on the CPU
 def test_the_readme_mask_rcnn_recipe_trains_with_a_falling_loss(two_views, monkeypatch):
-    """The README's block as it is, but for the folder, the number of epochs and a ResNet-18
+    """The recipe's block (docs/datasets.md) as it is, but for the folder, the number of epochs and a ResNet-18
     backbone in place of ResNet-50 (same constructor arguments), to stay cheap on a CPU."""
     from torchvision.models.detection import MaskRCNN
     from torchvision.models.detection.backbone_utils import resnet_fpn_backbone

@@ -1,6 +1,6 @@
-"""Runs an Ultralytics command line (the README's ``yolo segment train ...``) in a process of
+"""Runs an Ultralytics command line (docs/datasets.md's ``yolo segment train ...``) in a process of
 its own, with the network closed, and records the network calls that were tried. The
-caller sets YOLO_CONFIG_DIR (a temporary folder) and YOLO_OFFLINE, as the README does; a
+caller sets YOLO_CONFIG_DIR (a temporary folder) and YOLO_OFFLINE, as docs/datasets.md does; a
 font is put where Ultralytics looks for its Arial.ttf first, as docs/datasets.md says
 (otherwise it asks github.com for it once, and carries on without it offline).
 

@@ -17,6 +17,11 @@ import click
 from plantdreamer import __version__
 from plantdreamer.errors import PlantDreamerError
 
+# Where a user of the wheel finds the documentation and reports a bug: pyproject.toml's
+# [project.urls] (a test keeps them the same). The sdist also carries docs/.
+DOCS_URL = "https://github.com/plantdreamer/plantdreamer/tree/main/docs"
+ISSUES_URL = "https://github.com/plantdreamer/plantdreamer/issues"
+
 # name -> "module:attribute". Only commands that work are listed here.
 COMMANDS: dict[str, str] = {
     "ablate": "plantdreamer.cli.ablate:ablate",
@@ -68,8 +73,9 @@ class _LazyGroup(click.Group):
                     raise
                 _fail(
                     ctx,
-                    f"internal error ({type(exc).__name__}: {exc}); please report it, with the "
-                    "traceback that PLANTDREAMER_TRACEBACK=1 shows",
+                    f"internal error ({type(exc).__name__}: {exc}); please report it at "
+                    f"{ISSUES_URL} with the traceback that PLANTDREAMER_TRACEBACK=1 shows "
+                    f"(documentation: {DOCS_URL})",
                 )
         return None
 
@@ -83,7 +89,11 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     click.secho(f"warning: {' '.join(str(message).split())}", err=True, fg="yellow")
 
 
-@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(
+    cls=_LazyGroup,
+    context_settings={"help_option_names": ["-h", "--help"]},
+    epilog=f"Documentation: {DOCS_URL}",
+)
 @click.version_option(__version__, "-V", "--version", prog_name="plantdreamer")
 def main() -> None:
     """Turn plants into realistic 3D Gaussian Splatting models."""
