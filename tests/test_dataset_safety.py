@@ -285,3 +285,22 @@ def test_changing_plants_per_gpu_keeps_finished_plants_and_restarts_unfinished_o
         "pending",
         2,
     )
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--stuff", "dirt", "--allow-empty-split"], "--stuff names no class 'dirt'"),
+        (["--stuff", "leaf,stem,pot,soil", "--allow-empty-split"], "--stuff names every class"),
+        ([], "drew no plant"),  # one plant: val and test empty
+    ],
+)
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_label_options_the_run_would_refuse_are_refused_first(tmp_path, args, message, dry_run):
+    """Before any plant is made (and by --dry-run, which showed a clean plan)."""
+    ray = pytest.importorskip("ray")
+    out = tmp_path / "out"
+    run_args = ["--dry-run"] if dry_run else []
+    result = invoke("--species", "bean", "--count", 1, "--out", out, *FAST, *args, *run_args)
+    one_line_error(result, message)
+    assert not ray.is_initialized() and not (out / "plants").exists()

@@ -20,13 +20,14 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
-from plantdreamer.exports.classes import DatasetClasses, dataset_classes
+from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.gallery import write_gallery
 from plantdreamer.exports.instances import (
@@ -103,12 +104,20 @@ def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
     return [DatasetView(i + 1, p, frame) for i, (p, frame) in enumerate(views)]
 
 
-def check_planned_splits(dataset_dir: Path, plant_ids: list[str], options: LabelOptions) -> None:
+def check_planned_splits(
+    dataset_dir: Path,
+    plant_ids: list[str],
+    options: LabelOptions,
+    classes: Iterable[str] | None = None,
+) -> None:
     """Refuses, before any plant runs, splits that the plants to come (with those already
-    finished in the folder) would leave empty."""
+    finished in the folder) would leave empty, and ``--stuff`` that names no class or every
+    class of ``classes`` (the plants' class names; None: not known before they run)."""
     done = [p.id for p in finished_plants(dataset_dir)]
     splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
     check_splits(splits, options.ratios, options.allow_empty_split)
+    if classes is not None:
+        check_stuff(options.stuff, classes)
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
