@@ -87,3 +87,20 @@ def test_sizes_that_are_not_whole_pixel_counts_are_refused(model, tmp_path, valu
     assert result.exit_code == 1 and len(errors) == 1, result.output
     assert "w must be a whole number of pixels" in errors[0] and shown in errors[0], errors
     assert not list(tmp_path.glob("out/**/*.png"))
+
+
+def test_overwrite_with_fewer_frames_leaves_none_of_the_earlier_views(model, tmp_path):
+    def frames(n):
+        return [
+            {"file_path": f"shot_{i}.png", "transform_matrix": pose(3 + i), "w": 8, "h": 8}
+            for i in range(n)
+        ]
+
+    out = tmp_path / "out"
+    (tmp_path / "out").mkdir()
+    (out / "mine.png").write_bytes(b"a picture of the user's")
+    for n, overwrite in ((3, ["--overwrite"]), (1, ["--overwrite"])):
+        cams = write_transforms(tmp_path / f"cams{n}", frames(n), fl_x=10.0)
+        result = run("render", model, "--transforms", cams, "--out", out, *overwrite)
+        assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.glob("*.png")) == ["mine.png", "shot_0.png"]

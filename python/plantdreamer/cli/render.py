@@ -45,6 +45,9 @@ RENDER_OUTPUTS = (
     "yolo",
     "points.ply",
 )
+# The files a --transforms render wrote (named by its frames, so no pattern finds them):
+# --overwrite deletes them too, so a render with fewer frames leaves none of the earlier.
+VIEWS_RECORD = "rendered_views.json"
 
 
 @click.command()
@@ -146,7 +149,9 @@ def render(
 
         views_at = scan_transforms_json(transforms, images_required=False)
         files = view_files(views_at, transforms)
-    with claim_folder(out, overwrite=overwrite, owned=(*RENDER_OUTPUTS, *files)):
+    earlier = _recorded_views(out) if overwrite else []
+    owned = (*RENDER_OUTPUTS, *files, *earlier, VIEWS_RECORD)  # the record last
+    with claim_folder(out, overwrite=overwrite, owned=owned):
         if views_at:
             _render_dataset_views(gaussians, views_at, files, out, background)
             return
@@ -253,15 +258,27 @@ def view_files(views, transforms: str) -> list[str]:
     return list(files)
 
 
+def _recorded_views(out: Path) -> list[str]:
+    """The files an earlier --transforms render recorded in ``out`` (none when unreadable)."""
+    import json
+
+    try:
+        files = json.loads((out / VIEWS_RECORD).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
+
+
 def _render_dataset_views(gaussians, views, files: list[str], out: Path, background) -> None:
     import numpy as np
     import torch
 
-    from plantdreamer.atomic import write_image
+    from plantdreamer.atomic import write_image, write_json
     from plantdreamer.pipeline.model import GaussianModel
 
     model = GaussianModel(gaussians)
     out.mkdir(parents=True, exist_ok=True)
+    write_json(out / VIEWS_RECORD, {"files": files})  # before them: one stopped is owned too
     for view, name in zip(views, files, strict=True):
         with torch.no_grad():
             rgb = model.render([view.camera], background)[0][0].numpy()
