@@ -318,3 +318,18 @@ def test_a_group_record_never_leads_a_resume_out_of_its_folder(tmp_path, hostile
     after = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if not p.is_symlink()}
     assert after == before  # nothing made, removed or changed, inside or out
     assert not (tmp_path / "escaped").exists() and not os.path.exists("/tmp/escaped")
+
+
+def test_view_with_its_port_taken_is_refused_before_the_run(tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        out = tmp_path / "o"
+        args = ["generate", *TINY, "--steps", "0", "--view", "--port", port, "--out", out]
+        result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    assert f"port {port} on 127.0.0.1 is in use; choose another with --port" in result.output
+    assert not out.exists()
