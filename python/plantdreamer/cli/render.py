@@ -150,7 +150,8 @@ def render(
         views_at = scan_transforms_json(transforms, images_required=False)
         files = view_files(views_at, transforms)
     earlier = _recorded_views(out) if overwrite else []
-    owned = (*RENDER_OUTPUTS, *files, *earlier, VIEWS_RECORD)  # the record last
+    # the record last: a stopped --overwrite leaves it, naming what is still to delete
+    owned: list[str | re.Pattern[str]] = [*RENDER_OUTPUTS, *files, *earlier, VIEWS_RECORD]
     with claim_folder(out, overwrite=overwrite, owned=owned):
         if views_at:
             _render_dataset_views(gaussians, views_at, files, out, background)
