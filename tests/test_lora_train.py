@@ -293,3 +293,22 @@ def test_cli_refuses_settings_that_cannot_train_before_any_model(tmp_path, args,
     errors = [line for line in result.output.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "Traceback" not in result.output
     assert not out.exists()
+
+
+def test_dry_run_previews_every_size_and_refuses_a_strip_before_any_model(images, tmp_path):
+    out = tmp_path / "o"
+    result = CliRunner().invoke(
+        main, ["lora", "train", str(images), "--resolution", "64", "--out", str(out), "--dry-run"]
+    )
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert len(lines) == 6 and "plant_02.png: 96 x 70 -> 88 x 64" in lines
+    assert not out.exists()
+    Image.new("RGB", (20000, 1)).save(tmp_path / "strip.png")
+    for dry_run in (["--dry-run"], []):
+        result = CliRunner().invoke(
+            main, ["lora", "train", str(tmp_path), "--out", str(out), *dry_run]
+        )
+        assert result.exit_code == 1 and "would become 10240000 x 512" in result.output
+        assert len([x for x in result.output.splitlines() if x.startswith("error:")]) == 1
+        assert not out.exists()

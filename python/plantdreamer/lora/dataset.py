@@ -111,6 +111,33 @@ def list_images(folder: Path) -> list[Path]:
     return files
 
 
+@dataclass(frozen=True)
+class PhotoSize:
+    """A photo's size and the size training resizes it to (from its header alone)."""
+
+    path: Path
+    size: tuple[int, int]
+    resized: tuple[int, int]
+
+
+def photo_sizes(folder: str | Path, resolution: int) -> list[PhotoSize]:
+    """Every photo's size and resized size, each checked (``check_photo_size``) from its
+    header before any pixel is decoded: ``lora train --dry-run``'s preview, and its
+    refusals before any model loads."""
+    from PIL import Image, UnidentifiedImageError
+
+    sizes = []
+    for path in list_images(Path(folder)):
+        try:
+            with Image.open(path) as opened:
+                size = opened.size
+        except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+            raise InputError(f"cannot read image {str(path)!r}: {exc}") from exc
+        check_photo_size(path, size, resolution)
+        sizes.append(PhotoSize(path, size, resized_size(size, resolution)))
+    return sizes
+
+
 def caption_for(path: Path, species: str, template: str) -> str:
     text_file = path.with_suffix(".txt")
     if text_file.is_file():
