@@ -283,6 +283,8 @@ def test_stuff_classes_are_no_objects_but_stay_in_the_class_maps(dataset):
 
     bad = cli("labels", dataset, "--stuff", "pot,dirt")
     assert bad.exit_code == 1 and "--stuff names no class 'dirt'" in bad.output
+    every = cli("labels", dataset, "--stuff", "leaf,stem,pot,soil", "--allow-empty-split")
+    assert every.exit_code == 1 and "--stuff names every class" in every.output
     result = cli("labels", dataset, "--stuff", "pot,soil", "--allow-empty-split")
     assert result.exit_code == 0, result.output
     try:
@@ -295,7 +297,7 @@ def test_stuff_classes_are_no_objects_but_stay_in_the_class_maps(dataset):
             assert coco["info"]["stuff_classes"] == ["pot", "soil"]
         data = yaml.safe_load((dataset / "yolo" / "data.yaml").read_text())
         assert data["nc"] == 2 and data["names"] == {0: "leaf", 1: "stem"}
-        views = PlantViews(dataset, stuff=("pot", "soil"))
+        views = PlantViews(dataset)  # the stuff its label files record
         assert views.classes == {1: "leaf", 2: "stem"} and views.num_classes == 3
         semantic = set()
         for _, target in views:

@@ -333,3 +333,22 @@ def test_a_finished_plant_of_other_settings_without_its_line_is_a_redo(tmp_path)
     with pytest.raises(InputError, match="--redo-changed"):
         plan.plan([plant], Manifest(tmp_path), tmp_path, 1)
     assert (folder / "plant.ply").read_text() == "x"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--stuff", "dirt", "--allow-empty-split"], "--stuff names no class 'dirt'"),
+        (["--stuff", "leaf,stem,pot,soil", "--allow-empty-split"], "--stuff names every class"),
+        ([], "drew no plant"),  # one plant: val and test empty
+    ],
+)
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_label_options_the_run_would_refuse_are_refused_first(tmp_path, args, message, dry_run):
+    """Before any plant is made (and by --dry-run, which showed a clean plan)."""
+    ray = pytest.importorskip("ray")
+    out = tmp_path / "out"
+    run_args = ["--dry-run"] if dry_run else []
+    result = invoke("--species", "bean", "--count", 1, "--out", out, *FAST, *args, *run_args)
+    one_line_error(result, message)
+    assert not ray.is_initialized() and not (out / "plants").exists()

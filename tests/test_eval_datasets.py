@@ -442,3 +442,21 @@ def test_scan_reads_no_pixels_until_load(tmp_path):
     Image.fromarray(np.zeros((H + 2, W, 3), np.uint8)).save(tmp_path / "a.png")
     with pytest.raises(InputError, match="camera is 40x30"):
         a_src.load()
+
+
+def test_images_over_the_pixel_bound_are_clear_errors(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from plantdreamer.eval.images import read_mask, read_rgba
+
+    path = tmp_path / "gt.png"
+    Image.new("RGB", (64, 64)).save(path)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)  # Pillow's bomb limit, made tiny
+    with pytest.raises(InputError, match=r"cannot read image .*gt\.png.*decompression bomb"):
+        read_rgba(path)
+    with pytest.raises(InputError, match=r"cannot read mask .*gt\.png.*decompression bomb"):
+        read_mask(path)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", None)
+    monkeypatch.setattr("plantdreamer.eval.images.MAX_IMAGE_PIXELS", 4000)
+    with pytest.raises(InputError, match="64 x 64 pixels is above the limit"):
+        read_rgba(path)

@@ -351,3 +351,18 @@ def test_resume_tries_every_failed_plant_again_and_says_how_many(tmp_path, monke
     assert "retrying 1 plants that failed before: bean-s0001" in again.output
     statuses = [p["status"] for p in json.loads((out / "group.json").read_text())["plants"]]
     assert statuses == ["done", "done"] and (out / "bean-s0001" / "run.json").is_file()
+
+
+def test_view_with_its_port_taken_is_refused_before_the_run(tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        out = tmp_path / "o"
+        args = ["generate", *TINY, "--steps", "0", "--view", "--port", port, "--out", out]
+        result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    assert f"port {port} on 127.0.0.1 is in use; choose another with --port" in result.output
+    assert not out.exists()

@@ -14,7 +14,7 @@ from plantdreamer.cli import main
 from plantdreamer.errors import CheckpointError, InputError, ModelNotFoundError
 from plantdreamer.guidance.lora_weights import load_lora, recorded_template
 from plantdreamer.guidance.tiny import save_tiny_models, tiny_models, tiny_pipeline
-from plantdreamer.lora.dataset import load_examples
+from plantdreamer.lora.dataset import check_caption_template, load_examples
 from plantdreamer.lora.train import LoraTrainConfig, train_lora
 
 RES = 64
@@ -282,3 +282,65 @@ def test_training_on_cuda_gives_finite_losses_and_weights(images, tmp_path, mixe
     )
     assert len(result.losses) == 6 and all(math.isfinite(v) for v in result.losses)
     assert result.weights.is_file() and result.weights.stat().st_size > 0
+
+
+def test_photos_captions_and_templates_that_cannot_train_are_clear_errors(tmp_path, monkeypatch):
+    strip = tmp_path / "strip"
+    strip.mkdir()
+    Image.new("RGB", (20000, 1), (200, 200, 200)).save(strip / "a.png")  # 143 bytes
+    with pytest.raises(InputError, match=r"would become 1280000 x 64.*crop it"):
+        load_examples(strip, "bean", RES)
+    big = tmp_path / "big"
+    big.mkdir()
+    Image.new("RGB", (64, 64)).save(big / "a.png")
+    (big / "a.txt").write_bytes("une fève\n".encode("latin-1"))
+    with pytest.raises(InputError, match=r"a\.txt' is not UTF-8"):
+        load_examples(big, "bean", RES)
+    (big / "a.txt").unlink()
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)  # Pillow's bomb limit, made tiny
+    with pytest.raises(InputError, match=r"cannot read image .*a\.png.*decompression bomb"):
+        load_examples(big, "bean", RES)
+    monkeypatch.setattr("plantdreamer.lora.dataset.MAX_PHOTO_PIXELS", 4000)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", None)
+    with pytest.raises(InputError, match="64 x 64 pixels, over the limit of 4,000"):
+        load_examples(big, "bean", RES)
+    for template in ("a {species} {pot}", "a {species} {}", "a {species"):
+        with pytest.raises(InputError, match="caption template"):
+            load_examples(big, "bean", RES, template=template)
+    check_caption_template("{{a}} {species}")  # braces written double are text
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--alpha", "0"], "alpha=0"),
+        (["--caption-template", "a {species} in {place}"], "{place}"),
+    ],
+)
+def test_cli_refuses_settings_that_cannot_train_before_any_model(tmp_path, args, message):
+    folder = make_images(tmp_path / "photos", n=1)
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["lora", "train", str(folder), "--out", str(out), *args])
+    assert result.exit_code == 1 and message in result.output, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_dry_run_previews_every_size_and_refuses_a_strip_before_any_model(images, tmp_path):
+    out = tmp_path / "o"
+    result = CliRunner().invoke(
+        main, ["lora", "train", str(images), "--resolution", "64", "--out", str(out), "--dry-run"]
+    )
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert len(lines) == 6 and "plant_02.png: 96 x 70 -> 88 x 64" in lines
+    assert not out.exists()
+    Image.new("RGB", (20000, 1)).save(tmp_path / "strip.png")
+    for dry_run in (["--dry-run"], []):
+        result = CliRunner().invoke(
+            main, ["lora", "train", str(tmp_path), "--out", str(out), *dry_run]
+        )
+        assert result.exit_code == 1 and "would become 10240000 x 512" in result.output
+        assert len([x for x in result.output.splitlines() if x.startswith("error:")]) == 1
+        assert not out.exists()

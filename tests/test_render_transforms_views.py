@@ -100,3 +100,20 @@ def test_the_orbit_size_left_open_is_generates_on_the_cpu(model, tmp_path):
     assert result.exit_code == 0, result.output
     side = AUTO_RESOLUTION["cpu"]
     assert Image.open(tmp_path / "view_000.png").size == (side, side)
+
+
+def test_overwrite_with_fewer_frames_leaves_none_of_the_earlier_views(model, tmp_path):
+    def frames(n):
+        return [
+            {"file_path": f"shot_{i}.png", "transform_matrix": pose(3 + i), "w": 8, "h": 8}
+            for i in range(n)
+        ]
+
+    out = tmp_path / "out"
+    (tmp_path / "out").mkdir()
+    (out / "mine.png").write_bytes(b"a picture of the user's")
+    for n, overwrite in ((3, ["--overwrite"]), (1, ["--overwrite"])):
+        cams = write_transforms(tmp_path / f"cams{n}", frames(n), fl_x=10.0)
+        result = run("render", model, "--transforms", cams, "--out", out, *overwrite)
+        assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.glob("*.png")) == ["mine.png", "shot_0.png"]

@@ -45,7 +45,7 @@ def test_a_changed_section_default_changes_help_spec_and_behaviour(monkeypatch, 
     command = generate_cli.build_command()
     help_text = CliRunner().invoke(command, ["--help"], terminal_width=200).output
     assert "Optimisation steps.  [default: 0]" in help_text
-    assert "Renders on the evaluation orbit.  [default: 2]" in help_text
+    assert "Renders on the evaluation orbit.  [default: 2;" in help_text
     assert "C in V > mean + C std.  [default: 2.5]" in help_text
     assert "Classifier-free guidance scale.  [default: 7.5]" in help_text
 
@@ -88,7 +88,10 @@ def _other_value(name, value, cfg):
         return (value[0] + 0.5, value[1] + 1.0)
     if settings.RANGE in s.field.metadata:  # another value inside the range
         low, high = s.field.metadata[settings.RANGE]
-        return high if value != high else low
+        inside = [
+            v for v in (high, low, (low + high) / 2) if settings.in_range(v, s.field.metadata)
+        ]
+        return next(v for v in inside if v != value)
     if value is None:
         kinds = [a for a in typing.get_args(s.type) if a is not type(None)]
         return {int: 16, float: 0.5, str: "{species} leaves"}[kinds[0]]
@@ -301,7 +304,7 @@ def test_render_prepare_and_eval_read_generates_declaration(
         generate_defaults = {p.name: p.default for p in generate_cli.build_command().params}
         assert str(generate_defaults[name]) == str(value)
         help_text = " ".join(CliRunner().invoke(other, ["--help"]).output.split())
-        assert f"[default: {value}]" in help_text
+        assert f"[default: {value}]" in help_text or f"[default: {value};" in help_text
     finally:
         monkeypatch.undo()
         importlib.reload(mod)

@@ -37,6 +37,11 @@ IMPOSSIBLE = [
     (["--cull-threshold", "-100"], "cull-threshold=-100", "cull-threshold"),
     (["--lr-means", "-1"], "lr-means=-1", "lr-means"),
     (["--turntable-frames", "-1"], "turntable-frames=-1", "turntable-frames"),
+    (["--scene-size", "0"], "scene-size=0", "scene-size must be in [0.1, 1e+06]"),
+    (["--scene-size", "1e9"], "scene-size=1e9", "scene-size must be in [0.1, 1e+06]"),
+    (["--opacity-init", "0"], "opacity-init=0", "opacity-init must be in (0, 1)"),
+    (["--opacity-init", "1"], "opacity-init=1", "opacity-init must be in (0, 1)"),
+    (["--lr-means", "1e39"], "lr-means=1e39", "lr-means must be in [0, 1e+06]"),
 ]  # fmt: skip
 
 
@@ -103,3 +108,13 @@ def test_schedule_steps_match_the_rules_step_by_step(steps, start, until, every,
         ("cull_steps", cfg.density.cull.due),
     ):
         assert steps_of(shown[key]) == [s for s in range(steps) if due(s)], key
+
+
+def test_eval_views_are_bounded_in_every_form(tmp_path):
+    from plantdreamer.pipeline.outputs import MAX_EVAL_VIEWS
+
+    result = run(*GEN, "--eval-views", 10**9, "--print-config")
+    assert result.exit_code == 2 and f"0<=x<={MAX_EVAL_VIEWS}" in result.output
+    result = run("dataset", "--species", "bean", "--guidance", "none", "--steps", "0",
+                 "--set", "eval-views=1000000000", "--out", tmp_path / "d")  # fmt: skip
+    one_error(result, f"eval-views must be in 0..{MAX_EVAL_VIEWS}")

@@ -13,6 +13,8 @@ from plantdreamer.data import PlantViews, object_keys
 from plantdreamer.errors import InputError
 
 torchvision = pytest.importorskip("torchvision")
+from plantdreamer.data.pixel_map import PixelMap  # noqa: E402 (needs torchvision)
+
 RECIPES = Path(__file__).parents[1] / "docs" / "datasets.md"
 
 
@@ -27,7 +29,7 @@ def test_items_have_the_dtypes_detection_models_take(bean):
         image, target = data[i]
         seen |= set(target["labels"].tolist())
         assert target["image_id"] == i + 1  # coco.json's image ids
-        assert isinstance(target["ignore"], tv_tensors.Mask)
+        assert isinstance(target["ignore"], PixelMap)
         assert not (target["ignore"].bool() & target["masks"].bool().any(0)).any()
         assert isinstance(image, tv_tensors.Image) and image.dtype == torch.float32
         assert image.shape == (3, 96, 96) and 0 <= image.min() and image.max() <= 1
@@ -98,10 +100,72 @@ def test_v2_transforms_keep_every_per_object_key_with_its_box(bean):
             default[i]
 
 
-def test_the_area_limit_is_an_option(bean):
-    few = sum(len(t["labels"]) for _, t in PlantViews(bean))
-    many = sum(len(t["labels"]) for _, t in PlantViews(bean, min_area=1))
-    assert many > few
+def test_the_targets_are_those_of_the_label_files_options(bean, tmp_path):
+    import json
+    import shutil
+
+    from plantdreamer.exports.dataset import LabelOptions, write_dataset_exports
+
+    ds = tmp_path / "ds"
+    shutil.copytree(bean, ds / "plants" / "a")
+    options = LabelOptions((1.0, 0.0, 0.0), 0, 30, True, ("pot", "soil"))
+    write_dataset_exports(ds, options)
+    coco = json.loads((ds / "coco" / "train.json").read_text())
+    data = PlantViews(ds, split="train")
+    assert data.min_area == 30
+    assert sorted(data.classes) == sorted(c["id"] for c in coco["categories"]) == [1, 2]
+    assert data.num_classes == 3
+    for _, target in data:
+        objects = [
+            a["category_id"]
+            for a in coco["annotations"]
+            if a["image_id"] == target["image_id"] and not a["iscrowd"]
+        ]
+        assert sorted(target["labels"].tolist()) == sorted(objects)
+    # Options other than the recorded ones are refused; the recorded ones may be repeated.
+    assert len(PlantViews(ds, split="train", min_area=30, stuff=("pot", "soil"))) == len(data)
+    with pytest.raises(InputError, match=r"coco/train\.json was made with --min-instance-area 30"):
+        PlantViews(ds, split="train", min_area=16)
+    with pytest.raises(InputError, match=re.escape("stuff=()")):
+        PlantViews(ds, stuff=())
+    # A plant folder reads its coco.json's.
+    assert PlantViews(ds / "plants" / "a").num_classes == 3
+
+
+def test_a_damaged_plant_is_refused_naming_its_file(bean, tmp_path):
+    import shutil
+
+    ds = tmp_path / "ds"
+    for plant in "ab":
+        shutil.copytree(bean, ds / "plants" / plant)
+    damaged = ds / "plants" / "b" / "transforms.json"
+    damaged.write_text(damaged.read_text()[:100])
+    with pytest.raises(InputError, match=re.escape(f"{damaged} is not valid JSON")):
+        PlantViews(ds)
+
+
+def test_per_pixel_maps_keep_their_rows_when_objects_as_many_as_rows(bean):
+    """SanitizeBoundingBoxes filters every Mask by its first dimension: an [H, W] map of a
+    view with H objects lost the rows of the dropped boxes."""
+    from torchvision.transforms import v2
+
+    k = max(len(t["boxes"]) for _, t in PlantViews(bean))
+    squash = v2.Compose(
+        [v2.Resize((k, 96)), v2.SanitizeBoundingBoxes(min_size=2, labels_getter=object_keys)]
+    )
+    dropped = 0
+    for before, (_, after) in zip(
+        PlantViews(bean), PlantViews(bean, transforms=squash), strict=True
+    ):
+        dropped += len(before[1]["boxes"]) - len(after["boxes"])
+        assert after["semantic"].shape == after["ignore"].shape == (k, 96)
+        assert isinstance(after["semantic"], PixelMap)
+    assert dropped  # the case that lost rows
+    # A DataLoader's workers pickle the targets.
+    import pickle
+
+    _, target = PlantViews(bean)[0]
+    assert torch.equal(pickle.loads(pickle.dumps(target["semantic"])), target["semantic"])
 
 
 def test_bad_roots_are_clear_errors(bean, tmp_path):

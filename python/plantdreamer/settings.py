@@ -22,7 +22,8 @@ from typing import Any
 
 HELP = "help"  # the option's help text; its presence makes the field a setting
 CHOICES = "choices"  # allowed values (click.Choice)
-RANGE = "range"  # (min, max) inclusive, for ints (click.IntRange)
+RANGE = "range"  # (min, max), inclusive unless OPEN says (click.IntRange / FloatRange)
+OPEN = "open"  # (low open, high open): which ends of RANGE the value may not take
 OPTION = "option"  # the option's name when it is not --<prefix>-<field-name>
 DEFAULT_TEXT = "default_text"  # shown as the default when the value is decided at run time
 PREFIX = "prefix"  # on a nested config field: the prefix of its settings ("" for none)
@@ -33,16 +34,20 @@ def setting(
     help: str,
     *,
     choices: Sequence[str] | None = None,
-    range: tuple[int, int] | None = None,
+    range: tuple[float, float] | None = None,
+    open: tuple[bool, bool] = (False, False),
     option: str | None = None,
     default_text: str | None = None,
 ) -> Any:
-    """A dataclass field that is also a setting (see the module docstring)."""
+    """A dataclass field that is also a setting (see the module docstring); ``range``
+    bounds a number (ends included unless ``open`` says), on the command line, in specs,
+    ``--set`` and resumed records alike."""
     meta: dict[str, Any] = {HELP: help}
     if choices is not None:
         meta[CHOICES] = tuple(choices)
     if range is not None:
         meta[RANGE] = range
+        meta[OPEN] = open
     if option is not None:
         meta[OPTION] = option
     if default_text is not None:
@@ -152,10 +157,24 @@ def check_choices(config: Any) -> None:
         if CHOICES in meta and value not in meta[CHOICES]:
             allowed = ", ".join(meta[CHOICES])
             raise ValueError(f"{s.name.replace('-', ' ')} must be one of {allowed}, got {value!r}")
-        if RANGE in meta and value is not None:
-            low, high = meta[RANGE]
-            if not low <= value <= high:
-                raise ValueError(f"{s.name} must be in {low}..{high}, got {value!r}")
+        if RANGE in meta and value is not None and not in_range(value, meta):
+            raise ValueError(f"{s.name} must be in {range_text(meta)}, got {value!r}")
+
+
+def in_range(value: Any, meta: Mapping[str, Any]) -> bool:
+    """Whether a number lies in a setting's ``range`` (with its ``open`` ends)."""
+    (low, high), (low_open, high_open) = meta[RANGE], meta.get(OPEN, (False, False))
+    above = value > low if low_open else value >= low
+    below = value < high if high_open else value <= high
+    return above and below
+
+
+def range_text(meta: Mapping[str, Any]) -> str:
+    """``0..3`` for a closed range, interval notation (``(0, 1)``, ``[0, 1e+06]``) else."""
+    (low, high), (low_open, high_open) = meta[RANGE], meta.get(OPEN, (False, False))
+    if isinstance(low, int) and isinstance(high, int) and not (low_open or high_open):
+        return f"{low}..{high}"
+    return f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
 
 
 def check_types(config: Any) -> None:

@@ -152,13 +152,16 @@ def dataset(
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
+    from pathlib import Path
+
     from plantdreamer.cli.label_options import describe, make_label_options
     from plantdreamer.dataset import RunOptions, expand, run_dataset
     from plantdreamer.dataset.engine import custom_resources, import_ray
     from plantdreamer.dataset.packing import packing_from
-    from plantdreamer.dataset.runner import DatasetStopped
+    from plantdreamer.dataset.runner import DatasetStopped, planned_classes
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.errors import InputError
+    from plantdreamer.exports.dataset import check_planned_splits
 
     if not dry_run:
         import_ray()  # fail first, with what to install, when Ray is missing
@@ -180,7 +183,12 @@ def dataset(
     from plantdreamer.dataset.plan import check_models
 
     check_models(plants)  # the LoRA and models found, before any plan or model load
-    if dry_run:
+    labels = make_label_options(
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+    )
+    if dry_run:  # the label options' refusals, as the run would give them
+        planned = planned_classes(plants)
+        check_planned_splits(Path(out_dir), [p.id for p in plants], labels, planned)
         _print_plan(plants, out_dir, packing.plants_per_gpu)
         return
     custom = custom_resources(_key_values(resources, "--resource"))
@@ -194,9 +202,7 @@ def dataset(
         plants_per_gpu=packing.plants_per_gpu,
         show_progress=not quiet,
         redo_changed=redo_changed,
-        labels=make_label_options(
-            split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
-        ),
+        labels=labels,
     )
     try:
         report, stopped = run_dataset(spec, plants, out_dir, options), False

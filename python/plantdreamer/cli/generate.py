@@ -23,6 +23,7 @@ from plantdreamer.cli.options import (
     typed_options,
 )
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.viewer import DEFAULT_PORT, HOST
 
 # Options of the command that are no settings of the run: listed under the run's heading.
 RUN_OPTIONS = (
@@ -94,6 +95,12 @@ def build_command() -> click.Command:
         "--view", is_flag=True, help="Open the result in `plantdreamer view` when the run ends."
     )
     @click.option(
+        "--port",
+        default=DEFAULT_PORT,
+        show_default=True,
+        help=f"Port on {HOST} of --view's viewer (checked free before the run starts).",
+    )
+    @click.option(
         "--print-config",
         is_flag=True,
         help="Print the resolved settings (preset, options, LoRA record; prompts, timestep "
@@ -108,6 +115,7 @@ def build_command() -> click.Command:
         seeds: str | None,
         quiet: bool,
         view: bool,
+        port: int,
         print_config: bool,
         **options,
     ) -> None:
@@ -118,6 +126,11 @@ def build_command() -> click.Command:
 
         started = time.perf_counter()
         given = typed_options(ctx)
+        if view and not print_config:  # what --view needs, found before the run, not after
+            from plantdreamer.viewer.server import check_port_free, import_viser
+
+            import_viser()
+            check_port_free(port)
         try:
             if resume_dir is not None:
                 if print_config:
@@ -153,7 +166,7 @@ def build_command() -> click.Command:
         if view:
             from plantdreamer.viewer.server import view_files
 
-            view_files([str(r.ply_path) for r in results], echo=click.echo)
+            view_files([str(r.ply_path) for r in results], port=port, echo=click.echo)
 
     return generate
 

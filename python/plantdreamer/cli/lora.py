@@ -24,7 +24,13 @@ def lora() -> None:
 @click.argument("images_dir", type=click.Path(file_okay=False, path_type=str))
 @config_options(LoraTrainConfig)
 @hidden_old_name("--caption-template", "--prompt-template")
-def train(images_dir: str, **options: object) -> None:
+@click.option(
+    "--dry-run",
+    is_flag=True,
+    help="Check the settings and photos and print the size each photo is trained at; "
+    "no model loads, nothing is written.",
+)
+def train(images_dir: str, dry_run: bool, **options: object) -> None:
     """Train a LoRA on the photos in IMAGES_DIR (captions from <name>.txt or the template)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -33,6 +39,14 @@ def train(images_dir: str, **options: object) -> None:
     apply_old_names(options, OLD_NAMES)
     values = options_to_settings(LoraTrainConfig, options)
     config = LoraTrainConfig.from_settings(images_dir, values)
+    if dry_run:
+        from plantdreamer.lora.dataset import photo_sizes
+
+        config.check()
+        for p in photo_sizes(config.images_dir, config.resolution):
+            (w, h), (rw, rh) = p.size, p.resized
+            click.echo(f"{p.path.name}: {w} x {h} -> {rw} x {rh}")
+        return
     with Progress(
         TextColumn("[bold]lora[/bold] step {task.completed}/{task.total}"),
         BarColumn(),

@@ -25,8 +25,9 @@ def _click_type(s: settings.Setting) -> Any:
     meta = s.field.metadata
     if settings.CHOICES in meta:
         return click.Choice(list(meta[settings.CHOICES]))
-    if settings.RANGE in meta:
+    if settings.RANGE in meta and s.type in (int, int | None):
         return click.IntRange(*meta[settings.RANGE])
+    # A number's range otherwise is the config's check: one `error:` line, as from a spec.
     if typing.get_origin(s.type) is tuple:
         return typing.get_args(s.type)
     args = [a for a in typing.get_args(s.type) if a is not type(None)]

@@ -53,6 +53,11 @@ def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tu
     return ORBIT_OUTPUTS
 
 
+# The files a --transforms render wrote (named by its frames, so no pattern finds them):
+# --overwrite deletes them too, so a render with fewer frames leaves none of the earlier.
+VIEWS_RECORD = "rendered_views.json"
+
+
 @click.command()
 @click.argument("ply", type=click.Path())
 @click.option(
@@ -161,7 +166,10 @@ def render(
             views_at = scan_transforms_json(transforms, images_required=False)
             files = view_files(views_at, transforms)
             inputs += [Path(p) for v in views_at for p in (v.image_path, v.mask_path) if p]
-    owned = render_outputs(ground_truth, transforms is not None, files)
+    earlier = _recorded_views(out) if overwrite else []
+    # the record last: a stopped --overwrite leaves it, naming what is still to delete
+    named = [*files, *earlier] if transforms is not None else files  # and their folders
+    owned = [*render_outputs(ground_truth, transforms is not None, named), *earlier, VIEWS_RECORD]
     with claim_folder(out, overwrite=overwrite, owned=owned, inputs=inputs):
         if views_at:
             _render_dataset_views(gaussians, views_at, files, out, background)
@@ -269,15 +277,27 @@ def view_files(views, transforms: str) -> list[str]:
     return list(files)
 
 
+def _recorded_views(out: Path) -> list[str]:
+    """The files an earlier --transforms render recorded in ``out`` (none when unreadable)."""
+    import json
+
+    try:
+        files = json.loads((out / VIEWS_RECORD).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
+
+
 def _render_dataset_views(gaussians, views, files: list[str], out: Path, background) -> None:
     import numpy as np
     import torch
 
-    from plantdreamer.atomic import write_image
+    from plantdreamer.atomic import write_image, write_json
     from plantdreamer.pipeline.model import GaussianModel
 
     model = GaussianModel(gaussians)
     out.mkdir(parents=True, exist_ok=True)
+    write_json(out / VIEWS_RECORD, {"files": files})  # before them: one stopped is owned too
     for view, name in zip(views, files, strict=True):
         with torch.no_grad():
             rgb = model.render([view.camera], background)[0][0].numpy()

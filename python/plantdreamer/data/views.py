@@ -17,6 +17,15 @@ Each item is ``(image, target)``:
   ``target["image_id"]``: the id of the view's image in ``coco/<split>.json`` (and a plant
   folder's ``coco.json``), so predictions score against those files as they are.
 
+The area limit and stuff classes are those the folder's label files record (``coco.json``,
+``coco/<split>.json``: what ``labels --min-instance-area --stuff`` made), so the targets are
+the objects, category ids and ``num_classes`` of the COCO and YOLO files; ``min_area`` or
+``stuff`` given otherwise is refused (remake the label files instead). A folder without
+label files takes them as given (defaults: ``labels``' defaults).
+
+``semantic`` and ``ignore`` are ``data.pixel_map.PixelMap`` tensors: the geometric v2
+transforms move them as they move a mask, and ``SanitizeBoundingBoxes`` leaves them whole.
+
 A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops only what its
 ``labels_getter`` names: pass ``labels_getter=object_keys`` and ``labels``, ``area``,
 ``iscrowd`` and ``instance_ids`` follow the boxes. ``area`` is taken again from the masks
@@ -41,10 +50,11 @@ from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
     read_label_maps,
     read_png,
+    read_transforms,
     view_objects,
 )
 from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
-from plantdreamer.exports.plant import PLANT, plant_classes, plant_views
+from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
 
 OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids")  # one entry per box
@@ -60,17 +70,19 @@ def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
 class PlantViews(torch.utils.data.Dataset):
     """The labelled views under ``root``: a plant folder (with ``transforms.json``) or a
     dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``;
-    ``stuff``: class names that are no objects (``--stuff`` of the label files)."""
+    ``min_area`` and ``stuff`` (class names that are no objects): those of the label files,
+    which these may only repeat."""
 
     def __init__(
         self,
         root: str | Path,
         split: str | None = None,
-        min_area: int = MIN_INSTANCE_AREA,
+        min_area: int | None = None,
         transforms: Callable[[Any, dict[str, Any]], tuple[Any, dict[str, Any]]] | None = None,
-        stuff: tuple[str, ...] = (),
+        stuff: tuple[str, ...] | None = None,
     ) -> None:
-        self.root, self.min_area, self.transforms = Path(root), min_area, transforms
+        self.root, self.transforms = Path(root), transforms
+        self.min_area, stuff = _label_options(self.root, split, min_area, stuff)
         # (image id, folder, frame, class lookup table) per view
         self.views: list[tuple[int, Path, dict, np.ndarray]] = []
         if (self.root / "transforms.json").is_file():
@@ -149,10 +161,45 @@ def _follow_boxes(target: dict[str, Any], source: str) -> None:
         )
 
 
+def _label_options(
+    root: Path, split: str | None, min_area: int | None, stuff: tuple[str, ...] | None
+) -> tuple[int, tuple[str, ...]]:
+    """The area limit and stuff classes of the label files under ``root`` (the split's COCO
+    file, else any split's, else a plant's coco.json); given ones must agree with them."""
+    names = [f"coco/{split}.json"] if split else [f"coco/{s}.json" for s in SPLITS]
+    files = [p for p in (root / n for n in (*names, COCO_FILE)) if p.is_file()]
+    if not files:
+        return (MIN_INSTANCE_AREA if min_area is None else min_area), tuple(stuff or ())
+    area, things = _recorded_options(files[0])
+    given = {"min_area": (min_area, area), "stuff": (stuff and tuple(stuff), things)}
+    other = [f"{k}={g!r}" for k, (g, r) in given.items() if g is not None and g != r]
+    if other:
+        raise InputError(
+            f"{files[0]} was made with --min-instance-area {area} and --stuff "
+            f"{','.join(things) or '(none)'}; PlantViews got {', '.join(other)}: leave them "
+            "out, or remake the label files with `plantdreamer labels`"
+        )
+    return area, things
+
+
+def _recorded_options(path: Path) -> tuple[int, tuple[str, ...]]:
+    try:
+        info = json.loads(path.read_bytes().decode("utf-8"))["info"]
+        return int(info["min_instance_area"]), tuple(str(n) for n in info.get("stuff_classes", []))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(
+            f"{path} does not record its label options (damaged or too old: {exc}); remake it "
+            "with `plantdreamer labels`"
+        ) from None
+
+
 def _dataset_plants(root: Path):
     if not (root / PLANTS_DIR).is_dir():
         raise InputError(f"{root} is neither a plant folder nor a dataset folder")
-    return [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
+    plants = [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
+    for p in plants:
+        read_transforms(p.folder)  # a damaged one is refused, not left out
+    return plants
 
 
 def _split_plants(root: Path, split: str | None) -> set[str] | None:
@@ -173,6 +220,8 @@ def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int,
         return image, target
     target["boxes"] = tv_tensors.BoundingBoxes(target["boxes"], format="XYXY", canvas_size=size)
     target["masks"] = tv_tensors.Mask(target["masks"])
-    target["semantic"] = tv_tensors.Mask(target["semantic"])
-    target["ignore"] = tv_tensors.Mask(target["ignore"])
+    from plantdreamer.data.pixel_map import PixelMap
+
+    target["semantic"] = PixelMap(target["semantic"])
+    target["ignore"] = PixelMap(target["ignore"])
     return tv_tensors.Image(image), target

@@ -124,7 +124,12 @@ class _DatasetRun:
             for p in self.plants
         }
         # A split the plants would leave empty: refused before any plant runs.
-        check_planned_splits(self.out_dir, [p.id for p in self.plants], self.options.labels)
+        check_planned_splits(
+            self.out_dir,
+            [p.id for p in self.plants],
+            self.options.labels,
+            planned_classes(self.plants),
+        )
         todo, skipped = plan(
             self.plants,
             self.manifest,
@@ -281,3 +286,13 @@ class _DatasetRun:
                 "versions": package_versions(("plantdreamer", "ray", "torch", "numpy")),
             },
         )
+
+
+def planned_classes(plants: list[Plant]) -> list[str] | None:
+    """The class names the plants' label files will have: an L-System's organs; None when
+    a plant comes from a point cloud (its classes are known once it is read)."""
+    if any(p.config.source.pointcloud is not None for p in plants):
+        return None
+    from plantdreamer.lsystem import OrganClass
+
+    return [c.name.lower() for c in OrganClass]

@@ -35,6 +35,7 @@ def read_rgba(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
     try:
         with Image.open(path) as opened:
+            check_image_size(*opened.size, path)  # before the pixels are decoded
             opened.load()
             im: Image.Image = opened
             mode = im.mode
@@ -47,7 +48,7 @@ def read_rgba(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
             elif mode not in ("RGB", "RGBA"):
                 im = im.convert("RGBA" if "A" in mode else "RGB")
             data = np.asarray(im, dtype=np.float32) / 255.0
-    except OSError as exc:
+    except (OSError, Image.DecompressionBombError) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
         raise InputError(f"cannot read image {path}: {exc}") from exc
@@ -64,8 +65,9 @@ def read_mask(path: Path) -> np.ndarray:
 
     try:
         with Image.open(path) as im:
+            check_image_size(*im.size, path)
             gray = np.asarray(im.convert("L") if im.mode not in ("L", "1", "I;16", "I") else im)
-    except OSError as exc:
+    except (OSError, Image.DecompressionBombError) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
         raise InputError(f"cannot read mask {path}: {exc}") from exc
@@ -96,7 +98,7 @@ def image_size(path: Path) -> tuple[int, int]:
     try:
         with Image.open(path) as im:
             return check_image_size(int(im.size[0]), int(im.size[1]), path)
-    except OSError as exc:
+    except (OSError, Image.DecompressionBombError) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
         raise InputError(f"cannot read image {path}: {exc}") from exc

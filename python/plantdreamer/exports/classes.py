@@ -14,6 +14,7 @@ torch Dataset's ``semantic``), as COCO's stuff and panoptic sets keep amorphous 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,17 +36,29 @@ class DatasetClasses:
         """The ids of the classes named ``stuff`` (``--stuff``), refused in one line when
         a name is not a class."""
         ids = {name: i for i, name in self.names.items()}
-        unknown = [name for name in stuff if name not in ids]
-        if unknown:
-            raise InputError(
-                f"--stuff names no class {', '.join(map(repr, unknown))} "
-                f"(the classes: {', '.join(self.names.values())})"
-            )
+        check_stuff(stuff, self.names.values())
         return tuple(sorted(ids[name] for name in stuff))
 
     def things(self, stuff: tuple[str, ...]) -> dict[int, str]:
         """The classes that are objects: all but the ``stuff``."""
         return {i: n for i, n in self.names.items() if n not in stuff}
+
+
+def check_stuff(stuff: tuple[str, ...], classes: Iterable[str]) -> None:
+    """Refuses in one line a ``--stuff`` name that is no class, and ``--stuff`` naming
+    every class (label files without one object or category)."""
+    classes = list(dict.fromkeys(classes))
+    unknown = [name for name in stuff if name not in classes]
+    if unknown:
+        raise InputError(
+            f"--stuff names no class {', '.join(map(repr, unknown))} "
+            f"(the classes: {', '.join(classes)})"
+        )
+    if classes and set(classes) <= set(stuff):
+        raise InputError(
+            f"--stuff names every class ({', '.join(classes)}): the label files would hold no "
+            "object; leave at least one class out of it"
+        )
 
 
 def dataset_classes(maps: dict[str, dict[int, str]]) -> DatasetClasses:

@@ -30,6 +30,7 @@ import json
 import re
 import shutil
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
 from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
-from plantdreamer.exports.classes import DatasetClasses, dataset_classes
+from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
 from plantdreamer.exports.instances import (
@@ -131,12 +132,20 @@ def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
     return [DatasetView(i + 1, p, frame) for i, (p, frame) in enumerate(views)]
 
 
-def check_planned_splits(dataset_dir: Path, plant_ids: list[str], options: LabelOptions) -> None:
+def check_planned_splits(
+    dataset_dir: Path,
+    plant_ids: list[str],
+    options: LabelOptions,
+    classes: Iterable[str] | None = None,
+) -> None:
     """Refuses, before any plant runs, splits that the plants to come (with those already
-    finished in the folder) would leave empty."""
+    finished in the folder) would leave empty, and ``--stuff`` that names no class or every
+    class of ``classes`` (the plants' class names; None: not known before they run)."""
     done = [p.id for p in finished_plants(dataset_dir)]
     splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
     check_splits(splits, options.ratios, options.allow_empty_split)
+    if classes is not None:
+        check_stuff(options.stuff, classes)
 
 
 def check_exports_owned(dataset_dir: Path) -> None:

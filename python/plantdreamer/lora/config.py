@@ -94,12 +94,16 @@ class LoraTrainConfig:
             "batch_size": self.batch_size,
             "grad_accum": self.grad_accum,
             "checkpoint_every": self.checkpoint_every,
+            "alpha": self.rank if self.alpha is None else self.alpha,  # 0: an all-zero adapter
         }
         bad = [f"{k}={v}" for k, v in positive.items() if v <= 0]
         if bad or not self.learning_rate > 0 or self.validate < 0:
             raise InputError(f"settings must be positive: {', '.join(bad) or 'learning_rate'}")
         if self.resolution % 8:
             raise InputError(f"resolution must be a multiple of 8, got {self.resolution}")
+        from plantdreamer.lora.dataset import check_caption_template
+
+        check_caption_template(self.caption_template)
 
     def fingerprint(self, examples: Sequence[Any]) -> dict[str, Any]:
         """What a resumed run must share with its checkpoint (``steps`` may grow)."""

@@ -10,11 +10,16 @@ it; otherwise the template is used (default: the generation prompt template,
 - Non-RGB images are converted: greyscale and palette images to RGB, images with
   transparency composited over a white background (a plain background, as photographed).
 - An empty folder, a missing folder or a file that cannot be decoded is an ``InputError``
-  naming the problem (a corrupt photo is better fixed than silently skipped).
+  naming the problem (a corrupt photo is better fixed than silently skipped), and so are a
+  photo over ``MAX_PHOTO_PIXELS`` (checked from its header, before its pixels are decoded),
+  one whose resized copy would be longer than ``MAX_ASPECT`` times the resolution (a
+  20000 x 1 strip would become 10,240,000 x 512 at 512), a caption that is not UTF-8 and a
+  template with a field other than ``{species}``.
 """
 
 from __future__ import annotations
 
+import string
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +31,8 @@ from plantdreamer.guidance.config import DEFAULT_PROMPT_TEMPLATE
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
 DEFAULT_CAPTION = DEFAULT_PROMPT_TEMPLATE
+MAX_PHOTO_PIXELS = 8192 * 8192  # a photo's decoded size (Pillow refuses only beyond 2 x 89 M)
+MAX_ASPECT = 4  # longest side / shortest side after the resize: what a crop can still use
 
 
 @dataclass
@@ -57,13 +64,34 @@ def to_rgb(image):  # type: ignore[no-untyped-def]
     return image.convert("RGB")
 
 
+def resized_size(size: tuple[int, int], resolution: int) -> tuple[int, int]:
+    """(width, height) of a photo of ``size`` with its shorter side at ``resolution``."""
+    w, h = size
+    scale = resolution / min(w, h)
+    return max(resolution, round(w * scale)), max(resolution, round(h * scale))
+
+
+def check_photo_size(path: Path, size: tuple[int, int], resolution: int) -> None:
+    """Refuses a photo too large to decode or whose resized copy is an unusable strip."""
+    w, h = size
+    if w * h > MAX_PHOTO_PIXELS:
+        raise InputError(
+            f"photo {str(path)!r} is {w} x {h} pixels, over the limit of {MAX_PHOTO_PIXELS:,}: "
+            "scale it down"
+        )
+    new = resized_size(size, resolution)
+    if max(new) > MAX_ASPECT * resolution:
+        raise InputError(
+            f"photo {str(path)!r} is {w} x {h} pixels: at resolution {resolution} it would "
+            f"become {new[0]} x {new[1]}, longer than {MAX_ASPECT} x {resolution}; crop it"
+        )
+
+
 def resize_short_side(image, size: int):  # type: ignore[no-untyped-def]
     from PIL import Image
 
-    w, h = image.size
-    scale = size / min(w, h)
-    new = (max(size, round(w * scale)), max(size, round(h * scale)))
-    return image if new == (w, h) else image.resize(new, Image.Resampling.LANCZOS)
+    new = resized_size(image.size, size)
+    return image if new == image.size else image.resize(new, Image.Resampling.LANCZOS)
 
 
 def list_images(folder: Path) -> list[Path]:
@@ -83,13 +111,57 @@ def list_images(folder: Path) -> list[Path]:
     return files
 
 
+@dataclass(frozen=True)
+class PhotoSize:
+    """A photo's size and the size training resizes it to (from its header alone)."""
+
+    path: Path
+    size: tuple[int, int]
+    resized: tuple[int, int]
+
+
+def photo_sizes(folder: str | Path, resolution: int) -> list[PhotoSize]:
+    """Every photo's size and resized size, each checked (``check_photo_size``) from its
+    header before any pixel is decoded: ``lora train --dry-run``'s preview, and its
+    refusals before any model loads."""
+    from PIL import Image, UnidentifiedImageError
+
+    sizes = []
+    for path in list_images(Path(folder)):
+        try:
+            with Image.open(path) as opened:
+                size = opened.size
+        except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+            raise InputError(f"cannot read image {str(path)!r}: {exc}") from exc
+        check_photo_size(path, size, resolution)
+        sizes.append(PhotoSize(path, size, resized_size(size, resolution)))
+    return sizes
+
+
 def caption_for(path: Path, species: str, template: str) -> str:
     text_file = path.with_suffix(".txt")
     if text_file.is_file():
-        caption = text_file.read_text(encoding="utf-8").strip()
+        try:
+            caption = text_file.read_bytes().decode("utf-8").strip()
+        except UnicodeDecodeError as exc:
+            raise InputError(f"caption {str(text_file)!r} is not UTF-8 text ({exc})") from None
         if caption:
             return caption
     return template.format(species=species)
+
+
+def check_caption_template(template: str) -> None:
+    """A template is text with ``{species}``, its only field (``{{`` and ``}}`` are braces)."""
+    try:
+        fields = {f for _, f, _, _ in string.Formatter().parse(template) if f is not None}
+    except ValueError as exc:
+        raise InputError(f"caption template {template!r} is not a template ({exc})") from None
+    if fields != {"species"}:
+        other = sorted(fields - {"species"})
+        raise InputError(
+            f"caption template must contain '{{species}}' and no other field, got {template!r}"
+            + (f" (with {', '.join('{' + f + '}' for f in other)})" if other else "")
+        )
 
 
 def load_examples(
@@ -100,16 +172,16 @@ def load_examples(
 
     if resolution < 8:
         raise InputError(f"resolution must be >= 8 px, got {resolution}")
-    if "{species}" not in template:
-        raise InputError(f"caption template must contain '{{species}}', got {template!r}")
+    check_caption_template(template)
     examples = []
     for path in list_images(Path(folder)):
         try:
             with Image.open(path) as opened:
+                check_photo_size(path, opened.size, resolution)
                 opened.load()
                 mode, size = opened.mode, opened.size
                 rgb = to_rgb(opened)
-        except (UnidentifiedImageError, OSError, ValueError) as exc:
+        except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
             raise InputError(f"cannot read image {str(path)!r}: {exc}") from exc
         rgb = resize_short_side(rgb, resolution)
         array = np.asarray(rgb, dtype=np.float32) / 255.0

@@ -43,7 +43,7 @@ from plantdreamer.lora.checkpoint import (
     save_checkpoint,
 )
 from plantdreamer.lora.config import LoraTrainConfig
-from plantdreamer.lora.dataset import load_examples
+from plantdreamer.lora.dataset import load_examples, photo_sizes
 from plantdreamer.lora.export import render_validation, save_lora_file
 from plantdreamer.lora.objective import NoiseLoss
 from plantdreamer.output_folder import claim_folder, tree
@@ -125,6 +125,7 @@ def train_lora(
     one needs a checkpoint there.
     """
     config.check()
+    photo_sizes(config.images_dir, config.resolution)  # refused before anything loads
     out = Path(config.out_dir)
     if config.resume and config.overwrite:
         raise InputError("overwrite starts afresh; it cannot go with resume")

@@ -30,7 +30,11 @@ class InitConfig:
     sh_degree: int = setting(0, "SH degree optimised.", range=(0, 3))
     color_init: str = setting("original", "Colours of the initial Gaussians.", choices=COLOR_INITS)
     opacity_init: float | None = setting(
-        None, "Initial opacity.", default_text="0.7 for L-System meshes, 0.1 for point clouds"
+        None,
+        "Initial opacity, in (0, 1) (its logit must be finite).",
+        default_text="0.7 for L-System meshes, 0.1 for point clouds",
+        range=(0.0, 1.0),
+        open=(True, True),
     )
     init_scale: str = setting(
         "mean", "Initial scale from the 3 nearest neighbours' distances.", choices=("mean", "rms")

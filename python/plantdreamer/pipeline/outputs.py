@@ -26,11 +26,16 @@ from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 EXPORT_PRECISION = 1e-5
 
 
+# Every camera and view of the orbit is held until the export ends: one view per 0.1
+# degree is more than any use of the orbit needs.
+MAX_EVAL_VIEWS = 3600
+
+
 @dataclass
 class OutputsConfig:
     """The outputs section: the evaluation orbit, the turntable and the PLY's contents."""
 
-    eval_views: int = setting(120, "Renders on the evaluation orbit.")
+    eval_views: int = setting(120, "Renders on the evaluation orbit.", range=(0, MAX_EVAL_VIEWS))
     eval_distance: float | None = setting(
         None,
         "Evaluation orbit camera distance (scene units; the plant's longest side is scene-size).",

@@ -19,6 +19,12 @@ from plantdreamer.settings import setting
 STRUCTURES = ("plantdreamer", "released")  # species grammars: ours or the authors'
 
 
+# Scene sizes the fixed camera planes hold: below 0.1 the framed cameras come within the
+# near plane of the plant (clipped renders), and far above 1e6 float32 positions lose the
+# plant's detail (renders, labels and COCO empty).
+SCENE_SIZES = (0.1, 1e6)
+
+
 @dataclass
 class SourceConfig:
     """The input section: a point cloud (PLY), or else the species' L-System. With a point
@@ -43,7 +49,12 @@ class SourceConfig:
         prepare.SOR_NEIGHBORS, "Statistical outlier removal: neighbours per point."
     )
     sor_std: float = setting(prepare.SOR_STD, "Statistical outlier removal: std multiplier.")
-    scene_size: float = setting(4.0, "Longest side of the normalised scene.")
+    scene_size: float = setting(
+        4.0,
+        "Longest side of the normalised scene (the rasterizer's near and far planes, 0.01 "
+        "and 1e10 scene units, hold a framed scene of this size).",
+        range=SCENE_SIZES,
+    )
     sor_after_voxel: bool = setting(False, "Capture prep: outlier removal after the voxel grid.")
     downsample_tolerance: float = setting(
         prepare.TOLERANCE,

@@ -13,30 +13,28 @@ from plantdreamer.settings import option_prefix, setting
 
 ELEVATION_SAMPLINGS = ("uniform", "mixed", "mixed-full")
 OVERLAP_CHOICES = ("auto", "on", "off")
+# A rate of 0 freezes its parameter; beyond 1e6 an Adam step (about the rate) throws
+# every Gaussian out of any scene, and beyond float32's 3.4e38 the first step overflows.
+LEARNING_RATES = (0.0, 1e6)
 
 
 @dataclass
 class LearningRates:
     """Adam learning rates of the released code (position and SH as in the paper)."""
 
-    means: float = setting(5e-5, "Adam learning rate of the Gaussians' positions.")
-    sh_dc: float = setting(0.0125, "Adam learning rate of the base colour.")
-    sh_rest: float = setting(0.0125 / 20, "Adam learning rate of the higher SH bands.")
-    opacity: float = setting(0.01, "Adam learning rate of the opacity logits.")
-    scales: float = setting(0.005, "Adam learning rate of the log-scales.")
-    quats: float = setting(0.001, "Adam learning rate of the rotations.")
-    eps: float = setting(1e-15, "Adam epsilon.")
-
-    def validate(self) -> None:
-        """A negative rate runs gradient ascent; zero freezes the parameter."""
-        for name in ("means", "sh_dc", "sh_rest", "opacity", "scales", "quats"):
-            if getattr(self, name) < 0:
-                raise InputError(
-                    f"lr-{name.replace('_', '-')} must be >= 0 (0 freezes it), "
-                    f"got {getattr(self, name)}"
-                )
-        if not self.eps > 0:
-            raise InputError(f"lr-eps must be positive, got {self.eps}")
+    means: float = setting(
+        5e-5, "Adam learning rate of the Gaussians' positions.", range=LEARNING_RATES
+    )
+    sh_dc: float = setting(0.0125, "Adam learning rate of the base colour.", range=LEARNING_RATES)
+    sh_rest: float = setting(
+        0.0125 / 20, "Adam learning rate of the higher SH bands.", range=LEARNING_RATES
+    )
+    opacity: float = setting(
+        0.01, "Adam learning rate of the opacity logits.", range=LEARNING_RATES
+    )
+    scales: float = setting(0.005, "Adam learning rate of the log-scales.", range=LEARNING_RATES)
+    quats: float = setting(0.001, "Adam learning rate of the rotations.", range=LEARNING_RATES)
+    eps: float = setting(1e-15, "Adam epsilon.", range=(0.0, 1.0), open=(True, False))
 
 
 @dataclass
@@ -114,5 +112,4 @@ class TrainConfig:
     cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))
 
     def validate(self) -> None:
-        self.lr.validate()
         self.cameras.validate()
