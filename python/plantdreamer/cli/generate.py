@@ -33,6 +33,7 @@ RUN_OPTIONS = (
     "seeds",
     "quiet",
     "view",
+    "port",
     "print_config",
     "help",
 )
