@@ -137,7 +137,7 @@ def instrument(guidance: Any, clock: PhaseClock) -> None:
     guidance.noise_prediction = clock.wrap("unet+controlnet", guidance.noise_prediction)
     guidance.encode = clock.wrap("vae encode", guidance.encode)
     sds.to_device = clock.wrap("transfer", sds.to_device)
-    fn = rasterizer._RasterizeFunction
+    fn = rasterizer._RasterizeManyFunction
     fn.backward = staticmethod(clock.wrap("raster backward", fn.backward))
 
 
@@ -177,7 +177,7 @@ def run_once(
     depth_ahead: bool,
     profile: int = 0,
 ) -> dict[str, Any]:
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
@@ -207,7 +207,7 @@ def run_once(
             guidance=guidance,
             show_progress=False,
             on_step=lambda step: stamps.append(time.perf_counter()),
-            depth_ahead=depth_ahead,
+            options=StepOptions(depth_ahead=depth_ahead),
         )
         if profiler is not None:
             profiler.disable()

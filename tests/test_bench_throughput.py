@@ -40,15 +40,12 @@ def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
 
 def test_the_variants_leave_out_what_one_plant_cannot_compare():
     args = argparse.Namespace(
-        groups=[1, 4], overlap=["off", "on"], vae=["float32"], raster_batch=["on"],
-        adam=["foreach"], plant_work=["serial", "parallel"], cuda_wait=["spin", "sleep"],
+        groups=[1, 4], overlap=["off", "on"], vae=["float32"], cuda_wait=["spin", "sleep"],
     )  # fmt: skip
     labels = [v.label for v in bench_throughput.variants(args)]
     assert labels == [
-        "1-spin-wait", "1",  # one plant: no halves, and one task either way
-        "4-serial-plant-work-spin-wait", "4-serial-plant-work", "4-spin-wait", "4",
-        "4-overlap-serial-plant-work-spin-wait", "4-overlap-serial-plant-work",
-        "4-overlap-spin-wait", "4-overlap",
+        "1-spin-wait", "1",  # one plant: no halves
+        "4-spin-wait", "4", "4-overlap-spin-wait", "4-overlap",
     ]  # fmt: skip
 
 

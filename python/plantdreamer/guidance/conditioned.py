@@ -81,7 +81,7 @@ class ConditionedGuidance:
                 maps = [
                     self._depth[i].get(c, more=more) for i, c in zip(plants, cameras, strict=True)
                 ]
-                depth = maps[0] if len(maps) == 1 else torch.cat(maps)
+                depth = torch.cat(maps)
         with timed("guidance"):
             launch = getattr(self.guidance, "launch", None)
             if launch is not None:

@@ -31,6 +31,7 @@ from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
+from plantdreamer.pipeline.step_options import StepOptions
 from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
 from plantdreamer.stop_signals import stop_signals_handled
 
@@ -51,12 +52,14 @@ class Trainer:
         plants: list[PlantRun],
         guidance: Guidance,
         *,
-        depth_ahead: bool = True,
+        options: StepOptions | None = None,
         isolate_failures: bool = False,
         out_dir: Path | None = None,
     ) -> None:
-        """``isolate_failures``: a failing plant is recorded and dropped (a group) rather
+        """``options``: how the step runs (``StepOptions``, the same bits either way).
+        ``isolate_failures``: a failing plant is recorded and dropped (a group) rather
         than raised (a single run). ``out_dir`` is the folder ``RunInterrupted`` names."""
+        options = options or StepOptions()
         from plantdreamer.guidance.base import NoGuidance
 
         self.plants, self.raw_guidance = plants, guidance
@@ -72,7 +75,7 @@ class Trainer:
             depth_rule=self.cfg.sds.depth_rule,
             control_resize=self.cfg.sds.control_resize,
             erosion_distance=self.cfg.sds.erosion_distance,
-            ahead=depth_ahead,
+            ahead=options.depth_ahead,
         )
         # ``auto`` decided here, where the guidance's device is known; run.json and the
         # checkpoints record the value used, so a resume keeps it.
@@ -84,6 +87,7 @@ class Trainer:
             self.guidance,
             overlap=overlap,
             isolate_failures=isolate_failures,
+            options=options,
             run_ahead=self._may_run_ahead,
         )
         self._stop_requested = False
