@@ -5,7 +5,7 @@ of them, their scenes side by side on the rasterizer's pool), one guidance call 
 batch, its gradient goes back to the renders, the rasterizer backwards run (again one native
 call), then each plant's Adam update and density control. Each plant's host work around
 the native calls (its arguments, its share of the backward past them, gradient checks,
-Adam, density statistics) runs on the schedule's thread pool, one task per plant: numpy
+Adam, density statistics) runs on the trainer's host pool, one task per plant: numpy
 and torch release the GIL, so B plants' host work spreads over the cores rather than
 queueing on one thread (the same bits: each plant's operations are its own, in its own
 order).
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,6 +93,7 @@ class StepSchedule:
         overlap: bool,
         isolate_failures: bool,
         options: StepOptions,
+        pool: Executor,
         run_ahead: Callable[[int], bool],
     ) -> None:
         self.plants, self.guidance = plants, guidance
@@ -101,13 +102,10 @@ class StepSchedule:
         cut = (len(plants) + 1) // 2 if overlap else len(plants)
         self.halves = [list(range(cut)), list(range(cut, len(plants)))]
         self.pending: _Launched | None = None  # the first half of the next step, launched
-        self._pool = ThreadPoolExecutor(len(plants))
+        self._pool = pool  # the trainer's
 
     def alive(self) -> list[int]:
         return [i for i, p in enumerate(self.plants) if p.error is None]
-
-    def close(self) -> None:
-        self._pool.shutdown()
 
     def step_end(self, step: int, plants: list[int]) -> None:
         for i in plants:
