@@ -61,7 +61,7 @@ NETWORK_PHASES = ("text", "unet+controlnet", "vae encode", "vae backward")
 GUIDANCE_PARTS = ("text", "unet+controlnet", "vae encode", "transfer")
 # The loop's own timers (pipeline/run.py) reported as phases; "guidance" and "backward" are
 # split into the parts above.
-LOOP_PHASES = ("render", "depth", "optimizer", "densify", "cull")
+LOOP_PHASES = ("raster.forward", "depth", "optimizer", "densify", "cull")
 REST = "rest (in no phase)"
 LOOP_PREFIX = "loop:"
 
@@ -222,13 +222,15 @@ def run_once(
     }
     parts = {k: v for k, v in timed.items() if not k.startswith(LOOP_PREFIX)}
     phases = {k: v for k, v in parts.items() if k != "raster backward"}
-    phases["guidance other"] = loop_phase.get("guidance", 0.0) - sum(
+    guidance = loop_phase.get("guidance.launch", 0.0) + loop_phase.get("guidance.wait", 0.0)
+    backward = loop_phase.get("guidance.backward", 0.0) + loop_phase.get("raster.backward", 0.0)
+    phases["guidance other"] = guidance - sum(
         parts.get(p, 0.0) for p in GUIDANCE_PARTS
     )
     phases["raster backward"] = parts.get("raster backward", 0.0)
-    phases["vae backward"] = loop_phase.get("backward", 0.0) - phases["raster backward"]
+    phases["vae backward"] = backward - phases["raster backward"]
     for name in LOOP_PHASES:
-        if name in loop_phase or name in ("render", "depth", "optimizer"):
+        if name in loop_phase or name in ("raster.forward", "depth", "optimizer"):
             phases[name] = loop_phase.get(name, 0.0)
     intervals = max(len(step_s), 1)
     per_step_ms = {k: 1000 * v / intervals for k, v in phases.items()}

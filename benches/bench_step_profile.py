@@ -147,12 +147,12 @@ def per_step(totals: dict[str, float], steps: int, mean_step_s: float) -> dict[s
     g = defaultdict(float, totals)
     raster_bwd = g["rasterizer backward"]
     rows = {
-        "render": g["loop:render"],
+        "render": g["loop:raster.forward"],
         "  of which native forward": g["native forward"],
         "depth (wait)": g["loop:depth"],
-        "guidance": g["loop:guidance"],
+        "guidance": g["loop:guidance.launch"] + g["loop:guidance.wait"],
         "  of which networks": g["networks"],
-        "backward (torch)": g["loop:backward"] - raster_bwd,
+        "backward (torch)": g["loop:guidance.backward"] + g["loop:raster.backward"] - raster_bwd,
         "rasterizer backward": raster_bwd,
         "  of which native backward": g["native backward"],
         "gradient check": g["gradient check"],

@@ -13,8 +13,9 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``host_core_ms_per_plant_step``: process CPU time (every thread) over the steady window
   / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
   (on the CPU the tiny networks' arithmetic is in it too);
-* ``phases_ms``: the step's phases (render, depth, guidance = the networks and the host's
-  wait for them, backward, optimizer) from plant 0's run.json, means over every step;
+* ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
+  guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer) from plant
+  0's run.json, means over every step;
 * ``peak_cuda_gib``: ``torch.cuda.max_memory_allocated`` over the run (null on the CPU).
 
 Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` networks on the CPU
@@ -60,7 +61,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from host import host_line
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+# pipeline.export.STEP_PHASES (tests/test_bench_throughput.py checks they agree).
+PHASES = ("raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
+          "raster.backward", "optimizer")  # fmt: skip
 STEPS_PER_PLANT = 3600
 NVML_PERIOD_S = 0.05
 

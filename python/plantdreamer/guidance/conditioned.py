@@ -84,7 +84,7 @@ class ConditionedGuidance:
                     self._depth[i].get(c, more=more) for i, c in zip(plants, cameras, strict=True)
                 ]
                 depth = torch.cat(maps)
-        with timed("guidance"):
+        with timed("guidance.launch"):
             launch = getattr(self.guidance, "launch", None)
             if launch is not None:
                 return launch(images, depth, list(cameras), step)

@@ -81,7 +81,7 @@ def launch_guidance(
     device = guidance.device
     leaf = to_device(images.detach(), device).requires_grad_(True)
     pending = guidance.launch(leaf, plants, cameras, step, more, timer)
-    with timed("backward"):
+    with timed("guidance.backward"):
         # The guidance's loss is a mean over the batch: each plant gets its own gradient.
         (pending.loss * len(plants)).backward()
     grads = leaf.grad

@@ -158,7 +158,7 @@ class StepSchedule:
         cameras = [p.state.sampler.sample() for p in group]
         background = self.cfg.train.background
 
-        with self._timed("render"):
+        with self._timed("raster.forward"):
             models = [p.state.model for p in group]
             renders = []
             rendered, cuts = render_many(models, cameras, background, self._map)
@@ -192,9 +192,9 @@ class StepSchedule:
         """Waits for a launched half's gradient, back-propagates it through the rasterizer
         and updates its plants; a plant that fails is recorded (``isolate_failures``)."""
         group = [self.plants[i] for i in work.plants]
-        with self._timed("guidance"):  # the wait for the device
+        with self._timed("guidance.wait"):
             out = work.flight.wait()
-        with self._timed("backward"):
+        with self._timed("raster.backward"):
             for p in group:
                 optimizer = p.state.model.optimizer
                 assert optimizer is not None  # the models are built with learning rates
