@@ -61,7 +61,7 @@ NETWORK_PHASES = ("text", "unet+controlnet", "vae encode", "vae backward")
 GUIDANCE_PARTS = ("text", "unet+controlnet", "vae encode", "transfer")
 # The loop's own timers (pipeline/run.py) reported as phases; "guidance" and "backward" are
 # split into the parts above.
-LOOP_PHASES = ("render", "depth", "optimizer", "densify", "cull")
+LOOP_PHASES = ("raster.forward", "depth", "optimizer", "densify", "cull")
 REST = "rest (in no phase)"
 LOOP_PREFIX = "loop:"
 
@@ -137,7 +137,7 @@ def instrument(guidance: Any, clock: PhaseClock) -> None:
     guidance.noise_prediction = clock.wrap("unet+controlnet", guidance.noise_prediction)
     guidance.encode = clock.wrap("vae encode", guidance.encode)
     sds.to_device = clock.wrap("transfer", sds.to_device)
-    fn = rasterizer._RasterizeFunction
+    fn = rasterizer._RasterizeManyFunction
     fn.backward = staticmethod(clock.wrap("raster backward", fn.backward))
 
 
@@ -177,7 +177,7 @@ def run_once(
     depth_ahead: bool,
     profile: int = 0,
 ) -> dict[str, Any]:
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
@@ -207,7 +207,7 @@ def run_once(
             guidance=guidance,
             show_progress=False,
             on_step=lambda step: stamps.append(time.perf_counter()),
-            depth_ahead=depth_ahead,
+            options=StepOptions(depth_ahead=depth_ahead),
         )
         if profiler is not None:
             profiler.disable()
@@ -222,13 +222,15 @@ def run_once(
     }
     parts = {k: v for k, v in timed.items() if not k.startswith(LOOP_PREFIX)}
     phases = {k: v for k, v in parts.items() if k != "raster backward"}
-    phases["guidance other"] = loop_phase.get("guidance", 0.0) - sum(
+    guidance = loop_phase.get("guidance.launch", 0.0) + loop_phase.get("guidance.wait", 0.0)
+    backward = loop_phase.get("guidance.backward", 0.0) + loop_phase.get("raster.backward", 0.0)
+    phases["guidance other"] = guidance - sum(
         parts.get(p, 0.0) for p in GUIDANCE_PARTS
     )
     phases["raster backward"] = parts.get("raster backward", 0.0)
-    phases["vae backward"] = loop_phase.get("backward", 0.0) - phases["raster backward"]
+    phases["vae backward"] = backward - phases["raster backward"]
     for name in LOOP_PHASES:
-        if name in loop_phase or name in ("render", "depth", "optimizer"):
+        if name in loop_phase or name in ("raster.forward", "depth", "optimizer"):
             phases[name] = loop_phase.get(name, 0.0)
     intervals = max(len(step_s), 1)
     per_step_ms = {k: 1000 * v / intervals for k, v in phases.items()}

@@ -99,16 +99,16 @@ class TimedCore:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._core, name)
 
-    def rasterize_forward(self, *args: Any, **kwargs: Any) -> Any:
+    def rasterize_forward_many(self, *args: Any, **kwargs: Any) -> Any:
         if kwargs.get("render_color", True) and not kwargs.get("render_depth", False):
             self.last_forward = (args, kwargs)  # an RGB training render, not a depth map
             with self._clock("native forward"):
-                return self._core.rasterize_forward(*args, **kwargs)
-        return self._core.rasterize_forward(*args, **kwargs)
+                return self._core.rasterize_forward_many(*args, **kwargs)
+        return self._core.rasterize_forward_many(*args, **kwargs)
 
-    def rasterize_backward(self, *args: Any, **kwargs: Any) -> Any:
+    def rasterize_backward_many(self, *args: Any, **kwargs: Any) -> Any:
         with self._clock("native backward"):
-            return self._core.rasterize_backward(*args, **kwargs)
+            return self._core.rasterize_backward_many(*args, **kwargs)
 
 
 def instrument(guidance: Any, clock: Clock) -> TimedCore:
@@ -116,7 +116,7 @@ def instrument(guidance: Any, clock: Clock) -> TimedCore:
     import torch
 
     from plantdreamer import rasterizer
-    from plantdreamer.pipeline import density, trainer
+    from plantdreamer.pipeline import density, step_schedule
     from plantdreamer.pipeline import progress as loop
 
     timed_phase = loop.PhaseTimer.__call__
@@ -131,9 +131,11 @@ def instrument(guidance: Any, clock: Clock) -> TimedCore:
         setattr(guidance, part, clock.wrap("networks", getattr(guidance, part)))
     core = TimedCore(rasterizer._core, clock)
     rasterizer._core = core  # type: ignore[assignment]
-    fn = rasterizer._RasterizeFunction
+    fn = rasterizer._RasterizeManyFunction
     fn.backward = staticmethod(clock.wrap("rasterizer backward", fn.backward))
-    trainer.check_finite_gradients = clock.wrap("gradient check", trainer.check_finite_gradients)
+    step_schedule.check_finite_gradients = clock.wrap(
+        "gradient check", step_schedule.check_finite_gradients
+    )
     ctl = density.DensityControl
     ctl.after_backward = clock.wrap("density statistics", ctl.after_backward)  # type: ignore[method-assign]
     torch.optim.Adam.step = clock.wrap("adam", torch.optim.Adam.step)  # type: ignore[method-assign]
@@ -145,12 +147,12 @@ def per_step(totals: dict[str, float], steps: int, mean_step_s: float) -> dict[s
     g = defaultdict(float, totals)
     raster_bwd = g["rasterizer backward"]
     rows = {
-        "render": g["loop:render"],
+        "render": g["loop:raster.forward"],
         "  of which native forward": g["native forward"],
         "depth (wait)": g["loop:depth"],
-        "guidance": g["loop:guidance"],
+        "guidance": g["loop:guidance.launch"] + g["loop:guidance.wait"],
         "  of which networks": g["networks"],
-        "backward (torch)": g["loop:backward"] - raster_bwd,
+        "backward (torch)": g["loop:guidance.backward"] + g["loop:raster.backward"] - raster_bwd,
         "rasterizer backward": raster_bwd,
         "  of which native backward": g["native backward"],
         "gradient check": g["gradient check"],
@@ -174,7 +176,7 @@ def alone(core: TimedCore, model: Any, camera: Any, background: float, reps: int
     native, render, beyond = [], [], []
     for _ in range(reps + 1):
         t0 = time.perf_counter()
-        core._core.rasterize_forward(*args, **kwargs)
+        core._core.rasterize_forward_many(*args, **kwargs)
         t1 = time.perf_counter()
         model.render([camera], background)  # its native call is timed by `core`
         t2 = time.perf_counter()
@@ -230,7 +232,6 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
             guidance=guidance,
             show_progress=False,
             on_step=lambda step: stamps.append(time.perf_counter()),
-            depth_ahead=True,
         )
         stamps = stamps[args.warmup :]
         step_s = [b - a for a, b in itertools.pairwise(stamps)]

@@ -13,8 +13,9 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``host_core_ms_per_plant_step``: process CPU time (every thread) over the steady window
   / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
   (on the CPU the tiny networks' arithmetic is in it too);
-* ``phases_ms``: the step's phases (render, depth, guidance = the networks and the host's
-  wait for them, backward, optimizer) from plant 0's run.json, means over every step;
+* ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
+  guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer) from plant
+  0's run.json, means over every step;
 * ``peak_cuda_gib``: ``torch.cuda.max_memory_allocated`` over the run (null on the CPU).
 
 Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` networks on the CPU
@@ -28,15 +29,9 @@ Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` network
 
 ``--trace PATH`` profiles one steady step (the step after warm-up) of the first run with the
 torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome trace
-(``scripts/plot_timeline.py`` draws it). ``--raster-batch off on`` compares the group
-step's rasterizer calls, interleaved: one native call each way for the B plants (on, the
-default) against one call per plant on its own thread (off); ``--adam single foreach``
-compares torch's Adam implementations for the Gaussians (the same bits); ``--plant-work
-serial parallel`` compares each plant's host work around the native calls (arguments,
-the backward past them, gradient checks, Adam, density statistics) one plant after another on
-the step's thread against one task per plant on the schedule's pool (the same bits);
-``--cuda-wait spin sleep`` compares the host's wait for the device (CUDA only): CUDA's
-default spinning wait against a blocking event that lets the thread sleep.
+(``scripts/plot_timeline.py`` draws it). ``--cuda-wait spin sleep`` compares the host's
+wait for the device (CUDA only; ``StepOptions.sleeping_wait``), interleaved: CUDA's
+default spinning wait against a blocking event that lets the thread sleep (the same bits).
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -66,7 +61,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from host import host_line
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+# pipeline.export.STEP_PHASES (tests/test_bench_throughput.py checks they agree).
+PHASES = ("raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
+          "raster.backward", "optimizer")  # fmt: skip
 STEPS_PER_PLANT = 3600
 NVML_PERIOD_S = 0.05
 
@@ -76,9 +73,6 @@ class Variant:
     b: int
     overlap: str = "off"
     vae: str = "float32"
-    raster_batch: str = "on"
-    adam: str = "foreach"
-    plant_work: str = "parallel"
     cuda_wait: str = "sleep"
 
     @property
@@ -86,9 +80,6 @@ class Variant:
         parts = [str(self.b)]
         parts += ["overlap"] if self.overlap == "on" else []
         parts += [self.vae] if self.vae != "float32" else []
-        parts += ["per-plant-raster"] if self.raster_batch == "off" else []
-        parts += [f"adam-{self.adam}"] if self.adam != "foreach" else []
-        parts += ["serial-plant-work"] if self.plant_work == "serial" else []
         parts += ["spin-wait"] if self.cuda_wait == "spin" else []
         return "-".join(parts)
 
@@ -96,10 +87,6 @@ class Variant:
 # The switches a run compares side by side (each a Variant field, its default the field's):
 # (field, choices, help).
 SWITCHES = (
-    ("raster_batch", ("off", "on"), "one native rasterizer call for the group (on) or one per plant"),
-    ("adam", ("single", "foreach"), "torch's Adam implementation for the Gaussians (the same bits)"),
-    ("plant_work", ("serial", "parallel"),
-     "each plant's host work on one thread or one pool task per plant (the same bits)"),
     ("cuda_wait", ("spin", "sleep"),
      "the host's wait for the device: spinning (CUDA's default) or sleeping"),
 )  # fmt: skip
@@ -107,22 +94,12 @@ SWITCHES = (
 
 def variants(args: argparse.Namespace) -> list[Variant]:
     out = []
-    for b, overlap, vae, batch, adam, work, wait in itertools.product(
-        args.groups,
-        args.overlap,
-        args.vae,
-        args.raster_batch,
-        args.adam,
-        args.plant_work,
-        args.cuda_wait,
+    for b, overlap, vae, wait in itertools.product(
+        args.groups, args.overlap, args.vae, args.cuda_wait
     ):
         if overlap == "on" and b == 1:
             continue  # one plant has no halves
-        if batch == "off" and b == 1 and "on" in args.raster_batch:
-            continue  # one plant is one call either way
-        if work == "serial" and b == 1 and "parallel" in args.plant_work:
-            continue  # one plant is one task either way
-        out.append(Variant(b, overlap, vae, batch, adam, work, wait))
+        out.append(Variant(b, overlap, vae, wait))
     return out
 
 
@@ -288,11 +265,9 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     """Trains one group of ``v.b`` plants; returns the run's figures."""
     import torch
 
-    from plantdreamer.guidance import in_flight
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
-    from plantdreamer.pipeline import GenerateConfig, model
+    from plantdreamer.pipeline import GenerateConfig, StepOptions
     from plantdreamer.pipeline.group import generate_group
-    from plantdreamer.pipeline.step_schedule import StepSchedule
 
     cuda = args.device.startswith("cuda")
     cfgs = [
@@ -313,18 +288,11 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     hook: Callable[[int], None] = clock if trace is None else OneStepTrace(trace, cuda, clock)
     if cuda:
         torch.cuda.reset_peak_memory_stats()
-    StepSchedule.raster_batch = v.raster_batch == "on"
-    StepSchedule.plants_in_parallel = v.plant_work == "parallel"
-    in_flight.SLEEPING_WAIT = v.cuda_wait == "sleep"
-    model.ADAM_IMPLEMENTATION = v.adam
+    options = StepOptions(sleeping_wait=v.cuda_wait == "sleep")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        try:
-            result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
-                                    on_step=hook)  # fmt: skip
-        finally:
-            StepSchedule.raster_batch, model.ADAM_IMPLEMENTATION = True, "foreach"
-            StepSchedule.plants_in_parallel, in_flight.SLEEPING_WAIT = True, True
+        result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
+                                on_step=hook, options=options)  # fmt: skip
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
@@ -334,8 +302,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
     timings = run["timings_s"]
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
-                           "raster_batch": v.raster_batch, "adam": v.adam,
-                           "plant_work": v.plant_work, "cuda_wait": v.cuda_wait}  # fmt: skip
+                           "cuda_wait": v.cuda_wait}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
@@ -398,17 +365,15 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
         "phases: means over every step.",
         "",
-        "| B | overlap | VAE | rasterizer calls | Adam | plants' host work | CUDA wait | "
+        "| B | overlap | VAE | CUDA wait | "
         "ms per step | plants per hour | host core-ms per plant-step | GPU busy | "
         "peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "|---:|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
-        calls = "one per plant" if row["raster_batch"] == "off" else "one per group"
         lines.append(
-            f"| {row['B']} | {row['overlap']} | {row['vae']} | {calls} | {row['adam']} | "
-            f"{'on the pool' if row['plant_work'] == 'parallel' else 'one thread'} | "
+            f"| {row['B']} | {row['overlap']} | {row['vae']} | "
             f"{row['cuda_wait'] if report['device'] != 'cpu' else '-'} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "

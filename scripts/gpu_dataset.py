@@ -24,7 +24,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+PHASES = ("raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
+          "raster.backward", "optimizer")  # pipeline.export.STEP_PHASES
 STEPS_PER_PLANT = 3600
 
 

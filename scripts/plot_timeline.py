@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 COLOURS = {
+    "raster": "#4c72b0",
     "render": "#4c72b0",
     "depth": "#8172b2",
     "guidance": "#dd8452",
@@ -30,7 +31,7 @@ DEVICE_CATEGORIES = ("kernel", "gpu_memcpy", "gpu_memset")
 
 
 def colour(name: str) -> str:
-    word = name.split()[0].lower()
+    word = name.split()[0].lower().split(".")[0]
     if word.startswith("optimizer"):
         return COLOURS["optimizer"]
     return COLOURS.get(word, "#999999")

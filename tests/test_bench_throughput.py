@@ -38,17 +38,20 @@ def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
     assert events == [("start", 2), ("stop", 5)]
 
 
+def test_the_bench_reports_the_steps_own_phases():
+    from plantdreamer.pipeline.export import STEP_PHASES
+
+    assert bench_throughput.PHASES == STEP_PHASES
+
+
 def test_the_variants_leave_out_what_one_plant_cannot_compare():
     args = argparse.Namespace(
-        groups=[1, 4], overlap=["off", "on"], vae=["float32"], raster_batch=["on"],
-        adam=["foreach"], plant_work=["serial", "parallel"], cuda_wait=["spin", "sleep"],
+        groups=[1, 4], overlap=["off", "on"], vae=["float32"], cuda_wait=["spin", "sleep"],
     )  # fmt: skip
     labels = [v.label for v in bench_throughput.variants(args)]
     assert labels == [
-        "1-spin-wait", "1",  # one plant: no halves, and one task either way
-        "4-serial-plant-work-spin-wait", "4-serial-plant-work", "4-spin-wait", "4",
-        "4-overlap-serial-plant-work-spin-wait", "4-overlap-serial-plant-work",
-        "4-overlap-spin-wait", "4-overlap",
+        "1-spin-wait", "1",  # one plant: no halves
+        "4-spin-wait", "4", "4-overlap-spin-wait", "4-overlap",
     ]  # fmt: skip
 
 
@@ -85,19 +88,22 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     assert report["resume"]["stopped_at"] in (2, 3) and all(report["resume"]["identical"].values())
     trace = json.loads((out / "step.json").read_text())
     names = {e.get("name") for e in trace["traceEvents"]}
-    assert {"render", "guidance", "backward", "optimizer"} <= names
+    assert {"raster.forward", "guidance.launch", "guidance.wait", "raster.backward"} <= names
+    assert "optimizer" in names
     assert "| 2 | on | float32 |" in (out / "throughput.md").read_text()
     # The timeline drawn from that trace: the step's phases in one thread's lane, nested
-    # ranges (the Adams' zero_grad inside "backward") one level deeper, and each plant's
+    # ranges (the Adams' zero_grad inside "raster.backward") one level deeper, and each plant's
     # Adam step off the step's thread (the schedule's pool: B = 2 is the traced run).
     sys.path.insert(0, str(ROOT / "scripts"))
     import plot_timeline
 
     found = plot_timeline.lanes(trace["traceEvents"])
-    main = next(lane for lane in found.values() if any(n == "render" for *_, n in lane["ranges"]))
+    main = next(
+        lane for lane in found.values() if any(n == "raster.forward" for *_, n in lane["ranges"])
+    )
     ranges = sorted(main["ranges"])
     depth = dict(zip((n for *_, n in ranges), plot_timeline.depths(ranges), strict=True))
-    assert depth["render"] == 0 and depth["Optimizer.zero_grad#Adam.zero_grad"] == 1
+    assert depth["raster.forward"] == 0 and depth["Optimizer.zero_grad#Adam.zero_grad"] == 1
     adams = [lane for lane in found.values()
              if any(n == "Optimizer.step#Adam.step" for *_, n in lane["ranges"])]  # fmt: skip
     assert adams and main not in adams  # (one pool thread may take both tasks)

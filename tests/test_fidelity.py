@@ -378,4 +378,4 @@ def test_released_preset_with_tiny_sds(tmp_path):
     )  # fmt: skip
     assert run["config"]["depth-rule"] == "released"
     assert run["config"]["schedule"] == "released"
-    assert run["per_step_s"]["guidance"] > 0
+    assert run["per_step_s"]["guidance.launch"] > 0

@@ -13,6 +13,7 @@ from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import ModelNotFoundError
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+from plantdreamer.pipeline.export import STEP_PHASES
 
 INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
 # By default plant.ply has SH degree 3 (zero-padded), the f_rest count INRIA's loader asserts.
@@ -340,7 +341,7 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
     losses = [float(r.split(",")[1]) for r in rows[1:]]
     assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
     run = json.loads((out / "run.json").read_text())
-    assert {"render", "depth", "guidance", "backward", "optimizer"} <= set(run["per_step_s"])
+    assert set(STEP_PHASES) <= set(run["per_step_s"])
     # The run ends saying what it wrote, how long it took and what to type next.
     assert f"wrote {out / 'plant.ply'} (" in result.output
     assert "progress.png, loss.png" in result.output and "done in " in result.output

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.errors import InputError, PlantDreamerError
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -71,7 +71,7 @@ def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
     ahead = generate(small_sds(), tmp_path / "ahead", guidance=tiny_sds(), show_progress=False)
     inline = generate(
         small_sds(), tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
-        depth_ahead=False,
+        options=StepOptions(depth_ahead=False),
     )  # fmt: skip
     assert ahead.ply_path.read_bytes() == inline.ply_path.read_bytes()
     # The run trained (the loss log has every step) and the depth phase was timed.

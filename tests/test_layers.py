@@ -49,6 +49,24 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("the Python API and the command line", {"api", "install_check", "cli", "__main__"}),
 ]
 
+# Inside ``pipeline``, lowest first, the same rule: a module imports only from its own
+# part or the parts below it (the package's ``__init__`` is with the runs).
+PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
+    (
+        "a plant's parts: model, cameras, density control, labels, outputs, progress",
+        {"model", "sampler", "source", "init", "culling", "density", "density_ops"}
+        | {"ground_truth", "label_channels", "label_pieces", "dataset_export", "outputs"}
+        | {"progress", "train_config", "step_options"},
+    ),
+    (
+        "settings: the config, presets, the resolved run",
+        {"config", "presets", "resolved"} | {"runtime", "group_record"},
+    ),
+    ("a run's state and its checkpoints", {"run_state", "checkpoint", "rerender"}),
+    ("the training step and its loop", {"step_schedule", "trainer"}),
+    ("runs of one plant or many", {"pipeline", "export", "run", "group"}),
+]
+
 # (importing module, imported module): why the upward import is deliberate. Empty today;
 # an entry needs a reason a reviewer accepts, not a workaround for a cycle.
 EXCEPTIONS: dict[tuple[str, str], str] = {}
@@ -174,6 +192,27 @@ def test_imports_run_downward(graph: dict[str, set[str]]) -> None:
     assert "plantdreamer.io" in graph["plantdreamer.pipeline.source"]  # inside a function
     bad = upward_imports(graph)
     assert not bad, "imports of a higher layer (move the shared name down):\n" + "\n".join(bad)
+
+
+def pipeline_layer_of(module: str) -> int:
+    name = module.split(".")[-1]
+    for rank, (_, names) in enumerate(PIPELINE_LAYERS):
+        if name in names:
+            return rank
+    raise KeyError(f"{module} is in no part of PIPELINE_LAYERS")
+
+
+def test_the_pipeline_imports_run_downward(graph: dict[str, set[str]]) -> None:
+    inside = {m for m in graph if area(m) == "pipeline"}
+    listed = set().union(*(names for _, names in PIPELINE_LAYERS))
+    assert listed == {m.split(".")[-1] for m in inside}, "PIPELINE_LAYERS lists other modules"
+    bad = [
+        f"{m} -> {t}"
+        for m in sorted(inside)
+        for t in sorted(graph[m] & inside)
+        if pipeline_layer_of(t) > pipeline_layer_of(m)
+    ]
+    assert not bad, "pipeline imports of a higher part:\n" + "\n".join(bad)
 
 
 def test_no_import_cycle(graph: dict[str, set[str]]) -> None:

@@ -5,7 +5,6 @@ step gives the bytes of one call per plant, and of its plants' host work on one 
 
 from __future__ import annotations
 
-import hashlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -92,6 +91,13 @@ def test_many_scenes_give_the_bits_of_separate_calls(threads):
     assert together(threads) == alone
 
 
+def test_one_scene_is_the_many_scene_call_of_one():
+    """``rasterization`` renders through the one autograd node of ``rasterization_many``."""
+    call, _ = scene_call(*SCENES[0])
+    _, alpha, _ = rasterization(**call)
+    assert type(alpha.grad_fn).__name__ == "_RasterizeManyFunctionBackward"
+
+
 @pytest.mark.parametrize("used", ["both", "render", "alpha"])
 def test_the_scenes_python_work_on_a_pool_gives_the_same_bits(used):
     """The background blends run inside the many-scene node (on ``map_scenes``): its
@@ -149,33 +155,23 @@ def test_the_core_returns_each_scenes_error_in_its_place():
         _core.rasterize_backward_many([alone["state"]], [], [])
 
 
-def test_a_group_trains_to_the_same_bytes_with_one_call_per_plant(tmp_path):
-    from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
-    from plantdreamer.guidance.tiny import tiny_models
-    from plantdreamer.pipeline import GenerateConfig
+def test_a_plant_trains_to_the_same_bytes_alone_and_in_a_group(tmp_path):
+    """A plant alone is the batch of one of the group's path: a per-sample guidance (a
+    fixed target) gives each plant of a group of three the bits it gets alone."""
+    from plantdreamer.guidance.base import PhotometricGuidance
+    from plantdreamer.pipeline import GenerateConfig, generate
     from plantdreamer.pipeline.group import generate_group
-    from plantdreamer.pipeline.step_schedule import StepSchedule
 
-    def run(folder, batched, in_parallel):
-        cfgs = [
-            GenerateConfig.of(species="bean", seed=s, steps=6, points=800, resolution=48,
-                              sds_resolution=64, eval_views=1, turntable="none")
-            for s in range(3)
-        ]  # fmt: skip
-        guidance = StableDiffusionDepthGuidance(
-            species="bean", components=tiny_models(), resolution=64, seed=0
-        )
-        StepSchedule.raster_batch, StepSchedule.plants_in_parallel = batched, in_parallel
-        try:
-            result = generate_group(cfgs, folder, guidance=guidance, show_progress=False)
-        finally:
-            StepSchedule.raster_batch, StepSchedule.plants_in_parallel = True, True
-        assert not result.failed
-        files = sorted(p for p in folder.rglob("*") if p.suffix in (".ply", ".png"))
-        return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-                for p in files}  # fmt: skip
+    def cfg(seed):
+        return GenerateConfig.of(species="bean", seed=seed, steps=3, points=500, resolution=32,
+                                 eval_views=1, turntable="none")  # fmt: skip
 
-    one_call = run(tmp_path / "one", True, True)
-    assert len(one_call) >= 6
-    assert run(tmp_path / "serial", True, False) == one_call  # the host work on one thread
-    assert run(tmp_path / "per", False, True) == one_call
+    target = torch.full((1, 32, 32, 3), 0.3)
+    group = generate_group([cfg(s) for s in range(3)], tmp_path / "g",
+                           guidance=PhotometricGuidance(target), show_progress=False)  # fmt: skip
+    assert not group.failed
+    for s in range(3):
+        alone = generate(cfg(s), tmp_path / f"alone{s}", guidance=PhotometricGuidance(target),
+                         show_progress=False)  # fmt: skip
+        ply = group.done[f"bean-s{s:04d}"].ply_path.read_bytes()
+        assert ply == alone.ply_path.read_bytes(), s

@@ -2,8 +2,9 @@
 
 The function mirrors ``gsplat.rasterization`` (v1.5, "classic" semantics; see
 docs/rasterizer.md) so code can move between them. The work runs in the Rust core
-(``plantdreamer._core.rasterize_forward`` / ``rasterize_backward``); this module validates
-inputs and wraps the native pair in a ``torch.autograd.Function``. A background behind 1 or
+(``plantdreamer._core.rasterize_forward_many`` / ``rasterize_backward_many``); this module
+validates inputs and wraps the native pair in one ``torch.autograd.Function``: one scene
+(``rasterization``) is the many-scene call of one. A background behind 1 or
 3 colour channels is blended by the core (torch's float32 operations in its order, the
 same bits as ``color + bg * (1 - alpha)`` through autograd); other backgrounds and the
 expected depth are plain torch ops (so their gradients come from autograd).
@@ -74,68 +75,6 @@ def _numpy(t: torch.Tensor) -> np.ndarray:
     return (t if t.is_contiguous() else t.contiguous()).numpy()
 
 
-class _RasterizeFunction(torch.autograd.Function):
-    """Autograd node of one native forward call. Inputs: means, quats, scales, opacities,
-    colors, means2d, then the native call's output (not differentiated).
-
-    The native forward runs before ``apply`` (``rasterization``), so that ``means2d`` can be
-    the native array itself, wrapped without a copy. It is a leaf whose gradient is the
-    gradient w.r.t. the projected 2D means (pixels), the quantity gsplat's densification
-    reads from ``meta["means2d"]``.
-    """
-
-    @staticmethod
-    def forward(  # type: ignore[override]
-        ctx: Any,
-        means: torch.Tensor,
-        quats: torch.Tensor,
-        scales: torch.Tensor,
-        opacities: torch.Tensor,
-        colors: torch.Tensor,
-        means2d: torch.Tensor,
-        native: dict[str, Any],
-        threads: int | None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        ctx.state = native["state"]
-        ctx.threads = threads
-        # An output that gets no gradient stays None (``_upstream``).
-        ctx.set_materialize_grads(False)
-        render = torch.from_numpy(native["render"])
-        alpha = torch.from_numpy(native["alpha"]).unsqueeze(-1)
-        ctx.shapes = (tuple(render.shape), tuple(alpha.shape))
-        return render, alpha
-
-    @staticmethod
-    def backward(
-        ctx: Any, v_render: torch.Tensor | None, v_alpha: torch.Tensor | None
-    ) -> tuple[Any, ...]:
-        need = ctx.needs_input_grad
-        g = _core.rasterize_backward(
-            ctx.state,
-            *_upstream(v_render, v_alpha, ctx.shapes[0]),
-            means=need[0],
-            quats=need[1],
-            scales=need[2],
-            opacities=need[3],
-            colors=need[4],
-            threads=ctx.threads,
-        )
-
-        def grad(name: str, i: int) -> torch.Tensor | None:
-            return torch.from_numpy(g[name]) if need[i] and g[name] is not None else None
-
-        return (
-            grad("means", 0),
-            grad("quats", 1),
-            grad("scales", 2),
-            grad("opacities", 3),
-            grad("colors", 4),
-            grad("means2d", 5),
-            None,
-            None,
-        )
-
-
 def _upstream(
     v_render: torch.Tensor | None, v_alpha: torch.Tensor | None, render_shape: tuple[int, ...]
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -159,7 +98,8 @@ class _RasterizeManyFunction(torch.autograd.Function):
     ) -> tuple[torch.Tensor, ...]:
         ctx.states = [n["state"] for n in natives]
         ctx.threads = threads
-        ctx.set_materialize_grads(False)  # as ``_RasterizeFunction``
+        # An output that gets no gradient stays None (``_upstream``).
+        ctx.set_materialize_grads(False)
         out: list[torch.Tensor] = []
         for n in natives:
             out += [torch.from_numpy(n["render"]), torch.from_numpy(n["alpha"]).unsqueeze(-1)]
@@ -274,19 +214,16 @@ def rasterization(
         culling), "n_intersections" [C] int64 (tile-Gaussian pairs), "width", "height",
         "tile_size", "n_cameras", "render_mode", "profile" (native seconds per stage).
     """
-    call = _prepare(
-        means, quats, scales, opacities, colors, viewmats, Ks, width, height, near_plane,
-        far_plane, eps2d, sh_degree, backgrounds, render_mode, rasterize_mode, tile_size,
+    kwargs = dict(
+        means=means, quats=quats, scales=scales, opacities=opacities, colors=colors,
+        viewmats=viewmats, Ks=Ks, width=width, height=height, near_plane=near_plane,
+        far_plane=far_plane, eps2d=eps2d, sh_degree=sh_degree, backgrounds=backgrounds,
+        render_mode=render_mode, rasterize_mode=rasterize_mode, tile_size=tile_size,
     )  # fmt: skip
-    sc = call.scene
-    native = _core.rasterize_forward(
-        sc["means"], sc["quats"], sc["scales"], sc["opacities"], sc["colors"], sc["viewmats"],
-        sc["Ks"], sc["width"], sc["height"], sh_degree=sc["sh_degree"], **call.settings,
-        threads=threads, background=sc["background"],
-    )  # fmt: skip
-    means2d = call.means2d(native)
-    render, alpha = _RasterizeFunction.apply(*call.params, call.color_in, means2d, native, threads)
-    return call.finish(render, alpha, means2d, native)
+    (result,) = _render_scenes([kwargs], threads, scene_map(None))
+    if isinstance(result, Exception):
+        raise result
+    return result
 
 
 def rasterization_many(
@@ -309,13 +246,27 @@ def rasterization_many(
     and torch release the GIL); by default the scenes' work runs one after another.
     """
     each_scene = scene_map(map_scenes)
+    named: list[Any] = []
+    for k, result in enumerate(_render_scenes(calls, threads, each_scene)):
+        if isinstance(result, Exception):
+            kind = type(result) if isinstance(result, PlantDreamerError) else InputError
+            result = kind(f"scene {k}: {result}")
+        named.append(result)
+    return named
+
+
+def _render_scenes(
+    calls: Sequence[Mapping[str, Any]], threads: int | None, each_scene: SceneMap
+) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | Exception]:
+    """``rasterization_many`` with each bad call's error as it was raised (not yet naming
+    its scene): ``rasterization`` is the case of one call."""
     results: list[Any] = [None] * len(calls)
 
-    def prepare(k: int) -> _Call | InputError:
+    def prepare(k: int) -> _Call | Exception:
         try:
             return _prepare(**calls[k])
         except (InputError, TypeError) as exc:
-            return InputError(f"scene {k}: {exc}")
+            return exc
 
     prepared: dict[int, _Call] = {}
     for k, call in enumerate(each_scene(prepare, range(len(calls)))):
@@ -329,7 +280,7 @@ def rasterization_many(
         for k in ok[1:]:
             if prepared[k].settings != settings:
                 results[k] = InputError(
-                    f"scene {k}: its settings differ from scene {ok[0]}'s: "
+                    f"its settings differ from scene {ok[0]}'s: "
                     f"{prepared[k].settings} against {settings}"
                 )
         ok = [k for k in ok if results[k] is None]
@@ -341,8 +292,8 @@ def rasterization_many(
     rendered = []
     for k, native in zip(ok, natives, strict=True):
         if isinstance(native, BaseException):
-            kind = native if isinstance(native, PlantDreamerError) else InputError(str(native))
-            results[k] = type(kind)(f"scene {k}: {native}")
+            error = native if isinstance(native, PlantDreamerError) else InputError(str(native))
+            results[k] = error
         else:
             rendered.append((k, native))
     if not rendered:

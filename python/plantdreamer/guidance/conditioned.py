@@ -2,14 +2,15 @@
 together: the trainer hands it the renders and their cameras; the depth maps the ControlNet
 needs are made here, one source per plant (a ``render_depth(camera)`` callback over that
 plant's initial Gaussians), cleaned by the section's ``depth_rule`` / ``control_resize`` at
-the guidance's own ``resolution``, and computed one step ahead on a worker thread per plant
-(``depth_ahead.py``). The guidance itself is called once per step on each batch the trainer
+the guidance's own ``resolution``, and computed one step ahead as tasks of the trainer's
+host pool (``depth_ahead.py``). The guidance itself is called once per step on each batch the trainer
 hands it: the whole group, or one half of it (``guidance/in_flight.py``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
@@ -29,8 +30,9 @@ class ConditionedGuidance:
     """``guidance`` with the depth conditioning it needs (none when ``needs_depth`` is False).
 
     Plant ``i`` renders its depth with ``render_depths[i]``; ``next_cameras[i]()`` names its
-    camera of the following step, so that depth map is ready when the step comes
-    (``ahead=False`` computes each in line: the same bits).
+    camera of the following step, so that depth map is made on the ``ahead`` pool while
+    this step runs and is ready when the next comes (None computes each in line: the same
+    bits).
     """
 
     def __init__(
@@ -42,7 +44,7 @@ class ConditionedGuidance:
         depth_rule: str = "stretch",
         control_resize: str = "bilinear",
         erosion_distance: str = "camera",
-        ahead: bool = True,
+        ahead: Executor | None = None,
     ) -> None:
         self.guidance = guidance
         self._depth: list[DepthAhead] = []
@@ -81,8 +83,8 @@ class ConditionedGuidance:
                 maps = [
                     self._depth[i].get(c, more=more) for i, c in zip(plants, cameras, strict=True)
                 ]
-                depth = maps[0] if len(maps) == 1 else torch.cat(maps)
-        with timed("guidance"):
+                depth = torch.cat(maps)
+        with timed("guidance.launch"):
             launch = getattr(self.guidance, "launch", None)
             if launch is not None:
                 return launch(images, depth, list(cameras), step)

@@ -1,16 +1,16 @@
-"""Depth conditioning one step ahead, on a worker thread.
+"""Depth conditioning one step ahead, as a task of the trainer's host pool.
 
 The ControlNet's depth map depends only on the fixed initial Gaussians and the camera, and
 the camera sequence is fixed by the seed, so the next step's map can be computed while the
 current step runs the networks. The rasterizer releases the GIL and torch's kernels do too,
-so the worker really runs beside the main thread. The maps are the same bits either way:
+so the task really runs beside the step's thread. The maps are the same bits either way:
 the same deterministic calls, only earlier (tests/test_gpu_path.py compares plant.ply).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future
 
 import torch
 
@@ -19,19 +19,19 @@ from plantdreamer.guidance.depth import DepthConditioner
 
 
 class DepthAhead:
-    """``get(camera)`` returns the conditioning of ``camera`` and, with ``ahead``, starts
-    the one of ``next_camera()`` on the worker. One worker: the conditioner (and its cache)
-    is never used by two threads at once."""
+    """``get(camera)`` returns the conditioning of ``camera`` and, given a ``pool``, starts
+    the one of ``next_camera()`` as a task of it (None: each is made in line). One task at
+    a time: the conditioner (and its cache) is never used by two threads at once."""
 
     def __init__(
         self,
         conditioner: DepthConditioner,
         next_camera: Callable[[], Camera],
-        ahead: bool = True,
+        pool: Executor | None = None,
     ) -> None:
         self.conditioner = conditioner
         self.next_camera = next_camera
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="depth") if ahead else None
+        self._pool = pool
         self._pending: tuple[tuple, Future[torch.Tensor]] | None = None
 
     def get(self, camera: Camera, more: bool = True) -> torch.Tensor:
@@ -40,7 +40,7 @@ class DepthAhead:
         pending, self._pending = self._pending, None
         cond = None
         if pending is not None:
-            result = pending[1].result()  # also when unused: the worker must be idle
+            result = pending[1].result()  # also when unused: no task may be running
             if pending[0] == key:
                 cond = result
         if cond is None:
@@ -55,6 +55,7 @@ class DepthAhead:
             return self.conditioner(cameras)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+        """Waits for a task still running (the pool is the trainer's, and outlives this)."""
+        if self._pending is not None and not self._pending[1].cancel():
+            self._pending[1].exception()
         self._pending = None

@@ -9,7 +9,7 @@ memory of a device tensor), so the host can render the other half of a group mea
 ``InFlight.wait`` is the one synchronisation: it waits for the event and hands back the
 gradient and the figures. On the CPU every part runs at launch and ``wait`` returns at once.
 
-The event is a blocking one (``SLEEPING_WAIT``): the waiting thread sleeps until the device
+The event is a blocking one (``StepOptions.sleeping_wait``): the waiting thread sleeps until the device
 is done, where CUDA's default wait spins on a core for the whole of the networks' time. A
 group's host work (rasterizer, Adam, depth conditioning) needs every core of the host, and
 a spinning wait takes one from it; waking costs microseconds against steps of tens to
@@ -32,10 +32,6 @@ from plantdreamer.cameras import Camera
 from plantdreamer.guidance.base import PendingOutput
 from plantdreamer.guidance.conditioned import ConditionedGuidance, Timer
 from plantdreamer.guidance.transfer import to_device
-
-# The host thread sleeps while it waits for the device (module docstring); False spins, as
-# CUDA's default, kept for the comparison (benches/bench_throughput.py --cuda-wait).
-SLEEPING_WAIT = True
 
 
 @dataclass
@@ -76,17 +72,18 @@ def launch_guidance(
     step: int,
     more: bool,
     timer: Timer | None = None,
+    *,
+    sleeping_wait: bool = True,
 ) -> InFlight:
     """Queues the guidance of ``images`` [B, H, W, 3] (CPU renders of ``plants`` from
-    ``cameras``) and its backward to them; see the module docstring."""
+    ``cameras``) and its backward to them; ``sleeping_wait``: see the module docstring."""
     timed = timer or (lambda name: nullcontext())
     device = guidance.device
     leaf = to_device(images.detach(), device).requires_grad_(True)
     pending = guidance.launch(leaf, plants, cameras, step, more, timer)
-    with timed("backward"):
+    with timed("guidance.backward"):
         # The guidance's loss is a mean over the batch: each plant gets its own gradient.
-        batch = len(plants)
-        (pending.loss if batch == 1 else pending.loss * batch).backward()
+        (pending.loss * len(plants)).backward()
     grads = leaf.grad
     assert grads is not None
     loss = pending.loss.detach().double().reshape(1)
@@ -98,6 +95,6 @@ def launch_guidance(
     host_grads.copy_(grads, non_blocking=True)
     host_figures = torch.empty(readback.shape, dtype=readback.dtype, pin_memory=True)
     host_figures.copy_(readback, non_blocking=True)
-    event = torch.cuda.Event(blocking=SLEEPING_WAIT)
+    event = torch.cuda.Event(blocking=sleeping_wait)
     event.record(torch.cuda.current_stream(device))
     return InFlight(host_grads, host_figures, pending, event)

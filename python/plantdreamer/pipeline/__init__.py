@@ -13,8 +13,17 @@ if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
     from plantdreamer.pipeline.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
+    from plantdreamer.pipeline.step_options import StepOptions
 
-__all__ = ["PRESETS", "GenerateConfig", "RunInterrupted", "RunResult", "generate", "resolve_config"]
+__all__ = [
+    "PRESETS",
+    "GenerateConfig",
+    "RunInterrupted",
+    "RunResult",
+    "StepOptions",
+    "generate",
+    "resolve_config",
+]
 
 _MODULES = {
     "GenerateConfig": "plantdreamer.pipeline.config",
@@ -23,6 +32,7 @@ _MODULES = {
     "RunInterrupted": "plantdreamer.pipeline.run",
     "RunResult": "plantdreamer.pipeline.run",
     "generate": "plantdreamer.pipeline.run",
+    "StepOptions": "plantdreamer.pipeline.step_options",
 }
 
 

@@ -27,8 +27,14 @@ from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.versions import package_versions
 
-# Per-step phases reported in run.json's per_step_s.
-STEP_PHASES = ("render", "depth", "guidance", "backward", "optimizer")
+# Per-step phases reported in run.json's per_step_s, each with one meaning: the native
+# render of the plants, the depth maps taken, the guidance's launch (networks queued, or
+# run on the CPU), its backward to the renders, the host's wait for the device, the
+# rasterizer's backward past the renders, and the checks and Adam (docs/step.md).
+STEP_PHASES = (
+    "raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
+    "raster.backward", "optimizer",
+)  # fmt: skip
 
 
 @dataclass

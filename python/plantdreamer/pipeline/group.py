@@ -57,6 +57,7 @@ from plantdreamer.pipeline.run import (
     train_plants,
 )
 from plantdreamer.pipeline.runtime import build_guidance, check_inputs, check_models
+from plantdreamer.pipeline.step_options import StepOptions
 from plantdreamer.pipeline.trainer import PlantRun
 
 __all__ = [
@@ -105,7 +106,7 @@ def generate_group(
     overwrite: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
-    depth_ahead: bool = True,
+    options: StepOptions | None = None,
     plant_dirs: list[Path] | None = None,
 ) -> GroupResult:
     """Trains ``cfgs`` together into ``out_dir`` (or, with ``resume``, continues the group
@@ -162,7 +163,7 @@ def generate_group(
                     train_plants(
                         started, out, guidance=guidance,
                         guidance_for=guidance_for or build_guidance,
-                        show_progress=show_progress, on_step=on_step, depth_ahead=depth_ahead,
+                        show_progress=show_progress, on_step=on_step, options=options,
                         on_failure=failure, on_done=done,
                     )  # fmt: skip
         except RunInterrupted as stop:

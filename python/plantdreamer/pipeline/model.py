@@ -22,11 +22,9 @@ if TYPE_CHECKING:
     from plantdreamer.rasterizer import SceneMap
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-# torch's Adam implementation for the Gaussians: "foreach" gives the bits of the
+# torch's Adam for the Gaussians runs as its "foreach" implementation: the bits of the
 # single-tensor loop (tests/test_model_adam.py) in fewer torch calls, each an OpenMP region
-# the host waits on; benches/bench_throughput.py --adam compares them.
-ADAM_IMPLEMENTATION = "foreach"
-ADAM_FOREACH = {"single": False, "foreach": True}
+# the host waits on; measured faster (BENCHMARKS.md, "torch's Adam").
 
 
 class _Activations(torch.autograd.Function):
@@ -90,7 +88,7 @@ class GaussianModel:
             self.optimizer = torch.optim.Adam(
                 [{"params": [self.params[k]], "lr": rates[k], "name": k} for k in PARAM_NAMES],
                 eps=lr.eps,
-                foreach=ADAM_FOREACH[ADAM_IMPLEMENTATION],
+                foreach=True,
             )
 
     def __len__(self) -> int:
@@ -208,7 +206,7 @@ class GaussianModel:
             self.optimizer.load_state_dict(state["optimizer"])
             # The implementation is this build's, not the checkpoint's (the same bits).
             for group in self.optimizer.param_groups:
-                group["foreach"] = ADAM_FOREACH[ADAM_IMPLEMENTATION]
+                group["foreach"] = True
 
 
 class RenderInputs:

@@ -133,7 +133,7 @@ class Counter:
 
 
 class PhaseTimer:
-    """Seconds spent per phase of a run (``with timer("render"): ...``), summed."""
+    """Seconds spent per phase of a run (``with timer("raster.forward"): ...``), summed."""
 
     def __init__(self, totals: dict[str, float] | None = None) -> None:
         self.totals: dict[str, float] = defaultdict(float, totals or {})

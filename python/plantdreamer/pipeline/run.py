@@ -32,6 +32,7 @@ from plantdreamer.pipeline.runtime import (
     check_models,
     resolve_runtime,
 )
+from plantdreamer.pipeline.step_options import StepOptions
 from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
 from plantdreamer.settings import canonical
 
@@ -61,7 +62,7 @@ def generate(
     overwrite: bool = False,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
-    depth_ahead: bool = True,
+    options: StepOptions | None = None,
 ) -> RunResult:
     """Runs (or resumes) a generation and writes every output into ``out_dir``.
 
@@ -73,8 +74,8 @@ def generate(
     ``guidance`` overrides the one the config names (tests inject tiny models this way).
     The caller's ``cfg`` is not changed (the run works on a copy).
     Ctrl-C is honoured at the next step boundary: a checkpoint is written, then
-    ``RunInterrupted`` is raised. ``depth_ahead`` computes the next step's depth
-    conditioning on a worker thread (same bits; False computes it in line).
+    ``RunInterrupted`` is raised. ``options``: how the step runs (``StepOptions``, the same
+    bits either way).
     """
     out_dir = Path(out_dir)
     if cfg is None and not resume:
@@ -99,7 +100,7 @@ def generate(
         )  # fmt: skip
         results = train_plants(
             [started], out_dir, guidance=guidance, show_progress=show_progress,
-            on_step=on_step, depth_ahead=depth_ahead,
+            on_step=on_step, options=options,
         )  # fmt: skip
         return results[out_dir]
 
@@ -163,7 +164,7 @@ def train_plants(
     guidance_for: GuidanceFor = build_guidance,
     show_progress: bool = True,
     on_step: Callable[[int], None] | None = None,
-    depth_ahead: bool = True,
+    options: StepOptions | None = None,
     on_failure: Callable[[PlantRun, BaseException], None] | None = None,
     on_done: Callable[[PlantRun, RunResult], None] | None = None,
 ) -> dict[Path, RunResult]:
@@ -181,7 +182,7 @@ def train_plants(
         restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
         if show_progress:
             print(f"resuming at step {plants[0].state.step}", file=sys.stderr)
-    trainer = Trainer(plants, guidance, depth_ahead=depth_ahead,
+    trainer = Trainer(plants, guidance, options=options,
                       isolate_failures=on_failure is not None, out_dir=out_dir)  # fmt: skip
     device = str(getattr(guidance, "device", "cpu"))
     results: dict[Path, RunResult] = {}

@@ -1,16 +1,16 @@
 """One training step of a trainer's plants: as one batch, or as two halves in flight.
 
-One batch (``overlap`` off, or a single plant): the plants render (one native call for all
+One batch (``overlap`` off; a single plant is a batch of one): the plants render (one native call for all
 of them, their scenes side by side on the rasterizer's pool), one guidance call runs on the
 batch, its gradient goes back to the renders, the rasterizer backwards run (again one native
 call), then each plant's Adam update and density control. Each plant's host work around
 the native calls (its arguments, its share of the backward past them, gradient checks,
-Adam, density statistics) runs on the schedule's thread pool, one task per plant: numpy
+Adam, density statistics) runs on the trainer's host pool, one task per plant: numpy
 and torch release the GIL, so B plants' host work spreads over the cores rather than
 queueing on one thread (the same bits: each plant's operations are its own, in its own
 order).
 
-Two halves (``overlap`` on, two plants or more): the plants are split once, A the first
+Two halves (``overlap`` on): the plants are split once, A the first
 ceil(B/2) and B the rest. A launch queues a half's device work and returns at once
 (``guidance/in_flight.py``); the host waits only when it needs that half's gradient:
 
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +49,7 @@ from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.model import GaussianModel, RenderInputs, render_many
 from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.pipeline.step_options import StepOptions
 
 
 @dataclass
@@ -76,22 +77,13 @@ class _Launched:
     renders: list[tuple[torch.Tensor, torch.Tensor, dict]]
     flight: InFlight
     # The renders came from one native call (one autograd node) with their inputs cut
-    # from each plant's parameters (``RenderInputs``); empty: one call per plant.
+    # from each plant's parameters (``RenderInputs``).
     cuts: list[RenderInputs]
 
 
 class StepSchedule:
     """Runs each step of ``plants`` (module docstring); ``run_ahead(step)`` says whether the
     first half of step + 1 may be launched during ``step`` (no checkpoint or stop between)."""
-
-    # Several plants' renders as one native call each way (``render_many``, the same bits
-    # as one call per plant); False renders each plant on its own thread, kept for the
-    # comparison (benches/bench_throughput.py --raster-batch).
-    raster_batch: bool = True
-    # Each plant's host work on the pool, one task per plant; False runs it one plant after
-    # another on the calling thread, kept for the comparison (bench_throughput.py
-    # --plant-work). The same bits either way (tests/test_raster_many.py).
-    plants_in_parallel: bool = True
 
     def __init__(
         self,
@@ -100,22 +92,20 @@ class StepSchedule:
         *,
         overlap: bool,
         isolate_failures: bool,
+        options: StepOptions,
+        pool: Executor,
         run_ahead: Callable[[int], bool],
     ) -> None:
         self.plants, self.guidance = plants, guidance
         self.cfg = plants[0].cfg
-        self.isolate, self.run_ahead = isolate_failures, run_ahead
-        cut = (len(plants) + 1) // 2 if overlap and len(plants) > 1 else len(plants)
+        self.isolate, self.run_ahead, self.options = isolate_failures, run_ahead, options
+        cut = (len(plants) + 1) // 2 if overlap else len(plants)
         self.halves = [list(range(cut)), list(range(cut, len(plants)))]
         self.pending: _Launched | None = None  # the first half of the next step, launched
-        self._pool = ThreadPoolExecutor(len(plants)) if len(plants) > 1 else None
+        self._pool = pool  # the trainer's
 
     def alive(self) -> list[int]:
         return [i for i, p in enumerate(self.plants) if p.error is None]
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
 
     def step_end(self, step: int, plants: list[int]) -> None:
         for i in plants:
@@ -142,10 +132,8 @@ class StepSchedule:
             losses.append(self._finish(work, step))
             self.step_end(step, work.plants)
             first = [i for i in work.plants if self.plants[i].error is None]
-            if j == 0 and len(launched) > 1 and first and self.run_ahead(step):
+            if j + 1 < len(launched) and first and self.run_ahead(step):
                 self.pending = self._launch(first, step + 1, step + 2 < self.cfg.train.steps)
-        if len(losses) == 1:
-            return losses[0]
         sizes = [len(w.plants) for w in launched]
         return sum(v * n for v, n in zip(losses, sizes, strict=True)) / sum(sizes)
 
@@ -162,37 +150,27 @@ class StepSchedule:
             self.plants[i].state.timer.totals[name] += first[name] - before
 
     def _map(self, fn: Callable[[int], Any], items: Sequence[int]) -> list[Any]:
-        if self._pool is None or len(items) == 1:
-            return [fn(i) for i in items]
+        """``[fn(i) for i in items]``, each plant's host work a task of the pool."""
         return list(self._pool.map(fn, items))
-
-    def _map_plants(self, fn: Callable[[int], Any], items: Sequence[int]) -> list[Any]:
-        """``_map`` where each plant's host work runs on the pool, else one after another."""
-        return self._map(fn, items) if self.plants_in_parallel else [fn(i) for i in items]
 
     def _launch(self, plants: list[int], step: int, more: bool) -> _Launched:
         group = [self.plants[i] for i in plants]
         cameras = [p.state.sampler.sample() for p in group]
         background = self.cfg.train.background
 
-        def render(k: int):
-            with record_function(f"render plant {plants[k]}"):
-                return group[k].state.model.render([cameras[k]], background)
-
-        batched = self.raster_batch and len(group) > 1
-        with self._timed("render"):
-            if batched:
-                models = [p.state.model for p in group]
-                renders = []
-                rendered, cuts = render_many(models, cameras, background, self._map_plants)
-                for p, r in zip(group, rendered, strict=True):
-                    if isinstance(r, Exception):
-                        raise type(r)(f"{p.out_dir.name}: {r}")
-                    renders.append(r)
-            else:
-                renders, cuts = self._map(render, list(range(len(group)))), []
+        with self._timed("raster.forward"):
+            models = [p.state.model for p in group]
+            renders = []
+            rendered, cuts = render_many(models, cameras, background, self._map)
+            for p, r in zip(group, rendered, strict=True):
+                if isinstance(r, Exception):
+                    raise type(r)(f"{p.out_dir.name}: {r}")
+                renders.append(r)
         batch = self._batch([r[0] for r in renders])
-        flight = launch_guidance(self.guidance, batch, plants, cameras, step, more, self._timed)
+        flight = launch_guidance(
+            self.guidance, batch, plants, cameras, step, more, self._timed,
+            sleeping_wait=self.options.sleeping_wait,
+        )  # fmt: skip
         return _Launched(plants, cameras, renders, flight, cuts)
 
     def _batch(self, images: list[torch.Tensor]) -> torch.Tensor:
@@ -201,24 +179,22 @@ class StepSchedule:
         memory, so that the copy to the device is one DMA transfer with no staging copy
         (``transfer.to_device``'s ``pin_memory`` returns a pinned tensor as it is)."""
         pinned = self.guidance.device.type == "cuda"
-        if len(images) == 1 and not pinned:
-            return images[0]
         first = images[0]
         batch = torch.empty((len(images), *first.shape[1:]), dtype=first.dtype, pin_memory=pinned)
 
         def copy(k: int) -> None:
             batch[k : k + 1].copy_(images[k].detach())
 
-        self._map_plants(copy, range(len(images)))
+        self._map(copy, range(len(images)))
         return batch
 
     def _finish(self, work: _Launched, step: int) -> float:
         """Waits for a launched half's gradient, back-propagates it through the rasterizer
         and updates its plants; a plant that fails is recorded (``isolate_failures``)."""
         group = [self.plants[i] for i in work.plants]
-        with self._timed("guidance"):  # the wait for the device
+        with self._timed("guidance.wait"):
             out = work.flight.wait()
-        with self._timed("backward"):
+        with self._timed("raster.backward"):
             for p in group:
                 optimizer = p.state.model.optimizer
                 assert optimizer is not None  # the models are built with learning rates
@@ -226,15 +202,10 @@ class StepSchedule:
             images = [r[0] for r in work.renders]
             grads = out.grads
 
-            def backward(k: int) -> None:
-                with record_function(f"backward plant {work.plants[k]}"):
-                    images[k].backward(grads[k : k + 1])
-
-            if work.cuts:  # one node holds every render: one backward for all, to the cuts
-                torch.autograd.backward(images, [grads[k : k + 1] for k in range(len(group))])
-                self._map_plants(lambda k: work.cuts[k].backward(), range(len(group)))
-            else:
-                self._map(backward, list(range(len(group))))
+            # One node holds every render: one backward for all, to the cuts, then each
+            # plant's share past them on the pool.
+            torch.autograd.backward(images, [grads[k : k + 1] for k in range(len(group))])
+            self._map(lambda k: work.cuts[k].backward(), range(len(group)))
         loss = out.loss
         # A non-finite loss fails the plants whose renders got non-finite gradients (all of
         # them when none did): one plant's NaN must not stop the others.
@@ -260,25 +231,15 @@ class StepSchedule:
                 p.state.log_rows.append(row | plant_stats(out.stats, k, len(group)))
                 return None
 
-            # A single run (not isolating) stops at its first failure, as in plant order.
-            run = self._map_plants if self.isolate else _one_after_another_until_failure
-            for p, failure in zip(group, run(update, range(len(group))), strict=False):
+            failures = self._map(update, range(len(group)))
+            for p, failure in zip(group, failures, strict=True):
                 if failure is not None:
-                    if not self.isolate:
-                        raise failure
                     p.error = str(failure)
+        # A single run (not isolating) raises its first failure, in plant order.
+        first_failure = next((f for f in failures if f is not None), None)
+        if first_failure is not None and not self.isolate:
+            raise first_failure
         return loss
-
-
-def _one_after_another_until_failure(
-    fn: Callable[[int], PlantDreamerError | None], items: Sequence[int]
-) -> list[PlantDreamerError | None]:
-    out: list[PlantDreamerError | None] = []
-    for i in items:
-        out.append(fn(i))
-        if out[-1] is not None:
-            break
-    return out
 
 
 def plant_stats(stats: dict[str, float | list[float]], k: int, batch: int) -> dict[str, Any]:

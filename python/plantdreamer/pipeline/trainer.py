@@ -2,23 +2,27 @@
 run state: model, optimiser, cameras, density control, log and folder) and one guidance that
 owns their depth conditioning, and calls each at fixed points of a step:
 
-    cameras -> renders (one thread per plant) -> the guidance call on the batch
-    -> backward to the renders -> rasterizer backwards (one thread per plant)
-    -> per plant: density.after_backward, Adam, density.step_end -> checkpoints when due
+    cameras -> the renders (one native call for every plant) -> the guidance on the batch
+    -> its backward to the renders -> the rasterizer backward (one native call)
+    -> per plant, on the step's pool: density.after_backward, Adam -> density.step_end
+    -> checkpoints when due
 
 and, after the last step, a final checkpoint (a run stopped during its export resumes with
 the export). The trainer writes the checkpoints and reads nothing back: a resume reads them
 through the same ``PlantCheckpoints`` (``run.py``).
 
-The step itself (``step_schedule.py``) runs the group as one batch or, with ``overlap``, as
-two halves in flight, one half's host work beside the other's device work. One plant is a
-batch of one. In a group a plant that fails (NaN, ...) is recorded and dropped; the others
-go on.
+The step itself (``step_schedule.py``, drawn in docs/step.md) runs the plants as one batch
+or, with ``overlap``, as two halves in flight, one half's host work beside the other's
+device work; one plant is a batch of one, through the same calls. The trainer decides
+when the next step may start early (``_may_run_ahead``: not before a checkpoint, a stop or
+the end). A plant that fails (NaN, ...) is recorded: a group drops it and goes on, a
+single run raises it once the step's updates are done.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -32,6 +36,7 @@ from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP, write_progress
+from plantdreamer.pipeline.step_options import StepOptions
 from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
 from plantdreamer.stop_signals import stop_signals_handled
 
@@ -52,12 +57,14 @@ class Trainer:
         plants: list[PlantRun],
         guidance: Guidance,
         *,
-        depth_ahead: bool = True,
+        options: StepOptions | None = None,
         isolate_failures: bool = False,
         out_dir: Path | None = None,
     ) -> None:
-        """``isolate_failures``: a failing plant is recorded and dropped (a group) rather
+        """``options``: how the step runs (``StepOptions``, the same bits either way).
+        ``isolate_failures``: a failing plant is recorded and dropped (a group) rather
         than raised (a single run). ``out_dir`` is the folder ``RunInterrupted`` names."""
+        options = options or StepOptions()
         from plantdreamer.guidance.base import NoGuidance
 
         self.plants, self.raw_guidance = plants, guidance
@@ -65,6 +72,9 @@ class Trainer:
         self.trains = not isinstance(guidance, NoGuidance)
         self.isolate = isolate_failures
         self.out_dir = out_dir if out_dir is not None else plants[0].out_dir
+        # The step's one host pool: each plant's host work of a step, and each plant's
+        # depth map of the next step beside it (so two tasks per plant at most).
+        self.pool = ThreadPoolExecutor(2 * len(plants), thread_name_prefix="step")
         initials = [GaussianModel(p.state.initial) for p in plants]  # the depth maps' scenes
         self.guidance = ConditionedGuidance(
             guidance,
@@ -73,7 +83,7 @@ class Trainer:
             depth_rule=self.cfg.sds.depth_rule,
             control_resize=self.cfg.sds.control_resize,
             erosion_distance=self.cfg.sds.erosion_distance,
-            ahead=depth_ahead,
+            ahead=self.pool if options.depth_ahead else None,
         )
         # ``auto`` decided here, where the guidance's device is known; run.json and the
         # checkpoints record the value used, so a resume keeps it.
@@ -85,6 +95,8 @@ class Trainer:
             self.guidance,
             overlap=overlap,
             isolate_failures=isolate_failures,
+            options=options,
+            pool=self.pool,
             run_ahead=self._may_run_ahead,
         )
         self._stop_requested = False
@@ -164,7 +176,7 @@ class Trainer:
         finally:
             progress.close()
             self.guidance.close()
-            self.schedule.close()
+            self.pool.shutdown()
 
     def _pictures(self) -> str:
         """Where the latest progress pictures are (the first plant's, for a group)."""
