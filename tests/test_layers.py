@@ -56,11 +56,11 @@ PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
         "a plant's parts: model, cameras, density control, labels, outputs, progress",
         {"model", "sampler", "source", "init", "culling", "density", "density_ops"}
         | {"ground_truth", "label_channels", "label_pieces", "dataset_export", "outputs"}
-        | {"progress", "train_config", "step_options"},
+        | {"progress", "progress_pictures", "train_config", "step_options"},
     ),
     (
-        "settings: the config, presets, the resolved run",
-        {"config", "presets", "resolved"} | {"runtime", "group_record"},
+        "settings: the config, presets, the resolved run, what a run writes",
+        {"config", "presets", "resolved"} | {"runtime", "group_record", "run_outputs"},
     ),
     ("a run's state and its checkpoints", {"run_state", "checkpoint", "rerender"}),
     ("the training step and its loop", {"step_schedule", "trainer"}),
