@@ -147,7 +147,8 @@ def test_dataset_seeds_name_the_plants_generate_seeds_names(tmp_path):
     for seeds in (["--seeds", "0-3"], ["--seeds", "0,1,2-3"], ["--count", "4"],
                   ["--seeds", "0-3", "--count", "4", "--seed-start", "0"]):  # fmt: skip
         result = CliRunner().invoke(main, ["dataset", "--species", "bean", *seeds, "--guidance",
-                                           "none", "--dry-run", "--out", str(tmp_path)])  # fmt: skip
+                                           "none", "--dry-run", "--allow-empty-split", "--out",
+                                           str(tmp_path)])  # fmt: skip
         assert result.exit_code == 0, result.output
         assert [line.split()[-1] for line in result.output.splitlines()[1:]] == named, seeds
     args = ["--species", "bean", "--guidance", "none"]
@@ -188,7 +189,7 @@ def test_a_group_spells_seeds_and_pointcloud_as_the_options_do(tmp_path):
     assert [p.id for p in expand(same)] == ["a-s0002", "a-s0003"]
     folder = str(tmp_path / "a.ply")
     result = CliRunner().invoke(main, ["dataset", "--pointcloud", folder, "--species", "bean",
-                                       "--seeds", "2-3,7", "--dry-run", "--out",
+                                       "--seeds", "2-3,7", "--dry-run", "--allow-empty-split", "--out",
                                        str(tmp_path / "d")])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert [line.split()[-1] for line in result.output.splitlines()[1:]] == [
