@@ -215,7 +215,7 @@ def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
     report = json.loads(out.read_text())
     assert report["steps"] == 3 and report["models"] == "tiny"
     for phase in (
-        "render",
+        "raster.forward",
         "depth",
         "transfer",
         "text",
