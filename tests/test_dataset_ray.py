@@ -55,13 +55,52 @@ def direct_ply(tmp_path, **settings):
     return (out / "plant.ply").read_bytes()
 
 
+def listening_sockets():
+    """(process name, address, port) of every TCP socket that this process (the Ray driver)
+    and the processes it started (Ray's) listen on."""
+    import psutil
+
+    me = psutil.Process()
+    names = {p.pid: p.name() for p in me.children(recursive=True)} | {me.pid: "driver"}
+    return [
+        (names[c.pid], c.laddr.ip, c.laddr.port)
+        for c in psutil.net_connections("tcp")
+        if c.status == psutil.CONN_LISTEN and c.pid in names
+    ]
+
+
 @pytest.fixture(scope="module")
-def six_plants(tmp_path_factory):
+def local_ray_sockets():
+    """Filled by ``six_plants`` with the listening sockets of its local Ray, taken as the
+    command stops it (its workers still up)."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def six_plants(tmp_path_factory, local_ray_sockets):
     out = tmp_path_factory.mktemp("six")
     args = ["dataset", "--species", "bean,mint,kale", "--count", "2", "--local-cpus", "2"]
-    result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
+    shutdown = ray.shutdown
+
+    def shutdown_after_a_look(*a, **kw):
+        local_ray_sockets.extend(listening_sockets())
+        return shutdown(*a, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ray, "shutdown", shutdown_after_a_look)
+        result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
     assert not ray.is_initialized()  # the command stopped the Ray it started
     return out, args, result
+
+
+def test_the_local_ray_listens_on_loopback_only(six_plants, local_ray_sockets):
+    from plantdreamer.dataset.engine import is_loopback
+
+    assert six_plants[2].exit_code == 0, six_plants[2].output
+    names = {name for name, _, _ in local_ray_sockets}
+    assert {"gcs_server", "raylet", "driver"} <= names, local_ray_sockets
+    assert any(name.startswith("ray::") for name in names)  # a worker, an agent
+    assert [s for s in local_ray_sockets if not is_loopback(s[1])] == []
 
 
 def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):

@@ -7,7 +7,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.dataset import config_hash, expand, load_spec
-from plantdreamer.dataset.engine import RAY_MISSING, plant_demand
+from plantdreamer.dataset.engine import RAY_MISSING, is_loopback, plant_demand, private_token
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline import GenerateConfig
@@ -211,3 +211,35 @@ def test_log_mode_numbers_each_finished_plant_and_gives_the_time_left(capsys, mo
         "[1/4] done        bean-s0000  28.0 s  eta 1 min 30 s",
         "[2/4] failed      bean-s0001  no such file  eta 1 min 00 s",
     ]
+
+
+def test_a_local_ray_without_token_authentication_is_refused(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    args = ["dataset", "--species", "bean", "--guidance", "none", "--allow-empty-split"]
+    result = CliRunner().invoke(main, [*args, "--out", str(tmp_path)])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert "error: RAY_AUTH_MODE=disabled would start the local Ray without token" in result.output
+    assert "--address" in result.output  # how to choose otherwise
+
+
+def test_the_ray_token_file_is_readable_by_its_owner_alone(tmp_path):
+    token = tmp_path / ".ray" / "auth_token"
+    private_token(token)
+    assert oct(token.stat().st_mode & 0o777) == "0o600" and len(token.read_text()) == 64
+    before = token.read_bytes()
+    private_token(token)  # kept as it is
+    assert token.read_bytes() == before and list(token.parent.iterdir()) == [token]
+    token.chmod(0o644)
+    with pytest.warns(UserWarning, match="readable by other users"):
+        private_token(token)
+    assert oct(token.stat().st_mode & 0o777) == "0o600" and token.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("host", "loopback"),
+    [("127.0.0.1", True), ("127.3.2.1", True), ("::1", True), ("::ffff:127.0.0.1", True),
+     ("0.0.0.0", False), ("::", False), ("192.0.2.2", False), ("::ffff:192.0.2.2", False)],
+)  # fmt: skip
+def test_loopback_addresses(host, loopback):
+    assert is_loopback(host) is loopback

@@ -252,3 +252,43 @@ def test_a_float_label_column_with_whole_values_is_shown(tmp_path, random_gaussi
     _core.write_ply_vertex(str(tmp_path / "float.ply"), fields, True, [])
     scene = load_scene(tmp_path / "float.ply")
     assert scene.labels is not None and scene.labels.tolist() == [1, 2, 3, 4, -1]
+
+
+def _http_status(port: int, host: str, path: str = "/", extra: str = "") -> int:
+    """The status of a raw GET to 127.0.0.1:port sent with ``Host: host``."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as conn:
+        conn.sendall(f"GET {path} HTTP/1.1\r\nHost: {host}\r\n{extra}\r\n".encode())
+        return int(conn.recv(1024).split(b" ", 2)[1])
+
+
+def test_only_loopback_hosts_and_the_viewers_own_page_are_answered(tmp_path, random_gaussians):
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from plantdreamer.viewer.server import LoopbackGuard, start_viewer
+
+    write_splat_ply(tmp_path / "g.ply", random_gaussians(50))
+    port = free_port()
+    viewer = start_viewer(load_scene(tmp_path / "g.ply"), port)
+    own = f"127.0.0.1:{port}"
+    socket_url, protocol = f"ws://{own}", f"viser-v{viser.__version__}"
+    try:
+        for host in (own, f"localhost:{port}", f"127.1.2.3:{port}", f"[::1]:{port}"):
+            assert _http_status(port, host) == 200, host
+        for host in ("evil.example", f"evil.example:{port}", f"127.0.0.1:{port + 1}",
+                     f"192.0.2.1:{port}", f"127.0.0.1.evil.example:{port}"):  # fmt: skip
+            assert _http_status(port, host) == 403, host
+        with connect(socket_url, origin=f"http://{own}", subprotocols=[protocol]) as ws:
+            assert ws.subprotocol == protocol and ws.recv(timeout=10)  # the scene arrives
+        for origin in ("http://evil.example", f"http://localhost:{port}", "null", None):
+            with pytest.raises(InvalidStatus, match="403"):
+                connect(socket_url, origin=origin, subprotocols=[protocol], open_timeout=10)
+        # A WebSocket whose Host is foreign (DNS rebinding), with a matching Origin.
+        upgrade = ("Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
+                   "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n")  # fmt: skip
+        rebound = f"evil.example:{port}"
+        assert _http_status(port, rebound, extra=upgrade + f"Origin: http://{rebound}\r\n") == 403
+    finally:
+        viewer.stop()
+    assert not LoopbackGuard(80).allowed_host("[::1]:8080")
+    assert LoopbackGuard(80).allowed_host("[::1]") and LoopbackGuard(80).allowed_host("localhost")

@@ -1,20 +1,26 @@
 """Ray for the dataset: joining or starting an instance, and what each plant asks of it.
 
-Without an address, Ray starts on this machine (all on 127.0.0.1, no dashboard) and stops
-with the command. With ``--address auto|HOST:PORT`` the command joins an existing cluster
-and leaves it running.
+Without an address, Ray starts on this machine and stops with the command: every process
+it starts listens on 127.0.0.1 only (no dashboard), token authentication on, the token file
+readable by its owner alone; a start that cannot promise this is refused. With
+``--address auto|HOST:PORT`` the command joins an existing cluster and leaves it running.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import math
 import os
 import signal
+import stat
+import tempfile
 import threading
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from plantdreamer.errors import InputError
@@ -33,6 +39,18 @@ LOCAL_HOST = "127.0.0.1"
 # ("Set RAY_AUTH_MODE=disabled to opt out"): the instance is ours, on 127.0.0.1, and stops
 # with the command, so the warning only tells a user about a choice that is not theirs.
 RAY_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
+# Ray swaps a node address of 127.0.0.1 for the machine's outward one (its gRPC servers then
+# listen on every interface, its runtime-env agent on that address) unless this is off; it
+# is read when ``ray`` is imported, and by the processes Ray starts.
+RAY_CLUSTER_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+RAY_AUTH_MODE_ENV = "RAY_AUTH_MODE"
+# Where Ray reads its token (the first set wins), else ~/.ray/auth_token, which
+# ray.init would write readable by every user.
+RAY_TOKEN_ENVS = ("RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")
+CHOOSE_RAY = (
+    "start Ray yourself (e.g. `ray start --head --node-ip-address 127.0.0.1`) and pass "
+    "--address to use it as it is"
+)
 
 
 def import_ray() -> Any:
@@ -130,13 +148,21 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
     previous = signal.getsignal(signal.SIGTERM)
     try:
         if address is None:
-            with _quiet_logger(RAY_AUTH_LOGGER):
+            _check_token_auth()
+            with _quiet_logger(RAY_AUTH_LOGGER), _loopback_node(ray):
                 ray.init(
                     address="local",
                     num_cpus=local_cpus or os.cpu_count() or 1,
                     include_dashboard=False,
                     _node_ip_address=LOCAL_HOST,
                     **common,
+                )
+            node = ray.util.get_node_ip_address()
+            if not is_loopback(node):
+                ray.shutdown()
+                raise InputError(
+                    f"the local Ray would listen on {node}, not on this machine alone; "
+                    + CHOOSE_RAY
                 )
         else:
             try:
@@ -150,6 +176,81 @@ def connect(address: str | None, local_cpus: int | None) -> bool:
         if threading.current_thread() is threading.main_thread() and previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return True
+
+
+def is_loopback(host: str) -> bool:
+    """127.0.0.0/8 or ::1, also as an IPv4-mapped IPv6 address (``::ffff:127.0.0.1``)."""
+    try:
+        ip = ipaddress.ip_address(host.strip("[]"))
+    except ValueError:
+        return False
+    mapped = getattr(ip, "ipv4_mapped", None)
+    return (mapped or ip).is_loopback
+
+
+@contextmanager
+def _loopback_node(ray: Any) -> Iterator[None]:
+    """Within the block, Ray keeps 127.0.0.1 as the node's address, in this process and the
+    ones it starts (which inherit the environment); a later join of a remote cluster from
+    this process finds both as they were."""
+    from ray._private import ray_constants  # the switch, when ray was imported before
+
+    env, switch = os.environ.get(RAY_CLUSTER_ENV), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[RAY_CLUSTER_ENV] = "0"
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = switch
+        if env is None:
+            os.environ.pop(RAY_CLUSTER_ENV, None)
+        else:
+            os.environ[RAY_CLUSTER_ENV] = env
+
+
+def _check_token_auth() -> None:
+    """Token authentication stays on for the local Ray: processes that run any code they are
+    sent listen on loopback, where every user of the machine reaches them. A mode other than
+    token in the environment is refused, not passed on; the default token file is made (or
+    kept) readable by its owner alone."""
+    mode = os.environ.get(RAY_AUTH_MODE_ENV)
+    if mode is not None and mode.lower() != "token":
+        raise InputError(
+            f"{RAY_AUTH_MODE_ENV}={mode} would start the local Ray without token "
+            "authentication (any user of this machine could run code as you); unset it or "
+            f"set {RAY_AUTH_MODE_ENV}=token, or {CHOOSE_RAY}"
+        )
+    if not any(os.environ.get(name) for name in RAY_TOKEN_ENVS):
+        private_token(Path.home() / ".ray" / "auth_token")
+
+
+def private_token(path: Path) -> None:
+    """Makes Ray's token file at ``path`` (a new random token, mode 0600) unless it exists;
+    one that other users can read is made 0600, with a warning."""
+    if path.exists():
+        mode = stat.S_IMODE(path.stat().st_mode)
+        if mode & 0o077:
+            path.chmod(0o600)
+            warnings.warn(
+                f"the Ray token file {path} was readable by other users (mode {mode:o}); "
+                "made it 0600",
+                stacklevel=2,
+            )
+        return
+    import secrets
+
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=".auth_token.", dir=path.parent)  # mode 0600
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(secrets.token_hex(32))  # Ray's own kind of token: 256 random bits
+            f.flush()
+            os.fsync(f.fileno())
+        os.link(name, path)  # never over a token another start wrote meanwhile
+    except FileExistsError:
+        pass
+    finally:
+        os.unlink(name)
 
 
 @contextmanager

@@ -1,14 +1,17 @@
 """Serves a SplatScene to the browser with viser until Ctrl-C.
 
 Only this module imports viser (the optional ``viewer`` extra). The server listens on
-127.0.0.1 only; the page shows the splats with viser's orbit camera, the file name, the
-Gaussian count and a colours / organ-labels toggle.
+127.0.0.1 only and answers only requests whose ``Host`` is a loopback name with its port,
+and WebSockets from its own page (a web page elsewhere in the browser, or a DNS-rebound
+site, could otherwise read the model); the page shows the splats with viser's orbit
+camera, the file name, the Gaussian count and a colours / organ-labels toggle.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import ipaddress
 import logging
 import math
 import socket
@@ -62,6 +65,73 @@ def _not_a_failed_handshake(record: logging.LogRecord) -> bool:
     return not record.getMessage().startswith("opening handshake failed")
 
 
+LOOPBACK_NAMES = ("localhost", "[::1]")
+
+
+class LoopbackGuard:
+    """Refuses (403) a request whose ``Host`` is not a loopback name with the viewer's port,
+    and a WebSocket whose ``Origin`` is not the page at that ``Host``.
+
+    viser 1.1.1 has no option for either: inside ``ViserServer()`` it starts one
+    ``websockets.asyncio.server.serve`` for its page and its socket, with its file server as
+    the ``process_request`` hook. ``installed()`` wraps ``serve`` while the constructor runs
+    (it returns once the server listens), so this check runs before viser's hook.
+    """
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self.in_place = False
+
+    def allowed_host(self, host: str) -> bool:
+        name, _, port = host.rpartition(":")
+        if host.endswith("]") or ":" not in host:  # no port: http's own, as browsers send it
+            name, port = host, "80"
+        if port != str(self.port):
+            return False
+        return name.lower() in LOOPBACK_NAMES or (
+            name.startswith("127.") and _is_ipv4_loopback(name)
+        )
+
+    def refusal(self, connection: Any, request: Any) -> Any:
+        hosts = request.headers.get_all("Host")
+        if len(hosts) != 1 or not self.allowed_host(hosts[0]):
+            return connection.respond(403, "Host not allowed\n")
+        if "Upgrade" in request.headers and request.headers.get_all("Origin") != [
+            f"http://{hosts[0]}"
+        ]:
+            return connection.respond(403, "Origin not allowed\n")
+        return None
+
+    @contextlib.contextmanager
+    def installed(self) -> Any:
+        import websockets.asyncio.server as ws
+
+        serve = ws.serve
+
+        def guarded_serve(*args: Any, process_request: Any = None, **kwargs: Any) -> Any:
+            def checked(connection: Any, request: Any) -> Any:
+                refused = self.refusal(connection, request)
+                if refused is not None or process_request is None:
+                    return refused
+                return process_request(connection, request)
+
+            self.in_place = True
+            return serve(*args, process_request=checked, **kwargs)
+
+        ws.serve = guarded_serve  # type: ignore[misc,assignment]
+        try:
+            yield
+        finally:
+            ws.serve = serve  # type: ignore[misc]
+
+
+def _is_ipv4_loopback(name: str) -> bool:
+    try:
+        return ipaddress.IPv4Address(name).is_loopback
+    except ValueError:
+        return False
+
+
 @dataclass
 class RunningViewer:
     """A started viewer: its viser server and its GUI controls by label."""
@@ -87,9 +157,13 @@ def start_viewer(
     handshake_log = logging.getLogger("websockets.server")
     if _not_a_failed_handshake not in handshake_log.filters:
         handshake_log.addFilter(_not_a_failed_handshake)
-    with contextlib.redirect_stdout(io.StringIO()):  # viser's banner; we print the URL
+    guard = LoopbackGuard(port)
+    with contextlib.redirect_stdout(io.StringIO()), guard.installed():  # viser's banner
         server = viser.ViserServer(host=HOST, port=port, label="plantdreamer", verbose=False)
     viewer = RunningViewer(server, {})
+    if not guard.in_place:  # a viser that no longer serves through websockets.serve
+        viewer.stop()
+        raise PlantDreamerError("this viser version cannot be limited to this machine's pages")
     if server.get_port() != port:  # taken between the check and the bind
         viewer.stop()
         raise InputError(f"port {port} on {HOST} is in use; choose another with --port")
