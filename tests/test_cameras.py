@@ -119,3 +119,27 @@ def test_framed_distance_keeps_every_gaussian_inside_every_view_with_the_margin(
     faint = Gaussians(means, g.quats, log_scales, np.full(n, -8.0, np.float32), g.sh)
     with pytest.raises(InputError, match="no visible Gaussian"):
         framed_distance(faint, 4, 15.0, 70.0, 32, 32)
+
+
+def test_a_model_without_strays_is_framed_on_every_gaussian_and_strays_are_left_out():
+    """Without strays the framed distance is every Gaussian's (as before strays were left
+    out); two Gaussians far from the opacity mass do not set it."""
+    import math
+
+    from plantdreamer.framing import FRAME_AZIMUTHS, framed_distance, orbit_distance
+    from plantdreamer.gaussians import Gaussians
+
+    rng = np.random.default_rng(7)
+    n = 2000
+    means = (rng.normal(size=(n, 3)) * [1.0, 0.5, 2.0]).astype(np.float32)
+    g = Gaussians(means, np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
+                  np.full((n, 3), -3.0, np.float32), np.full(n, 1.0, np.float32),
+                  np.zeros((n, 1, 3), np.float32))  # fmt: skip
+    ring = orbit_ring(FRAME_AZIMUTHS, 1.0, 20.0, 50.0, 64, 64)
+    every = math.ceil(orbit_distance(g, ring) * 1e6) / 1e6
+    assert framed_distance(g, 4, 20.0, 50.0, 64, 64) == every
+    far = means.copy()
+    far[:2] = [[500.0, 0.0, 0.0], [0.0, -500.0, 500.0]]
+    strays = g.moved(far, 0.0)
+    assert orbit_distance(strays, ring) > 50 * every  # every Gaussian: the strays set it
+    assert framed_distance(strays, 4, 20.0, 50.0, 64, 64) <= every

@@ -117,3 +117,27 @@ def test_overwrite_with_fewer_frames_leaves_none_of_the_earlier_views(model, tmp
         result = run("render", model, "--transforms", cams, "--out", out, *overwrite)
         assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.glob("*.png")) == ["mine.png", "shot_0.png"]
+
+
+def test_two_far_strays_do_not_shrink_the_rendered_subject(model, tmp_path):
+    """A model with two Gaussians moved 500 sizes away renders with the subject as large
+    as without them (the orbit's framing ignores strays)."""
+    from PIL import Image
+
+    from plantdreamer.io import read_splat_ply
+
+    g = read_splat_ply(model)
+    means = g.means.copy()
+    means[:2] = [[500.0, 0.0, 0.0], [-300.0, 200.0, 400.0]]
+    strays = tmp_path / "strays.ply"
+    write_splat_ply(strays, g.moved(means, 0.0))
+
+    def subject_pixels(ply, out):
+        result = run("render", ply, "--out", out, "--eval-views", 2, "--resolution", 64,
+                     "--turntable", "none", "--background", 1.0)  # fmt: skip
+        assert result.exit_code == 0, result.output
+        views = [np.asarray(Image.open(p).convert("L")) for p in sorted(out.glob("view_*.png"))]
+        return sum(int((v < 250).sum()) for v in views)
+
+    clean = subject_pixels(model, tmp_path / "clean")
+    assert clean > 200 and 0.7 * clean <= subject_pixels(strays, tmp_path / "strays") <= 1.3 * clean

@@ -10,7 +10,11 @@ onto +z, the orbit's up.
 
 ``framed_distance`` is the evaluation orbit's default distance: the smallest at which every
 Gaussian's 2-sigma sphere lies inside every view of the ring (``orbit_distance``), ``FRAME_MARGIN`` of the
-half-image from its border. A point p with camera-space x = a . p and depth z = d + f . p
+half-image from its border. Strays do not count there either (``without_strays``): a Gaussian
+farther from the robust centre than ``STRAY_EXTENTS`` robust sizes on some axis. A model's
+own Gaussians lie within its full box, which for a plant (and any cluster whose tails are
+not a few per cent of its opacity) is well inside twice its trimmed size, so a model without
+strays is framed exactly as before; two floaters 500 sizes away no longer shrink it to a dot. A point p with camera-space x = a . p and depth z = d + f . p
 is inside the side plane |x| = k z (k = tan(fov / 2) (1 - margin)) with a sphere of
 radius r around it when d >= (|a . p| + r sqrt(1 + k^2)) / k - f . p: linear in p per side
 of each view, so the distance is one matrix product and a maximum.
@@ -36,11 +40,13 @@ __all__ = [
     "robust_center_extent",
     "rotate_up",
     "to_scene_frame",
+    "without_strays",
 ]
 
 TRIM = 0.02  # weight trimmed on each side of every axis when measuring the size
 FRAME_MARGIN = 0.05  # of the half-image, left free around a framed model in every view
 FRAME_SIGMAS = 2.0  # a Gaussian's extent in the framing: this many of its largest sigma
+STRAY_EXTENTS = 2.0  # farther from the robust centre than this many robust sizes: a stray
 FAINT = 1.0 / 255.0  # Gaussians below this opacity draw nothing (the rasterizer skips them)
 FRAME_AZIMUTHS = 72  # an orbit of fewer views is framed on this many too (5 degrees apart)
 _CHUNK = 4096  # Gaussians per matrix product in orbit_distance (~25 MB at 192 views)
@@ -83,6 +89,16 @@ def robust_center_extent(g: Gaussians, trim: float = TRIM) -> tuple[np.ndarray, 
     if not extent > 0:  # a single point or a flat cluster: fall back to the full box
         extent = float((means.max(axis=0) - means.min(axis=0)).max()) or 1.0
     return mid, extent
+
+
+def without_strays(g: Gaussians) -> Gaussians:
+    """``g`` less its strays: the Gaussians whose mean lies farther than ``STRAY_EXTENTS``
+    robust sizes from the robust centre on some axis (``g`` itself when there are none)."""
+    mid, extent = robust_center_extent(g)
+    offset = np.abs(np.asarray(g.means, dtype=np.float64) - mid).max(axis=1)
+    near = offset <= STRAY_EXTENTS * extent  # NaN means are no strays: orbit_distance drops them
+    near |= ~np.isfinite(offset)
+    return g if near.all() else g.subset(np.flatnonzero(near))
 
 
 def rotate_up(g: Gaussians, up: str) -> Gaussians:
@@ -167,11 +183,11 @@ def framed_distance(
     g: Gaussians, views: int, elevation_deg: float, fovy_deg: float, width: int, height: int
 ) -> float:
     """The evaluation orbit's distance for ``g`` (in the scene frame, around the origin):
-    ``orbit_distance`` over the ring's ``views``, and a ring of ``FRAME_AZIMUTHS`` where the
+    ``orbit_distance`` of ``g`` less its strays over the ring's ``views``, and a ring of ``FRAME_AZIMUTHS`` where the
     orbit has fewer views, so the whole model stays in view at any azimuth (``render
     --eval-views`` of the same plant). Rounded up to 1e-6, a number that reads back the same
     (the matrix product's last bits may differ between CPUs)."""
     ring = orbit_ring(views, 1.0, elevation_deg, fovy_deg, width, height)
     if views < FRAME_AZIMUTHS:
         ring += orbit_ring(FRAME_AZIMUTHS, 1.0, elevation_deg, fovy_deg, width, height)
-    return math.ceil(orbit_distance(g, ring) * 1e6) / 1e6
+    return math.ceil(orbit_distance(without_strays(g), ring) * 1e6) / 1e6
