@@ -19,8 +19,17 @@ import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PHASES = ("raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
-          "raster.backward", "optimizer", "densify", "cull")
+PHASES = (
+    "raster.forward",
+    "depth",
+    "guidance.launch",
+    "guidance.backward",
+    "guidance.wait",
+    "raster.backward",
+    "optimizer",
+    "densify",
+    "cull",
+)
 
 
 def run(cfg, guidance=None):

@@ -224,9 +224,7 @@ def run_once(
     phases = {k: v for k, v in parts.items() if k != "raster backward"}
     guidance_s = loop_phase.get("guidance.launch", 0.0) + loop_phase.get("guidance.wait", 0.0)
     backward = loop_phase.get("guidance.backward", 0.0) + loop_phase.get("raster.backward", 0.0)
-    phases["guidance other"] = guidance_s - sum(
-        parts.get(p, 0.0) for p in GUIDANCE_PARTS
-    )
+    phases["guidance other"] = guidance_s - sum(parts.get(p, 0.0) for p in GUIDANCE_PARTS)
     phases["raster backward"] = parts.get("raster backward", 0.0)
     phases["vae backward"] = backward - phases["raster backward"]
     for name in LOOP_PHASES:

@@ -24,8 +24,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-PHASES = ("raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
-          "raster.backward", "optimizer")  # pipeline.export.STEP_PHASES
+PHASES = (
+    "raster.forward",
+    "depth",
+    "guidance.launch",
+    "guidance.backward",
+    "guidance.wait",
+    "raster.backward",
+    "optimizer",
+)  # pipeline.export.STEP_PHASES
 STEPS_PER_PLANT = 3600
 
 
