@@ -3,7 +3,11 @@
 import dataclasses
 import json
 import os
+import shutil
 import signal
+import subprocess
+import sys
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -20,12 +24,11 @@ INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2
 INRIA_SH3 = [*INRIA_SH0[:9], *(f"f_rest_{i}" for i in range(45)), *INRIA_SH0[9:]]
 
 
+SMALL = dict(points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0, guidance="none")
+
+
 def small(**kw):
-    base = dict(
-        points=1500, resolution=48, eval_views=4, turntable_frames=4, steps=0, guidance="none"
-    )
-    base.update(kw)
-    return GenerateConfig.of(**base)
+    return GenerateConfig.of(**{**SMALL, **kw})
 
 
 def photometric_guidance(seed=0):
@@ -76,12 +79,27 @@ def test_point_cloud_comes_back_in_its_original_frame(tmp_path):
     assert 0.005 < np.exp(g.log_scales).mean() < 0.2
 
 
+TINY_SDS = dict(species="mint", resolution=64, seed=3)
+
+
 def tiny_sds_guidance():
     from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
 
-    return StableDiffusionDepthGuidance(
-        species="mint", components=tiny_models(), resolution=64, seed=3
-    )
+    return StableDiffusionDepthGuidance(components=tiny_models(), **TINY_SDS)
+
+
+@contextmanager
+def cores(n: int):
+    """torch's thread count as a machine (or ``taskset``) of ``n`` cores leaves it: the count
+    torch takes from the cores the process may use."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def run_stopped_by(sig, at_step: int, cfg: dict, out, guidance) -> int:
@@ -115,13 +133,19 @@ def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
 
 @pytest.mark.parametrize("make_guidance", [photometric_guidance, tiny_sds_guidance])
 def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, make_guidance):
+    """The same bytes run after run and after a resume, on machines of one and two cores: the
+    run's torch-threads, not the cores, sets torch's sums (SDS's networks round by it)."""
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
-    full = generate(small(**cfg), tmp_path / "full", guidance=make_guidance(), show_progress=False)
-    assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", make_guidance()) == 8
+    with cores(2):
+        full = generate(small(**cfg), tmp_path / "full", guidance=make_guidance(),
+                        show_progress=False)  # fmt: skip
+    with cores(1):
+        assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", make_guidance()) == 8
     assert not (tmp_path / "cut" / "plant.ply").exists()
-    resumed = generate(
-        None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
-    )
+    with cores(2):
+        resumed = generate(
+            None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
+        )
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
     # The progress pictures of each checkpoint (5, 10, 12) and the loss plot: the same bytes.
     for name in (
@@ -141,9 +165,10 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
         assert (
             png.read_bytes() == (tmp_path / "cut" / png.relative_to(tmp_path / "full")).read_bytes()
         )
-    again = generate(
-        small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
-    )
+    with cores(1):
+        again = generate(
+            small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
+        )
     assert again.ply_path.read_bytes() == full.ply_path.read_bytes()
     for png in sorted((tmp_path / "full").glob("[lid]*/view_*.png")):  # labels, instances, depth
         assert (
@@ -157,6 +182,51 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     assert not np.array_equal(
         read_splat_ply(untrained.ply_path).sh, read_splat_ply(full.ply_path).sh
     )
+
+
+# Run in a process that may use one core: SDS on the tiny models, stopped after step 2.
+CUT_ON_ONE_CORE = """
+import json, os, signal, sys
+import torch
+from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+
+settings, sds, out = json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]
+guidance = StableDiffusionDepthGuidance(components=tiny_models(), **sds)
+
+
+def stop_after(step):
+    if step == 2:
+        os.kill(os.getpid(), signal.SIGINT)
+
+
+try:
+    generate(GenerateConfig.of(**settings), out, guidance=guidance, show_progress=False,
+             on_step=stop_after)
+except RunInterrupted as stop:
+    print(torch.get_num_threads(), stop.step)
+"""
+
+
+@pytest.mark.skipif(shutil.which("taskset") is None, reason="needs taskset (util-linux)")
+def test_sds_stopped_under_taskset_one_core_resumes_on_two_to_the_unbroken_run(tmp_path):
+    """``generate`` started under ``taskset`` on one core, stopped, then resumed where torch
+    would use two threads, writes the plant.ply of the unbroken two-core run."""
+    cfg = {**SMALL, "species": "mint", "steps": 4, "checkpoint_every": 100, "seed": 3,
+           "eval_views": 1, "turntable": "none"}  # fmt: skip
+    core = str(min(os.sched_getaffinity(0)))
+    cut = subprocess.run(
+        ["taskset", "-c", core, sys.executable, "-c", CUT_ON_ONE_CORE, json.dumps(cfg),
+         json.dumps(TINY_SDS), str(tmp_path / "cut")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert cut.stdout.split() == ["1", "3"], cut.stderr  # torch saw one core; stopped at 3
+    with cores(2):
+        resumed = generate(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
+                           show_progress=False)  # fmt: skip
+        full = generate(GenerateConfig.of(**cfg), tmp_path / "full",
+                        guidance=tiny_sds_guidance(), show_progress=False)  # fmt: skip
+    assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
 
 
 @pytest.mark.parametrize("saved_on", ["recorded", "older checkpoint"])

@@ -64,7 +64,8 @@ def import_ray() -> Any:
 @dataclass(frozen=True)
 class Demand:
     """Ray resources of one worker (a plant, or a packed group of plants); its rasterizer
-    and torch get ``threads`` threads."""
+    gets ``threads`` threads, torch its plants' ``torch-threads`` (the same bits whatever
+    the worker's CPU share)."""
 
     cpus: float
     gpus: float

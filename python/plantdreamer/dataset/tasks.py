@@ -82,7 +82,7 @@ def run_unit(
     from plantdreamer.pipeline.group import generate_group
 
     plants = request["plants"]
-    threads = set_threads(request)
+    threads = int(request["threads"])  # the rasterizer's; torch's are the plants' setting
     info = worker_info()
     for plant in plants:
         board.started.remote(plant["id"], info)
@@ -162,14 +162,6 @@ class _Tee(io.TextIOBase):
     def flush(self) -> None:
         for f in self.files:
             f.flush()
-
-
-def set_threads(request: dict[str, Any]) -> int:
-    import torch
-
-    threads = int(request["threads"])
-    torch.set_num_threads(threads)
-    return threads
 
 
 def folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:

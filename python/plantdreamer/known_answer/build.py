@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.known_answer.spec import GENERATOR_VERSION, KnownAnswerSpec, library_versions
+from plantdreamer.thread_policy import pinned_torch_threads
 
 MANIFEST = "manifest.json"
 
@@ -97,7 +98,7 @@ def build_models(
     figures: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(dir=out.parent, prefix=".known-answer-") as tmp:
         work = Path(tmp)
-        with training.pinned_threads(threads):
+        with pinned_torch_threads(threads):
             t0 = time.perf_counter()
             truth = views.true_gaussians(spec, work)
             data = views.training_views(spec, truth)

@@ -16,8 +16,6 @@ generators: same spec, thread count and library versions, same bits.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -32,18 +30,6 @@ from plantdreamer.known_answer.views import ViewSet
 VARIANCE_WEIGHT = 1.0
 VAE_LEARNING_RATE = 2e-3
 LEARNING_RATE = 1e-3
-
-
-@contextmanager
-def pinned_threads(threads: int = 1) -> Iterator[None]:
-    """Intra-op parallelism splits reductions differently per thread count: a fixed count
-    (one, by default) gives the same sums on every machine size."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _schedule(optimizer: torch.optim.Optimizer, steps: int) -> Any:

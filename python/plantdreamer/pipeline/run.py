@@ -35,6 +35,7 @@ from plantdreamer.pipeline.runtime import (
 from plantdreamer.pipeline.step_options import StepOptions
 from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
 from plantdreamer.settings import canonical
+from plantdreamer.thread_policy import pinned_torch_threads
 
 __all__ = ["RunInterrupted", "RunResult", "check_inputs", "generate"]
 
@@ -174,42 +175,44 @@ def train_plants(
     that fails (in training or its export) is reported there and the others go on (a
     group); without it the failure raises (one plant). ``on_done`` hears of each plant as
     its export ends (a stop between two exports keeps the first). ``out_dir`` is the folder
-    ``RunInterrupted`` names."""
+    ``RunInterrupted`` names. torch runs on the plants' ``torch-threads`` throughout (the
+    guidance's loading and prompts, training, export), whatever the machine's cores."""
     plants = [s.plant for s in started]
-    guidance = guidance if guidance is not None else guidance_for(plants[0].cfg)
-    saved = started[0].saved
-    if saved is not None:
-        restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
-        if show_progress:
-            print(f"resuming at step {plants[0].state.step}", file=sys.stderr)
-    trainer = Trainer(plants, guidance, options=options,
-                      isolate_failures=on_failure is not None, out_dir=out_dir)  # fmt: skip
-    device = str(getattr(guidance, "device", "cpu"))
-    results: dict[Path, RunResult] = {}
-    with trainer.stops_handled():
-        try:
-            trainer.run(show_progress, on_step)
-        finally:  # the plants that failed in training, reported however the run ends
-            for p in plants:
-                if p.error is not None and on_failure is not None:
-                    on_failure(p, PlantFailure(p.error))
-        for p in plants:
-            if p.error is not None:
-                continue
-            trainer.stop_point()
-            resolution = p.cfg.train.resolution
-            assert resolution is not None
+    with pinned_torch_threads(plants[0].cfg.train.torch_threads):
+        guidance = guidance if guidance is not None else guidance_for(plants[0].cfg)
+        saved = started[0].saved
+        if saved is not None:
+            restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
+            if show_progress:
+                print(f"resuming at step {plants[0].state.step}", file=sys.stderr)
+        trainer = Trainer(plants, guidance, options=options,
+                          isolate_failures=on_failure is not None, out_dir=out_dir)  # fmt: skip
+        device = str(getattr(guidance, "device", "cpu"))
+        results: dict[Path, RunResult] = {}
+        with trainer.stops_handled():
             try:
-                results[p.out_dir] = export_run(
-                    p.cfg, p.state, p.out_dir, resolution, device, show_progress
-                )
-            except Exception as exc:
-                if on_failure is None:
-                    raise
-                on_failure(p, exc)
-                continue
-            if on_done is not None:
-                on_done(p, results[p.out_dir])
+                trainer.run(show_progress, on_step)
+            finally:  # the plants that failed in training, reported however the run ends
+                for p in plants:
+                    if p.error is not None and on_failure is not None:
+                        on_failure(p, PlantFailure(p.error))
+            for p in plants:
+                if p.error is not None:
+                    continue
+                trainer.stop_point()
+                resolution = p.cfg.train.resolution
+                assert resolution is not None
+                try:
+                    results[p.out_dir] = export_run(
+                        p.cfg, p.state, p.out_dir, resolution, device, show_progress
+                    )
+                except Exception as exc:
+                    if on_failure is None:
+                        raise
+                    on_failure(p, exc)
+                    continue
+                if on_done is not None:
+                    on_done(p, results[p.out_dir])
     return results
 
 

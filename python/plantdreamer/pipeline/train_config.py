@@ -108,6 +108,13 @@ class TrainConfig:
         "with it on and off (docs/scaling.md).",
         choices=OVERLAP_CHOICES,
     )
+    torch_threads: int = setting(
+        1,
+        "torch's CPU threads for the run (the networks on the CPU, the losses): their sums "
+        "round by the thread count, so a fixed count gives the same bits on any machine, "
+        "whatever its cores (docs/scaling.md). The rasterizer uses every core either way.",
+        range=(1, 1024),
+    )
     lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))
     cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))
 
