@@ -19,17 +19,6 @@ import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PHASES = (
-    "raster.forward",
-    "depth",
-    "guidance.launch",
-    "guidance.backward",
-    "guidance.wait",
-    "raster.backward",
-    "optimizer",
-    "densify",
-    "cull",
-)
 
 
 def run(cfg, guidance=None):
@@ -61,6 +50,8 @@ def main() -> int:
     wall, summary = run(sds_cfg, guidance)
     rows.append((f"tiny SDS ({steps} steps)", wall, summary))
 
+    from plantdreamer.pipeline.export import STEP_PHASES
+
     lines = [
         "## Generation pipeline (`benches/bench_generate.py`)\n",
         "Command: `python benches/run_all.py generate`. L-System bean, seed 0, 100k points,",
@@ -69,14 +60,14 @@ def main() -> int:
         "(evaluation orbit) and the total are seconds. Measured on a shared, loaded 2-core",
         "machine: treat them as upper bounds.\n",
         "| guidance | "
-        + " | ".join(f"{p} (ms/step)" for p in PHASES[:5])
+        + " | ".join(f"{p} (ms/step)" for p in STEP_PHASES)
         + " | densify + cull (s) | prepare (s) | renders (s) | total (s) |",
-        "|---|" + "---|" * 9,
+        "|---|" + "---|" * (len(STEP_PHASES) + 4),
     ]
     for name, wall, s in rows:
         per = s["per_step_s"]
         t = s["timings_s"]
-        cells = [f"{1000 * per[p]:.1f}" if p in per else "-" for p in PHASES[:5]]
+        cells = [f"{1000 * per[p]:.1f}" if p in per else "-" for p in STEP_PHASES]
         lines.append(
             f"| {name} | "
             + " | ".join(cells)

@@ -24,15 +24,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-PHASES = (
-    "raster.forward",
-    "depth",
-    "guidance.launch",
-    "guidance.backward",
-    "guidance.wait",
-    "raster.backward",
-    "optimizer",
-)  # pipeline.export.STEP_PHASES
 STEPS_PER_PLANT = 3600
 
 
@@ -68,11 +59,13 @@ def _one_run(args: argparse.Namespace, b: int, base: Path, control: Path, out: P
         rc = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT)
     wall = time.perf_counter() - t0
     records = [json.loads(line) for line in (work / "manifest.jsonl").read_text().splitlines()]
+    from plantdreamer.pipeline.export import STEP_PHASES
+
     units: dict[tuple[str, ...], float] = {}
     for r in records:
         if r["status"] == "done":
             key = tuple(r.get("trained_with", [r["id"]]))
-            units[key] = sum(r["timings_s"].get(p, 0.0) for p in PHASES)
+            units[key] = sum(r["timings_s"].get(p, 0.0) for p in STEP_PHASES)
     train_s = sum(units.values()) * STEPS_PER_PLANT / args.steps
     done = sum(r["status"] == "done" for r in records)
     return {

@@ -7,7 +7,6 @@ import shutil
 import signal
 import subprocess
 import sys
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import ModelNotFoundError
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
 from plantdreamer.pipeline.export import STEP_PHASES
+from plantdreamer.thread_policy import pinned_torch_threads
 
 INRIA_SH0 = "x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
 # By default plant.ply has SH degree 3 (zero-padded), the f_rest count INRIA's loader asserts.
@@ -88,18 +88,9 @@ def tiny_sds_guidance():
     return StableDiffusionDepthGuidance(components=tiny_models(), **TINY_SDS)
 
 
-@contextmanager
-def cores(n: int):
-    """torch's thread count as a machine (or ``taskset``) of ``n`` cores leaves it: the count
-    torch takes from the cores the process may use."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+# torch's thread count as a machine (or ``taskset``) of n cores leaves it: the count torch
+# takes from the cores the process may use.
+cores = pinned_torch_threads
 
 
 def run_stopped_by(sig, at_step: int, cfg: dict, out, guidance) -> int:

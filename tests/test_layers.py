@@ -29,7 +29,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("native", {"_core"}),
     (
         "foundation: errors, files, settings, seeds, process state",
-        {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder"}
+        {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder", "digests"}
         | {"settings", "seeds", "thread_policy", "stop_signals"},
     ),
     (

@@ -9,19 +9,21 @@ from pathlib import Path
 
 # Extras for the people who build plantdreamer, not for its users.
 _BUILDER_EXTRAS = ("dev", "bench")
-# The file each kind of model has at the top of its snapshot, to find the snapshot.
-_MARKERS = {"base": "unet/config.json", "controlnet": "config.json"}
 
 
 def model_row(ident: str, kind: str) -> tuple[bool, str]:
     """A base model (``kind`` "base") or ControlNet ("controlnet") by hub id or folder."""
-    from plantdreamer.guidance.models import missing_base_parts, missing_controlnet_parts
+    from plantdreamer.guidance.models import (
+        MODEL_MARKERS,
+        missing_base_parts,
+        missing_controlnet_parts,
+    )
 
     missing_parts = missing_base_parts if kind == "base" else missing_controlnet_parts
     folder = Path(ident)
     where = f"folder {ident}"
     if not folder.is_dir():
-        snapshot = _cached_snapshot(ident, _MARKERS[kind])
+        snapshot = _cached_snapshot(ident, MODEL_MARKERS[kind])
         if snapshot is None:
             option = "--base-model" if kind == "base" else "--controlnet"
             return False, (

@@ -7,7 +7,6 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 from plantdreamer.pipeline.config import GenerateConfig
 
@@ -39,12 +38,3 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     if source_digest is not None:
         text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def file_digest(path: Path) -> str:
-    """SHA-256 of a file's contents (read in 1 MiB blocks)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            digest.update(block)
-    return digest.hexdigest()

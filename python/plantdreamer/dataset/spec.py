@@ -44,7 +44,8 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.dataset import packing
-from plantdreamer.dataset.plant import Plant, config_hash, file_digest
+from plantdreamer.dataset.plant import Plant, config_hash
+from plantdreamer.digests import file_digest
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.presets import resolve_config

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer import atomic
+from plantdreamer.digests import file_digest
 from plantdreamer.exports.listing import PlantEntry
 
 README_FILE = "README.md"
@@ -303,7 +304,7 @@ def _model_hash(ident: str, marker: str) -> str | None:
         for path in sorted(folder.rglob("*")):
             if path.suffix in (".safetensors", ".bin") and path.is_file():
                 digest.update(path.relative_to(folder).as_posix().encode() + b"\0")
-                digest.update(_file_sha256(path).encode())
+                digest.update(file_digest(path).encode())
         return "sha256:" + digest.hexdigest()
     try:
         from huggingface_hub import try_to_load_from_cache
@@ -322,12 +323,4 @@ def _lora_hash(lora: str) -> str | None:
     path = Path(lora)
     if path.is_dir():
         path = path / LORA_WEIGHT_NAME
-    return "sha256:" + _file_sha256(path) if path.is_file() else None
-
-
-def _file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            digest.update(block)
-    return digest.hexdigest()
+    return "sha256:" + file_digest(path) if path.is_file() else None

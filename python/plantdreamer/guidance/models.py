@@ -272,6 +272,10 @@ def _load_errors() -> tuple[type[BaseException], ...]:
     return (OSError, HFValidationError)
 
 
+# The file at the top of each kind of model's snapshot: it finds the snapshot in the cache.
+MODEL_MARKERS = {"base": "unet/config.json", "controlnet": "config.json"}
+
+
 def check_model_present(identifier: str, kind: str) -> None:
     """Raises ModelNotFoundError when the ``kind`` ("base" or "controlnet") model cannot be
     there, found without loading it or reaching the network: a local folder that lacks a
@@ -296,8 +300,7 @@ def check_model_present(identifier: str, kind: str) -> None:
     if hub_offline():
         from huggingface_hub import try_to_load_from_cache
 
-        config = "unet/config.json" if kind == "base" else "config.json"
-        if not isinstance(try_to_load_from_cache(identifier, config), str):
+        if not isinstance(try_to_load_from_cache(identifier, MODEL_MARKERS[kind]), str):
             raise model_not_found(identifier, what, option, True)
 
 
