@@ -116,8 +116,9 @@ def instrument(guidance: Any, clock: Clock) -> TimedCore:
     import torch
 
     from plantdreamer import rasterizer
-    from plantdreamer.pipeline import density, step_schedule
+    from plantdreamer.pipeline import density
     from plantdreamer.pipeline import progress as loop
+    from plantdreamer.pipeline.step import schedule, update
 
     timed_phase = loop.PhaseTimer.__call__
 
@@ -127,15 +128,21 @@ def instrument(guidance: Any, clock: Clock) -> TimedCore:
             yield
 
     loop.PhaseTimer.__call__ = recorded  # type: ignore[method-assign]
+    timed_step_phase = schedule.StepSchedule._timed
+
+    @contextmanager
+    def recorded_step_phase(self: Any, name: str, plants: Any) -> Iterator[None]:
+        with clock("loop:" + name), timed_step_phase(self, name, plants):
+            yield
+
+    schedule.StepSchedule._timed = recorded_step_phase  # type: ignore[method-assign]
     for part in ("text_embedding", "noise_prediction", "encode"):
         setattr(guidance, part, clock.wrap("networks", getattr(guidance, part)))
     core = TimedCore(rasterizer._core, clock)
     rasterizer._core = core  # type: ignore[assignment]
     fn = rasterizer._RasterizeManyFunction
     fn.backward = staticmethod(clock.wrap("rasterizer backward", fn.backward))
-    step_schedule.check_finite_gradients = clock.wrap(
-        "gradient check", step_schedule.check_finite_gradients
-    )
+    update.check_finite_gradients = clock.wrap("gradient check", update.check_finite_gradients)
     ctl = density.DensityControl
     ctl.after_backward = clock.wrap("density statistics", ctl.after_backward)  # type: ignore[method-assign]
     torch.optim.Adam.step = clock.wrap("adam", torch.optim.Adam.step)  # type: ignore[method-assign]
@@ -199,7 +206,7 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     from bench_gpu import build_guidance
 
     from plantdreamer.pipeline import GenerateConfig, generate
-    from plantdreamer.pipeline import trainer as trainer_module
+    from plantdreamer.pipeline.step import schedule
 
     guidance = build_guidance(True, "cpu", args.sds)
     clock = Clock()
@@ -217,14 +224,14 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     )
     stamps: list[float] = []
     held: dict[str, Any] = {}
-    train_step = trainer_module.Trainer.train_step
+    train_step = schedule.StepSchedule.train_step
 
     def keep(self: Any, step: int) -> float:  # the model and its sampler, for `alone`
         held["model"] = self.plants[0].state.model
         held["sampler"] = self.plants[0].state.sampler
         return train_step(self, step)
 
-    trainer_module.Trainer.train_step = keep  # type: ignore[method-assign]
+    schedule.StepSchedule.train_step = keep  # type: ignore[method-assign]
     with tempfile.TemporaryDirectory() as tmp:
         generate(
             cfg,

@@ -14,8 +14,9 @@ CUDA-graph captures and first prompt encodes fall in them):
   / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
   (on the CPU the tiny networks' arithmetic is in it too);
 * ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
-  guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer) from plant
-  0's run.json, means over every step;
+  guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer), ms per
+  group step, means over every step: the sum of the plants' run.json figures (each plant
+  records its share of a phase that ran for several);
 * ``peak_cuda_gib``: ``torch.cuda.max_memory_allocated`` over the run (null on the CPU).
 
 Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` networks on the CPU
@@ -299,14 +300,14 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
             hook.stop()
         if result.failed:
             raise SystemExit(f"error: plants failed: {result.failed}")
-        run = json.loads((Path(tmp) / "bean-s0000" / "run.json").read_text())
-    timings = run["timings_s"]
+        runs = [json.loads(p.read_text()) for p in sorted(Path(tmp).glob("*/run.json"))]
+    timings = {k: sum(r["timings_s"].get(k, 0.0) for r in runs) for k in PHASES}
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
                            "cuda_wait": v.cuda_wait}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
-    out["gaussians_final"] = run["gaussians"]["final"]  # plant 0's
+    out["gaussians_final"] = runs[0]["gaussians"]["final"]  # plant 0's
     out["peak_cuda_gib"] = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
     out["wall_s"] = wall
     return out

@@ -7,8 +7,8 @@ For each B of ``--groups`` (default 1 and 4), a dataset of ``--plants`` L-System
 every GPU of the machine. The report gives each run's exit status and wall time (Ray
 start, model loading and exports included), every plant's status, the worker processes
 that ran them (one per GPU: the models loaded once each), and plants per hour per GPU,
-projected to 3600-step plants from the training phases the manifest records (a packed
-group's phases once; units one after another on the GPU). With SDS a plant made in a
+projected to 3600-step plants from the training phases the manifest records (each plant
+its share of its group's; units one after another on the GPU). With SDS a plant made in a
 group is not the plant made alone, so the runs are compared by their statuses only.
 Writes ``OUT/dataset.json``.
 """
@@ -61,13 +61,12 @@ def _one_run(args: argparse.Namespace, b: int, base: Path, control: Path, out: P
     records = [json.loads(line) for line in (work / "manifest.jsonl").read_text().splitlines()]
     from plantdreamer.pipeline.export import STEP_PHASES
 
-    units: dict[tuple[str, ...], float] = {}
-    for r in records:
-        if r["status"] == "done":
-            key = tuple(r.get("trained_with", [r["id"]]))
-            units[key] = sum(r["timings_s"].get(p, 0.0) for p in STEP_PHASES)
-    train_s = sum(units.values()) * STEPS_PER_PLANT / args.steps
-    done = sum(r["status"] == "done" for r in records)
+    done_records = [r for r in records if r["status"] == "done"]
+    units = {tuple(r.get("trained_with", [r["id"]])) for r in done_records}
+    # Each plant records its share of its group's phases: the sum is the GPU's time.
+    phases = sum(r["timings_s"].get(p, 0.0) for r in done_records for p in STEP_PHASES)
+    train_s = phases * STEPS_PER_PLANT / args.steps
+    done = len(done_records)
     return {
         "B": b,
         "rc": rc,

@@ -181,7 +181,7 @@ def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
 def test_the_finite_gradient_check_is_exact_when_a_finite_sum_overflows():
     from types import SimpleNamespace
 
-    from plantdreamer.pipeline.step_schedule import (
+    from plantdreamer.pipeline.step.update import (
         check_finite_gradients as _check_finite_gradients,
     )
 
@@ -379,15 +379,15 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
     returns: under CUDA's sync debug mode "error" any host sync in it raises. The first
     launches capture the graphs and the view prompts are encoded beforehand (one-off syncs)."""
     from plantdreamer.guidance.prompts import VIEWS, base_prompt
-    from plantdreamer.pipeline import step_schedule
     from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline.step import schedule
 
     guidance = tiny_sds(device="cuda")
     for view in VIEWS:
         guidance.text_embedding(f"{base_prompt(guidance.species, guidance.prompt_template)}, "
                                 f"{view} view")  # fmt: skip
     guidance.text_embedding(guidance.negative_prompt)
-    launch, launches = step_schedule.launch_guidance, []
+    launch, launches = schedule.launch_guidance, []
 
     def strict_launch(*args, **kwargs):
         launches.append(1)
@@ -399,7 +399,7 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
         finally:
             torch.cuda.set_sync_debug_mode("default")
 
-    monkeypatch.setattr(step_schedule, "launch_guidance", strict_launch)
+    monkeypatch.setattr(schedule, "launch_guidance", strict_launch)
     cfgs = [small_sds(seed=s, steps=4, overlap="on", device="cuda") for s in range(4)]
     result = generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
     assert not result.failed and len(launches) == 8

@@ -366,3 +366,22 @@ def test_view_with_its_port_taken_is_refused_before_the_run(tmp_path):
     assert result.exit_code == 1, result.output
     assert f"port {port} on 127.0.0.1 is in use; choose another with --port" in result.output
     assert not out.exists()
+
+
+def test_each_plant_records_its_share_of_the_groups_phases(tmp_path, monkeypatch):
+    """A phase that ran for several plants is shared among them: with every phase taking
+    exactly one tick, the halves of a group of three (two plants, then one) record a half
+    and a whole per step; the plants sum to the group's time."""
+    from plantdreamer.pipeline.export import STEP_PHASES
+    from plantdreamer.pipeline.step import schedule
+
+    ticks = iter(range(10**6))
+    monkeypatch.setattr(schedule, "perf_counter", lambda: float(next(ticks)))
+    cfgs = [GenerateConfig.of(species="mint", seed=s, steps=2, overlap="on", **SMALL)
+            for s in (0, 1, 2)]  # fmt: skip
+    result = generate_group(cfgs, tmp_path / "g", guidance=tiny_sds(), show_progress=False)
+    names = ["mint-s0000", "mint-s0001", "mint-s0002"]
+    for name, share in zip(names, [1.0, 1.0, 2.0], strict=True):
+        timings = result.done[name].timings
+        for phase in STEP_PHASES:
+            assert timings[phase] == pytest.approx(share), (name, phase)

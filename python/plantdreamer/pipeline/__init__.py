@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
     from plantdreamer.pipeline.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
-    from plantdreamer.pipeline.step_options import StepOptions
+    from plantdreamer.pipeline.step.options import StepOptions
 
 __all__ = [
     "PRESETS",
@@ -32,7 +32,7 @@ _MODULES = {
     "RunInterrupted": "plantdreamer.pipeline.run",
     "RunResult": "plantdreamer.pipeline.run",
     "generate": "plantdreamer.pipeline.run",
-    "StepOptions": "plantdreamer.pipeline.step_options",
+    "StepOptions": "plantdreamer.pipeline.step.options",
 }
 
 

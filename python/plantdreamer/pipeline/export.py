@@ -30,7 +30,8 @@ from plantdreamer.versions import package_versions
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native
 # render of the plants, the depth maps taken, the guidance's launch (networks queued, or
 # run on the CPU), its backward to the renders, the host's wait for the device, the
-# rasterizer's backward past the renders, and the checks and Adam (docs/step.md).
+# rasterizer's backward past the renders, and the checks and Adam (docs/step.md). A plant
+# of a group records its share of each: the group's plants sum to the group's time.
 STEP_PHASES = (
     "raster.forward", "depth", "guidance.launch", "guidance.backward", "guidance.wait",
     "raster.backward", "optimizer",

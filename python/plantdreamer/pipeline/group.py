@@ -57,7 +57,7 @@ from plantdreamer.pipeline.run import (
     train_plants,
 )
 from plantdreamer.pipeline.runtime import build_guidance, check_inputs, check_models
-from plantdreamer.pipeline.step_options import StepOptions
+from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.trainer import PlantRun
 
 __all__ = [

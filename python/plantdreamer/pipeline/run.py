@@ -32,7 +32,7 @@ from plantdreamer.pipeline.runtime import (
     check_models,
     resolve_runtime,
 )
-from plantdreamer.pipeline.step_options import StepOptions
+from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.trainer import PlantRun, RunInterrupted, Trainer
 from plantdreamer.settings import canonical
 from plantdreamer.thread_policy import pinned_torch_threads

@@ -11,12 +11,13 @@ and, after the last step, a final checkpoint (a run stopped during its export re
 the export). The trainer writes the checkpoints and reads nothing back: a resume reads them
 through the same ``PlantCheckpoints`` (``run.py``).
 
-The step itself (``step_schedule.py``, drawn in docs/step.md) runs the plants as one batch
+The step itself (``step/schedule.py``, drawn in docs/step.md) runs the plants as one batch
 or, with ``overlap``, as two halves in flight, one half's host work beside the other's
-device work; one plant is a batch of one, through the same calls. The trainer decides
-when the next step may start early (``_may_run_ahead``: not before a checkpoint, a stop or
-the end). A plant that fails (NaN, ...) is recorded: a group drops it and goes on, a
-single run raises it once the step's updates are done.
+device work; one plant is a batch of one, through the same calls. The schedule also holds
+the rules of when the next step may start early and when a requested stop is honoured;
+the trainer turns a stop signal into that request and writes the checkpoints. A plant
+that fails (NaN, ...) is recorded: a group drops it and goes on, a single run raises it
+once the step's updates are done.
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP, write_progress
-from plantdreamer.pipeline.step_options import StepOptions
-from plantdreamer.pipeline.step_schedule import PlantRun, StepSchedule, resolve_overlap
+from plantdreamer.pipeline.step.options import StepOptions
+from plantdreamer.pipeline.step.plant import PlantRun
+from plantdreamer.pipeline.step.schedule import StepSchedule, resolve_overlap
 from plantdreamer.stop_signals import stop_signals_handled
 
 __all__ = ["PlantRun", "RunInterrupted", "Trainer"]
@@ -97,9 +99,7 @@ class Trainer:
             isolate_failures=isolate_failures,
             options=options,
             pool=self.pool,
-            run_ahead=self._may_run_ahead,
         )
-        self._stop_requested = False
 
     def _depth_renderer(self, initial: GaussianModel):
         def render_depth(camera):
@@ -112,13 +112,6 @@ class Trainer:
     def alive(self) -> list[int]:
         return self.schedule.alive()
 
-    def _may_run_ahead(self, step: int) -> bool:
-        """Whether step + 1 may start during ``step``: not at a checkpoint (which must hold
-        no work in flight), a requested stop or the end."""
-        nxt = step + 1
-        every = self.cfg.train.checkpoint_every
-        return nxt < self.cfg.train.steps and nxt % every != 0 and not self._stop_requested
-
     @contextmanager
     def stops_handled(self) -> Iterator[None]:
         """Ctrl-C and SIGTERM inside the block ask the run to stop: the training loop writes
@@ -130,7 +123,7 @@ class Trainer:
     def stop_point(self) -> None:
         """Raises ``RunInterrupted`` if a stop was asked for (the plants' training is over
         and checkpointed: a resume only exports)."""
-        if self._stop_requested:
+        if self.schedule.stop_requested:
             raise RunInterrupted(self.cfg.train.steps, self.out_dir)
 
     def run(self, show_progress: bool = True, on_step: Callable[[int], None] | None = None) -> None:
@@ -149,8 +142,7 @@ class Trainer:
         )
         try:
             for step in range(first.step, steps):
-                # With a half in flight the stop waits a step: the run ahead stops.
-                if self._stop_requested and self.schedule.pending is None:
+                if self.schedule.stop_due():
                     self.checkpoint(step)
                     raise RunInterrupted(step, self.out_dir)
                 if self.trains:
@@ -181,12 +173,12 @@ class Trainer:
     def _pictures(self) -> str:
         """Where the latest progress pictures are (the first plant's, for a group)."""
         first = self.plants[0].out_dir / PROGRESS_STRIP
-        return f"{first} (each plant's folder)" if len(self.plants) > 1 else str(first)
+        return f"{first} (one in each plant's folder)"
 
     def _request_stop(self, signum, frame) -> None:
-        if self._stop_requested:  # a second Ctrl-C or SIGTERM: stop now
+        if self.schedule.stop_requested:  # a second Ctrl-C or SIGTERM: stop now
             raise KeyboardInterrupt
-        self._stop_requested = True
+        self.schedule.stop_requested = True
 
     def checkpoint(self, step: int) -> None:
         """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``;

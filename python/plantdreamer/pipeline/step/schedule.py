@@ -21,9 +21,13 @@ ceil(B/2) and B the rest. A launch queues a half's device work and returns at on
     render B(k+1), launch B(k+1) ...
 
 What cannot overlap: a plant's render at step k+1 needs its own step k's Adam update and
-density control, so a half's host work can only hide the other half's device work. A(k+1)
-is launched during step k except before a checkpoint, a requested stop and the last step:
-there the pipeline drains, so a checkpoint never holds work in flight. Every plant's work,
+density control, so a half's host work can only hide the other half's device work.
+
+The run-ahead rule (``may_run_ahead``): A(k+1) is launched during step k except before a
+checkpoint, a requested stop and the last step: there the pipeline drains, so a
+checkpoint never holds work in flight. The stop rule (``stop_due``): a requested stop
+(Ctrl-C, SIGTERM: ``stop_requested``) is honoured at the first step boundary with
+nothing in flight, where the trainer checkpoints and stops. Every plant's work,
 and every draw from the guidance's generator (A(k), B(k), A(k+1), ...), comes in the same
 order whether or not A(k+1) went early, so draining (and resuming) changes no bits.
 """
@@ -33,9 +37,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
-from pathlib import Path
+from time import perf_counter
 from typing import Any
 
 import torch
@@ -45,21 +49,10 @@ from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import GaussianModel, RenderInputs, render_many
-from plantdreamer.pipeline.outputs import samples_cell
-from plantdreamer.pipeline.run_state import RunState
-from plantdreamer.pipeline.step_options import StepOptions
-
-
-@dataclass
-class PlantRun:
-    """One plant of a trainer: its settings, state and folder; ``error`` once it failed."""
-
-    cfg: GenerateConfig
-    state: RunState
-    out_dir: Path
-    error: str | None = None
+from plantdreamer.pipeline.model import RenderInputs, render_many
+from plantdreamer.pipeline.step.options import StepOptions
+from plantdreamer.pipeline.step.plant import PlantRun
+from plantdreamer.pipeline.step.update import update_plant
 
 
 def resolve_overlap(setting: str, device: torch.device, plants: int) -> bool:
@@ -82,8 +75,8 @@ class _Launched:
 
 
 class StepSchedule:
-    """Runs each step of ``plants`` (module docstring); ``run_ahead(step)`` says whether the
-    first half of step + 1 may be launched during ``step`` (no checkpoint or stop between)."""
+    """Runs each step of ``plants`` (module docstring): the overlap order, the run-ahead
+    and the stop rule."""
 
     def __init__(
         self,
@@ -94,15 +87,27 @@ class StepSchedule:
         isolate_failures: bool,
         options: StepOptions,
         pool: Executor,
-        run_ahead: Callable[[int], bool],
     ) -> None:
         self.plants, self.guidance = plants, guidance
         self.cfg = plants[0].cfg
-        self.isolate, self.run_ahead, self.options = isolate_failures, run_ahead, options
+        self.isolate, self.options = isolate_failures, options
+        self.stop_requested = False  # set by the trainer's signal handler
         cut = (len(plants) + 1) // 2 if overlap else len(plants)
         self.halves = [list(range(cut)), list(range(cut, len(plants)))]
         self.pending: _Launched | None = None  # the first half of the next step, launched
         self._pool = pool  # the trainer's
+
+    def may_run_ahead(self, step: int) -> bool:
+        """Whether step + 1 may start during ``step``: not at a checkpoint (which must hold
+        no work in flight), a requested stop or the end."""
+        nxt = step + 1
+        every = self.cfg.train.checkpoint_every
+        return nxt < self.cfg.train.steps and nxt % every != 0 and not self.stop_requested
+
+    def stop_due(self) -> bool:
+        """A stop was requested and no work is in flight: stop before the next step (with a
+        half in flight the stop waits a step, as the run-ahead stops)."""
+        return self.stop_requested and self.pending is None
 
     def alive(self) -> list[int]:
         return [i for i, p in enumerate(self.plants) if p.error is None]
@@ -132,22 +137,27 @@ class StepSchedule:
             losses.append(self._finish(work, step))
             self.step_end(step, work.plants)
             first = [i for i in work.plants if self.plants[i].error is None]
-            if j + 1 < len(launched) and first and self.run_ahead(step):
+            if j + 1 < len(launched) and first and self.may_run_ahead(step):
                 self.pending = self._launch(first, step + 1, step + 2 < self.cfg.train.steps)
         sizes = [len(w.plants) for w in launched]
         return sum(v * n for v, n in zip(losses, sizes, strict=True)) / sum(sizes)
 
     @contextmanager
-    def _timed(self, name: str) -> Iterator[None]:
-        """One phase of the step, its wall time added to every live plant (the group's), and
-        a named range of a profiler's timeline (benches/bench_throughput.py --trace)."""
-        plants = self.alive()
-        first = self.plants[plants[0]].state.timer.totals
-        before = first[name]
-        with self.plants[plants[0]].state.timer(name), record_function(name):
+    def _timed(self, name: str, plants: Sequence[int]) -> Iterator[None]:
+        """One phase of the step for ``plants`` (the part it ran for), and a named range of
+        a profiler's timeline (benches/bench_throughput.py --trace). Its wall time is
+        shared evenly among those plants: the calls run their scenes together, so each
+        plant's figures are its share and a group's plants sum to the group's time."""
+        t0 = perf_counter()
+        with record_function(name):
             yield
-        for i in plants[1:]:
-            self.plants[i].state.timer.totals[name] += first[name] - before
+        share = (perf_counter() - t0) / len(plants)
+        for i in plants:
+            self.plants[i].state.timer.totals[name] += share
+
+    def _timer(self, plants: Sequence[int]) -> Callable[[str], AbstractContextManager[None]]:
+        """``_timed`` for the phases of ``plants``, as the guidance's calls take a timer."""
+        return lambda name: self._timed(name, plants)
 
     def _map(self, fn: Callable[[int], Any], items: Sequence[int]) -> list[Any]:
         """``[fn(i) for i in items]``, each plant's host work a task of the pool."""
@@ -158,7 +168,7 @@ class StepSchedule:
         cameras = [p.state.sampler.sample() for p in group]
         background = self.cfg.train.background
 
-        with self._timed("raster.forward"):
+        with self._timed("raster.forward", plants):
             models = [p.state.model for p in group]
             renders = []
             rendered, cuts = render_many(models, cameras, background, self._map)
@@ -168,7 +178,7 @@ class StepSchedule:
                 renders.append(r)
         batch = self._batch([r[0] for r in renders])
         flight = launch_guidance(
-            self.guidance, batch, plants, cameras, step, more, self._timed,
+            self.guidance, batch, plants, cameras, step, more, self._timer(plants),
             sleeping_wait=self.options.sleeping_wait,
         )  # fmt: skip
         return _Launched(plants, cameras, renders, flight, cuts)
@@ -192,9 +202,9 @@ class StepSchedule:
         """Waits for a launched half's gradient, back-propagates it through the rasterizer
         and updates its plants; a plant that fails is recorded (``isolate_failures``)."""
         group = [self.plants[i] for i in work.plants]
-        with self._timed("guidance.wait"):
+        with self._timed("guidance.wait", work.plants):
             out = work.flight.wait()
-        with self._timed("raster.backward"):
+        with self._timed("raster.backward", work.plants):
             for p in group:
                 optimizer = p.state.model.optimizer
                 assert optimizer is not None  # the models are built with learning rates
@@ -213,23 +223,13 @@ class StepSchedule:
         if not math.isfinite(loss):
             culprits = {k for k in range(len(group)) if not bool(grads[k].isfinite().all())}
             culprits = culprits or set(range(len(group)))
-        with self._timed("optimizer"):  # per-plant checks and Adam, the group's time
+        with self._timed("optimizer", work.plants):  # per-plant checks and Adam
 
             def update(k: int) -> PlantDreamerError | None:
-                p = group[k]
-                try:
-                    check_finite_gradients(p.state.model, step)
-                    if k in culprits:
-                        raise PlantDreamerError(
-                            f"loss became {loss} at step {step}; stopping (no output written)"
-                        )
-                except PlantDreamerError as exc:
-                    return exc
-                p.state.density.after_backward(step, work.renders[k][2], work.cameras[k])
-                p.state.model.optimizer.step()  # type: ignore[union-attr]
-                row = {"step": step, "loss": loss, "gaussians": len(p.state.model)}
-                p.state.log_rows.append(row | plant_stats(out.stats, k, len(group)))
-                return None
+                return update_plant(
+                    group[k], step, loss, k in culprits, work.renders[k][2], work.cameras[k],
+                    out.stats, k, len(group),
+                )  # fmt: skip
 
             failures = self._map(update, range(len(group)))
             for p, failure in zip(group, failures, strict=True):
@@ -240,33 +240,3 @@ class StepSchedule:
         if first_failure is not None and not self.isolate:
             raise first_failure
         return loss
-
-
-def plant_stats(stats: dict[str, float | list[float]], k: int, batch: int) -> dict[str, Any]:
-    """The guidance's figures as the ``k``-th plant of a ``batch`` logs them: the batch's
-    numbers as they are, and of each per-sample figure its own sample's only (one camera
-    per plant and step), written as a log.csv cell."""
-    own: dict[str, Any] = {}
-    for key, value in stats.items():
-        if isinstance(value, list):
-            assert len(value) == batch, (key, len(value), batch)
-            own[key] = samples_cell(value[k : k + 1])
-        else:
-            own[key] = value
-    return own
-
-
-def check_finite_gradients(model: GaussianModel, step: int) -> None:
-    """Stops before a NaN or Inf gradient reaches the Gaussians through Adam (whose moments
-    it would poison for every later step)."""
-    for name, p in model.params.items():
-        # A finite sum proves every value finite (one reduction, no mask); only a non-finite
-        # one (a bad value, or rarely an overflowing sum) runs the exact test.
-        if p.grad is None or math.isfinite(float(p.grad.sum())):
-            continue
-        if not bool(torch.isfinite(p.grad).all()):
-            bad = int((~torch.isfinite(p.grad)).sum())
-            raise PlantDreamerError(
-                f"non-finite gradient on the Gaussians' {name} ({bad} values) at step {step}; "
-                "stopping (no output written)"
-            )
