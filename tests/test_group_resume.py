@@ -112,7 +112,7 @@ def test_plants_killed_between_two_checkpoint_writes_resume_from_their_common_st
     killed_in_a_subprocess(out, textwrap.dedent("""
         write = checkpoint.PlantCheckpoints.write
         def second_plant_dies(self, record):
-            if record["step"] == 4 and self.folder.name == "mint-s0001":
+            if record.step == 4 and self.folder.name == "mint-s0001":
                 os.kill(os.getpid(), signal.SIGKILL)
             write(self, record)
         checkpoint.PlantCheckpoints.write = second_plant_dies

@@ -9,7 +9,8 @@ import torch
 
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted
 from plantdreamer.pipeline.group import generate_group
-from plantdreamer.pipeline.step.schedule import StepSchedule, resolve_overlap
+from plantdreamer.pipeline.runtime import resolve_overlap
+from plantdreamer.pipeline.step.schedule import StepSchedule
 from test_group import SMALL, _stop_at, outputs_of, tiny_sds
 
 NAMES = [f"mint-s{s:04d}" for s in range(4)]

@@ -1,7 +1,8 @@
 """Resumable checkpoints of a generation run (``OUT/checkpoint.pt``), written atomically.
 
-A checkpoint is the config, ``RunState.state_dict()`` and the guidance's noise state. Older
-formats still load where their contents carry over exactly; others fail with one line.
+A checkpoint is a ``CheckpointRecord``: the config, ``RunState.state_dict()`` and the
+guidance's noise state, built (for the trainer) and taken apart (for a resume) here only.
+Older formats still load where their contents carry over exactly; others fail with one line.
 
 ``PlantCheckpoints`` writes a plant's checkpoints (for the trainer) and reads them back (for a
 resume), one object for both. Plants trained together write one after another, so a kill
@@ -13,6 +14,7 @@ finds a step that every plant of the group can start from (``common_starts``).
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +34,46 @@ if TYPE_CHECKING:
 #    state under "density". Format 3 converts exactly (each old key has one new name).
 FORMAT_VERSION = 4
 _CONVERTS = (3,)
+# The entries of the guidance's noise generator (``noise_state``).
+_NOISE_KEYS = ("guidance", "guidance_device")
+
+
+@dataclass
+class CheckpointRecord:
+    """One plant's checkpoint: its settings (``config``, a resolved run's), its run state
+    (``RunState.state_dict()``) and the guidance's noise state (``noise_state``)."""
+
+    config: GenerateConfig
+    state: dict[str, Any]
+    noise: dict[str, Any]
+
+    @property
+    def step(self) -> int:
+        return int(self.state["step"])
+
+    @classmethod
+    def of(cls, config: GenerateConfig, state: RunState, generator: Any) -> CheckpointRecord:
+        return cls(config, state.state_dict(), noise_state(generator))
+
+    def to_saved(self) -> dict[str, Any]:
+        """The file's contents (format ``FORMAT_VERSION``, plain data and tensors)."""
+        return {"config": self.config.to_dict(), **self.state, **self.noise}
+
+    @classmethod
+    def from_saved(cls, saved: dict[str, Any], path: Path) -> CheckpointRecord:
+        """A loaded checkpoint file's record; CheckpointError when its config or step
+        cannot be read."""
+        from plantdreamer.pipeline.config import GenerateConfig
+
+        try:
+            config = GenerateConfig.from_dict(saved["config"])
+            config.validate()
+            int(saved["step"])
+        except (KeyError, TypeError, ValueError, InputError) as exc:
+            raise CheckpointError(f"{path}: damaged checkpoint, bad config ({exc})") from exc
+        noise = {k: saved[k] for k in _NOISE_KEYS if k in saved}
+        state = {k: v for k, v in saved.items() if k not in ("format", "config", *_NOISE_KEYS)}
+        return cls(config, state, noise)
 
 
 def save_checkpoint(out_dir: Path, state: dict[str, Any]) -> Path:
@@ -61,12 +103,12 @@ class PlantCheckpoints:
     def __init__(self, folder: Path) -> None:
         self.folder = Path(folder)
 
-    def write(self, record: dict[str, Any]) -> None:
+    def write(self, record: CheckpointRecord) -> None:
         """The next checkpoint; the current one is kept as the previous until ``commit``."""
         current = self.folder / CHECKPOINT_NAME
         if current.is_file():
             os.replace(current, self.folder / PREVIOUS_NAME)
-        save_checkpoint(self.folder, record)
+        save_checkpoint(self.folder, record.to_saved())
 
     def commit(self) -> None:
         """Every plant trained beside this one holds the new step: the previous one goes."""
@@ -81,21 +123,24 @@ class PlantCheckpoints:
                 found.setdefault(_step_of(path), name)
         return found
 
-    def read(self, name: str = CHECKPOINT_NAME) -> dict[str, Any]:
+    def read(self, name: str = CHECKPOINT_NAME) -> CheckpointRecord:
         """The checkpoint in file ``name``, which becomes the folder's one checkpoint."""
-        saved = load_checkpoint(self.folder, name)
+        record = CheckpointRecord.from_saved(
+            load_checkpoint(self.folder, name), self.folder / CHECKPOINT_NAME
+        )
         if name == PREVIOUS_NAME:
             os.replace(self.folder / PREVIOUS_NAME, self.folder / CHECKPOINT_NAME)
         else:
             self.commit()
-        return saved
+        return record
 
-    def restore(self, cfg: GenerateConfig, resolution: int, saved: dict[str, Any]) -> RunState:
-        """The run state a checkpoint holds; CheckpointError when it is damaged."""
+    def restore(self, cfg: GenerateConfig, record: CheckpointRecord) -> RunState:
+        """The run state a checkpoint holds, for the run's ``cfg`` (the record's, with the
+        changes a resume allows); CheckpointError when it is damaged."""
         from plantdreamer.pipeline.run_state import RunState
 
         try:
-            return RunState.resumed(cfg, resolution, saved)
+            return RunState.resumed(cfg, record.state)
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
             raise damaged(self.folder / CHECKPOINT_NAME, exc) from exc
 
@@ -150,11 +195,12 @@ def noise_state(generator: Any) -> dict[str, Any]:
     return {"guidance": generator.get_state(), "guidance_device": generator.device.type}
 
 
-def restore_noise_state(generator: Any, saved: dict[str, Any], where: Path) -> None:
+def restore_noise_state(generator: Any, record: CheckpointRecord, where: Path) -> None:
     """Sets the guidance's noise generator to the checkpoint's state, so the resumed run draws
     the same noise. A state drawn on another kind of device (a CPU run resumed on CUDA, or a
     checkpoint from before the CUDA generator moved onto the GPU) cannot go on with the
     same noise: one line says so rather than torch's error."""
+    saved = record.noise
     state = saved.get("guidance")
     if state is None:
         return

@@ -51,7 +51,6 @@ def export_run(
     cfg: GenerateConfig,
     state: RunState,
     out: Path,
-    resolution: int,
     device: str,
     show_progress: bool = False,
 ) -> RunResult:
@@ -87,7 +86,7 @@ def export_run(
     with timer("renders"), torch.no_grad():
         # Each view's render, then its ground truth (which reuses the render's footprints),
         # on the orbit framed on what plant.ply holds unless the distance is given.
-        cameras, eval_distance = outputs.eval_orbit(oc, scene, resolution)
+        cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
         with Counter("export: views", len(cameras), show_progress) as counter:

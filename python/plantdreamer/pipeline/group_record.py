@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,12 +47,8 @@ def check_group_size(plants: int, what: str = "a group") -> None:
         )
 
 
-def new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str, Any]:
-    """The record of a new group (every plant ``running``); ``dirs``: the plants' folders,
-    named by them (a dataset's), else ``OUT/<plant_name>``."""
-    if not cfgs:
-        raise InputError("a group needs at least one plant")
-    check_group_size(len(cfgs))
+def check_shared(cfgs: Sequence[GenerateConfig]) -> None:
+    """InputError unless the plants share every setting but the ``PER_PLANT`` ones."""
     shared = [{k: v for k, v in c.settings().items() if k not in PER_PLANT} for c in cfgs]
     if any(s != shared[0] for s in shared[1:]):
         differ = sorted({k for s in shared[1:] for k in s if s[k] != shared[0][k]})
@@ -59,6 +56,15 @@ def new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str,
             f"plants of one group share every setting but {' and '.join(PER_PLANT)}; "
             f"these differ: {', '.join(differ)}"
         )
+
+
+def new_record(cfgs: list[GenerateConfig], dirs: list[Path] | None) -> dict[str, Any]:
+    """The record of a new group (every plant ``running``); ``dirs``: the plants' folders,
+    named by them (a dataset's), else ``OUT/<plant_name>``."""
+    if not cfgs:
+        raise InputError("a group needs at least one plant")
+    check_group_size(len(cfgs))
+    check_shared(cfgs)
     names = [plant_name(c) for c in cfgs] if dirs is None else [d.name for d in dirs]
     if len(set(names)) != len(names):
         raise InputError("two plants of the group have the same name (species or file, seed)")

@@ -14,11 +14,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder, remove_owned
 from plantdreamer.pipeline.checkpoint import (
     CHECKPOINT_NAME,
+    CheckpointRecord,
     PlantCheckpoints,
     restore_noise_state,
 )
@@ -30,6 +33,7 @@ from plantdreamer.pipeline.runtime import (
     build_guidance,
     check_inputs,
     check_models,
+    record_overlap,
     resolve_runtime,
 )
 from plantdreamer.pipeline.step.options import StepOptions
@@ -50,7 +54,7 @@ class Started:
     """A plant ready to train, and the checkpoint it resumed from (None: a fresh start)."""
 
     plant: PlantRun
-    saved: dict[str, Any] | None
+    saved: CheckpointRecord | None
 
 
 def generate(
@@ -145,12 +149,10 @@ def start_plant(
     assert cfg is not None
     cfg = copy.deepcopy(cfg)  # the caller's config is not changed
     resolve_runtime(cfg)
-    resolution = cfg.train.resolution
-    assert resolution is not None  # resolve_runtime decides it
     if saved is None:
-        state = RunState.fresh(cfg, resolution, show_progress)
+        state = RunState.fresh(cfg, show_progress)
     else:
-        state = files.restore(cfg, resolution, saved)
+        state = files.restore(cfg, saved)
         state.events.append({"step": state.step, "event": "resumed"})
     if note is not None:
         state.events.append(note)
@@ -185,9 +187,10 @@ def train_plants(
             restore_noise_state(guidance.generator, saved, plants[0].out_dir / CHECKPOINT_NAME)
             if show_progress:
                 print(f"resuming at step {plants[0].state.step}", file=sys.stderr)
+        device = str(getattr(guidance, "device", "cpu"))
+        record_overlap([p.cfg for p in plants], torch.device(device))
         trainer = Trainer(plants, guidance, options=options,
                           isolate_failures=on_failure is not None, out_dir=out_dir)  # fmt: skip
-        device = str(getattr(guidance, "device", "cpu"))
         results: dict[Path, RunResult] = {}
         with trainer.stops_handled():
             try:
@@ -200,11 +203,9 @@ def train_plants(
                 if p.error is not None:
                     continue
                 trainer.stop_point()
-                resolution = p.cfg.train.resolution
-                assert resolution is not None
                 try:
                     results[p.out_dir] = export_run(
-                        p.cfg, p.state, p.out_dir, resolution, device, show_progress
+                        p.cfg, p.state, p.out_dir, device, show_progress
                     )
                 except Exception as exc:
                     if on_failure is None:
@@ -226,17 +227,11 @@ def remove_final_outputs(out_dir: Path) -> None:
 
 
 def resumed_config(
-    saved: dict[str, Any], changes: dict[str, Any], out_dir: Path
+    saved: CheckpointRecord, changes: dict[str, Any], out_dir: Path
 ) -> tuple[GenerateConfig, dict[str, Any] | None]:
     """The checkpoint's config with the allowed ``changes`` (by setting name), and an event
     recording them."""
-    where = out_dir / CHECKPOINT_NAME
-    try:
-        cfg = GenerateConfig.from_dict(saved["config"])
-        cfg.validate()
-        step = int(saved["step"])
-    except (KeyError, TypeError, ValueError, InputError) as exc:
-        raise CheckpointError(f"{where}: damaged checkpoint, bad config ({exc})") from exc
+    cfg, step = copy.deepcopy(saved.config), saved.step
     given = {canonical(name): value for name, value in changes.items()}
     recorded = {name: cfg.get(name) for name in given}  # InputError for an unknown name
     differ = {k: v for k, v in given.items() if recorded[k] != v}

@@ -42,7 +42,7 @@ class RunState:
     timer: PhaseTimer
 
     @classmethod
-    def fresh(cls, cfg: GenerateConfig, resolution: int, show_progress: bool) -> RunState:
+    def fresh(cls, cfg: GenerateConfig, show_progress: bool) -> RunState:
         """Step 0: the source loaded and turned into the initial Gaussians."""
         from plantdreamer.pipeline.source import initial_gaussians, load_source
 
@@ -65,7 +65,7 @@ class RunState:
             step=0,
             initial=g,
             model=GaussianModel(g, cfg.train.lr),
-            sampler=_sampler(cfg, resolution),
+            sampler=_sampler(cfg),
             density=DensityControl(cfg.density, cfg.seed, len(g)),
             transform=source.transform,
             source_counts=source.counts,
@@ -76,14 +76,14 @@ class RunState:
         )
 
     @classmethod
-    def resumed(cls, cfg: GenerateConfig, resolution: int, state: dict[str, Any]) -> RunState:
+    def resumed(cls, cfg: GenerateConfig, state: dict[str, Any]) -> RunState:
         """The state a checkpoint holds (KeyError, TypeError, ... when it is damaged)."""
         initial = Gaussians(**{k: v.numpy() for k, v in state["initial"].items() if v is not None})
         run = cls(
             step=0,
             initial=initial,
             model=GaussianModel(initial, cfg.train.lr),
-            sampler=_sampler(cfg, resolution),
+            sampler=_sampler(cfg),
             density=DensityControl(cfg.density, cfg.seed, len(initial)),
             transform=NormalizeTransform.from_dict(state["transform"]),
             source_counts={},
@@ -144,5 +144,6 @@ class RunState:
         }
 
 
-def _sampler(cfg: GenerateConfig, resolution: int) -> CameraSampler:
-    return CameraSampler(cfg.train.cameras, resolution, cfg.seed, cfg.train.elevation_sampling)
+def _sampler(cfg: GenerateConfig) -> CameraSampler:
+    train = cfg.train
+    return CameraSampler(train.cameras, train.render_size, cfg.seed, train.elevation_sampling)

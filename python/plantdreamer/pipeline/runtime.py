@@ -1,5 +1,7 @@
 """What a config becomes on this machine: its inputs checked, the settings left open decided
-(render size, network precision, prompt template) and its guidance built."""
+(render size, network precision, prompt template; for plants trained together, overlap) and
+its guidance built. Each decided value is written into the config, so run.json and the
+checkpoints record the value used and a resume keeps it."""
 
 from __future__ import annotations
 
@@ -65,6 +67,22 @@ def resolve_runtime(cfg: GenerateConfig) -> None:
         sds.network_dtype = "float16" if cuda else "float32"
     if sds.prompt_template is None:
         sds.prompt_template = lora_template(sds.lora)
+
+
+def resolve_overlap(setting: str, device: torch.device, plants: int) -> bool:
+    """``overlap``'s ``auto``: on for a group whose guidance runs on CUDA. On the CPU the
+    networks and the renders share the same cores, so the halves cannot hide each other."""
+    if setting == "auto":
+        return device.type == "cuda" and plants > 1
+    return setting == "on"
+
+
+def record_overlap(cfgs: list[GenerateConfig], device: torch.device) -> None:
+    """Decides ``overlap`` for plants trained together by a guidance on ``device``, and
+    writes the value used (``on`` or ``off``) into each plant's config."""
+    on = resolve_overlap(cfgs[0].train.overlap, device, len(cfgs))
+    for cfg in cfgs:
+        cfg.train.overlap = "on" if on else "off"
 
 
 def lora_template(lora: str | None) -> str:

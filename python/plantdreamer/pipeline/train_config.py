@@ -118,5 +118,13 @@ class TrainConfig:
     lr: LearningRates = field(default_factory=LearningRates, metadata=option_prefix("lr"))
     cameras: CameraRanges = field(default_factory=CameraRanges, metadata=option_prefix("cameras"))
 
+    @property
+    def render_size(self) -> int:
+        """``resolution`` once the run decided ``auto`` (``runtime.resolve_runtime``): the
+        one place a run reads its render size from."""
+        if self.resolution is None:
+            raise RuntimeError("the resolution is decided by runtime.resolve_runtime first")
+        return self.resolution
+
     def validate(self) -> None:
         self.cameras.validate()

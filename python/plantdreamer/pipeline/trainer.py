@@ -26,20 +26,19 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import PlantCheckpoints, noise_state
+from plantdreamer.pipeline.checkpoint import CheckpointRecord, PlantCheckpoints
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP, write_progress
 from plantdreamer.pipeline.step.options import StepOptions
-from plantdreamer.pipeline.step.plant import PlantRun
-from plantdreamer.pipeline.step.schedule import StepSchedule, resolve_overlap
+from plantdreamer.pipeline.step.plant import GroupSettings, PlantRun
+from plantdreamer.pipeline.step.schedule import StepSchedule
 from plantdreamer.stop_signals import stop_signals_handled
 
 __all__ = ["PlantRun", "RunInterrupted", "Trainer"]
@@ -70,7 +69,7 @@ class Trainer:
         from plantdreamer.guidance.base import NoGuidance
 
         self.plants, self.raw_guidance = plants, guidance
-        self.cfg = plants[0].cfg  # steps, background, sds settings: the same for all
+        self.settings = GroupSettings.of(plants)
         self.trains = not isinstance(guidance, NoGuidance)
         self.isolate = isolate_failures
         self.out_dir = out_dir if out_dir is not None else plants[0].out_dir
@@ -82,20 +81,15 @@ class Trainer:
             guidance,
             [self._depth_renderer(m) for m in initials],
             [p.state.sampler.peek for p in plants],
-            depth_rule=self.cfg.sds.depth_rule,
-            control_resize=self.cfg.sds.control_resize,
-            erosion_distance=self.cfg.sds.erosion_distance,
+            depth_rule=self.settings.sds.depth_rule,
+            control_resize=self.settings.sds.control_resize,
+            erosion_distance=self.settings.sds.erosion_distance,
             ahead=self.pool if options.depth_ahead else None,
         )
-        # ``auto`` decided here, where the guidance's device is known; run.json and the
-        # checkpoints record the value used, so a resume keeps it.
-        overlap = resolve_overlap(self.cfg.train.overlap, self.guidance.device, len(plants))
-        for p in plants:
-            p.cfg.train.overlap = "on" if overlap else "off"
         self.schedule = StepSchedule(
             plants,
+            self.settings,
             self.guidance,
-            overlap=overlap,
             isolate_failures=isolate_failures,
             options=options,
             pool=self.pool,
@@ -104,7 +98,7 @@ class Trainer:
     def _depth_renderer(self, initial: GaussianModel):
         def render_depth(camera):
             with torch.no_grad():
-                depth, alpha, _ = initial.render([camera], self.cfg.train.background, "ED")
+                depth, alpha, _ = initial.render([camera], self.settings.train.background, "ED")
             return depth, alpha
 
         return render_depth
@@ -124,14 +118,14 @@ class Trainer:
         """Raises ``RunInterrupted`` if a stop was asked for (the plants' training is over
         and checkpointed: a resume only exports)."""
         if self.schedule.stop_requested:
-            raise RunInterrupted(self.cfg.train.steps, self.out_dir)
+            raise RunInterrupted(self.settings.train.steps, self.out_dir)
 
     def run(self, show_progress: bool = True, on_step: Callable[[int], None] | None = None) -> None:
         """Steps from the plants' step to the last (inside ``stops_handled``, a stop writes a
         checkpoint at the next step boundary and raises ``RunInterrupted``), then writes the
         final checkpoint, so that a run stopped or killed during its export resumes with the
         export."""
-        steps, first = self.cfg.train.steps, self.plants[0].state
+        steps, first = self.settings.train.steps, self.plants[0].state
         resumed_at_end = first.step == steps > 0  # its checkpoint at the last step exists
         progress = Progress(steps, first.step, show_progress)
         note = (
@@ -153,7 +147,7 @@ class Trainer:
                 progress.update(
                     step, loss, sum(len(self.plants[i].state.model) for i in self.alive())
                 )
-                if (step + 1) % self.cfg.train.checkpoint_every == 0 and step + 1 < steps:
+                if (step + 1) % self.settings.train.checkpoint_every == 0 and step + 1 < steps:
                     self.checkpoint(step + 1)
                     progress.note(f"checkpoint at step {step + 1}: {self._pictures()}")
                 if on_step is not None:
@@ -164,7 +158,7 @@ class Trainer:
                 self.checkpoint(steps)
             for p in self.plants:
                 p.state.step = steps
-            progress.note(f"exporting, {self.cfg.outputs.eval_views} renders per plant")
+            progress.note(f"exporting, {self.settings.outputs.eval_views} renders per plant")
         finally:
             progress.close()
             self.guidance.close()
@@ -183,17 +177,13 @@ class Trainer:
     def checkpoint(self, step: int) -> None:
         """Writes each plant's ``checkpoint.pt`` (atomically) for a run continuing at ``step``;
         each plant's previous one goes once all are written (``PlantCheckpoints``)."""
-        noise = noise_state(self.raw_guidance.generator)
+        generator = self.raw_guidance.generator
         alive = [self.plants[i] for i in self.alive()]
         for p in alive:
             with p.state.timer("checkpoint"):
                 p.state.step = step
-                record: dict[str, Any] = {
-                    "config": p.cfg.to_dict(),
-                    **p.state.state_dict(),
-                    # The guidance's noise generator, so a resumed run draws the same noise.
-                    **noise,
-                }
+                # The guidance's noise generator too, so a resumed run draws the same noise.
+                record = CheckpointRecord.of(p.cfg, p.state, generator)
                 PlantCheckpoints(p.out_dir).write(record)
                 outputs.write_log_csv(p.out_dir / "log.csv", p.state.log_rows)
                 write_progress(p, step)

@@ -51,16 +51,8 @@ from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
 from plantdreamer.pipeline.model import RenderInputs, render_many
 from plantdreamer.pipeline.step.options import StepOptions
-from plantdreamer.pipeline.step.plant import PlantRun
+from plantdreamer.pipeline.step.plant import GroupSettings, PlantRun
 from plantdreamer.pipeline.step.update import update_plant
-
-
-def resolve_overlap(setting: str, device: torch.device, plants: int) -> bool:
-    """``overlap``'s ``auto``: on for a group whose guidance runs on CUDA. On the CPU the
-    networks and the renders share the same cores, so the halves cannot hide each other."""
-    if setting == "auto":
-        return device.type == "cuda" and plants > 1
-    return setting == "on"
 
 
 @dataclass
@@ -81,18 +73,18 @@ class StepSchedule:
     def __init__(
         self,
         plants: list[PlantRun],
+        settings: GroupSettings,
         guidance: ConditionedGuidance,
         *,
-        overlap: bool,
         isolate_failures: bool,
         options: StepOptions,
         pool: Executor,
     ) -> None:
-        self.plants, self.guidance = plants, guidance
-        self.cfg = plants[0].cfg
+        self.plants, self.settings, self.guidance = plants, settings, guidance
+        self.train = settings.train
         self.isolate, self.options = isolate_failures, options
         self.stop_requested = False  # set by the trainer's signal handler
-        cut = (len(plants) + 1) // 2 if overlap else len(plants)
+        cut = (len(plants) + 1) // 2 if settings.overlap else len(plants)
         self.halves = [list(range(cut)), list(range(cut, len(plants)))]
         self.pending: _Launched | None = None  # the first half of the next step, launched
         self._pool = pool  # the trainer's
@@ -101,8 +93,8 @@ class StepSchedule:
         """Whether step + 1 may start during ``step``: not at a checkpoint (which must hold
         no work in flight), a requested stop or the end."""
         nxt = step + 1
-        every = self.cfg.train.checkpoint_every
-        return nxt < self.cfg.train.steps and nxt % every != 0 and not self.stop_requested
+        every = self.train.checkpoint_every
+        return nxt < self.train.steps and nxt % every != 0 and not self.stop_requested
 
     def stop_due(self) -> bool:
         """A stop was requested and no work is in flight: stop before the next step (with a
@@ -124,7 +116,7 @@ class StepSchedule:
         alive = set(self.alive())
         parts = [[i for i in half if i in alive] for half in self.halves]
         parts = [part for part in parts if part]
-        more = step + 1 < self.cfg.train.steps
+        more = step + 1 < self.train.steps
         launched = []
         for j, part in enumerate(parts):
             if j == 0 and self.pending is not None:
@@ -138,7 +130,7 @@ class StepSchedule:
             self.step_end(step, work.plants)
             first = [i for i in work.plants if self.plants[i].error is None]
             if j + 1 < len(launched) and first and self.may_run_ahead(step):
-                self.pending = self._launch(first, step + 1, step + 2 < self.cfg.train.steps)
+                self.pending = self._launch(first, step + 1, step + 2 < self.train.steps)
         sizes = [len(w.plants) for w in launched]
         return sum(v * n for v, n in zip(losses, sizes, strict=True)) / sum(sizes)
 
@@ -166,7 +158,7 @@ class StepSchedule:
     def _launch(self, plants: list[int], step: int, more: bool) -> _Launched:
         group = [self.plants[i] for i in plants]
         cameras = [p.state.sampler.sample() for p in group]
-        background = self.cfg.train.background
+        background = self.train.background
 
         with self._timed("raster.forward", plants):
             models = [p.state.model for p in group]
