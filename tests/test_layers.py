@@ -66,7 +66,7 @@ PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
     ("a plant of a trainer, the step's options", {"step.plant", "step.options"}),
     ("the training step: a plant's update, the step's order", {"step.update", "step.schedule"}),
     ("the step's package and the loop around the steps", {"step", "trainer"}),
-    ("runs of one plant or many", {"pipeline", "export", "run", "group"}),
+    ("runs of one plant or many", {"pipeline", "export", "run", "group", "plants"}),
 ]
 
 # (importing module, imported module): why the upward import is deliberate. Empty today;

@@ -136,30 +136,28 @@ def generate(
     that cannot work (before any model loads), ``ModelNotFoundError`` for missing weights
     and ``RunInterrupted`` on Ctrl-C (a checkpoint is written: resume it).
     """
-    from plantdreamer.pipeline import generate as run_plant
     from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import GROUP_FILE, generate_group, parse_seeds
+    from plantdreamer.pipeline.group import GROUP_FILE, parse_seeds
+    from plantdreamer.pipeline.plants import generate_plants
 
     out, t0, show = Path(out), time.perf_counter(), not quiet
     if resume:
         unchanged = set(settings) - {"steps"}
         if unchanged or seeds is not None or overwrite:
             raise InputError("resume continues with the settings it started with: give only steps")
-        if (out / GROUP_FILE).is_file():
-            if settings:
-                raise InputError("a group resumes with the settings it started with")
-            return _plants(generate_group(None, out, resume=True, show_progress=show), t0)
-        result = run_plant(None, out, resume=True, changes=settings, show_progress=show)
-        return _plant(result, t0)
+        results = generate_plants(None, out, resume=True, changes=settings, show_progress=show)
+        plants = [_plant(r, t0) for r in results]
+        return plants if (out / GROUP_FILE).is_file() else plants[0]
     preset = settings.pop("preset", GenerateConfig().preset)
     if seeds is None:
         cfg = resolve_config(preset, settings)
-        return _plant(run_plant(cfg, out, overwrite=overwrite, show_progress=show), t0)
+        return _plant(generate_plants([cfg], out, overwrite=overwrite, show_progress=show)[0], t0)
     if "seed" in settings:
         raise InputError("give seed or seeds, not both")
     seed_list = parse_seeds(seeds) if isinstance(seeds, str) else [int(s) for s in seeds]
     cfgs = [resolve_config(preset, {**settings, "seed": s}) for s in seed_list]
-    return _plants(generate_group(cfgs, out, overwrite=overwrite, show_progress=show), t0)
+    results = generate_plants(cfgs, out, group=True, overwrite=overwrite, show_progress=show)
+    return [_plant(r, t0) for r in results]
 
 
 def make_dataset(
@@ -291,17 +289,6 @@ def _plant(result: Any, t0: float) -> GeneratedPlant:
         round(time.perf_counter() - t0, 3),
         dict(result.timings),
     )
-
-
-def _plants(group: Any, t0: float) -> list[GeneratedPlant]:
-    """A group's plants in name order; a failed plant raises (after the others are written)."""
-    if group.failed:
-        failures = "; ".join(f"{name}: {error}" for name, error in sorted(group.failed.items()))
-        raise PlantDreamerError(
-            f"{len(group.failed)} of {len(group.done) + len(group.failed)} plants failed "
-            f"({failures}); see {group.out_dir / 'group.json'}"
-        )
-    return [_plant(result, t0) for _, result in sorted(group.done.items())]
 
 
 def _with_settings(function: Any, chosen_per_plant: tuple[str, ...] = ()) -> None:

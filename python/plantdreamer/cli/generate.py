@@ -144,7 +144,9 @@ def build_command() -> click.Command:
                     )
                 # Settings typed again on resume: checked against the checkpoint, never ignored.
                 changes = options_to_settings(GenerateConfig, given_on_command_line(options))
-                results = _resume(Path(resume_dir), changes, seeds, quiet)
+                if seeds is not None:
+                    raise click.UsageError("--resume continues a run as it started; drop --seeds")
+                results = _run(None, Path(resume_dir), quiet, resume=True, changes=changes)
             else:
                 cfgs = _configs(options, seeds)
                 if print_config:
@@ -153,7 +155,8 @@ def build_command() -> click.Command:
                     shown = [resolved_settings(cfg) for cfg in cfgs]
                     click.echo(json.dumps(shown if seeds is not None else shown[0], indent=2))
                     return
-                results = _run(cfgs, seeds is not None, Path(out_dir), overwrite, quiet)
+                results = _run(cfgs, Path(out_dir), quiet, group=seeds is not None,
+                               overwrite=overwrite)  # fmt: skip
         except RunInterrupted as stop:
             click.secho(
                 f"interrupted at step {stop.step}; checkpoint written. "
@@ -207,41 +210,28 @@ def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]
     ]
 
 
-def _run(cfgs: list[GenerateConfig], group: bool, out: Path, overwrite: bool, quiet: bool) -> list:
-    """Trains the plants (one, or a group under ``out``); each finished plant's result."""
-    from plantdreamer.pipeline import generate
-    from plantdreamer.pipeline.group import generate_group
+def _run(
+    cfgs: list[GenerateConfig] | None,
+    out: Path,
+    quiet: bool,
+    *,
+    group: bool = False,
+    resume: bool = False,
+    changes: dict[str, Any] | None = None,
+    overwrite: bool = False,
+) -> list:
+    """Trains the plants (one, or a group under ``out``), or resumes ``out``; each finished
+    plant's result. A failed plant of a group makes the command fail once the others are
+    written (they are listed first)."""
+    from plantdreamer.pipeline.plants import PlantsFailed, generate_plants
 
-    if not group:
-        return [generate(cfgs[0], out, overwrite=overwrite, show_progress=not quiet)]
-    return _group_results(generate_group(cfgs, out, overwrite=overwrite, show_progress=not quiet))
-
-
-def _resume(folder: Path, changes: dict[str, Any], seeds: str | None, quiet: bool) -> list:
-    from plantdreamer.pipeline import generate
-    from plantdreamer.pipeline.group import GROUP_FILE, generate_group
-
-    if not (folder / GROUP_FILE).is_file():
-        return [generate(None, folder, resume=True, changes=changes, show_progress=not quiet)]
-    if changes or seeds is not None:
-        raise click.UsageError("a group resumes with the settings it started with")
-    return _group_results(generate_group(None, folder, resume=True, show_progress=not quiet))
-
-
-def _group_results(group) -> list:
-    """The finished plants in name order; a failed plant makes the command fail (after the
-    others are written)."""
-    if group.failed:
-        from plantdreamer.errors import PlantDreamerError
-
-        for _, result in sorted(group.done.items()):
+    try:
+        return generate_plants(cfgs, out, group=group, resume=resume, changes=changes,
+                               overwrite=overwrite, show_progress=not quiet)  # fmt: skip
+    except PlantsFailed as failed:
+        for result in failed.done:
             click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")
-        failures = "; ".join(f"{name}: {error}" for name, error in sorted(group.failed.items()))
-        raise PlantDreamerError(
-            f"{len(group.failed)} of {len(group.done) + len(group.failed)} plants failed "
-            f"({failures}); see {group.out_dir / 'group.json'}"
-        )
-    return [result for _, result in sorted(group.done.items())]
+        raise
 
 
 generate = build_command()

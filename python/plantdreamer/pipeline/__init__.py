@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.plants import generate_plants
     from plantdreamer.pipeline.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
     from plantdreamer.pipeline.step.options import StepOptions
@@ -22,6 +23,7 @@ __all__ = [
     "RunResult",
     "StepOptions",
     "generate",
+    "generate_plants",
     "resolve_config",
 ]
 
@@ -32,6 +34,7 @@ _MODULES = {
     "RunInterrupted": "plantdreamer.pipeline.run",
     "RunResult": "plantdreamer.pipeline.run",
     "generate": "plantdreamer.pipeline.run",
+    "generate_plants": "plantdreamer.pipeline.plants",
     "StepOptions": "plantdreamer.pipeline.step.options",
 }
 
