@@ -242,6 +242,8 @@ def test_bad_arguments():
         clean_depth(d, torch.ones(1, 8, 8, 2), 4.0)
     with pytest.raises(InputError):
         clean_depth(d, d, [4.0, 5.0])
+    with pytest.raises(InputError):  # a list gives each map its own: one short is refused
+        clean_depth(d.repeat(2, 1, 1, 1), d.repeat(2, 1, 1, 1), [4.0])
     with pytest.raises(InputError):
         clean_depth(d, d, 0.0)
     with pytest.raises(InputError):

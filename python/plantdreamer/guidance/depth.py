@@ -232,14 +232,16 @@ def released_normalise(accumulated: torch.Tensor, config: DepthCleaning) -> torc
 
 
 def _distances(camera_distance: float | torch.Tensor | Sequence[float], batch: int) -> list[float]:
+    """One distance per depth map: a single number (a float or a 0-dim tensor) is every
+    map's; a sequence (or a 1-dim tensor) gives each map its own."""
+    if isinstance(camera_distance, (int, float)):
+        return [float(camera_distance)] * batch
+    if isinstance(camera_distance, torch.Tensor) and camera_distance.dim() == 0:
+        return [float(camera_distance)] * batch
     if isinstance(camera_distance, torch.Tensor):
         values = camera_distance.detach().reshape(-1).tolist()
-    elif isinstance(camera_distance, (int, float)):
-        values = [float(camera_distance)]
     else:
         values = [float(v) for v in camera_distance]
-    if len(values) == 1:
-        values = values * batch
     if len(values) != batch:
         raise InputError(f"got {len(values)} camera distances for {batch} depth maps")
     return values
