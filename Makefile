@@ -19,7 +19,7 @@ PYTEST_WORKERS ?= 2
 # only when every run collected none, so an empty suite still fails (.ci/run).
 PYTEST_STATUS = && status 0 || status $$?
 
-.PHONY: help setup build test rust-tests test-rust test-python test-wheel wheel browser system-libs demo bench docs lint format clean
+.PHONY: help setup build test test-slow rust-tests test-rust test-python test-wheel wheel browser system-libs demo bench docs lint format clean
 
 help: ## List the developer commands
 	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | \
@@ -76,17 +76,28 @@ rust-tests: ## Compile the Rust tests and examples without running them
 test-rust: ## Run the Rust tests (no Python needed)
 	cargo test --workspace
 
+# The suite's two tiers (pyproject's `slow` marker): `make test` runs every test but the
+# slow ones, the end-to-end runs that take tens of seconds each on 2 cores (Ray clusters,
+# SIGKILL and resume in subprocesses, detectors trained, the demo, the known answer);
+# `make test-slow` runs those. CI runs both.
+TEST_TIER ?= not slow
+
 test-python: CORE_PROFILE := ci
-test-python: build browser system-libs ## Run the Python tests (native module: ci profile)
+test-python: build browser system-libs ## Run the Python tests but the slow tier (native module: ci profile)
 	@# The Ray files and the known-answer files side by side, each group in one process (its
 	@# output follows the other's), then every other file on the workers (tests/conftest.py).
 	@failed=0; collected=0; log=$$(mktemp); \
 	status() { [ $$1 = 5 ] || collected=1; [ $$1 = 0 ] || [ $$1 = 5 ] || failed=1; }; \
-	$(PY) -m pytest --file-group ray $(PYTEST_ARGS) >$$log 2>&1 & ray=$$!; \
-	$(PY) -m pytest --file-group known_answer $(PYTEST_ARGS) $(PYTEST_STATUS); \
+	$(PY) -m pytest -m "$(TEST_TIER)" --file-group ray $(PYTEST_ARGS) >$$log 2>&1 & ray=$$!; \
+	$(PY) -m pytest -m "$(TEST_TIER)" --file-group known_answer $(PYTEST_ARGS) $(PYTEST_STATUS); \
 	wait $$ray $(PYTEST_STATUS); cat $$log; rm -f $$log; \
-	$(PY) -m pytest -n $(PYTEST_WORKERS) --file-group other $(PYTEST_ARGS) $(PYTEST_STATUS); \
+	$(PY) -m pytest -m "$(TEST_TIER)" -n $(PYTEST_WORKERS) --file-group other $(PYTEST_ARGS) \
+		$(PYTEST_STATUS); \
 	if [ $$collected = 0 ]; then echo "no test collected" >&2; exit 5; fi; exit $$failed
+
+test-slow: ## Set up everything, then run the slow tier of the Python tests (CI runs it after `make test`)
+	$(MAKE) --no-print-directory setup CORE_PROFILE=ci
+	$(MAKE) --no-print-directory test-python TEST_TIER=slow
 
 browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
 	@# The browser test skips, saying why, when no Chromium can be found.
@@ -123,7 +134,7 @@ test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust
 
 # The Rust tests compile while pip sets up .venv (pip spends most of its time unpacking on
 # one core; cargo keeps both busy), then the three test sets run in turn.
-test: ## Set up everything, then run all Rust and Python tests and the wheel check
+test: ## Set up everything, then run the Rust tests, the Python tests but the slow tier, and the wheel check
 	$(MAKE) --no-print-directory -j2 rust-tests setup CORE_PROFILE=ci
 	$(MAKE) --no-print-directory test-rust test-python test-wheel
 
@@ -161,12 +172,15 @@ $(DOCS_STAMP): $(STAMP)
 docs: $(DOCS_STAMP) ## Build the documentation site into site/, warnings as errors
 	$(VENV)/bin/mkdocs build --strict
 
-lint: $(STAMP) docs ## cargo fmt --check, clippy -D warnings, ruff, mypy, the docs site
+lint: $(STAMP) docs ## cargo fmt --check, clippy -D warnings, ruff, mypy, the stub's check, the docs site
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check python tests benches scripts examples
 	$(VENV)/bin/ruff format --check python tests benches scripts examples
 	$(VENV)/bin/mypy python/plantdreamer
+	@# _core.pyi describes the compiled module exactly (the module the tests built).
+	cd python && ../$(VENV)/bin/python -m mypy.stubtest plantdreamer._core \
+		--mypy-config-file ../pyproject.toml
 
 format: $(STAMP) ## Format Rust and Python sources
 	cargo fmt --all

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benches"))
 
@@ -63,6 +65,7 @@ def test_too_few_steps_for_the_warm_up_is_one_clear_error(tmp_path):
     assert done.stderr.strip().splitlines()[-1].startswith("error: --steps (3) must exceed")
 
 
+@pytest.mark.slow
 def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     out = tmp_path / "out"
     cmd = [

@@ -66,6 +66,7 @@ def test_the_browse_example_draws_a_view_of_a_plant_folder(example_plant, tmp_pa
     assert (tmp_path / "browse.png").read_bytes().startswith(b"\x89PNG")
 
 
+@pytest.mark.slow
 def test_the_quickstart_notebook_runs(tmp_path):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")

@@ -123,6 +123,7 @@ def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
 
 
 @pytest.mark.parametrize("make_guidance", [photometric_guidance, tiny_sds_guidance])
+@pytest.mark.slow
 def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, make_guidance):
     """The same bytes run after run and after a resume, on machines of one and two cores: the
     run's torch-threads, not the cores, sets torch's sums (SDS's networks round by it)."""
@@ -200,6 +201,7 @@ except RunInterrupted as stop:
 
 
 @pytest.mark.skipif(shutil.which("taskset") is None, reason="needs taskset (util-linux)")
+@pytest.mark.slow
 def test_sds_stopped_under_taskset_one_core_resumes_on_two_to_the_unbroken_run(tmp_path):
     """``generate`` started under ``taskset`` on one core, stopped, then resumed where torch
     would use two threads, writes the plant.ply of the unbroken two-core run."""

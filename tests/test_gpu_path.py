@@ -203,6 +203,7 @@ def test_the_finite_gradient_check_is_exact_when_a_finite_sum_overflows():
 # -- the GPU bench's loop --------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_gpu_bench_runs_its_loop_at_tiny_size_on_the_cpu(tmp_path):
     out = tmp_path / "bench.json"
     proc = subprocess.run(
@@ -405,6 +406,7 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
     assert not result.failed and len(launches) == 8
 
 
+@pytest.mark.slow
 def test_gpu_checks_script_resume_dry_run_on_the_cpu(tmp_path):
     """scripts/gpu_checks.py's Ctrl-C + --resume check, run with tiny models on the CPU: the
     same script a CUDA machine runs at full size."""

@@ -43,6 +43,7 @@ def views(folder):
 
 @pytest.mark.parametrize("size", SIZES)
 @pytest.mark.parametrize("species", SPECIES)
+@pytest.mark.slow
 def test_no_object_has_a_speck(plants, species, size):
     """Every object of a view (a leaf instance; a class without instances: stem, pot, soil)
     has no 8-connected piece under MIN_PIECE pixels beside its largest piece."""
