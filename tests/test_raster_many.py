@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+import raster_native as native
 import raster_reference as ref
 from plantdreamer import _core, rasterization
 from plantdreamer.errors import InputError
@@ -140,8 +141,7 @@ def test_the_core_returns_each_scenes_error_in_its_place():
     out = _core.rasterize_forward_many([good, {**good, "Ks": bad_k}, {**good, "width": 0}])
     assert isinstance(out[0], dict) and "state" in out[0]
     assert isinstance(out[1], _core.InputError) and isinstance(out[2], _core.InputError)
-    alone = _core.rasterize_forward(*(good[k] for k in (*NAMES, "viewmats", "Ks")), W, H,
-                                    sh_degree=1)  # fmt: skip
+    alone = native.forward(**good)
     assert out[0]["render"].tobytes() == alone["render"].tobytes()
     v_render, v_alpha = np.ones_like(alone["render"]), np.ones_like(alone["alpha"])
     grads = _core.rasterize_backward_many(
@@ -149,7 +149,7 @@ def test_the_core_returns_each_scenes_error_in_its_place():
     )
     assert isinstance(grads[0], dict) and isinstance(grads[1], _core.InputError)
     assert "v_render" in str(grads[1])
-    one = _core.rasterize_backward(alone["state"], v_render, v_alpha)
+    one = native.backward(alone["state"], v_render, v_alpha)
     assert grads[0]["means"].tobytes() == one["means"].tobytes()
     with pytest.raises(_core.InputError, match="one v_render and one v_alpha per state"):
         _core.rasterize_backward_many([alone["state"]], [], [])
