@@ -25,6 +25,7 @@ sys.path.insert(0, str(BENCHES.parent / "tests"))
 
 from raster_scene import orbit_cameras, synthetic_plant  # noqa: E402
 
+import raster_native as native  # noqa: E402
 import raster_reference as ref  # noqa: E402
 from plantdreamer import _core, rasterization  # noqa: E402
 
@@ -42,12 +43,10 @@ def forward_times(scene, viewmats, ks, size, threads, reps, **kw):
     The warm-up matters: the first call on a thread pool after another pool ran finds cold
     caches and allocator heaps without free pages (up to ~30% slower at 100k)."""
     times, out = [], None
-    _core.rasterize_forward(
-        *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=threads, **kw
-    )
+    native.forward(*arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=threads, **kw)
     for _ in range(reps):
         t = time.perf_counter()
-        out = _core.rasterize_forward(
+        out = native.forward(
             *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=threads, **kw
         )
         times.append(time.perf_counter() - t)
@@ -139,7 +138,7 @@ def error_vs_reference(size: int, n: int, **kw) -> tuple[float, float, float]:
     """(max, 99.9th percentile, mean) abs RGB+alpha error against the float64 reference."""
     scene = synthetic_plant(n, seed=1)
     viewmats, ks = orbit_cameras(size, size)
-    out = _core.rasterize_forward(*arrays(scene), viewmats.numpy(), ks.numpy(), size, size, **kw)
+    out = native.forward(*arrays(scene), viewmats.numpy(), ks.numpy(), size, size, **kw)
     key = (size, n)
     if key not in _REFERENCE_CACHE:
         _REFERENCE_CACHE[key] = ref.render(
@@ -211,7 +210,7 @@ def profile_table(reps: int) -> tuple[str, dict]:
         viewmats, ks = orbit_cameras(size, size)
         best: dict[str, float] = {}
         for _ in range(reps):
-            out = _core.rasterize_forward(
+            out = native.forward(
                 *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=1
             )
             for k, v in out["profile"].items():
@@ -263,9 +262,7 @@ def train_step_table(reps: int) -> tuple[str, list[dict]]:
             if rep == 0:
                 peak = vm_kib("VmHWM") - base
             best_f, best_b = min(best_f, t1 - t0), min(best_b, t2 - t1)
-        out = _core.rasterize_forward(
-            *arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=2
-        )
+        out = native.forward(*arrays(scene), viewmats.numpy(), ks.numpy(), size, size, threads=2)
         state_mib = out["state"].nbytes / 2**20
         rows.append(
             f"| 100,000 @ {size}^2 | {best_f * 1e3:.1f} | {best_b * 1e3:.1f} | "

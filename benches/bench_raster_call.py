@@ -34,10 +34,10 @@ SETTINGS = {
     "libgomp default (spin 300000)": {"GOMP_SPINCOUNT": "300000"},
 }
 SERIES = {
-    "native_forward": "native forward (`_core.rasterize_forward`)",
+    "native_forward": "native forward (`_core.rasterize_forward_many`, one scene)",
     "public_forward": "public forward (`rasterization`, no grad)",
     "wrapper": "public - native, same repetition",
-    "native_backward": "native backward (`_core.rasterize_backward`)",
+    "native_backward": "native backward (`_core.rasterize_backward_many`, one scene)",
     "step_render": "training step: forward with background",
     "step_backward": "training step: loss + backward",
     "step_adam": "training step: Adam",
@@ -57,21 +57,23 @@ class CachedCore:
     def __getattr__(self, name: str):
         return getattr(self.core, name)
 
-    def rasterize_forward(self, *args, **kwargs) -> dict:
-        return dict(self.forward)
+    def rasterize_forward_many(self, scenes, **kwargs) -> list[dict]:
+        return [dict(self.forward) for _ in scenes]
 
-    def rasterize_backward(self, *args, **kwargs) -> dict:
-        return dict(self.backward)
+    def rasterize_backward_many(self, states, *args, **kwargs) -> list[dict]:
+        return [dict(self.backward) for _ in states]
 
 
 def child(n: int, size: int, reps: int) -> dict[str, list[float]]:
     """Times (s) of every series in this process (its OpenMP setting is already fixed)."""
     sys.path.insert(0, str(BENCHES))
+    sys.path.insert(0, str(BENCHES.parent / "tests"))
     import numpy as np
     import torch
     from raster_scene import orbit_cameras, synthetic_plant
 
-    from plantdreamer import _core, rasterization
+    import raster_native as native
+    from plantdreamer import rasterization
 
     scene = synthetic_plant(n, sh_degree=3)
     viewmats, ks = orbit_cameras(size, size)
@@ -83,15 +85,13 @@ def child(n: int, size: int, reps: int) -> dict[str, list[float]]:
     v_render = v_alpha = None
     for rep in range(reps + 1):
         t0 = time.perf_counter()
-        out = _core.rasterize_forward(
-            *arrays, viewmats.numpy(), ks.numpy(), size, size, sh_degree=3
-        )
+        out = native.forward(*arrays, viewmats.numpy(), ks.numpy(), size, size, sh_degree=3)
         t1 = time.perf_counter()
         if v_render is None:
             v_render = np.full(out["render"].shape, 1e-3, np.float32)
             v_alpha = np.full(out["alpha"].shape, 1e-3, np.float32)
         t2 = time.perf_counter()
-        _core.rasterize_backward(out["state"], v_render, v_alpha)
+        native.backward(out["state"], v_render, v_alpha)
         t3 = time.perf_counter()
         del out
         with torch.no_grad():
@@ -130,13 +130,14 @@ def wrapper_alone(scene, params, viewmats, ks, size, bg, reps, times) -> None:
     import numpy as np
     import torch
 
+    import raster_native as native
     from plantdreamer import _core, rasterization, rasterizer
 
     arrays = [x.numpy() for x in scene]
-    out = _core.rasterize_forward(*arrays, viewmats.numpy(), ks.numpy(), size, size, sh_degree=3)
+    out = native.forward(*arrays, viewmats.numpy(), ks.numpy(), size, size, sh_degree=3)
     v_render = np.full(out["render"].shape, 1e-3, np.float32)
     v_alpha = np.full(out["alpha"].shape, 1e-3, np.float32)
-    grads = _core.rasterize_backward(out["state"], v_render, v_alpha)
+    grads = native.backward(out["state"], v_render, v_alpha)
     rasterizer._core = CachedCore(_core, out, grads)  # type: ignore[assignment]
     try:
         for _ in range(reps * 20):

@@ -3,10 +3,11 @@ Gaussians at 512^2 and 1024^2. Writes benches/results/raster_scaling.md (+ .json
 
     python benches/bench_raster_scaling.py [--quick]
 
-Native calls (`plantdreamer._core`, the kernels without the Python wrapper) on rayon's
-global pool (every core this process may use). Each repetition is one forward and one
-backward of that forward (dL/d(render) and dL/d(alpha) constant); min and median over the
-repetitions after one untimed warm-up, fewer repetitions for the large scenes.
+Native calls (`plantdreamer._core`'s pair with one scene, the kernels without the Python
+wrapper) on rayon's global pool (every core this process may use). Each repetition is one
+forward and one backward of that forward (dL/d(render) and dL/d(alpha) constant); min and
+median over the repetitions after one untimed warm-up, fewer repetitions for the large
+scenes.
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ import numpy as np
 
 BENCHES = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCHES))
+sys.path.insert(0, str(BENCHES.parent / "tests"))
 
 from raster_scene import orbit_cameras, synthetic_plant  # noqa: E402
 
+import raster_native as native  # noqa: E402
 from plantdreamer import _core  # noqa: E402
 
 RESULTS = BENCHES / "results"
@@ -41,12 +44,12 @@ def measure(n: int, size: int, reps: int) -> dict:
     for rep in range(reps + 1):
         out = None  # free the previous state before the next forward
         t0 = time.perf_counter()
-        out = _core.rasterize_forward(*arrays, viewmats, ks, size, size)
+        out = native.forward(*arrays, viewmats, ks, size, size)
         t1 = time.perf_counter()
         v_render = np.full(out["render"].shape, 1e-3, np.float32)
         v_alpha = np.full(out["alpha"].shape, 1e-3, np.float32)
         t2 = time.perf_counter()
-        _core.rasterize_backward(out["state"], v_render, v_alpha)
+        native.backward(out["state"], v_render, v_alpha)
         t3 = time.perf_counter()
         if rep:  # the first call warms the pool and the allocator
             fwd.append(t1 - t0)

@@ -1,7 +1,10 @@
 """The training model's render: activations off torch's thread pool, the same bits for any
-torch thread count, and the ground truth drawn from the same activated Gaussians."""
+torch thread count, a group's renders (``render_many``, its per-plant work on a pool) the
+bits of each model's own, and the ground truth drawn from the same activated Gaussians."""
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -10,7 +13,7 @@ import torch
 from plantdreamer.cameras import orbit
 from plantdreamer.gaussians import activate_opacities, activate_scales
 from plantdreamer.pipeline.ground_truth import Splats
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model import GaussianModel, render_many
 
 # Not a multiple of torch's vector width: torch.sigmoid's bits at its chunk edges depend on
 # how many threads split the array, which is what the render must not inherit.
@@ -46,6 +49,49 @@ def test_render_and_gradients_are_the_same_bits_for_any_torch_thread_count(model
     for other in runs[1:]:
         for a, b in zip(runs[0], other, strict=True):
             assert a.tobytes() == b.tobytes()
+
+
+def small_models(random_gaussians) -> list[GaussianModel]:
+    return [GaussianModel(random_gaussians(3000 + 500 * k, degree=1, seed=k)) for k in range(3)]
+
+
+def group_cameras() -> list:
+    return [orbit(4.0, 20.0, 30.0 + 90.0 * k, 50.0, 48, 40) for k in range(3)]
+
+
+def render_bits(image, alpha, model) -> list[bytes]:
+    grads = [model.params[k].grad for k in ("means", "log_scales", "opacity_logits", "sh_dc")]
+    return [t.detach().numpy().tobytes() for t in (image, alpha, *grads)]
+
+
+def test_render_many_on_a_pool_gives_each_models_own_bits(random_gaussians):
+    alone = []
+    for model, camera in zip(small_models(random_gaussians), group_cameras(), strict=True):
+        image, alpha, _ = model.render([camera], 0.5)
+        torch.autograd.backward([image, alpha], [image.detach() - 0.5, alpha.detach()])
+        alone.append(render_bits(image, alpha, model))
+    models = small_models(random_gaussians)
+    with ThreadPoolExecutor(3) as pool:
+        rendered, cuts = render_many(
+            models, group_cameras(), 0.5, lambda fn, ks: list(pool.map(fn, ks))
+        )
+        roots = [t for image, alpha, _ in rendered for t in (image, alpha)]
+        grads = [g for image, alpha, _ in rendered for g in (image.detach() - 0.5, alpha.detach())]
+        torch.autograd.backward(roots, grads)
+        list(pool.map(lambda cut: cut.backward(), cuts))
+    pooled = [render_bits(r[0], r[1], m) for r, m in zip(rendered, models, strict=True)]
+    assert pooled == alone
+
+
+def test_render_manys_pool_tasks_keep_the_callers_no_grad(random_gaussians):
+    with ThreadPoolExecutor(2) as pool, torch.no_grad():
+        rendered, _ = render_many(
+            small_models(random_gaussians)[:2],
+            group_cameras()[:2],
+            0.5,
+            lambda fn, ks: list(pool.map(fn, ks)),
+        )
+    assert not any(r[0].requires_grad or r[2]["means2d"].requires_grad for r in rendered)
 
 
 def test_activation_gradients_follow_torchs_formulas(model):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -26,15 +27,8 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
     "knn_mean_distance": [("k", 1), ("threads", 1)],
     "large_gaussian_mask": [],
     "raster_defaults": [],
-    "rasterize_backward": [("threads", 1)],
     "rasterize_backward_many": [("threads", 1)],
-    "rasterize_forward": [
-        ("width", 1),
-        ("height", 1),
-        ("sh_degree", 0),
-        ("tile_size", 0),
-        ("threads", 1),
-    ],
+    # A scene's own integers (width, height, sh_degree): SCENE_INT_ARGS.
     "rasterize_forward_many": [("tile_size", 0), ("threads", 1)],
     "read_ply_vertex": [],
     "remove_statistical_outliers": [("nb_neighbors", 1), ("threads", 1)],
@@ -42,11 +36,15 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
     "write_ply_vertex": [],
 }
 
+# The integers of a scene of rasterize_forward_many, each a failure of that scene alone.
+SCENE_INT_ARGS = [("width", 1), ("height", 1), ("sh_degree", 0)]
+
 _RNG = np.random.default_rng(0)
 _PTS = _RNG.random((60, 3)).astype(np.float32)
 
 
 def _scene() -> dict:
+    """One scene of rasterize_forward_many (its dict's keys)."""
     n = 8
     return {
         "means": (_RNG.random((n, 3)) - 0.5).astype(np.float32),
@@ -57,34 +55,17 @@ def _scene() -> dict:
         "viewmats": np.array(
             [[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]]], np.float32
         ),
-        "ks": np.array([[[20, 0, 8], [0, 20, 8], [0, 0, 1]]], np.float32),
+        "Ks": np.array([[[20, 0, 8], [0, 20, 8], [0, 0, 1]]], np.float32),
         "width": 16,
         "height": 16,
         "sh_degree": 1,
-        "tile_size": 16,
-        "threads": None,
     }
-
-
-def _batch_scene() -> dict:
-    """_scene() as one scene of rasterize_forward_many (its keyword names)."""
-    scene = {k: v for k, v in _scene().items() if k not in ("tile_size", "threads")}
-    scene["Ks"] = scene.pop("ks")
-    return scene
 
 
 def _call(name: str, tmp_path, **override):
     """A valid call of `name`, with `override` replacing some arguments."""
-    if name == "rasterize_backward":
-        out = _core.rasterize_forward(**_scene())
-        args = {
-            "state": out["state"],
-            "v_render": np.ones_like(out["render"]),
-            "v_alpha": np.ones_like(out["alpha"]),
-            "threads": None,
-        }
-    elif name == "rasterize_backward_many":
-        out = _core.rasterize_forward(**_scene())
+    if name == "rasterize_backward_many":
+        (out,) = _core.rasterize_forward_many([_scene()])
         args = {
             "states": [out["state"]],
             "v_renders": [np.ones_like(out["render"])],
@@ -92,7 +73,7 @@ def _call(name: str, tmp_path, **override):
             "threads": None,
         }
     elif name == "rasterize_forward_many":
-        args = {"scenes": [_batch_scene()], "tile_size": 16, "threads": None}
+        args = {"scenes": [_scene()], "tile_size": 16, "threads": None}
     else:
         args = {
             "downsample_to_count": {"points": _PTS, "target": 20, "threads": None},
@@ -106,7 +87,6 @@ def _call(name: str, tmp_path, **override):
             "knn_mean_distance": {"points": _PTS, "k": 4, "threads": None},
             "large_gaussian_mask": {"log_scales": np.zeros((4, 3), np.float32)},
             "raster_defaults": {},
-            "rasterize_forward": _scene(),
             "read_ply_vertex": {"path": str(tmp_path / "ok.ply")},
             "remove_statistical_outliers": {
                 "points": _PTS,
@@ -151,11 +131,11 @@ def test_bad_integers_are_input_errors(tmp_path, name, arg, low, bad):
         _call(name, tmp_path, **{arg: value})
 
 
-@pytest.mark.parametrize(("arg", "low"), [("width", 1), ("height", 1), ("sh_degree", 0)])
+@pytest.mark.parametrize(("arg", "low"), SCENE_INT_ARGS)
 @pytest.mark.parametrize("bad", [*BAD_VALUES, "below"], ids=repr)
 def test_a_batched_scenes_bad_integers_are_its_own_input_error(arg, low, bad):
     """A scene of a batch with a bad integer fails alone: its entry is the InputError."""
-    scene = _batch_scene()
+    scene = _scene()
     good = dict(scene)
     scene[arg] = low - 1 if bad == "below" else bad
     results = _core.rasterize_forward_many([good, scene])
@@ -166,8 +146,11 @@ def test_a_batched_scenes_bad_integers_are_its_own_input_error(arg, low, bad):
 @pytest.mark.parametrize("size", [(2**31, 2**31), (2**32 - 1, 2**32 - 1), (100_000, 100_000)])
 def test_image_sizes_whose_buffers_cannot_fit_are_refused(tmp_path, size):
     w, h = size
-    with pytest.raises(InputError, match=rf"{w} x {h} pixels.*would need [0-9.]+ [KMGTP]iB"):
-        _call("rasterize_forward", tmp_path, width=w, height=h)
+    (result,) = _call(
+        "rasterize_forward_many", tmp_path, scenes=[_scene() | {"width": w, "height": h}]
+    )
+    assert isinstance(result, InputError)
+    assert re.search(rf"{w} x {h} pixels.*would need [0-9.]+ [KMGTP]iB", str(result))
 
 
 def test_rasterization_refuses_huge_images_before_allocating():
@@ -184,7 +167,7 @@ def test_rasterization_refuses_huge_images_before_allocating():
             t["opacities"],
             torch.ones(8, 3),
             t["viewmats"],
-            torch.from_numpy(s["ks"]),
+            torch.from_numpy(s["Ks"]),
             2**31,
             2**31,
         )

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
+import raster_native as native
 import raster_reference as ref
-from plantdreamer import _core, rasterization
+from plantdreamer import rasterization
 
 W = H = 40
 NAMES = ("means", "quats", "scales", "opacities", "colors")
@@ -109,8 +110,8 @@ def test_only_inputs_that_require_grad_get_gradients():
     assert all(x.grad is None for x in scene[1:4])
     assert meta["means2d"].grad is not None
     # The native call skips groups that are switched off.
-    out = _core.rasterize_forward(*[x.numpy() for x in scene], viewmats.numpy(), ks.numpy(), W, H)
-    grads = _core.rasterize_backward(
+    out = native.forward(*[x.numpy() for x in scene], viewmats.numpy(), ks.numpy(), W, H)
+    grads = native.backward(
         out["state"],
         np.ones_like(out["render"]),
         np.ones_like(out["alpha"]),
@@ -194,7 +195,7 @@ def test_gradients_are_bit_identical_across_threads_runs_and_kernels():
     # Threads 1, 2, 2 again, then the scalar kernels instead of the SIMD ones (where the CPU
     # has them): all must give the same bits.
     for threads, simd in ((1, True), (2, True), (2, True), (2, False)):
-        out = _core.rasterize_forward(
+        out = native.forward(
             *arrays,
             viewmats.numpy(),
             ks.numpy(),
@@ -208,7 +209,7 @@ def test_gradients_are_bit_identical_across_threads_runs_and_kernels():
         rng = np.random.default_rng(0)
         v_r = rng.standard_normal(out["render"].shape).astype(np.float32)
         v_a = rng.standard_normal(out["alpha"].shape).astype(np.float32)
-        results.append(_core.rasterize_backward(out["state"], v_r, v_a, threads=threads))
+        results.append(native.backward(out["state"], v_r, v_a, threads=threads))
     for key in ("means", "quats", "scales", "opacities", "colors", "means2d"):
         for other in results[1:]:
             assert np.array_equal(results[0][key], other[key]), key
@@ -217,7 +218,7 @@ def test_gradients_are_bit_identical_across_threads_runs_and_kernels():
 def test_saved_state_is_linear_in_gaussians_pixels_and_intersections():
     scene = ref.plant_scene(7, n=3000)
     viewmats, ks = ref.scene_cameras(96, 80, n=2)
-    out = _core.rasterize_forward(
+    out = native.forward(
         *[x.numpy() for x in scene], viewmats.numpy(), ks.numpy(), 96, 80, render_depth=True
     )
     n, c, ch = 3000, 2, 4

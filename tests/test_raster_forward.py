@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+import raster_native as native
 import raster_reference as ref
 from plantdreamer import InputError, _core, rasterization
 
@@ -141,7 +142,7 @@ def test_reference_sh_basis_is_orthonormal():
 
 
 def native_forward(scene, viewmats, ks, **kw):
-    return _core.rasterize_forward(
+    return native.forward(
         *[x.numpy() for x in scene], viewmats.numpy(), ks.numpy(), W, H, render_depth=True, **kw
     )
 
@@ -334,11 +335,11 @@ def test_native_rejects_wrong_dtype_and_layout():
     viewmats, ks = ref.scene_cameras(W, H)
     arrays = [x.numpy() for x in scene]
     with pytest.raises(InputError, match="float32"):
-        _core.rasterize_forward(
+        native.forward(
             arrays[0].astype(np.float64), *arrays[1:], viewmats.numpy(), ks.numpy(), W, H
         )
     with pytest.raises(InputError, match="contiguous"):
-        _core.rasterize_forward(
+        native.forward(
             np.asfortranarray(arrays[0]), *arrays[1:], viewmats.numpy(), ks.numpy(), W, H
         )
 

@@ -1,7 +1,8 @@
 """Many scenes in one native call (``rasterization_many``, ``_core.rasterize_*_many``): the
 bits of separate calls on any thread count, forward and gradients, with the scenes' Python
-work on one thread or a pool's; a bad scene fails alone; a group trained with one call per
-step gives the bytes of one call per plant, and of its plants' host work on one thread."""
+work on one thread or a pool's (``RasterBatch``'s stages); a bad scene fails alone; a group
+trained with one call per step gives the bytes of one call per plant, and of its plants'
+host work on one thread."""
 
 from __future__ import annotations
 
@@ -11,10 +12,11 @@ import numpy as np
 import pytest
 import torch
 
+import raster_native as native
 import raster_reference as ref
 from plantdreamer import _core, rasterization
 from plantdreamer.errors import InputError
-from plantdreamer.rasterizer import rasterization_many
+from plantdreamer.rasterizer import RasterBatch, rasterization_many
 
 W, H = 44, 36
 NAMES = ("means", "quats", "scales", "opacities", "colors")
@@ -72,9 +74,22 @@ def separate(threads, used="both"):
     return prints
 
 
-def together(threads, used="both", map_scenes=None):
+def staged_on(pool, calls, threads=None):
+    """``rasterization_many`` as ``RasterBatch``'s stages, each scene's a task of ``pool``."""
+    batch = RasterBatch(calls, threads=threads)
+    list(pool.map(batch.prepare, range(len(batch))))
+    batch.render()
+    list(pool.map(batch.finish, range(len(batch))))
+    return batch.results()
+
+
+def together(threads, used="both", pool=None):
     made = [scene_call(*spec) for spec in SCENES]
-    results = rasterization_many([c for c, _ in made], threads=threads, map_scenes=map_scenes)
+    calls = [c for c, _ in made]
+    if pool is None:
+        results = rasterization_many(calls, threads=threads)
+    else:
+        results = staged_on(pool, calls, threads)
     roots, grads = [], []
     for spec, (render, alpha, _) in zip(SCENES, results, strict=True):
         r, g = roots_and_grads(render, alpha, spec[0], used)
@@ -100,22 +115,26 @@ def test_one_scene_is_the_many_scene_call_of_one():
 
 @pytest.mark.parametrize("used", ["both", "render", "alpha"])
 def test_the_scenes_python_work_on_a_pool_gives_the_same_bits(used):
-    """The background blends run inside the many-scene node (on ``map_scenes``): its
-    gradients must equal the separate calls' whichever outputs get one."""
+    """The background blends run inside the many-scene node (on the pool, in ``finish``):
+    its gradients must equal the separate calls' whichever outputs get one."""
     alone = separate(threads=1, used=used)
     with ThreadPoolExecutor(3) as pool:
-        pooled = together(2, used=used, map_scenes=lambda fn, ks: list(pool.map(fn, ks)))
+        pooled = together(2, used=used, pool=pool)
     assert pooled == alone
     assert together(2, used=used) == alone
 
 
-def test_a_pools_tasks_keep_the_callers_no_grad():
-    made = [scene_call(*spec) for spec in SCENES[:2]]
-    with ThreadPoolExecutor(2) as pool, torch.no_grad():
-        results = rasterization_many(
-            [c for c, _ in made], map_scenes=lambda fn, ks: list(pool.map(fn, ks))
-        )
-    assert not any(r[0].requires_grad or r[2]["means2d"].requires_grad for r in results)
+def test_a_batch_refuses_stages_out_of_order():
+    calls = [scene_call(*spec)[0] for spec in SCENES[:2]]
+    batch = RasterBatch(calls)
+    batch.prepare(0)
+    with pytest.raises(RuntimeError, match="prepared first"):
+        batch.render()
+    batch.prepare(1)
+    batch.render()
+    batch.finish(0)
+    with pytest.raises(RuntimeError, match="scene 1 was not finished"):
+        batch.results()
 
 
 def test_a_bad_scene_fails_alone_and_is_named():
@@ -140,8 +159,7 @@ def test_the_core_returns_each_scenes_error_in_its_place():
     out = _core.rasterize_forward_many([good, {**good, "Ks": bad_k}, {**good, "width": 0}])
     assert isinstance(out[0], dict) and "state" in out[0]
     assert isinstance(out[1], _core.InputError) and isinstance(out[2], _core.InputError)
-    alone = _core.rasterize_forward(*(good[k] for k in (*NAMES, "viewmats", "Ks")), W, H,
-                                    sh_degree=1)  # fmt: skip
+    alone = native.forward(**good)
     assert out[0]["render"].tobytes() == alone["render"].tobytes()
     v_render, v_alpha = np.ones_like(alone["render"]), np.ones_like(alone["alpha"])
     grads = _core.rasterize_backward_many(
@@ -149,7 +167,7 @@ def test_the_core_returns_each_scenes_error_in_its_place():
     )
     assert isinstance(grads[0], dict) and isinstance(grads[1], _core.InputError)
     assert "v_render" in str(grads[1])
-    one = _core.rasterize_backward(alone["state"], v_render, v_alpha)
+    one = native.backward(alone["state"], v_render, v_alpha)
     assert grads[0]["means"].tobytes() == one["means"].tobytes()
     with pytest.raises(_core.InputError, match="one v_render and one v_alpha per state"):
         _core.rasterize_backward_many([alone["state"]], [], [])

@@ -18,9 +18,7 @@ __all__ = [
     "knn_mean_distance",
     "large_gaussian_mask",
     "raster_defaults",
-    "rasterize_backward",
     "rasterize_backward_many",
-    "rasterize_forward",
     "rasterize_forward_many",
     "read_ply_vertex",
     "remove_statistical_outliers",
@@ -80,52 +78,18 @@ def knn_mean_distance(
 # --- rasterizer (crates/pyplant/src/raster.rs) ---
 @final
 class RasterState:
-    """Opaque forward state for rasterize_backward."""
+    """Opaque forward state for rasterize_backward_many."""
 
     @property
     def nbytes(self) -> int: ...
 
-def rasterize_forward(
-    means: npt.NDArray[np.float32],
-    quats: npt.NDArray[np.float32],
-    scales: npt.NDArray[np.float32],
-    opacities: npt.NDArray[np.float32],
-    colors: npt.NDArray[np.float32] | None,  # not read when render_color is False
-    viewmats: npt.NDArray[np.float32],
-    ks: npt.NDArray[np.float32],
-    width: int,
-    height: int,
-    *,
-    sh_degree: int | None = None,
-    near_plane: float | None = None,
-    far_plane: float | None = None,
-    eps2d: float | None = None,
-    antialiased: bool | None = None,
-    render_color: bool = True,
-    render_depth: bool | None = None,
-    tile_size: int | None = None,
-    footprint_sigma: float | None = None,
-    tile_ellipse: bool | None = None,
-    t_min: float | None = None,
-    simd: bool | None = None,
-    threads: int | None = None,
-    background: npt.NDArray[np.float32] | None = None,  # [C, ch], behind the colours
-) -> dict[str, Any]: ...
 def raster_defaults() -> dict[str, Any]: ...
-def rasterize_backward(
-    state: RasterState,
-    v_render: npt.NDArray[np.float32],
-    v_alpha: npt.NDArray[np.float32] | None,
-    *,
-    means: bool = True,
-    quats: bool = True,
-    scales: bool = True,
-    opacities: bool = True,
-    colors: bool = True,
-    threads: int | None = None,
-) -> dict[str, Any]: ...
+
+# A scene of rasterize_forward_many: means, quats, scales, opacities, colors (None when
+# render_color is False: not read), viewmats, Ks (float32 arrays), width, height (ints),
+# and optionally sh_degree (int or None) and background ([C, ch] behind the colours).
 def rasterize_forward_many(
-    scenes: list[dict[str, Any]],  # rasterize_forward's arrays, sizes, sh_degree, background
+    scenes: list[dict[str, Any]],
     *,
     near_plane: float | None = None,
     far_plane: float | None = None,
@@ -152,6 +116,8 @@ def rasterize_backward_many(
     colors: bool = True,
     threads: int | None = None,
 ) -> list[dict[str, Any] | BaseException]: ...
+
+# --- SH colours (crates/pyplant/src/sh.rs) ---
 def eval_sh(
     degree: int, coeffs: npt.NDArray[np.float32], dirs: npt.NDArray[np.float32]
 ) -> npt.NDArray[np.float32]: ...

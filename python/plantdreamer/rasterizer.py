@@ -9,8 +9,10 @@ validates inputs and wraps the native pair in one ``torch.autograd.Function``: o
 same bits as ``color + bg * (1 - alpha)`` through autograd); other backgrounds and the
 expected depth are plain torch ops (so their gradients come from autograd).
 ``rasterization_many`` renders several scenes (a group's plants) in one native call each
-way, with the bits of separate calls; its per-scene Python work (argument checks, the
-outputs' wrapping) can run on a caller's thread pool (``map_scenes``).
+way, with the bits of separate calls. Neither schedules anything: ``RasterBatch`` is the
+same call in its stages (each scene's argument checks, the native call, each scene's
+outputs), so that a caller with a thread pool (the training step) runs the scenes'
+Python work on it.
 
 Conventions and choices (documented behaviour):
 
@@ -32,7 +34,7 @@ Conventions and choices (documented behaviour):
 from __future__ import annotations
 
 import operator
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,26 +49,6 @@ RASTER_DEFAULTS: dict[str, Any] = _core.raster_defaults()
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
 RASTERIZE_MODES = ("classic", "antialiased")
 GRAD_NAMES = ("means", "quats", "scales", "opacities", "colors", "means2d")
-# ``map_scenes(fn, indices)``: ``[fn(k) for k in indices]``, on any threads, in order.
-SceneMap = Callable[[Callable[[int], Any], Sequence[int]], list[Any]]
-
-
-def scene_map(map_scenes: SceneMap | None) -> SceneMap:
-    """The map a many-scene call runs its per-scene work with: ``map_scenes`` with each
-    task in the calling thread's autograd mode (a thread pool's threads do not inherit
-    ``torch.no_grad``), or, for None, one scene after another on the calling thread."""
-    if map_scenes is None:
-        return lambda fn, indices: [fn(k) for k in indices]
-    enabled = torch.is_grad_enabled()
-
-    def run(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
-        def task(k: int) -> Any:
-            with torch.set_grad_enabled(enabled):
-                return fn(k)
-
-        return map_scenes(task, indices)
-
-    return run
 
 
 def _numpy(t: torch.Tensor) -> np.ndarray:
@@ -220,17 +202,16 @@ def rasterization(
         far_plane=far_plane, eps2d=eps2d, sh_degree=sh_degree, backgrounds=backgrounds,
         render_mode=render_mode, rasterize_mode=rasterize_mode, tile_size=tile_size,
     )  # fmt: skip
-    (result,) = _render_scenes([kwargs], threads, scene_map(None))
+    batch = RasterBatch([kwargs], threads=threads)
+    batch.run()
+    (result,) = batch.outcomes
     if isinstance(result, Exception):
         raise result
     return result
 
 
 def rasterization_many(
-    calls: Sequence[Mapping[str, Any]],
-    *,
-    threads: int | None = None,
-    map_scenes: SceneMap | None = None,
+    calls: Sequence[Mapping[str, Any]], *, threads: int | None = None
 ) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
     """``rasterization`` of every call in ``calls`` (each a dict of its keyword arguments;
     the settings, as ``render_mode``, the same in all), as ONE native forward call whose
@@ -241,78 +222,117 @@ def rasterization_many(
     and comes back in its place in the list; a call with bad input comes back as its
     error (not raised), naming it (``scene K: ...``), and the others are rendered. The
     gradients of all the renders must be computed in one ``torch.autograd.backward`` (one
-    autograd node holds them all). ``map_scenes`` runs each scene's Python work (argument
-    checks, wrapping the outputs; a thread pool's ``map`` spreads it over the cores: numpy
-    and torch release the GIL); by default the scenes' work runs one after another.
+    autograd node holds them all). The scenes' Python work runs one after another on the
+    calling thread; ``RasterBatch`` runs the same stages for a caller that spreads it.
     """
-    each_scene = scene_map(map_scenes)
-    named: list[Any] = []
-    for k, result in enumerate(_render_scenes(calls, threads, each_scene)):
-        if isinstance(result, Exception):
-            kind = type(result) if isinstance(result, PlantDreamerError) else InputError
-            result = kind(f"scene {k}: {result}")
-        named.append(result)
-    return named
+    batch = RasterBatch(calls, threads=threads)
+    batch.run()
+    return batch.results()
 
 
-def _render_scenes(
-    calls: Sequence[Mapping[str, Any]], threads: int | None, each_scene: SceneMap
-) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | Exception]:
-    """``rasterization_many`` with each bad call's error as it was raised (not yet naming
-    its scene): ``rasterization`` is the case of one call."""
-    results: list[Any] = [None] * len(calls)
+class RasterBatch:
+    """``rasterization_many`` in its stages, for a caller that schedules the scenes' Python
+    work itself: ``prepare(k)`` checks scene k's arguments, ``render()`` makes the one
+    native forward call of every scene prepared without error (one autograd node), and
+    ``finish(k)`` wraps scene k's outputs; ``results()`` then returns what
+    ``rasterization_many`` does, with the same bits.
 
-    def prepare(k: int) -> _Call | Exception:
+    ``render`` runs once, on the calling thread, after every scene's ``prepare`` and before
+    any ``finish``. ``prepare`` and ``finish`` of different scenes may run on any threads,
+    in any order (numpy and torch release the GIL), each in the caller's autograd mode: a
+    thread pool's threads do not inherit ``torch.no_grad``.
+    """
+
+    def __init__(self, calls: Sequence[Mapping[str, Any]], *, threads: int | None = None):
+        self.calls = list(calls)
+        self.threads = threads
+        # Per scene: its result, or its error as raised (``results`` names the scene).
+        self.outcomes: list[Any] = [None] * len(self.calls)
+        self._prepared: list[_Call | None] = [None] * len(self.calls)
+        # The rendered scenes' places in the node's outputs, natives and means2d.
+        self._rendered: dict[int, tuple[int, dict[str, Any], torch.Tensor]] = {}
+        self._outputs: tuple[torch.Tensor, ...] | None = None
+
+    def __len__(self) -> int:
+        return len(self.calls)
+
+    def prepare(self, k: int) -> None:
+        """Checks scene k's arguments and makes its native call's arrays."""
         try:
-            return _prepare(**calls[k])
+            self._prepared[k] = _prepare(**self.calls[k])
         except (InputError, TypeError) as exc:
-            return exc
+            self.outcomes[k] = exc
 
-    prepared: dict[int, _Call] = {}
-    for k, call in enumerate(each_scene(prepare, range(len(calls)))):
-        if isinstance(call, _Call):
-            prepared[k] = call
-        else:
-            results[k] = call
-    ok = list(prepared)
-    if ok:
+    def render(self) -> None:
+        """The native forward call of every scene prepared without error, and the one
+        autograd node of their renders."""
+        pairs = zip(self._prepared, self.outcomes, strict=True)
+        if any(p is None and o is None for p, o in pairs):
+            raise RuntimeError("RasterBatch.render: every scene must be prepared first")
+        prepared = {k: p for k, p in enumerate(self._prepared) if p is not None}
+        ok = list(prepared)
+        if not ok:
+            return
         settings = prepared[ok[0]].settings
         for k in ok[1:]:
             if prepared[k].settings != settings:
-                results[k] = InputError(
+                self.outcomes[k] = InputError(
                     f"its settings differ from scene {ok[0]}'s: "
                     f"{prepared[k].settings} against {settings}"
                 )
-        ok = [k for k in ok if results[k] is None]
-    if not ok:
-        return results
-    natives = _core.rasterize_forward_many(
-        [prepared[k].scene for k in ok], **settings, threads=threads
-    )
-    rendered = []
-    for k, native in zip(ok, natives, strict=True):
-        if isinstance(native, BaseException):
-            error = native if isinstance(native, PlantDreamerError) else InputError(str(native))
-            results[k] = error
-        else:
-            rendered.append((k, native))
-    if not rendered:
-        return results
-    inputs: list[torch.Tensor] = []
-    means2ds = []
-    for k, native in rendered:
-        means2d = prepared[k].means2d(native)
-        means2ds.append(means2d)
-        inputs += [*prepared[k].params, prepared[k].color_in, means2d]
-    outputs = _RasterizeManyFunction.apply([n for _, n in rendered], threads, *inputs)
+        ok = [k for k in ok if self.outcomes[k] is None]
+        if not ok:
+            return
+        natives = _core.rasterize_forward_many(
+            [prepared[k].scene for k in ok], **settings, threads=self.threads
+        )
+        inputs: list[torch.Tensor] = []
+        rendered: list[dict[str, Any]] = []
+        for k, native in zip(ok, natives, strict=True):
+            if isinstance(native, BaseException):
+                error = native if isinstance(native, PlantDreamerError) else InputError(str(native))
+                self.outcomes[k] = error
+                continue
+            means2d = prepared[k].means2d(native)
+            self._rendered[k] = (len(rendered), native, means2d)
+            rendered.append(native)
+            inputs += [*prepared[k].params, prepared[k].color_in, means2d]
+        if rendered:
+            self._outputs = _RasterizeManyFunction.apply(rendered, self.threads, *inputs)
 
-    def finish(j: int) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
-        k, native = rendered[j]
-        return prepared[k].finish(outputs[2 * j], outputs[2 * j + 1], means2ds[j], native)
+    def finish(self, k: int) -> None:
+        """Scene k's render, alpha and ``meta`` (nothing to do for a scene that failed)."""
+        if k not in self._rendered:
+            return
+        assert self._outputs is not None
+        j, native, means2d = self._rendered[k]
+        call = self._prepared[k]
+        assert call is not None
+        self.outcomes[k] = call.finish(
+            self._outputs[2 * j], self._outputs[2 * j + 1], means2d, native
+        )
 
-    for (k, _), result in zip(rendered, each_scene(finish, range(len(rendered))), strict=True):
-        results[k] = result
-    return results
+    def run(self) -> None:
+        """Every stage, one scene after another on the calling thread."""
+        for k in range(len(self)):
+            self.prepare(k)
+        self.render()
+        for k in range(len(self)):
+            self.finish(k)
+
+    def results(
+        self,
+    ) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
+        """Each scene's (render, alpha, meta), or its error naming it (``scene K: ...``)."""
+        named: list[Any] = []
+        for k, result in enumerate(self.outcomes):
+            if result is None:
+                raise RuntimeError(f"RasterBatch.results: scene {k} was not finished")
+            if isinstance(result, Exception):
+                kind = type(result) if isinstance(result, PlantDreamerError) else InputError
+                result = kind(f"scene {k}: {result}")
+            named.append(result)
+        return named
 
 
 @dataclass

@@ -1,6 +1,8 @@
 //! Checks shared by every binding that takes numpy arrays.
 
-use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArrayDyn, PyArrayMethods, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 use crate::errors::InputError;
@@ -37,4 +39,64 @@ pub fn float_rows<'py, T: numpy::Element>(
         ))));
     }
     Some(Ok(arr))
+}
+
+/// A C-contiguous float32 array with the given number of dimensions, borrowed (no copy).
+pub(crate) fn f32_view<'py>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    ndim: usize,
+) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    let arr = obj
+        .cast::<PyArrayDyn<f32>>()
+        .map_err(|_| InputError::new_err(format!("{name} must be a float32 numpy array")))?;
+    if arr.ndim() != ndim {
+        return Err(InputError::new_err(format!(
+            "{name} must have {ndim} dimensions, got shape {:?}",
+            arr.shape()
+        )));
+    }
+    // as_slice also accepts Fortran order, which would scramble the rows.
+    if !arr.is_c_contiguous() {
+        return Err(InputError::new_err(format!("{name} must be C-contiguous")));
+    }
+    Ok(arr.readonly())
+}
+
+/// The flat data of an array from `f32_view`.
+pub(crate) fn flat<'a>(name: &str, view: &'a PyReadonlyArrayDyn<'_, f32>) -> PyResult<&'a [f32]> {
+    view.as_slice()
+        .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))
+}
+
+/// A C-contiguous float32 array with the given number of dimensions, as its shape and a
+/// flat copy (for data kept past the call: the caller may change its arrays).
+pub(crate) fn f32_array(
+    name: &str,
+    obj: &Bound<'_, PyAny>,
+    ndim: usize,
+) -> PyResult<(Vec<usize>, Vec<f32>)> {
+    let view = f32_view(name, obj, ndim)?;
+    Ok((view.shape().to_vec(), flat(name, &view)?.to_vec()))
+}
+
+/// Checks `shape` against `want`, where None matches any size.
+pub(crate) fn expect_shape(name: &str, shape: &[usize], want: &[Option<usize>]) -> PyResult<()> {
+    let ok = shape.len() == want.len()
+        && shape
+            .iter()
+            .zip(want)
+            .all(|(s, w)| w.is_none_or(|w| *s == w));
+    if ok {
+        Ok(())
+    } else {
+        let want: Vec<String> = want
+            .iter()
+            .map(|w| w.map_or("*".to_string(), |v| v.to_string()))
+            .collect();
+        Err(InputError::new_err(format!(
+            "{name} must have shape [{}], got {shape:?}",
+            want.join(", ")
+        )))
+    }
 }

@@ -14,7 +14,9 @@ mod native;
 mod ply;
 mod pointcloud;
 mod raster;
-mod raster_many;
+mod raster_args;
+mod raster_results;
+mod sh;
 
 pub use errors::to_pyerr;
 pub use native::run_native;
@@ -49,6 +51,6 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(info, m)?)?;
     culling::register(m)?;
     raster::register(m)?;
-    raster_many::register(m)?;
+    sh::register(m)?;
     Ok(())
 }

@@ -7,8 +7,8 @@ and the labels (not trained) aligned with both.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -17,9 +17,6 @@ from plantdreamer.cameras import Camera, stack
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scales
 from plantdreamer.pipeline.train_config import LearningRates
-
-if TYPE_CHECKING:
-    from plantdreamer.rasterizer import SceneMap
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 # torch's Adam for the Gaussians runs as its "foreach" implementation: the bits of the
@@ -238,25 +235,57 @@ class RenderInputs:
             torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
 
 
+# ``host_map(fn, indices)``: ``[fn(k) for k in indices]``, on any threads, in order (the
+# step's host pool).
+HostMap = Callable[[Callable[[int], Any], Sequence[int]], list[Any]]
+
+
 def render_many(
     models: Sequence[GaussianModel],
     cameras: Sequence[Camera],
     background: float,
-    map_plants: SceneMap | None = None,
+    host_map: HostMap | None = None,
 ) -> tuple[
     list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError],
     list[RenderInputs],
 ]:
     """``models[k].render([cameras[k]], background)`` for every k, as one native call each
-    way (``rasterization_many``: the same bits); a model whose render fails gets its
-    error in its place. The renders' gradients must come from one
+    way (``rasterization_many``'s stages, ``RasterBatch``: the same bits); a model whose
+    render fails gets its error in its place. The renders' gradients must come from one
     ``torch.autograd.backward`` over all of them, which reaches the parameters' gradients
-    once every model's ``RenderInputs.backward`` ran (the second list). ``map_plants`` runs
-    each plant's Python work (a thread pool's ``map``; by default one after another)."""
-    from plantdreamer.rasterizer import rasterization_many, scene_map
+    once every model's ``RenderInputs.backward`` ran (the second list). ``host_map`` runs
+    each plant's Python work (render arguments, the rasterizer's per-scene stages; a thread
+    pool's ``map``), each task in the caller's autograd mode; by default one plant after
+    another."""
+    from plantdreamer.rasterizer import RasterBatch
+
+    each_plant = _in_callers_grad_mode(host_map)
+    plants = range(len(models))
 
     def cut(k: int) -> RenderInputs:
         return RenderInputs(models[k].render_call([cameras[k]], background))
 
-    inputs = scene_map(map_plants)(cut, range(len(models)))
-    return rasterization_many([i.call for i in inputs], map_scenes=map_plants), inputs
+    inputs = each_plant(cut, plants)
+    batch = RasterBatch([i.call for i in inputs])
+    each_plant(batch.prepare, plants)
+    batch.render()
+    each_plant(batch.finish, plants)
+    return batch.results(), inputs
+
+
+def _in_callers_grad_mode(host_map: HostMap | None) -> HostMap:
+    """``host_map`` with each task in the calling thread's autograd mode (a thread pool's
+    threads do not inherit ``torch.no_grad``), or, for None, one task after another on the
+    calling thread."""
+    if host_map is None:
+        return lambda fn, indices: [fn(k) for k in indices]
+    enabled = torch.is_grad_enabled()
+
+    def run(fn: Callable[[int], Any], indices: Sequence[int]) -> list[Any]:
+        def task(k: int) -> Any:
+            with torch.set_grad_enabled(enabled):
+                return fn(k)
+
+        return host_map(task, indices)
+
+    return run
