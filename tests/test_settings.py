@@ -15,6 +15,7 @@ from plantdreamer.errors import CheckpointError
 from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS, SdsConfig
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
 from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline.checkpoint import CheckpointRecord
 from plantdreamer.pipeline.density import CullConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
 from plantdreamer.pipeline.source import SourceConfig
@@ -114,7 +115,7 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
 
     base = GenerateConfig.of(species="bean")
     command = generate_cli.build_command()
-    saved = {"config": base.to_dict(), "step": 0}
+    saved = CheckpointRecord(base, {"step": 0}, {})
     for name, value in base.settings().items():
         new = _other_value(name, value, base)
         if name in ("prompt-template", "negative-prompt", "schedule", "device"):
@@ -256,7 +257,8 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     assert {k: cfg.get(k) for k in OLD_RUN_SETTINGS} == OLD_RUN_SETTINGS
     assert plant_species(OLD_RUN) == "bean"
     # --resume reads a checkpoint's config through the same function.
-    resumed, note = resumed_config({"config": old["config"], "step": 2}, {"steps": 6}, tmp_path)
+    record = CheckpointRecord.from_saved({"config": old["config"], "step": 2}, tmp_path)
+    resumed, note = resumed_config(record, {"steps": 6}, tmp_path)
     assert resumed.train.steps == 6 and note == {
         "step": 2, "event": "steps changed", "from": 4, "to": 6
     }  # fmt: skip
