@@ -13,6 +13,9 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``host_core_ms_per_plant_step``: process CPU time (every thread) over the steady window
   / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
   (on the CPU the tiny networks' arithmetic is in it too);
+* ``host_serial_ms_per_step``: the CPU time of the step's own thread (the loop, the
+  native calls' callers, the guidance's launch and wait) per step over the same window:
+  the serial part of a step, which no number of cores shortens;
 * ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
   guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer), ms per
   group step, means over every step: the sum of the plants' run.json figures (each plant
@@ -33,6 +36,9 @@ torch profiler (host threads; CUDA streams on CUDA) and writes it as a Chrome tr
 (``scripts/plot_timeline.py`` draws it). ``--cuda-wait spin sleep`` compares the host's
 wait for the device (CUDA only; ``StepOptions.sleeping_wait``), interleaved: CUDA's
 default spinning wait against a blocking event that lets the thread sleep (the same bits).
+``--networks stub`` runs no network (``stub_guidance.py``: a fixed, deterministic render
+gradient; the depth conditioning is still made), so the host's own work per plant-step is
+measured apart from the networks that a GPU would run.
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -105,7 +111,8 @@ def variants(args: argparse.Namespace) -> list[Variant]:
 
 
 class StepClock:
-    """The ``on_step`` hook: wall clock and process CPU time at every step end; calls
+    """The ``on_step`` hook (called on the step's thread): wall clock, process CPU time
+    and the step thread's CPU time at every step end; calls
     ``on_window("start")`` at the end of warm-up and ``on_window("stop")`` at the end of
     step ``last`` (the run's exports after it are no part of the window)."""
 
@@ -115,10 +122,12 @@ class StepClock:
         self.warmup, self.on_window, self.last = warmup, on_window, last
         self.wall: list[float] = []
         self.cpu: list[float] = []
+        self.serial: list[float] = []
 
     def __call__(self, step: int) -> None:
         self.wall.append(time.perf_counter())
         self.cpu.append(time.process_time())
+        self.serial.append(time.thread_time())
         if self.on_window is not None and len(self.wall) == self.warmup:
             self.on_window("start")
         if self.on_window is not None and step == self.last:
@@ -132,6 +141,7 @@ class StepClock:
         gaps = [t1 - t0 for t0, t1 in itertools.pairwise(self.wall[self.warmup - 1 :])]
         steps = len(gaps)
         cpu = self.cpu[-1] - self.cpu[self.warmup - 1]
+        serial = self.serial[-1] - self.serial[self.warmup - 1] if self.serial else math.nan
         median = statistics.median(gaps)
         return {
             "steady_steps": steps,
@@ -140,6 +150,7 @@ class StepClock:
             "plants_per_hour": 3600 * b / (median * STEPS_PER_PLANT),
             "s_per_plant": median * STEPS_PER_PLANT / b,
             "host_core_ms_per_plant_step": 1000 * cpu / (steps * b),
+            "host_serial_ms_per_step": 1000 * serial / steps,
             "window_s": self.wall[-1] - self.wall[self.warmup - 1],
         }
 
@@ -280,10 +291,16 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         )
         for s in range(v.b)
     ]  # fmt: skip
-    guidance = StableDiffusionDepthGuidance(
-        species="bean", components=parts, resolution=args.sds, device=args.device,
-        vae_dtype=v.vae, seed=0,
-    )  # fmt: skip
+    guidance: Any
+    if args.networks == "stub":  # the host's own work: no network, depth maps still made
+        from stub_guidance import StubGuidance
+
+        guidance = StubGuidance(resolution=args.sds)
+    else:
+        guidance = StableDiffusionDepthGuidance(
+            species="bean", components=parts, resolution=args.sds, device=args.device,
+            vae_dtype=v.vae, seed=0,
+        )  # fmt: skip
     busy = GpuBusy(cuda)
     clock = StepClock(args.warmup, busy.window, last=args.steps - 1)
     hook: Callable[[int], None] = clock if trace is None else OneStepTrace(trace, cuda, clock)
@@ -340,7 +357,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "device": args.device,
         "host": host_line(),
-        "networks": "tiny" if args.tiny else "full size (SD 2.1-base), random weights",
+        "networks": networks_text(args),
         "points": args.points,
         "render": args.render,
         "sds": args.sds,
@@ -349,6 +366,12 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
         "repeats": args.repeats,
         "groups": groups,
     }
+
+
+def networks_text(args: argparse.Namespace) -> str:
+    if args.networks == "stub":
+        return "no (--networks stub: a fixed render gradient, depth maps made)"
+    return "tiny" if args.tiny else "full size (SD 2.1-base), random weights"
 
 
 def table(report: dict[str, Any], command: str) -> list[str]:
@@ -364,12 +387,13 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         f"{report['warmup']} warm-up, {report['repeats']} interleaved repeats (median of "
         "the runs; min in brackets). Step ms: median wall time between step ends after "
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
-        "phases: means over every step.",
+        "serial ms: the step thread's own CPU time per step; phases: ms per group step "
+        "(the plants' shares summed), means over every step.",
         "",
         "| B | overlap | VAE | CUDA wait | "
-        "ms per step | plants per hour | host core-ms per plant-step | GPU busy | "
-        "peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "ms per step | plants per hour | host core-ms per plant-step | host serial ms per "
+        "step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
+        "|---:|---|---|---|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
@@ -380,6 +404,7 @@ def table(report: dict[str, Any], command: str) -> list[str]:
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
             f"{num(row['host_core_ms_per_plant_step'])} "
             f"({num(row['host_core_ms_per_plant_step_min'])}) | "
+            f"{num(row['host_serial_ms_per_step'])} | "
             f"{num(row['gpu_busy'], '{:.0%}')} | {num(row['peak_cuda_gib'], '{:.1f}')} | "
             f"{phases} |"
         )
@@ -457,6 +482,9 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
     p.add_argument("--render", type=int, help="render size (768; --tiny: 128)")
     p.add_argument("--sds", type=int, help="SDS size (512; --tiny: 64)")
     p.add_argument("--tiny", action="store_true", help="tiny networks on the CPU")
+    p.add_argument("--networks", choices=("real", "stub"), default="real",
+                   help="stub: no network runs, the guidance returns a fixed render gradient "
+                   "(the depth maps are still made): the host's own work alone")  # fmt: skip
     p.add_argument("--device", help="cuda where present, else cpu (--tiny: cpu)")
     p.add_argument("--trace", type=Path, help="Chrome trace of one steady step (first run)")
 

@@ -5,10 +5,10 @@ networks on CUDA, ``--tiny`` networks on the CPU), then Ctrl-C + resume of a gro
 The bench's settings apply (``--groups``, ``--overlap``, ``--vae``, ``--steps``,
 ``--warmup``, ``--trace``, ...); ``OUT/throughput.json`` holds the bench's report, whose
 ``groups`` give per run ``step_ms_median``, ``plants_per_hour``, ``gpu_busy`` (null without
-CUDA), ``host_core_ms_per_plant_step``, ``peak_cuda_gib`` and the rest, and ``resume``: a
-group of 4 with overlap on run straight through, and again stopped by SIGINT after step
-``--steps // 2`` and resumed; every plant's plant.ply and images must be byte-identical
-(``--no-resume`` leaves it out). ``OUT/throughput.md`` is the bench's table.
+CUDA), ``host_core_ms_per_plant_step``, ``host_serial_ms_per_step``, ``peak_cuda_gib`` and
+the rest, and ``resume``: a group of 4 with overlap on run straight through, and again
+stopped by SIGINT after step ``--steps // 2`` and resumed; every plant's plant.ply and
+images must be byte-identical (``--no-resume`` leaves it out). ``OUT/throughput.md`` is the bench's table.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT / "benches"))
 import bench_throughput  # noqa: E402
 
 KEYS = ("step_ms_median", "plants_per_hour", "gpu_busy", "host_core_ms_per_plant_step",
-        "peak_cuda_gib")  # fmt: skip
+        "host_serial_ms_per_step", "peak_cuda_gib")  # fmt: skip
 
 
 def test_the_steady_state_is_the_median_gap_after_warm_up():
@@ -25,10 +25,12 @@ def test_the_steady_state_is_the_median_gap_after_warm_up():
     # Step ends at 0, 10 (warm-up), then gaps of 1, 3, 2 s; CPU 4 s over the window.
     clock.wall = [0.0, 10.0, 11.0, 14.0, 16.0]
     clock.cpu = [0.0, 20.0, 21.0, 23.0, 24.0]
+    clock.serial = [0.0, 5.0, 5.5, 6.0, 6.5]  # the step thread: 0.5 s a step
     s = clock.steady(b=4)
     assert s["steady_steps"] == 3 and s["step_ms_median"] == 2000.0 and s["step_ms_min"] == 1000
     assert s["plants_per_hour"] == 3600 * 4 / (2.0 * 3600)
     assert math.isclose(s["host_core_ms_per_plant_step"], 4000 / (3 * 4))
+    assert math.isclose(s["host_serial_ms_per_step"], 500.0)
 
 
 def test_the_gpu_window_opens_after_warm_up_and_closes_at_the_last_step():
@@ -82,8 +84,11 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     for label, row in report["groups"].items():
         assert set(KEYS) <= set(row), label
         assert row["gpu_busy"] is None and row["peak_cuda_gib"] is None
-        for key in ("step_ms_median", "plants_per_hour", "host_core_ms_per_plant_step"):
+        for key in ("step_ms_median", "plants_per_hour", "host_core_ms_per_plant_step",
+                    "host_serial_ms_per_step"):  # fmt: skip
             assert math.isfinite(row[key]) and row[key] > 0, (label, key, row[key])
+        # The step's own thread is part of the process, and busy at most the whole step.
+        assert row["host_serial_ms_per_step"] <= row["step_ms_median"] * 1.5, label
         assert row["steady_steps"] == 2
         assert set(row["phases_ms"]) == set(bench_throughput.PHASES)
     two = report["groups"]["2"]
@@ -112,3 +117,31 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     assert adams and main not in adams  # (one pool thread may take both tasks)
     assert plot_timeline.main([str(out / "step.json"), str(out / "step.png")]) == 0
     assert (out / "step.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_stub_guidance_gives_every_render_a_fixed_gradient_and_still_wants_depth():
+    import torch
+    from stub_guidance import StubGuidance
+
+    from plantdreamer.cameras import orbit as orbit_camera
+
+    stub = StubGuidance(resolution=16)
+    assert stub.needs_depth and stub.resolution == 16
+    cam = orbit_camera(3.0, 20.0, 30.0, 50.0, 8, 8)
+    grads = []
+    for step, images in enumerate([torch.rand(2, 8, 8, 3), torch.rand(2, 8, 8, 3)]):
+        images.requires_grad_(True)
+        (stub(images, None, [cam, cam], step).loss * 2).backward()
+        grads.append(images.grad)
+    assert torch.equal(grads[0], grads[1]) and torch.equal(grads[0][0], grads[0][1])
+    assert torch.equal(grads[0][0], StubGuidance(resolution=16)._pattern((8, 8, 3)))
+
+
+def test_the_bench_measures_the_host_alone_with_the_stub(tmp_path):
+    args = argparse.Namespace(
+        device="cpu", tiny=True, networks="stub", steps=4, warmup=2, points=1500, render=32,
+        sds=16,
+    )  # fmt: skip
+    row = bench_throughput.one_run(bench_throughput.Variant(2), args, parts=None)
+    assert row["steady_steps"] == 2 and row["phases_ms"]["depth"] > 0
+    assert 0 < row["host_serial_ms_per_step"] and row["host_core_ms_per_plant_step"] > 0
