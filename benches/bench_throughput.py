@@ -16,6 +16,9 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``host_serial_ms_per_step``: the CPU time of the step's own thread (the loop, the
   native calls' callers, the guidance's launch and wait) per step over the same window:
   the serial part of a step, which no number of cores shortens;
+* ``raster_core_ms_per_plant``: the rasterizer alone on plant 0 at the render size (one
+  forward and backward, process CPU time) in the same run, and ``host_to_raster``, the
+  host's core-ms per plant-step over it: what the step adds around the rasterizer;
 * ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
   guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer), ms per
   group step, means over every step: the sum of the plants' run.json figures (each plant
@@ -325,9 +328,36 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
     out["gaussians_final"] = runs[0]["gaussians"]["final"]  # plant 0's
+    out["raster_core_ms_per_plant"] = raster_alone_core_ms(cfgs[0])
+    out["host_to_raster"] = out["host_core_ms_per_plant_step"] / out["raster_core_ms_per_plant"]
     out["peak_cuda_gib"] = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
     out["wall_s"] = wall
     return out
+
+
+def raster_alone_core_ms(cfg: Any, calls: int = 5) -> float:
+    """The rasterizer's own work on plant 0 at the run's render size: process CPU time of
+    one forward and backward (``GaussianModel.render`` of its initial Gaussians from its
+    first training camera, every colour's gradient one), the median of ``calls``. The
+    host's core-ms per plant-step over this is what the step adds to the rasterizer."""
+    import copy
+
+    import torch
+
+    from plantdreamer.pipeline.run_state import RunState
+    from plantdreamer.pipeline.runtime import resolve_runtime
+
+    cfg = copy.deepcopy(cfg)
+    resolve_runtime(cfg)
+    state = RunState.fresh(cfg, show_progress=False)
+    camera = state.sampler.sample()
+    times = []
+    for _ in range(calls):
+        t0 = time.process_time()
+        image, _, _ = state.model.render([camera], cfg.train.background)
+        torch.autograd.backward(image, torch.ones_like(image))
+        times.append(time.process_time() - t0)
+    return 1000 * statistics.median(times)
 
 
 def run_all(args: argparse.Namespace) -> dict[str, Any]:
@@ -387,13 +417,17 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         f"{report['warmup']} warm-up, {report['repeats']} interleaved repeats (median of "
         "the runs; min in brackets). Step ms: median wall time between step ends after "
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
-        "serial ms: the step thread's own CPU time per step; phases: ms per group step "
-        "(the plants' shares summed), means over every step.",
+        "serial ms: the step thread's own CPU time per step; raster core-ms: the "
+        "rasterizer alone, one forward and backward of plant 0 at the render size (process "
+        "CPU time, median of 5), and the host's core-ms per plant-step over it; phases: ms "
+        "per group step (the plants' shares summed), means over every step.",
         "",
         "| B | overlap | VAE | CUDA wait | "
         "ms per step | plants per hour | host core-ms per plant-step | host serial ms per "
-        "step | GPU busy | peak GPU GiB | " + " | ".join(PHASES) + " |",
-        "|---:|---|---|---|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "step | raster core-ms (host / raster) | GPU busy | peak GPU GiB | "
+        + " | ".join(PHASES)
+        + " |",
+        "|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
@@ -405,6 +439,7 @@ def table(report: dict[str, Any], command: str) -> list[str]:
             f"{num(row['host_core_ms_per_plant_step'])} "
             f"({num(row['host_core_ms_per_plant_step_min'])}) | "
             f"{num(row['host_serial_ms_per_step'])} | "
+            f"{num(row['raster_core_ms_per_plant'])} ({num(row['host_to_raster'], '{:.2f}')}x) | "
             f"{num(row['gpu_busy'], '{:.0%}')} | {num(row['peak_cuda_gib'], '{:.1f}')} | "
             f"{phases} |"
         )

@@ -145,3 +145,8 @@ def test_the_bench_measures_the_host_alone_with_the_stub(tmp_path):
     row = bench_throughput.one_run(bench_throughput.Variant(2), args, parts=None)
     assert row["steady_steps"] == 2 and row["phases_ms"]["depth"] > 0
     assert 0 < row["host_serial_ms_per_step"] and row["host_core_ms_per_plant_step"] > 0
+    assert row["raster_core_ms_per_plant"] > 0
+    assert (
+        row["host_to_raster"]
+        == row["host_core_ms_per_plant_step"] / row["raster_core_ms_per_plant"]
+    )
