@@ -81,7 +81,6 @@ class StepSchedule:
         pool: Executor,
     ) -> None:
         self.plants, self.settings, self.guidance = plants, settings, guidance
-        self.train = settings.train
         self.isolate, self.options = isolate_failures, options
         self.stop_requested = False  # set by the trainer's signal handler
         cut = (len(plants) + 1) // 2 if settings.overlap else len(plants)
@@ -93,8 +92,8 @@ class StepSchedule:
         """Whether step + 1 may start during ``step``: not at a checkpoint (which must hold
         no work in flight), a requested stop or the end."""
         nxt = step + 1
-        every = self.train.checkpoint_every
-        return nxt < self.train.steps and nxt % every != 0 and not self.stop_requested
+        every = self.settings.train.checkpoint_every
+        return nxt < self.settings.train.steps and nxt % every != 0 and not self.stop_requested
 
     def stop_due(self) -> bool:
         """A stop was requested and no work is in flight: stop before the next step (with a
@@ -116,7 +115,7 @@ class StepSchedule:
         alive = set(self.alive())
         parts = [[i for i in half if i in alive] for half in self.halves]
         parts = [part for part in parts if part]
-        more = step + 1 < self.train.steps
+        more = step + 1 < self.settings.train.steps
         launched = []
         for j, part in enumerate(parts):
             if j == 0 and self.pending is not None:
@@ -130,7 +129,7 @@ class StepSchedule:
             self.step_end(step, work.plants)
             first = [i for i in work.plants if self.plants[i].error is None]
             if j + 1 < len(launched) and first and self.may_run_ahead(step):
-                self.pending = self._launch(first, step + 1, step + 2 < self.train.steps)
+                self.pending = self._launch(first, step + 1, step + 2 < self.settings.train.steps)
         sizes = [len(w.plants) for w in launched]
         return sum(v * n for v, n in zip(losses, sizes, strict=True)) / sum(sizes)
 
@@ -158,7 +157,7 @@ class StepSchedule:
     def _launch(self, plants: list[int], step: int, more: bool) -> _Launched:
         group = [self.plants[i] for i in plants]
         cameras = [p.state.sampler.sample() for p in group]
-        background = self.train.background
+        background = self.settings.train.background
 
         with self._timed("raster.forward", plants):
             models = [p.state.model for p in group]
