@@ -19,9 +19,11 @@ from plantdreamer.gaussians import Gaussians, activate_opacities, activate_scale
 from plantdreamer.pipeline.train_config import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-# torch's Adam for the Gaussians runs as its "foreach" implementation: the bits of the
-# single-tensor loop (tests/test_model_adam.py) in fewer torch calls, each an OpenMP region
-# the host waits on; measured faster (BENCHMARKS.md, "torch's Adam").
+# torch's Adam for the Gaussians runs as its fused implementation: one pass over each
+# parameter's memory instead of the "foreach" form's several. It is elementwise, so its bits
+# do not depend on the thread count, and it agrees with a float64 Adam to float32's
+# rounding (tests/test_model_adam.py); measured about 3x faster on a plant's step
+# (BENCHMARKS.md, "torch's Adam").
 
 
 class _Activations(torch.autograd.Function):
@@ -85,7 +87,7 @@ class GaussianModel:
             self.optimizer = torch.optim.Adam(
                 [{"params": [self.params[k]], "lr": rates[k], "name": k} for k in PARAM_NAMES],
                 eps=lr.eps,
-                foreach=True,
+                fused=True,
             )
 
     def __len__(self) -> int:
@@ -201,9 +203,10 @@ class GaussianModel:
                 group["params"][0] = self.params[group["name"]]
             self.optimizer.state.clear()
             self.optimizer.load_state_dict(state["optimizer"])
-            # The implementation is this build's, not the checkpoint's (the same bits).
+            # The implementation is this build's, not the checkpoint's (one written before
+            # the fused Adam names "foreach"; a run resumed from it goes on fused).
             for group in self.optimizer.param_groups:
-                group["foreach"] = True
+                group["foreach"], group["fused"] = False, True
 
 
 class RenderInputs:
