@@ -55,6 +55,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         choices=("float32", "bfloat16", "float16"),
         help="The VAE's precision in the runs (generate's --vae-dtype; default: generate's).",
     )
+    p.add_argument(
+        "--render",
+        type=int,
+        help="The training render's size (generate's --resolution; default: the SDS size, "
+        "--resolution), e.g. 96 to judge rendering at 1.5x the SDS size against 1x.",
+    )
+    p.add_argument(
+        "--depth-size",
+        choices=("sds", "render"),
+        help="Where the depth conditioning is made (generate's --depth-size; default: "
+        "generate's); differs only with --render.",
+    )
     p.add_argument("--json", type=Path, help="Write the figures here.")
     p.add_argument("--models", type=Path, help="A known-answer model folder to use as it is.")
     p.add_argument("--cache", type=Path, help="Model cache (default ~/.cache/plantdreamer/...).")
@@ -135,6 +147,10 @@ def run(args: argparse.Namespace) -> int:
         settings["guidance_scale"] = args.guidance_scale
     if args.vae_dtype is not None:
         settings["vae_dtype"] = args.vae_dtype
+    if args.render is not None:
+        settings["resolution"] = args.render
+    if args.depth_size is not None:
+        settings["depth_size"] = args.depth_size
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work_dir or Path(tmp)

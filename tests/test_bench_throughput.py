@@ -98,7 +98,7 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     names = {e.get("name") for e in trace["traceEvents"]}
     assert {"raster.forward", "guidance.launch", "guidance.wait", "raster.backward"} <= names
     assert "optimizer" in names
-    assert "| 2 | on | float32 |" in (out / "throughput.md").read_text()
+    assert "| this | 2 | 48 | on | float32 |" in (out / "throughput.md").read_text()
     # The timeline drawn from that trace: the step's phases in one thread's lane, nested
     # ranges (the Adams' zero_grad inside "raster.backward") one level deeper, and each plant's
     # Adam step off the step's thread (the schedule's pool: B = 2 is the traced run).

@@ -143,3 +143,18 @@ def test_a_model_without_strays_is_framed_on_every_gaussian_and_strays_are_left_
     strays = g.moved(far, 0.0)
     assert orbit_distance(strays, ring) > 50 * every  # every Gaussian: the strays set it
     assert framed_distance(strays, 4, 20.0, 50.0, 64, 64) <= every
+
+
+def test_a_resized_camera_sees_the_same_view_at_the_new_size():
+    cam = orbit(4.0, 20.0, 30.0, 55.0, 768, 768)
+    small = cam.resized(512, 256)
+    assert (small.width, small.height) == (512, 256)
+    assert np.array_equal(small.viewmat, cam.viewmat) and small.distance == cam.distance
+    points = np.random.default_rng(0).normal(scale=0.3, size=(50, 3))
+    uv, z = cam.project(points)
+    uv_small, z_small = small.project(points)
+    np.testing.assert_allclose(uv_small, uv * [512 / 768, 256 / 768], rtol=1e-12)
+    np.testing.assert_array_equal(z_small, z)
+    assert small.fovy_deg == pytest.approx(cam.fovy_deg)
+    with pytest.raises(InputError):
+        cam.resized(0, 512)

@@ -40,6 +40,7 @@ def test_presets_resolve_to_the_documented_values():
         "erosion-distance": "c2w-norm",
         "downsample-tolerance": 0.25,
         "network-dtype": "float32",
+        "depth-size": "render",
         "control-resize": "nearest",
         "init-scale": "rms",
         "init-shape": "sphere",
@@ -72,6 +73,7 @@ def test_presets_resolve_to_the_documented_values():
         "stretch",
     )
     assert ours.get("negative-prompt") == RELEASED_NEGATIVE_PROMPT
+    assert ours.get("depth-size") == "sds"
 
 
 def test_every_preset_is_a_choice_of_the_preset_setting():
@@ -367,15 +369,46 @@ def test_released_preset_without_guidance_records_every_resolved_value(tmp_path)
     assert [e["step"] for e in run["events"] if e["event"] == "cull"] == [599]  # theirs
 
 
-def test_released_preset_with_tiny_sds(tmp_path):
+def _depth_sizes_seen(monkeypatch) -> list[tuple[str, int]]:
+    """Spies on the conditioners the trainer builds: (depth_size, the depth map's side)."""
+    from plantdreamer.guidance import conditioned
+
+    seen: list[tuple[str, int]] = []
+    real = conditioned.DepthConditioner
+
+    def spy(render_depth, **kwargs):
+        def rendered(camera):
+            seen.append((kwargs["depth_size"], camera.width))
+            return render_depth(camera)
+
+        return real(rendered, **kwargs)
+
+    monkeypatch.setattr(conditioned, "DepthConditioner", spy)
+    return seen
+
+
+def test_released_preset_with_tiny_sds(tmp_path, monkeypatch):
     from plantdreamer.guidance import save_tiny_models
 
     base, controlnet = save_tiny_models(tmp_path / "models")
+    seen = _depth_sizes_seen(monkeypatch)
     run = _run_released(
         tmp_path,
         "--guidance", "sds", "--base-model", str(base), "--controlnet", str(controlnet),
         "--steps", "3", "--sds-resolution", "64",
     )  # fmt: skip
+    # The released code renders its depth maps at the render size (48 here).
+    assert seen and set(seen) == {("render", 48)} and run["config"]["depth-size"] == "render"
+    seen.clear()
+    ours = tmp_path / "ours"
+    result = CliRunner().invoke(main, [
+        "generate", "--species", "bean", "--seed", "1", "--points", "1500", "--resolution",
+        "48", "--eval-views", "1", "--turntable", "none", "--out", str(ours), "--quiet",
+        "--guidance", "sds", "--base-model", str(base), "--controlnet", str(controlnet),
+        "--steps", "2", "--sds-resolution", "32",
+    ])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert seen and set(seen) == {("sds", 32)}  # ours: at the ControlNet's own size
     assert run["config"]["depth-rule"] == "released"
     assert run["config"]["schedule"] == "released"
     assert run["per_step_s"]["guidance.launch"] > 0

@@ -314,3 +314,23 @@ def test_example_conditioning_images_are_saved(tmp_path):
     with Image.open(paths[2]) as im:
         assert im.size == (512, 512)
         assert np.asarray(im)[256, 180] > np.asarray(im)[256, 340] > 0
+
+
+@pytest.mark.parametrize(("depth_size", "rendered"), [("sds", 32), ("render", SIZE)])
+def test_the_depth_map_is_rendered_at_the_sds_size_or_at_the_render_size(depth_size, rendered):
+    depth, alpha, _ = synthetic_plant()
+    seen = []
+
+    def render(camera):
+        seen.append(camera)
+        return depth[0], alpha[0]
+
+    cond = DepthConditioner(render, out_size=32, depth_size=depth_size)
+    camera = orbit(4.0, 15.0, 0.0, 60.0, SIZE, SIZE)
+    assert cond([camera]).shape == (1, 1, 32, 32)
+    assert (seen[0].width, seen[0].height) == (rendered, rendered)
+    assert np.array_equal(seen[0].viewmat, camera.viewmat)
+    cond([orbit(4.0, 15.0, 0.0, 60.0, SIZE, SIZE)])  # cached by the training camera
+    assert len(seen) == 1
+    with pytest.raises(InputError, match="depth size"):
+        DepthConditioner(render, depth_size="half")

@@ -269,7 +269,9 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     # Every setting as resolved by that version, but the orbit's distance: 4.0 was then the
     # default; now none is set and generate frames the orbit on the plant.
     assert cfg.get("eval-distance") == 4.0 and new["config"]["eval-distance"] is None
-    framed = from_record({**new["config"], "eval-distance": 4.0})
+    # The depth map's size: that version rendered it at the render size (RECORDED_BEFORE).
+    assert cfg.get("depth-size") == "render" and new["config"]["depth-size"] == "sds"
+    framed = from_record({**new["config"], "eval-distance": 4.0, "depth-size": "render"})
     assert framed == cfg
     assert "source" not in new["config"] and new["config"]["densify-every"] == 2
     (plant / "run.json").write_text(OLD_RUN.read_text())
@@ -329,3 +331,17 @@ def test_lora_train_options_are_its_config(monkeypatch):
     finally:
         monkeypatch.undo()
         importlib.reload(mod)
+
+
+def test_a_record_without_a_later_setting_reads_as_the_version_that_wrote_it():
+    from plantdreamer.pipeline.config import RECORDED_BEFORE, from_record
+
+    cfg = GenerateConfig.of(species="bean", seed=1)
+    record = cfg.to_dict()
+    assert from_record(record) == cfg  # a record with every setting reads as it is
+    for name, then in RECORDED_BEFORE.items():
+        assert cfg.get(name) != then  # today's default differs, or the entry is not needed
+        older = {k: v for k, v in record.items() if k != name}
+        assert from_record(older).get(name) == then
+        assert from_record(older).settings() == {**cfg.settings(), name: then}
+    assert GenerateConfig.from_dict(json.loads(json.dumps(record))) == cfg

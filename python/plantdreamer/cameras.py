@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -58,6 +58,16 @@ class Camera:
     @property
     def fovy_deg(self) -> float:
         return math.degrees(2.0 * math.atan(self.height / (2.0 * self.K[1, 1])))
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The same view at ``width`` x ``height`` pixels: the intrinsics scaled per axis
+        (focal lengths and principal point; pixel centres stay at +0.5), the pose and the
+        orbit parameters kept."""
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, :] *= sx
+        K[1, :] *= sy
+        return replace(self, K=K, width=as_int("width", width), height=as_int("height", height))
 
     def to_opengl_c2w(self) -> np.ndarray:
         return self.c2w @ _GL_TO_CV

@@ -1,8 +1,9 @@
 """A guidance together with its depth conditioning, for one plant or a group trained
 together: the trainer hands it the renders and their cameras; the depth maps the ControlNet
 needs are made here, one source per plant (a ``render_depth(camera)`` callback over that
-plant's initial Gaussians), cleaned by the section's ``depth_rule`` / ``control_resize`` at
-the guidance's own ``resolution``, and computed one step ahead as tasks of the trainer's
+plant's initial Gaussians), rendered at the guidance's own ``resolution`` (``depth_size``
+"sds") or at the training render's and resized (``control_resize``), cleaned by the
+section's ``depth_rule``, and computed one step ahead as tasks of the trainer's
 host pool (``depth_ahead.py``). The guidance itself is called once per step on each batch the trainer
 hands it: the whole group, or one half of it (``guidance/in_flight.py``).
 """
@@ -19,6 +20,7 @@ import torch
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.base import Guidance, PendingOutput
+from plantdreamer.guidance.config import SDS_DEFAULTS
 from plantdreamer.guidance.depth import DepthCleaning, DepthConditioner
 from plantdreamer.guidance.depth_ahead import DepthAhead
 
@@ -41,9 +43,10 @@ class ConditionedGuidance:
         render_depths: Sequence[RenderDepth],
         next_cameras: Sequence[Callable[[], Camera]],
         *,
-        depth_rule: str = "stretch",
-        control_resize: str = "bilinear",
-        erosion_distance: str = "camera",
+        depth_rule: str = SDS_DEFAULTS.depth_rule,
+        depth_size: str = SDS_DEFAULTS.depth_size,
+        control_resize: str = SDS_DEFAULTS.control_resize,
+        erosion_distance: str = SDS_DEFAULTS.erosion_distance,
         ahead: Executor | None = None,
     ) -> None:
         self.guidance = guidance
@@ -56,7 +59,9 @@ class ConditionedGuidance:
                 rule=depth_rule, resize=control_resize, distance=erosion_distance
             )
             for render_depth, next_camera in zip(render_depths, next_cameras, strict=True):
-                conditioner = DepthConditioner(render_depth, out_size=size, config=cleaning)
+                conditioner = DepthConditioner(
+                    render_depth, out_size=size, config=cleaning, depth_size=depth_size
+                )
                 self._depth.append(DepthAhead(conditioner, next_camera, ahead))
 
     @property

@@ -16,6 +16,9 @@ SCHEDULES = ("paper", "released")
 # Depth normalisation rules (``guidance/depth.py``) and control-image resampling.
 DEPTH_RULES = ("stretch", "released", "stretch-lift")
 RESIZE_MODES = ("bilinear", "nearest")
+# Where the depth map of the initial Gaussians is rendered: at the SDS size the ControlNet
+# reads, or at the training render's size and then resized (the released code).
+DEPTH_SIZES = ("sds", "render")
 # What picks the depth erosion kernel: the camera distance, or the released code's
 # Frobenius norm of the 4x4 camera-to-world matrix (``guidance/depth.py``).
 EROSION_DISTANCES = ("camera", "c2w-norm")
@@ -77,8 +80,17 @@ class SdsConfig:
         "matrix's norm sqrt(r^2 + 4) (released: 5 px below r = 4.58, never 3 px).",
         choices=EROSION_DISTANCES,
     )
+    depth_size: str = setting(
+        "sds",
+        "Size the depth conditioning is rendered and cleaned at: sds (the ControlNet's own "
+        "size, --sds-resolution; no resize) or render (the training render's size, then "
+        "resized by --control-resize, as the released code). docs/scaling.md measures both.",
+        choices=DEPTH_SIZES,
+    )
     control_resize: str = setting(
-        "bilinear", "Resizing of the depth control image.", choices=RESIZE_MODES
+        "bilinear",
+        "Resizing of the depth control image (with --depth-size render).",
+        choices=RESIZE_MODES,
     )
     network_dtype: str = setting(
         "auto", "UNet and ControlNet precision (auto: float16 on CUDA).", choices=NETWORK_DTYPES

@@ -52,7 +52,13 @@ import torch.nn.functional as F
 from plantdreamer.atomic import write_image
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.config import DEPTH_RULES, EROSION_DISTANCES, RESIZE_MODES
+from plantdreamer.guidance.config import (
+    DEPTH_RULES,
+    DEPTH_SIZES,
+    EROSION_DISTANCES,
+    RESIZE_MODES,
+    SDS_DEFAULTS,
+)
 
 
 @dataclass(frozen=True)
@@ -311,8 +317,11 @@ class DepthConditioner:
     """Cleaned depth conditioning per camera, rendered once per pose.
 
     ``render_depth(camera) -> (depth, alpha)`` renders the fixed initial Gaussians
-    ([H, W, 1] or [1, H, W, 1] each). Results are kept in an LRU cache keyed by the camera's
-    matrices and size, so evaluation orbits and repeated poses are not re-rendered.
+    ([H, W, 1] or [1, H, W, 1] each) from the camera it is given: with ``depth_size="sds"``
+    the training camera resized to ``out_size`` (the map is rendered and cleaned at the size
+    the ControlNet reads), with ``"render"`` the training camera itself (then resized to
+    ``out_size``). Results are kept in an LRU cache keyed by the training camera's matrices
+    and size, so evaluation orbits and repeated poses are not re-rendered.
     """
 
     def __init__(
@@ -321,10 +330,14 @@ class DepthConditioner:
         cache_size: int = 256,
         out_size: int = 512,
         config: DepthCleaning | None = None,
+        depth_size: str = SDS_DEFAULTS.depth_size,
         **overrides: object,
     ):
         if cache_size < 0:
             raise InputError(f"cache_size must be >= 0, got {cache_size}")
+        if depth_size not in DEPTH_SIZES:
+            raise InputError(f"depth size must be one of {DEPTH_SIZES}, got {depth_size!r}")
+        self.depth_size = depth_size
         self.render_depth = render_depth
         self.cache_size = cache_size
         self.out_size = out_size
@@ -351,8 +364,11 @@ class DepthConditioner:
             self._cache.move_to_end(key)
             return cached
         self.misses += 1
+        seen_by = camera
+        if self.depth_size == "sds":
+            seen_by = camera.resized(self.out_size, self.out_size)
         with torch.no_grad():
-            depth, alpha = self.render_depth(camera)
+            depth, alpha = self.render_depth(seen_by)
         cond = clean_depth(depth, alpha, camera_distance(camera), self.out_size, self.config)
         if self.cache_size > 0:
             self._cache[key] = cond

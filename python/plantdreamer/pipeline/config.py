@@ -132,14 +132,34 @@ class GenerateConfig:
         return from_record(data)
 
 
+# Settings added after records were written, each with the value that does what the
+# versions before it did: a record without the setting means that value, not today's
+# default, so an older run resumes with the same bits.
+RECORDED_BEFORE: dict[str, Any] = {"depth-size": "render"}
+
+
 def from_record(data: Mapping[str, Any]) -> GenerateConfig:
     """The config a run.json, group.json or checkpoint recorded: settings by name (this
     version), the sections of the versions up to 689da5e (``{"source": {"points": ...}}``), or
-    the flat fields before them. The one reader of saved configs: resume, ``render`` and
+    the flat fields before them; a setting the record predates takes its
+    ``RECORDED_BEFORE`` value. The one reader of saved configs: resume, ``render`` and
     the dataset driver all come through here."""
     if isinstance(data.get("source"), Mapping):  # no setting is named "source"
-        return _build(GenerateConfig, data)
-    return from_flat_dict(data)
+        cfg = _build(GenerateConfig, data)
+    else:
+        cfg = from_flat_dict(data)
+    absent = {k: v for k, v in RECORDED_BEFORE.items() if k not in _recorded_names(data)}
+    return GenerateConfig.from_settings({**cfg.settings(), **absent}) if absent else cfg
+
+
+def _recorded_names(data: Mapping[str, Any]) -> set[str]:
+    """The names a record holds: its keys, and its sections' keys (where a section's field
+    is named after itself, as the ones ``RECORDED_BEFORE`` holds)."""
+    names = {settings.canonical(k) for k in data}
+    for section in data.values():
+        if isinstance(section, Mapping):
+            names |= {settings.canonical(k) for k in section}
+    return names
 
 
 def from_flat_dict(data: Mapping[str, Any]) -> GenerateConfig:

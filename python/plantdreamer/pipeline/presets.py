@@ -31,6 +31,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "guidance-scale": 101.0,
         "schedule": "released",
         "depth-rule": "released",
+        "depth-size": "render",
         "control-resize": "nearest",
         "network-dtype": "float32",
         "cull-threshold": 7.0,

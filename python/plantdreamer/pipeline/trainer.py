@@ -82,6 +82,7 @@ class Trainer:
             [self._depth_renderer(m) for m in initials],
             [p.state.sampler.peek for p in plants],
             depth_rule=self.settings.sds.depth_rule,
+            depth_size=self.settings.sds.depth_size,
             control_resize=self.settings.sds.control_resize,
             erosion_distance=self.settings.sds.erosion_distance,
             ahead=self.pool if options.depth_ahead else None,
