@@ -43,6 +43,12 @@ default spinning wait against a blocking event that lets the thread sleep (the s
 gradient; the depth conditioning is still made), so the host's own work per plant-step is
 measured apart from the networks that a GPU would run.
 
+``--render 768 512`` compares render sizes (each a run; the SDS size stays). ``--baseline
+DIR`` makes every run with an earlier package too (``DIR/plantdreamer``: a checkout's
+``python/`` with its native module, or an unpacked wheel), before this tree's in each
+repeat, each run in a process of its own: a before/after in one bench, under the same load.
+The baseline must have the calls this bench makes (``generate_group`` with ``options``).
+
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
 plant) and once per worker (one cache for all N, as a ``PlantWorker`` does).
@@ -84,6 +90,8 @@ class Variant:
     overlap: str = "off"
     vae: str = "float32"
     cuda_wait: str = "sleep"
+    render: int | None = None  # None: the run's one --render
+    build: str = "this"  # or "baseline": the package under --baseline
 
     @property
     def label(self) -> str:
@@ -91,6 +99,8 @@ class Variant:
         parts += ["overlap"] if self.overlap == "on" else []
         parts += [self.vae] if self.vae != "float32" else []
         parts += ["spin-wait"] if self.cuda_wait == "spin" else []
+        parts += [f"r{self.render}"] if self.render is not None else []
+        parts += ["baseline"] if self.build == "baseline" else []
         return "-".join(parts)
 
 
@@ -103,13 +113,18 @@ SWITCHES = (
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
+    """Every run to compare: B x overlap x VAE x wait x render size, each with the
+    ``--baseline`` package first where one is given."""
+    renders = getattr(args, "renders", None) or [None]
+    builds = ["baseline", "this"] if getattr(args, "baseline", None) else ["this"]
     out = []
-    for b, overlap, vae, wait in itertools.product(
-        args.groups, args.overlap, args.vae, args.cuda_wait
-    ):
+    for b, overlap, vae, wait, render, build in itertools.product(
+        args.groups, args.overlap, args.vae, args.cuda_wait,
+        renders if len(renders) > 1 else [None], builds,
+    ):  # fmt: skip
         if overlap == "on" and b == 1:
             continue  # one plant has no halves
-        out.append(Variant(b, overlap, vae, wait))
+        out.append(Variant(b, overlap, vae, wait, render, build))
     return out
 
 
@@ -288,7 +303,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     cfgs = [
         GenerateConfig.of(
             species="bean", seed=s, steps=args.steps, points=args.points,
-            resolution=args.render, sds_resolution=args.sds, eval_views=1,
+            resolution=v.render or args.render, sds_resolution=args.sds, eval_views=1,
             turntable_frames=1, turntable="none", checkpoint_every=args.steps,
             device=args.device, overlap=v.overlap, vae_dtype=v.vae,
         )
@@ -323,7 +338,8 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
         runs = [json.loads(p.read_text()) for p in sorted(Path(tmp).glob("*/run.json"))]
     timings = {k: sum(r["timings_s"].get(k, 0.0) for r in runs) for k in PHASES}
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
-                           "cuda_wait": v.cuda_wait}  # fmt: skip
+                           "cuda_wait": v.cuda_wait, "render": v.render or args.render,
+                           "build": v.build}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
@@ -370,9 +386,12 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     parts: dict[str, Any] = {}
     for _ in range(args.repeats):
         for v in runs:
-            if v.vae not in parts:
-                parts[v.vae] = make()
-            runs[v].append(one_run(v, args, parts[v.vae]))
+            if getattr(args, "baseline", None):  # each build in a process of its own
+                runs[v].append(child_run(v, args))
+            else:
+                if v.vae not in parts:
+                    parts[v.vae] = make()
+                runs[v].append(one_run(v, args, parts[v.vae]))
             print(v.label, json.dumps(runs[v][-1]), flush=True)
     groups = {}
     for v, reps in runs.items():
@@ -389,13 +408,47 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
         "host": host_line(),
         "networks": networks_text(args),
         "points": args.points,
-        "render": args.render,
+        "render": getattr(args, "renders", None) or args.render,
         "sds": args.sds,
+        "baseline": None if not getattr(args, "baseline", None) else str(args.baseline),
         "steps": args.steps,
         "warmup": args.warmup,
         "repeats": args.repeats,
         "groups": groups,
     }
+
+
+def child_run(v: Variant, args: argparse.Namespace) -> dict[str, Any]:
+    """``one_run`` in a fresh process: with the package under ``--baseline`` first on its
+    path for the baseline build, else with this tree's (the two alike in every other way)."""
+    import subprocess
+
+    env = dict(os.environ)
+    if v.build == "baseline":
+        env["PYTHONPATH"] = os.pathsep.join(
+            p for p in (str(args.baseline), env.get("PYTHONPATH")) if p
+        )
+    settings = {k: str(val) if isinstance(val, Path) else val for k, val in vars(args).items()}
+    job = json.dumps({"variant": dataclasses.asdict(v), "args": settings})
+    done = subprocess.run(
+        [sys.executable, __file__, "--child", job], env=env, capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        raise SystemExit(f"error: the {v.label} run failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def run_child(job: str) -> int:
+    """One ``one_run`` of a ``child_run`` job; its row is the last line printed."""
+    import plantdreamer
+
+    spec = json.loads(job)
+    args = argparse.Namespace(**spec["args"])
+    v = Variant(**spec["variant"])
+    row = one_run(v, args, None if args.networks == "stub" else build_parts(args)())
+    row["package"] = str(Path(plantdreamer.__file__).parent)
+    print(json.dumps(row))
+    return 0
 
 
 def networks_text(args: argparse.Namespace) -> str:
@@ -420,19 +473,25 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "serial ms: the step thread's own CPU time per step; raster core-ms: the "
         "rasterizer alone, one forward and backward of plant 0 at the render size (process "
         "CPU time, median of 5), and the host's core-ms per plant-step over it; phases: ms "
-        "per group step (the plants' shares summed), means over every step.",
+        "per group step (the plants' shares summed), means over every step."
+        + (
+            f" Build: `baseline` is the package in `{report['baseline']}`, `this` this "
+            "tree's, each run in a process of its own, interleaved."
+            if report.get("baseline")
+            else ""
+        ),
         "",
-        "| B | overlap | VAE | CUDA wait | "
+        "| build | B | render | overlap | VAE | CUDA wait | "
         "ms per step | plants per hour | host core-ms per plant-step | host serial ms per "
         "step | raster core-ms (host / raster) | GPU busy | peak GPU GiB | "
         + " | ".join(PHASES)
         + " |",
-        "|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "|---|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
         lines.append(
-            f"| {row['B']} | {row['overlap']} | {row['vae']} | "
+            f"| {row['build']} | {row['B']} | {row['render']} | {row['overlap']} | {row['vae']} | "
             f"{row['cuda_wait'] if report['device'] != 'cpu' else '-'} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
@@ -514,7 +573,11 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
     p.add_argument("--warmup", type=int, default=7, help="steps left out of the steady state")
     p.add_argument("--repeats", type=int, default=1)
     p.add_argument("--points", type=int, default=100_000)
-    p.add_argument("--render", type=int, help="render size (768; --tiny: 128)")
+    p.add_argument("--render", type=int, nargs="+", help="render sizes, each a run of its "
+                   "own (768; --tiny: 128)")  # fmt: skip
+    p.add_argument("--baseline", type=Path, help="a folder holding an earlier plantdreamer "
+                   "package (a checkout's python/ or an unpacked wheel): every run is made "
+                   "with it too, interleaved, each in a process of its own")  # fmt: skip
     p.add_argument("--sds", type=int, help="SDS size (512; --tiny: 64)")
     p.add_argument("--tiny", action="store_true", help="tiny networks on the CPU")
     p.add_argument("--networks", choices=("real", "stub"), default="real",
@@ -535,7 +598,10 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
         raise SystemExit("error: --device cuda asked for, but torch sees no CUDA GPU")
     args.groups = args.groups or ([1, 4, 8] if args.tiny else [1, 8, 16, 32])
     args.vae = args.vae or (["float32"] if args.tiny else ["float32", "bfloat16"])
-    args.render = args.render or (128 if args.tiny else 768)
+    args.renders = args.render or [128 if args.tiny else 768]
+    args.render = args.renders[0]
+    if args.baseline is not None and not (args.baseline / "plantdreamer").is_dir():
+        raise SystemExit(f"error: --baseline {args.baseline} holds no plantdreamer package")
     args.sds = args.sds or (64 if args.tiny else 512)
     args.steps = args.steps or 24
     if not args.device.startswith("cuda"):
@@ -557,6 +623,8 @@ def trace_one(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main() -> int:
+    if sys.argv[1:2] == ["--child"]:
+        return run_child(sys.argv[2])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_arguments(parser)
     parser.add_argument("--loading", type=int, metavar="N", help="plants of the loading bench")
