@@ -13,7 +13,7 @@ import torch
 from plantdreamer.cameras import orbit
 from plantdreamer.gaussians import activate_opacities, activate_scales
 from plantdreamer.pipeline.ground_truth import Splats
-from plantdreamer.pipeline.model import GaussianModel, render_many
+from plantdreamer.pipeline.model import FrozenScene, GaussianModel, render_many
 
 # Not a multiple of torch's vector width: torch.sigmoid's bits at its chunk edges depend on
 # how many threads split the array, which is what the render must not inherit.
@@ -124,3 +124,17 @@ def test_ground_truth_reads_the_renders_activated_gaussians(model):
         splats.opacities.numpy().tobytes()
         == activate_opacities(p["opacity_logits"].detach()).tobytes()
     )
+
+
+@pytest.mark.parametrize("mode", ["ED", "RGB"])
+def test_a_frozen_scene_renders_the_bits_of_its_model_from_every_camera(model, mode):
+    frozen = FrozenScene(model, mode)
+    for azimuth in (0.0, 130.0):
+        camera = orbit(4.0, 20.0, azimuth, 50.0, 48, 40)
+        with torch.no_grad():
+            expected = model.render([camera], 0.5, mode)
+        got = frozen.render([camera], 0.5)
+        assert torch.equal(got[0], expected[0]) and torch.equal(got[1], expected[1])
+    with torch.no_grad():  # activations made once: a later change of the logits is unseen
+        model.params["opacity_logits"].add_(1.0)
+    assert torch.equal(frozen.render([camera], 0.5)[0], got[0])

@@ -119,15 +119,15 @@ class GaussianModel:
         self, cameras: Sequence[Camera], background: float, render_mode: str = "RGB"
     ) -> dict[str, Any]:
         """``rasterization``'s keyword arguments for a render of ``cameras``."""
+        return self.scene_args(render_mode) | camera_args(cameras, background, render_mode)
+
+    def scene_args(self, render_mode: str = "RGB") -> dict[str, Any]:
+        """The Gaussians' part of ``render_call``: activated and differentiable."""
         p = self.params
-        viewmats, ks = stack(cameras)
-        bg = None
-        if "RGB" in render_mode:
-            bg = torch.full((len(cameras), 3), float(background))
         # Copies only where needed: no concatenation at degree 0 (no sh_rest), and none for
         # depth renders, which never read the colours (a view of the right shape will do).
         k = 1 + p["sh_rest"].shape[1]
-        if bg is None:
+        if "RGB" not in render_mode:
             colors = p["sh_dc"].expand(-1, k, -1)
         elif k == 1:
             colors = p["sh_dc"]
@@ -140,12 +140,7 @@ class GaussianModel:
             "scales": scales,
             "opacities": opacities,
             "colors": colors,
-            "viewmats": torch.from_numpy(viewmats),
-            "Ks": torch.from_numpy(ks),
-            "width": cameras[0].width,
-            "height": cameras[0].height,
             "sh_degree": self.sh_degree,
-            "backgrounds": bg,
             "render_mode": render_mode,
         }
 
@@ -207,6 +202,42 @@ class GaussianModel:
             # the fused Adam names "foreach"; a run resumed from it goes on fused).
             for group in self.optimizer.param_groups:
                 group["foreach"], group["fused"] = False, True
+
+
+def camera_args(
+    cameras: Sequence[Camera], background: float, render_mode: str = "RGB"
+) -> dict[str, Any]:
+    """The cameras' part of ``render_call``."""
+    viewmats, ks = stack(cameras)
+    bg = None
+    if "RGB" in render_mode:
+        bg = torch.full((len(cameras), 3), float(background))
+    return {
+        "viewmats": torch.from_numpy(viewmats),
+        "Ks": torch.from_numpy(ks),
+        "width": cameras[0].width,
+        "height": cameras[0].height,
+        "backgrounds": bg,
+    }
+
+
+class FrozenScene:
+    """Gaussians that never change, rendered from many cameras: their render inputs
+    (activations, colours) are made once, not per render (the depth maps' initial
+    Gaussians: the same values, so the same bits as ``GaussianModel.render``)."""
+
+    def __init__(self, model: GaussianModel, render_mode: str = "RGB") -> None:
+        with torch.no_grad():
+            self.scene = model.scene_args(render_mode)
+        self.render_mode = render_mode
+
+    def render(
+        self, cameras: Sequence[Camera], background: float
+    ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+        from plantdreamer.rasterizer import rasterization
+
+        with torch.no_grad():
+            return rasterization(**self.scene, **camera_args(cameras, background, self.render_mode))
 
 
 class RenderInputs:

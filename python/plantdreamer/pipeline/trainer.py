@@ -27,13 +27,11 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
-import torch
-
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CheckpointRecord, PlantCheckpoints
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model import FrozenScene, GaussianModel
 from plantdreamer.pipeline.progress import Progress
 from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP, write_progress
 from plantdreamer.pipeline.step.options import StepOptions
@@ -97,9 +95,10 @@ class Trainer:
         )
 
     def _depth_renderer(self, initial: GaussianModel):
+        scene = FrozenScene(initial, "ED")  # its activations made once, not every step
+
         def render_depth(camera):
-            with torch.no_grad():
-                depth, alpha, _ = initial.render([camera], self.settings.train.background, "ED")
+            depth, alpha, _ = scene.render([camera], self.settings.train.background)
             return depth, alpha
 
         return render_depth
