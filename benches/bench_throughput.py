@@ -10,6 +10,8 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``gpu_busy``: the share of the steady window's wall time the GPU was busy: NVML's
   utilisation sampled every 50 ms (``pynvml``), else the union of the kernels' intervals
   from the torch profiler over the window; null without CUDA;
+* ``device_ms_per_plant_step``: the GPU's busy time per plant-step (``gpu_busy`` x the
+  window / (steps x B)), beside the host's figures: which side bounds the step;
 * ``host_core_ms_per_plant_step``: process CPU time (every thread) over the steady window
   / (steps x B): what the host's cores spend per plant-step, rasterizer and Python alike
   (on the CPU the tiny networks' arithmetic is in it too);
@@ -27,7 +29,7 @@ CUDA-graph captures and first prompt encodes fall in them):
 
 Full-size random-weight networks (SD 2.1-base sizes) on CUDA; ``--tiny`` networks on the CPU
 (the default without CUDA). Runs are B x overlap x VAE precision (``--groups``,
-``--overlap``, ``--vae``; overlap on is skipped for B = 1), interleaved over ``--repeats``.
+``--overlap``, ``--vae``; B = 1 runs once, without overlap), interleaved over ``--repeats``.
 
     python benches/bench_throughput.py                            # CUDA: B = 1, 8, 16, 32
     python benches/bench_throughput.py --tiny --groups 1 4 --steps 12 --render 128
@@ -122,9 +124,10 @@ def variants(args: argparse.Namespace) -> list[Variant]:
         args.groups, args.overlap, args.vae, args.cuda_wait,
         renders if len(renders) > 1 else [None], builds,
     ):  # fmt: skip
-        if overlap == "on" and b == 1:
-            continue  # one plant has no halves
-        out.append(Variant(b, overlap, vae, wait, render, build))
+        # One plant has no halves: it runs once, without overlap, whichever was asked.
+        v = Variant(b, "off" if b == 1 else overlap, vae, wait, render, build)
+        if v not in out:
+            out.append(v)
     return out
 
 
@@ -342,6 +345,11 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
                            "build": v.build}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
+    # The device's side beside the host's: its busy time per plant-step over the window.
+    out["device_ms_per_plant_step"] = (
+        None if busy.share is None
+        else 1000 * busy.share * out["window_s"] / (out["steady_steps"] * v.b)
+    )  # fmt: skip
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
     out["gaussians_final"] = runs[0]["gaussians"]["final"]  # plant 0's
     out["raster_core_ms_per_plant"] = raster_alone_core_ms(cfgs[0])
@@ -483,10 +491,10 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "",
         "| build | B | render | overlap | VAE | CUDA wait | "
         "ms per step | plants per hour | host core-ms per plant-step | host serial ms per "
-        "step | raster core-ms (host / raster) | GPU busy | peak GPU GiB | "
-        + " | ".join(PHASES)
-        + " |",
-        "|---|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * len(PHASES),
+        "step | raster core-ms (host / raster) | GPU busy | device ms per plant-step | "
+        "peak GPU GiB | " + " | ".join(PHASES) + " |",
+        "|---|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+        + "---:|" * len(PHASES),
     ]
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
@@ -499,7 +507,8 @@ def table(report: dict[str, Any], command: str) -> list[str]:
             f"({num(row['host_core_ms_per_plant_step_min'])}) | "
             f"{num(row['host_serial_ms_per_step'])} | "
             f"{num(row['raster_core_ms_per_plant'])} ({num(row['host_to_raster'], '{:.2f}')}x) | "
-            f"{num(row['gpu_busy'], '{:.0%}')} | {num(row['peak_cuda_gib'], '{:.1f}')} | "
+            f"{num(row['gpu_busy'], '{:.0%}')} | {num(row.get('device_ms_per_plant_step'))} | "
+            f"{num(row['peak_cuda_gib'], '{:.1f}')} | "
             f"{phases} |"
         )
     return lines

@@ -9,10 +9,16 @@
                                                            # off / on, VAE float32 / bfloat16
     python scripts/gpu_checks.py throughput OUT --tiny --groups 4 --trace OUT/step.json
     python scripts/gpu_checks.py dataset OUT --steps 40    # `dataset --plants-per-gpu 4`
+    python scripts/gpu_checks.py all OUT --baseline DIR    # the throughput work's checks in
+                                                           # one call within --budget seconds
 
 ``throughput`` is ``scripts/gpu_throughput.py`` over ``benches/bench_throughput.py``:
 several plants in one trainer, timed from step end to step end after warm-up.
 ``dataset`` is ``scripts/gpu_dataset.py``: the same through `plantdreamer dataset` on Ray.
+``all`` is ``scripts/gpu_all.py``: B = 16 before and after (``--baseline``, an earlier
+package), the known answer on CUDA with the VAE in float32 and bfloat16, the VAE alone in
+each precision, B = 1 and 32, and a group's Ctrl-C and resume, in that order, each within
+what is left of ``--budget``.
 
 ``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
 layout (``save_full_size_models``), so ``plantdreamer generate`` loads them through the real
@@ -174,6 +180,11 @@ def main(argv: list[str] | None = None) -> int:
 
         os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
         return run_throughput(argv[1:])
+    if argv[:1] == ["all"]:
+        from gpu_all import run_all
+
+        os.environ.setdefault("PLANTDREAMER_TRACEBACK", "1")
+        return run_all(argv[1:])
     if argv[:1] == ["scaling"]:
         scaling = thread_scaling()
         sp = argparse.ArgumentParser(description="rasterizer stages against threads")

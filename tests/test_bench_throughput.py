@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT / "benches"))
 import bench_throughput  # noqa: E402
 
 KEYS = ("step_ms_median", "plants_per_hour", "gpu_busy", "host_core_ms_per_plant_step",
-        "host_serial_ms_per_step", "peak_cuda_gib")  # fmt: skip
+        "host_serial_ms_per_step", "peak_cuda_gib", "device_ms_per_plant_step")  # fmt: skip
 
 
 def test_the_steady_state_is_the_median_gap_after_warm_up():
@@ -54,8 +54,15 @@ def test_the_variants_leave_out_what_one_plant_cannot_compare():
     )  # fmt: skip
     labels = [v.label for v in bench_throughput.variants(args)]
     assert labels == [
-        "1-spin-wait", "1",  # one plant: no halves
+        "1-spin-wait", "1",  # one plant: no halves, so once
         "4-spin-wait", "4", "4-overlap-spin-wait", "4-overlap",
+    ]  # fmt: skip
+    args.overlap, args.cuda_wait = ["on"], ["sleep"]
+    assert [v.label for v in bench_throughput.variants(args)] == ["1", "4-overlap"]
+    args.renders, args.baseline = [768, 512], "old"
+    assert [v.label for v in bench_throughput.variants(args)] == [
+        "1-r768-baseline", "1-r768", "1-r512-baseline", "1-r512",
+        "4-overlap-r768-baseline", "4-overlap-r768", "4-overlap-r512-baseline", "4-overlap-r512",
     ]  # fmt: skip
 
 
@@ -84,6 +91,7 @@ def test_gpu_checks_throughput_tiny_on_the_cpu(tmp_path):
     for label, row in report["groups"].items():
         assert set(KEYS) <= set(row), label
         assert row["gpu_busy"] is None and row["peak_cuda_gib"] is None
+        assert row["device_ms_per_plant_step"] is None
         for key in ("step_ms_median", "plants_per_hour", "host_core_ms_per_plant_step",
                     "host_serial_ms_per_step"):  # fmt: skip
             assert math.isfinite(row[key]) and row[key] > 0, (label, key, row[key])
@@ -150,3 +158,33 @@ def test_the_bench_measures_the_host_alone_with_the_stub(tmp_path):
         row["host_to_raster"]
         == row["host_core_ms_per_plant_step"] / row["raster_core_ms_per_plant"]
     )
+
+
+@pytest.mark.slow
+def test_a_baseline_package_runs_beside_this_tree_interleaved(tmp_path):
+    import shutil
+
+    baseline = tmp_path / "baseline"
+    shutil.copytree(ROOT / "python" / "plantdreamer", baseline / "plantdreamer",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    out = tmp_path / "throughput.md"
+    cmd = [
+        sys.executable, "benches/bench_throughput.py", "--tiny", "--networks", "stub",
+        "--groups", "2", "--overlap", "on", "--steps", "3", "--warmup", "1", "--points", "800",
+        "--render", "32", "24", "--sds", "16", "--baseline", str(baseline), "--out", str(out),
+    ]  # fmt: skip
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    rows = json.loads(out.with_suffix(".json").read_text())["groups"]
+    assert list(rows) == [
+        "2-overlap-r32-baseline", "2-overlap-r32", "2-overlap-r24-baseline", "2-overlap-r24",
+    ]  # fmt: skip
+    for label, row in rows.items():
+        assert row["render"] == int(label.split("-r")[1].split("-")[0])
+        assert row["build"] == ("baseline" if label.endswith("baseline") else "this")
+        import plantdreamer
+
+        this = Path(plantdreamer.__file__).parent
+        expected = baseline / "plantdreamer" if row["build"] == "baseline" else this
+        assert Path(row["package"]).resolve() == expected.resolve()
+    assert "| baseline | 2 | 32 | on |" in out.read_text()
