@@ -14,7 +14,9 @@ erosion, and dilation". ``clean_depth`` does, per image, with ``rule="stretch"``
    depths share a value;
 4. grey erosion then dilation (a morphological opening) with a square kernel chosen from
    the camera distance, which removes the thin halo of half-transparent edge Gaussians;
-5. resize to the ControlNet resolution (``out_size`` square, like the RGB render).
+5. resize to the ControlNet resolution (``out_size`` square, like the RGB render), where
+   the map was not made at it: ``DepthConditioner`` renders it at that size by default
+   (``depth_size="sds"``), or at the training render's (``"render"``, the released code).
 
 ``rule="released"`` is the authors' released processing instead (``released_normalise``):
 accumulated depth D (sum of T alpha z) rounded to 2 decimals; ``start`` = the second-smallest
