@@ -14,7 +14,9 @@ says which, with every check's seconds and exit status, and where its output is)
    dtype, memory format and attention kernel (``benches/bench_vae_precision.py``);
 4. ``throughput-1-32``: B = 1 and B = 32 (overlap on), both precisions, this tree;
 5. ``resume``: a group of 4 stopped by SIGINT halfway and resumed, byte-identical to the
-   group run straight through (``gpu_throughput.resume_check``).
+   group run straight through (``gpu_throughput.resume_check``);
+6. ``known-answer-render-96``: the known answer on CUDA training at 1.5x the SDS size (96
+   against the models' 64, as 768 against 512), against ``known-answer-float32``'s 1x.
 
 ``--tiny`` makes every check a dry run on the CPU (tiny networks, small plants), as the
 tests do.
@@ -60,6 +62,8 @@ def checks(args: argparse.Namespace, out: Path) -> list[tuple[str, list[str]]]:
          [*throughput, str(out / "throughput-1-32"), *b1_32, *vaes, *size, "--no-resume"]),
         ("resume",
          [*throughput, str(out / "resume"), "--only-resume", *size, "--work", str(args.work)]),
+        ("known-answer-render-96",
+         [*known, "--render", "96", "--json", str(out / "known-answer-render-96.json")]),
     ]  # fmt: skip
 
 

@@ -17,8 +17,8 @@ several plants in one trainer, timed from step end to step end after warm-up.
 ``dataset`` is ``scripts/gpu_dataset.py``: the same through `plantdreamer dataset` on Ray.
 ``all`` is ``scripts/gpu_all.py``: B = 16 before and after (``--baseline``, an earlier
 package), the known answer on CUDA with the VAE in float32 and bfloat16, the VAE alone in
-each precision, B = 1 and 32, and a group's Ctrl-C and resume, in that order, each within
-what is left of ``--budget``.
+each precision, B = 1 and 32, a group's Ctrl-C and resume, and the known answer rendering
+at 1.5x the SDS size, in that order, each within what is left of ``--budget``.
 
 ``resume`` writes the full-size SD 2.1-base networks with random weights in the hub's folder
 layout (``save_full_size_models``), so ``plantdreamer generate`` loads them through the real

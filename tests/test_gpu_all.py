@@ -38,7 +38,7 @@ def test_every_check_has_a_command_and_the_tiny_plan_stays_on_the_cpu(tmp_path):
     plan = gpu_all.checks(args, tmp_path)
     assert [name for name, _ in plan] == [
         "throughput-16", "known-answer-float32", "known-answer-bfloat16", "vae-precision",
-        "throughput-1-32", "resume",
+        "throughput-1-32", "resume", "known-answer-render-96",
     ]  # fmt: skip
     for name, cmd in plan:
         assert "cuda" not in cmd, name
@@ -52,7 +52,7 @@ def test_the_whole_device_script_as_a_dry_run_on_the_cpu(tmp_path):
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1300)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
     report = json.loads((tmp_path / "all.json").read_text())
-    assert [c["status"] for c in report["checks"]] == ["passed"] * 6
+    assert [c["status"] for c in report["checks"]] == ["passed"] * 7
     # The known answer in both precisions ran to the end: their gap is a number.
     assert abs(report["known_answer_bfloat16_minus_float32_db"]) < 5.0
     rows = json.loads((tmp_path / "vae_precision.json").read_text())["rows"]
