@@ -29,7 +29,7 @@ from typing import Any
 import torch
 
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model import FrozenScene, GaussianModel
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.pipeline.runtime import resolve_runtime
 
@@ -49,9 +49,10 @@ def conditioners(cfg: GenerateConfig, model: GaussianModel) -> dict[str, Any]:
         rule=sds.depth_rule, resize=sds.control_resize, distance=sds.erosion_distance
     )
 
+    scene = FrozenScene(model, "ED")  # as the trainer renders its depth maps
+
     def render_depth(camera):
-        with torch.no_grad():
-            depth, alpha, _ = model.render([camera], cfg.train.background, "ED")
+        depth, alpha, _ = scene.render([camera], cfg.train.background)
         return depth, alpha
 
     made = {

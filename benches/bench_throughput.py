@@ -93,6 +93,7 @@ class Variant:
     vae: str = "float32"
     cuda_wait: str = "sleep"
     render: int | None = None  # None: the run's one --render
+    stub_depth: str = "on"  # --networks stub: the depth maps made ("on") or left out
     build: str = "this"  # or "baseline": the package under --baseline
 
     @property
@@ -102,6 +103,7 @@ class Variant:
         parts += [self.vae] if self.vae != "float32" else []
         parts += ["spin-wait"] if self.cuda_wait == "spin" else []
         parts += [f"r{self.render}"] if self.render is not None else []
+        parts += ["no-depth"] if self.stub_depth == "off" else []
         parts += ["baseline"] if self.build == "baseline" else []
         return "-".join(parts)
 
@@ -119,13 +121,14 @@ def variants(args: argparse.Namespace) -> list[Variant]:
     ``--baseline`` package first where one is given."""
     renders = getattr(args, "renders", None) or [None]
     builds = ["baseline", "this"] if getattr(args, "baseline", None) else ["this"]
+    depths = getattr(args, "stub_depth", None) or ["on"]
     out = []
-    for b, overlap, vae, wait, render, build in itertools.product(
+    for b, overlap, vae, wait, render, depth, build in itertools.product(
         args.groups, args.overlap, args.vae, args.cuda_wait,
-        renders if len(renders) > 1 else [None], builds,
+        renders if len(renders) > 1 else [None], depths, builds,
     ):  # fmt: skip
         # One plant has no halves: it runs once, without overlap, whichever was asked.
-        v = Variant(b, "off" if b == 1 else overlap, vae, wait, render, build)
+        v = Variant(b, "off" if b == 1 else overlap, vae, wait, render, depth, build)
         if v not in out:
             out.append(v)
     return out
@@ -316,7 +319,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     if args.networks == "stub":  # the host's own work: no network, depth maps still made
         from stub_guidance import StubGuidance
 
-        guidance = StubGuidance(resolution=args.sds)
+        guidance = StubGuidance(resolution=args.sds, needs_depth=v.stub_depth == "on")
     else:
         guidance = StableDiffusionDepthGuidance(
             species="bean", components=parts, resolution=args.sds, device=args.device,
@@ -342,7 +345,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     timings = {k: sum(r["timings_s"].get(k, 0.0) for r in runs) for k in PHASES}
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
                            "cuda_wait": v.cuda_wait, "render": v.render or args.render,
-                           "build": v.build}  # fmt: skip
+                           "build": v.build, "stub_depth": v.stub_depth}  # fmt: skip
     out |= clock.steady(v.b)
     out["gpu_busy"], out["gpu_busy_source"] = busy.share, busy.source
     # The device's side beside the host's: its busy time per plant-step over the window.
@@ -499,7 +502,8 @@ def table(report: dict[str, Any], command: str) -> list[str]:
     for row in report["groups"].values():
         phases = " | ".join(num(row["phases_ms"][p]) for p in PHASES)
         lines.append(
-            f"| {row['build']} | {row['B']} | {row['render']} | {row['overlap']} | {row['vae']} | "
+            f"| {row['build']}{' (no depth maps)' if row.get('stub_depth') == 'off' else ''} | "
+            f"{row['B']} | {row['render']} | {row['overlap']} | {row['vae']} | "
             f"{row['cuda_wait'] if report['device'] != 'cpu' else '-'} | "
             f"{num(row['step_ms_median'])} ({num(row['step_ms_median_min'])}) | "
             f"{num(row['plants_per_hour'], '{:.2f}')} | "
@@ -592,6 +596,9 @@ def add_arguments(p: argparse.ArgumentParser, *, gpu_checks: bool = False) -> No
     p.add_argument("--networks", choices=("real", "stub"), default="real",
                    help="stub: no network runs, the guidance returns a fixed render gradient "
                    "(the depth maps are still made): the host's own work alone")  # fmt: skip
+    p.add_argument("--stub-depth", nargs="+", choices=("on", "off"), default=["on"],
+                   help="--networks stub: the depth conditioning made (on) or left out "
+                   "(off), each a run: what the depth maps cost the host")  # fmt: skip
     p.add_argument("--device", help="cuda where present, else cpu (--tiny: cpu)")
     p.add_argument("--trace", type=Path, help="Chrome trace of one steady step (first run)")
 
@@ -618,6 +625,8 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
     if args.warmup < 1 or args.steps <= args.warmup:
         raise SystemExit(f"error: --steps ({args.steps}) must exceed --warmup ({args.warmup}) "
                          "and --warmup be at least 1")  # fmt: skip
+    if args.stub_depth != ["on"] and args.networks != "stub":
+        raise SystemExit("error: --stub-depth is for --networks stub (real networks need depth)")
     if min(args.groups) < 1:
         raise SystemExit("error: --groups takes B >= 1")
     return args

@@ -20,6 +20,7 @@ known answer judges a precision on the whole job (``scripts/known_answer.py --de
 from __future__ import annotations
 
 import argparse
+import copy
 import itertools
 import json
 import statistics
@@ -116,21 +117,22 @@ def main(argv: list[str] | None = None) -> int:
         shape = vae.float().encode(rgb[:1] * 2 - 1).latent_dist.parameters.shape[1:]
     cotangent = torch.randn(args.batch, *shape, device=device, generator=g)
 
-    def configure(dtype: str, fmt: str) -> None:
-        vae.to(dtype=getattr(torch, dtype))
-        vae.to(
-            memory_format=torch.channels_last if fmt == "channels_last" else torch.contiguous_format
-        )
+    master = vae.float()
 
-    configure("float32", "nchw")
-    reference = render_gradient(vae, rgb, cotangent, torch.float32, "math")
+    def configure(dtype: str, fmt: str) -> Any:
+        """A copy of the float32 VAE in ``dtype`` and ``fmt`` (never cast from another
+        low precision: bfloat16 weights cast to float16 would carry bfloat16's rounding)."""
+        memory = torch.channels_last if fmt == "channels_last" else torch.contiguous_format
+        return copy.deepcopy(master).to(dtype=getattr(torch, dtype), memory_format=memory)
+
+    reference = render_gradient(master, rgb, cotangent, torch.float32, "math")
     rows = []
     for dtype, fmt, attention in itertools.product(DTYPES, FORMATS, ATTENTION):
-        configure(dtype, fmt)
+        model = configure(dtype, fmt)
         torch_dtype = getattr(torch, dtype)
 
-        def call(dt: torch.dtype = torch_dtype, at: str = attention) -> torch.Tensor:
-            return render_gradient(vae, rgb, cotangent, dt, at)
+        def call(dt: torch.dtype = torch_dtype, at: str = attention, m: Any = model) -> Any:
+            return render_gradient(m, rgb, cotangent, dt, at)
 
         try:
             first, second = call(), call()

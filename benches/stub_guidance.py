@@ -18,9 +18,10 @@ GRADIENT_SCALE = 1e-3
 
 
 class StubGuidance:
-    needs_depth = True
-
-    def __init__(self, resolution: int, seed: int = 0) -> None:
+    def __init__(self, resolution: int, seed: int = 0, needs_depth: bool = True) -> None:
+        """``needs_depth=False`` leaves the depth conditioning out too (what it costs the
+        host: ``bench_throughput.py --stub-depth on off``)."""
+        self.needs_depth = needs_depth
         self.resolution = resolution
         self.seed = seed
         # Checkpoints hold a guidance's generator state; this one never draws from it.

@@ -59,6 +59,11 @@ def test_the_variants_leave_out_what_one_plant_cannot_compare():
     ]  # fmt: skip
     args.overlap, args.cuda_wait = ["on"], ["sleep"]
     assert [v.label for v in bench_throughput.variants(args)] == ["1", "4-overlap"]
+    args.stub_depth = ["on", "off"]
+    assert [v.label for v in bench_throughput.variants(args)] == [
+        "1", "1-no-depth", "4-overlap", "4-overlap-no-depth",
+    ]  # fmt: skip
+    args.stub_depth = None
     args.renders, args.baseline = [768, 512], "old"
     assert [v.label for v in bench_throughput.variants(args)] == [
         "1-r768-baseline", "1-r768", "1-r512-baseline", "1-r512",
@@ -152,6 +157,10 @@ def test_the_bench_measures_the_host_alone_with_the_stub(tmp_path):
     )  # fmt: skip
     row = bench_throughput.one_run(bench_throughput.Variant(2), args, parts=None)
     assert row["steady_steps"] == 2 and row["phases_ms"]["depth"] > 0
+    alone = bench_throughput.one_run(
+        bench_throughput.Variant(2, stub_depth="off"), args, parts=None
+    )
+    assert alone["stub_depth"] == "off" and alone["phases_ms"]["depth"] == 0
     assert 0 < row["host_serial_ms_per_step"] and row["host_core_ms_per_plant_step"] > 0
     assert row["raster_core_ms_per_plant"] > 0
     assert (
