@@ -14,6 +14,10 @@ ControlNet reads: mean and 99th-percentile absolute difference, the share of pix
 by more than one 8-bit level and by more than 0.1, and the IoU of the plant's pixels
 (value above 0). As a yardstick, the same figures for the released code's nearest resize
 against the bilinear one (both at the render size).
+
+Then the depth render alone (no cleaning) at the SDS size with each of ``--tiles`` tile
+sizes, interleaved, and whether they give the same bits (the depth maps render with the
+rasterizer's default tile size).
 """
 
 from __future__ import annotations
@@ -29,14 +33,16 @@ from typing import Any
 import torch
 
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import FrozenScene, GaussianModel
+from plantdreamer.pipeline.model import FrozenScene, GaussianModel, camera_args
 from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.pipeline.runtime import resolve_runtime
+from plantdreamer.rasterizer import RASTER_DEFAULTS, rasterization
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from host import host_line
 
 RESULTS = Path(__file__).resolve().parent / "results"
+TILE = RASTER_DEFAULTS["tile_size"]
 ROUTES = ("render", "sds")
 
 
@@ -89,7 +95,8 @@ def measure(species: str, args: argparse.Namespace) -> dict[str, Any]:
     )  # fmt: skip
     resolve_runtime(cfg)
     state = RunState.fresh(cfg, show_progress=False)
-    routes = conditioners(cfg, GaussianModel(state.initial))
+    model = GaussianModel(state.initial)
+    routes = conditioners(cfg, model)
     cameras = [state.sampler.sample() for _ in range(args.views)]
     times: dict[str, list[float]] = {r: [] for r in ROUTES}
     rows, nearest = [], []
@@ -109,6 +116,29 @@ def measure(species: str, args: argparse.Namespace) -> dict[str, Any]:
         "worst_mean_abs": max(r["mean_abs"] for r in rows),
         "worst_plant_iou": min(r["plant_iou"] for r in rows),
         "nearest_difference": {k: statistics.mean(r[k] for r in nearest) for k in nearest[0]},
+        "tiles": tile_sizes(model, cameras, cfg, args),
+    }
+
+
+def tile_sizes(model: GaussianModel, cameras: list, cfg: GenerateConfig, args) -> dict[str, Any]:
+    """Core-ms of the depth render alone at the SDS size per tile size (min / median over
+    the cameras, interleaved), and whether every tile size gave the first one's bits."""
+    scene = FrozenScene(model, "ED").scene
+    times: dict[int, list[float]] = {t: [] for t in args.tiles}
+    same = True
+    for i, camera in enumerate(cameras):
+        call = camera_args([camera.resized(args.sds, args.sds)], cfg.train.background, "ED")
+        bits = {}
+        for tile in args.tiles if i % 2 == 0 else args.tiles[::-1]:
+            t0 = time.process_time()
+            with torch.no_grad():
+                depth, alpha, _ = rasterization(**scene, **call, tile_size=tile)
+            times[tile].append(1000 * (time.process_time() - t0))
+            bits[tile] = depth.numpy().tobytes() + alpha.numpy().tobytes()
+        same &= len(set(bits.values())) == 1
+    return {
+        "core_ms": {t: {"min": min(v), "median": statistics.median(v)} for t, v in times.items()},
+        "same_bits": same,
     }
 
 
@@ -145,6 +175,20 @@ def markdown(report: dict[str, Any]) -> str:
             f"{n['p99_abs']:.3f} | {100 * n['over_one_level']:.2f}% | "
             f"{100 * n['over_0.1']:.2f}% | {n['plant_iou']:.4f} |"
         )
+    tiles = a["tiles"]
+    lines += [
+        "",
+        f"The depth render alone at {a['sds']} px (no cleaning), per tile size, core-ms min / "
+        f"median over the same cameras, interleaved; the depth maps render with the "
+        f"default {TILE} px tiles:",
+        "",
+        "| plant | " + " | ".join(f"tile {t} px" for t in tiles) + " | same bits |",
+        "|---|" + "---:|" * len(tiles) + "---|",
+    ]
+    for r in report["plants"]:
+        t = r["tiles"]["core_ms"]
+        cells = " | ".join(f"{t[k]['min']:.1f} / {t[k]['median']:.1f}" for k in tiles)
+        lines.append(f"| {r['species']} | {cells} | {'yes' if r['tiles']['same_bits'] else 'NO'} |")
     return "\n".join(lines) + "\n"
 
 
@@ -155,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--points", type=int, default=100_000)
     p.add_argument("--render", type=int, default=768)
     p.add_argument("--sds", type=int, default=512)
+    p.add_argument("--tiles", type=int, nargs="+", default=sorted({8, 16, TILE}),
+                   help="tile sizes of the depth render compared")  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=1, help="as a run's default")
     p.add_argument("--out", type=Path, default=RESULTS / "depth_size.md")
     args = p.parse_args(argv)

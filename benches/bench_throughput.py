@@ -18,9 +18,13 @@ CUDA-graph captures and first prompt encodes fall in them):
 * ``host_serial_ms_per_step``: the CPU time of the step's own thread (the loop, the
   native calls' callers, the guidance's launch and wait) per step over the same window:
   the serial part of a step, which no number of cores shortens;
-* ``raster_core_ms_per_plant``: the rasterizer alone on plant 0 at the render size (one
-  forward and backward, process CPU time) in the same run, and ``host_to_raster``, the
-  host's core-ms per plant-step over it: what the step adds around the rasterizer;
+* ``raster_core_ms_per_plant``: the rasterizer alone at the render size in the same run:
+  one forward and backward of a plant's initial Gaussians (process CPU time), the mean
+  over ``REFERENCE_RENDERS`` cameras the first plants trained on in the steady window
+  (``raster_renders`` of them; ``raster_range``: the cheapest and the costliest over the
+  mean);
+  and ``host_to_raster``, the host's core-ms per plant-step over it: what the step adds
+  around the rasterizer;
 * ``phases_ms``: the step's phases (``pipeline.export.STEP_PHASES``: raster.forward, depth,
   guidance.launch, guidance.backward, guidance.wait, raster.backward, optimizer), ms per
   group step, means over every step: the sum of the plants' run.json figures (each plant
@@ -355,18 +359,39 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     )  # fmt: skip
     out["phases_ms"] = {k: 1000 * timings.get(k, 0.0) / args.steps for k in PHASES}
     out["gaussians_final"] = runs[0]["gaussians"]["final"]  # plant 0's
-    out["raster_core_ms_per_plant"] = raster_alone_core_ms(cfgs[0])
+    reference = raster_alone_core_ms(cfgs, args.warmup, args.steps - 1)
+    out["raster_core_ms_per_plant"] = reference["core_ms"]
+    out["raster_renders"] = reference["renders"]
+    out["raster_range"] = reference["range"]
     out["host_to_raster"] = out["host_core_ms_per_plant_step"] / out["raster_core_ms_per_plant"]
     out["peak_cuda_gib"] = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
     out["wall_s"] = wall
     return out
 
 
-def raster_alone_core_ms(cfg: Any, calls: int = 5) -> float:
-    """The rasterizer's own work on plant 0 at the run's render size: process CPU time of
-    one forward and backward (``GaussianModel.render`` of its initial Gaussians from its
-    first training camera, every colour's gradient one), the median of ``calls``. The
-    host's core-ms per plant-step over this is what the step adds to the rasterizer."""
+# The rasterizer-alone reference: forward + backward calls over the steady window's cameras,
+# taken from the first REFERENCE_PLANTS plants of the group, REFERENCE_RENDERS in all.
+REFERENCE_PLANTS = 4
+REFERENCE_RENDERS = 16
+
+
+def window_cameras(sampler: Any, first: int, last: int, count: int) -> list[Any]:
+    """``count`` of the cameras a fresh plant's ``sampler`` gives it in steps ``first..last``
+    (one draw per step, as the trainer takes them), evenly spread, none twice."""
+    cameras = [sampler.sample() for _ in range(last + 1)][first:]
+    picks = sorted({round(i * (len(cameras) - 1) / max(count - 1, 1)) for i in range(count)})
+    return [cameras[i] for i in picks]
+
+
+def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, Any]:
+    """The rasterizer's own work on the window's renders: process CPU time of one forward
+    and backward (``GaussianModel.render`` of a plant's initial Gaussians, every colour's
+    gradient one) from each of ``REFERENCE_RENDERS`` cameras the plants trained on in
+    steps ``first..last`` (spread over the first ``REFERENCE_PLANTS`` plants), after one
+    call left out (first-touch of its buffers). The mean, as the host's figure is over
+    every plant's cameras: one camera is no reference (the close ones cover more pixels;
+    ``range``: the cheapest and the costliest call over the mean). The host's core-ms per
+    plant-step over this is what the step adds to the rasterizer."""
     import copy
 
     import torch
@@ -374,17 +399,28 @@ def raster_alone_core_ms(cfg: Any, calls: int = 5) -> float:
     from plantdreamer.pipeline.run_state import RunState
     from plantdreamer.pipeline.runtime import resolve_runtime
 
-    cfg = copy.deepcopy(cfg)
-    resolve_runtime(cfg)
-    state = RunState.fresh(cfg, show_progress=False)
-    camera = state.sampler.sample()
+    plants = cfgs[:REFERENCE_PLANTS]
     times = []
-    for _ in range(calls):
-        t0 = time.process_time()
-        image, _, _ = state.model.render([camera], cfg.train.background)
-        torch.autograd.backward(image, torch.ones_like(image))
-        times.append(time.process_time() - t0)
-    return 1000 * statistics.median(times)
+    for k, cfg in enumerate(plants):
+        cfg = copy.deepcopy(cfg)
+        resolve_runtime(cfg)
+        share = REFERENCE_RENDERS // len(plants) + (k < REFERENCE_RENDERS % len(plants))
+        state = RunState.fresh(cfg, show_progress=False)
+        cameras = window_cameras(state.sampler, first, last, share)
+        warm = k == 0  # the first call is left out: it touches its buffers first
+        for camera in [cameras[0], *cameras] if warm else cameras:
+            t0 = time.process_time()
+            image, _, _ = state.model.render([camera], cfg.train.background)
+            torch.autograd.backward(image, torch.ones_like(image))
+            if not warm:
+                times.append(time.process_time() - t0)
+            warm = False
+    mean = statistics.mean(times)
+    return {
+        "core_ms": 1000 * mean,
+        "renders": len(times),
+        "range": [min(times) / mean, max(times) / mean],
+    }
 
 
 def run_all(args: argparse.Namespace) -> dict[str, Any]:
@@ -482,8 +518,10 @@ def table(report: dict[str, Any], command: str) -> list[str]:
         "the runs; min in brackets). Step ms: median wall time between step ends after "
         "warm-up; host core-ms: process CPU time per plant-step over the same window; "
         "serial ms: the step thread's own CPU time per step; raster core-ms: the "
-        "rasterizer alone, one forward and backward of plant 0 at the render size (process "
-        "CPU time, median of 5), and the host's core-ms per plant-step over it; phases: ms "
+        "rasterizer alone, one forward and backward at the render size (process CPU time, "
+        f"the mean over {REFERENCE_RENDERS} cameras the first plants trained on in the "
+        "window), and the "
+        "host's core-ms per plant-step over it; phases: ms "
         "per group step (the plants' shares summed), means over every step."
         + (
             f" Build: `baseline` is the package in `{report['baseline']}`, `this` this "
@@ -646,14 +684,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_arguments(parser)
     parser.add_argument("--loading", type=int, metavar="N", help="plants of the loading bench")
-    parser.add_argument("--out", type=Path, default=RESULTS / "throughput.md")
+    # By default a run's table goes under results/runs/ (not collected into BENCHMARKS.md:
+    # results/throughput.md is the written account of the runs, which cites them); the
+    # loading bench's section is collected (results/throughput_loading.md).
+    parser.add_argument("--out", type=Path, help="the table (and .json beside it)")
     args = parser.parse_args()
     from plantdreamer.atomic import write_json, write_text
 
     if args.loading:
         args.repeats = max(args.repeats, 3)
         lines = loading(args)
-        write_text(args.out.with_name("throughput_loading.md"), "\n".join(lines) + "\n")
+        out = args.out.with_name("throughput_loading.md") if args.out else None
+        write_text(out or RESULTS / "throughput_loading.md", "\n".join(lines) + "\n")
         print("\n".join(lines))
         return 0
     resolve(args)
@@ -663,6 +705,7 @@ def main() -> int:
     report = run_all(args)
     command = "python benches/bench_throughput.py " + " ".join(sys.argv[1:])
     lines = table(report, command.strip())
+    args.out = args.out or RESULTS / "runs" / "throughput.md"
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_text(args.out, "\n".join(lines) + "\n")
     write_json(args.out.with_suffix(".json"), report)

@@ -2,7 +2,10 @@
 
 Each bench script is a standalone program that writes ``benches/results/<name>.md`` (a
 markdown section: what was measured, with which command, the table) and may write a JSON
-file beside it. This script only orders the sections under a common header.
+file beside it. This script only orders the sections under a common header, by file name
+(``00_intro.md`` first). Sections written by hand (an account of several runs, a
+before/after) are results files too, so that a rebuild keeps them; the raw tables they
+cite live in ``results/runs/``, which is not collected.
 Run it through ``make bench`` so the native core is a release build.
 
     python benches/run_all.py [NAME ...]   # e.g. `pointcloud` runs benches/bench_pointcloud.py

@@ -162,7 +162,9 @@ def test_the_bench_measures_the_host_alone_with_the_stub(tmp_path):
     )
     assert alone["stub_depth"] == "off" and alone["phases_ms"]["depth"] == 0
     assert 0 < row["host_serial_ms_per_step"] and row["host_core_ms_per_plant_step"] > 0
-    assert row["raster_core_ms_per_plant"] > 0
+    # Two plants' two window cameras each (16 asked for; none rendered twice).
+    assert row["raster_core_ms_per_plant"] > 0 and row["raster_renders"] == 4
+    assert row["raster_range"][0] <= 1.0 <= row["raster_range"][1]
     assert (
         row["host_to_raster"]
         == row["host_core_ms_per_plant_step"] / row["raster_core_ms_per_plant"]
@@ -197,3 +199,37 @@ def test_a_baseline_package_runs_beside_this_tree_interleaved(tmp_path):
         expected = baseline / "plantdreamer" if row["build"] == "baseline" else this
         assert Path(row["package"]).resolve() == expected.resolve()
     assert "| baseline | 2 | 32 | on |" in out.read_text()
+
+
+def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
+    """``window_cameras`` of a fresh plant are the cameras its guidance saw in the steady
+    window's steps (recorded by a stub guidance during a real group run)."""
+    from stub_guidance import StubGuidance
+
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline.run_state import RunState
+    from plantdreamer.pipeline.runtime import resolve_runtime
+
+    seen: dict[int, list] = {}
+
+    class Recording(StubGuidance):
+        def __call__(self, images, depth_cond, cameras, step):
+            seen[step] = [c.viewmat.tobytes() for c in cameras]
+            return super().__call__(images, depth_cond, cameras, step)
+
+    cfgs = [
+        GenerateConfig.of(
+            species="bean", seed=s, steps=6, points=800, resolution=24, sds_resolution=16,
+            eval_views=1, turntable_frames=1, turntable="none", checkpoint_every=6,
+            device="cpu",
+        )
+        for s in range(2)
+    ]  # fmt: skip
+    result = generate_group(cfgs, tmp_path, guidance=Recording(resolution=16), show_progress=False)
+    assert not result.failed and sorted(seen) == list(range(6))
+    for k, cfg in enumerate(cfgs):
+        resolve_runtime(cfg)
+        sampler = RunState.fresh(cfg, show_progress=False).sampler
+        picked = bench_throughput.window_cameras(sampler, 2, 5, 3)
+        assert [c.viewmat.tobytes() for c in picked] == [seen[s][k] for s in (2, 4, 5)]

@@ -110,10 +110,16 @@ def test_normalisation_has_the_bits_of_the_plain_formulation(rule):
     noisy = d + torch.rand(d.shape, generator=g) * (d > 0)  # many distinct depths
     broken = noisy.clone()  # opaque pixels with no finite depth, or none in front
     broken[40, 30:36] = torch.tensor([float("nan"), float("inf"), -float("inf"), -1.0, 0.0, -0.0])
+    cfg = DepthCleaning(rule=rule)
     for depth in (d, noisy, broken, torch.where(a > 0.5, 3.0, d)):  # the last: a flat plant
-        cfg = DepthCleaning(rule=rule)
         got = normalise_depth(depth, a, cfg)
         assert bits(got) == bits(whole_map_normalise(depth, a, cfg)) and bool((got > 0).any())
+    # Strided views (a transposed map; the [H, W] slice of a [B, H, W, 1] batch).
+    got = normalise_depth(noisy.t(), a.t(), cfg)
+    assert bits(got) == bits(whole_map_normalise(noisy.t(), a.t(), cfg))
+    batch = torch.stack([d, noisy])[..., None]
+    got = normalise_depth(batch[1, ..., 0], torch.stack([a, a])[..., None][1, ..., 0], cfg)
+    assert bits(got) == bits(whole_map_normalise(noisy, a, cfg))
 
 
 @pytest.mark.parametrize("k", [3, 5, 7])

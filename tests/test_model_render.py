@@ -138,3 +138,23 @@ def test_a_frozen_scene_renders_the_bits_of_its_model_from_every_camera(model, m
     with torch.no_grad():  # activations made once: a later change of the logits is unseen
         model.params["opacity_logits"].add_(1.0)
     assert torch.equal(frozen.render([camera], 0.5)[0], got[0])
+
+
+@pytest.mark.parametrize("mode", ["ED", "RGB"])
+def test_renders_without_gradients_are_the_same_bits_for_every_tile_size(model, mode):
+    """A depth map does not depend on the tile size (the bench compares their cost): a
+    pixel's value depends only on the Gaussians that reach it, in depth order, not on the
+    tiles that listed them (100k Gaussians, images not a multiple of any tile)."""
+    from plantdreamer.pipeline.model import camera_args
+    from plantdreamer.rasterizer import RASTER_DEFAULTS, rasterization
+
+    scene = FrozenScene(model, mode).scene
+    for azimuth, distance in ((0.0, 4.0), (130.0, 2.5)):
+        args = camera_args([orbit(distance, 20.0, azimuth, 50.0, 150, 110)], 0.5, mode)
+        renders = []
+        for tile in (RASTER_DEFAULTS["tile_size"], 8, 16, 24, 64):
+            with torch.no_grad():
+                image, alpha, meta = rasterization(**scene, **args, tile_size=tile)
+            renders.append((image.numpy().tobytes(), alpha.numpy().tobytes()))
+        assert int(meta["n_visible"][0]) > 1000 and float(alpha.max()) > 0.9  # a full image
+        assert all(r == renders[0] for r in renders[1:])

@@ -193,28 +193,38 @@ def normalise_depth(
         return released_normalise(accumulated, config)
     if config.accumulated:
         depth = depth / alpha.clamp_min(1e-6)
-    # depth > 0 and depth < inf is torch.isfinite(depth) & (depth > 0) (NaN fails both) in
-    # two comparisons instead of isfinite's passes; the plant's values are gathered once, in
-    # numpy (a boolean index there costs a fraction of torch's).
-    mask = (alpha > config.alpha_threshold) & (depth > 0) & (depth < math.inf)
-    gathered = depth.detach().cpu().numpy()[mask.cpu().numpy()]
-    if gathered.size == 0:
-        return torch.zeros_like(depth)
-    values = torch.from_numpy(gathered.astype(np.float64))
+    # Computed in numpy on the plant's pixels alone (a fraction of the image; the rest is
+    # 0), gathered once by one boolean mask: the plain whole-map formulation's operations
+    # on those pixels (float64, rounded to the map's dtype at the same place, scalars in
+    # it), so the same bits (tests/test_guidance_depth.py) in a few passes over the image.
+    # d > 0 and d < inf is isfinite(d) & (d > 0) (NaN fails both) in two comparisons.
+    d = depth.detach().cpu().numpy()
+    a = alpha.detach().cpu().numpy()
+    inside = np.flatnonzero((a > config.alpha_threshold) & (d > 0) & (d < np.inf))
+    out = np.zeros(d.shape, dtype=d.dtype)  # C order: its flat view is written below
+    like = d.dtype.type  # the map's float type: float32 from clean_depth
+    if inside.size == 0:
+        return torch.from_numpy(out).to(depth.device)
+    gathered = d.reshape(-1)[inside]
+    values = gathered.astype(np.float64)
     near = values.min()
-    far = quantile(values, config.far_quantile) if config.far_quantile < 1.0 else values.max()
-    keep = mask & (depth <= far.to(depth.dtype))
-    span = float(far - near)
+    if config.far_quantile < 1.0:
+        far = float(quantile(torch.from_numpy(values), config.far_quantile))
+    else:
+        far = float(values.max())
+    keep = gathered <= like(far)
+    span = far - near
     if span <= 1e-12:  # flat plant, e.g. a single Gaussian: all nearest
-        n = torch.ones_like(depth)
+        n = np.ones(int(keep.sum()), dtype=d.dtype)
     else:
-        n = ((far - depth.double()) / span).clamp(0.0, 1.0).to(depth.dtype)
-    floor = config.min_intensity * config.intensity_scale
+        n = np.clip((far - values[keep]) / span, 0.0, 1.0).astype(d.dtype)
     if config.rule == "stretch-lift":
-        mapped = ((n + config.min_intensity) * config.intensity_scale).clamp(max=1.0)
+        mapped = np.minimum((n + like(config.min_intensity)) * like(config.intensity_scale), 1)
     else:
-        mapped = floor + (1.0 - floor) * n
-    return torch.where(keep, mapped, torch.zeros_like(mapped))
+        floor = config.min_intensity * config.intensity_scale
+        mapped = like(1.0 - floor) * n + like(floor)
+    out.reshape(-1)[inside[keep]] = mapped
+    return torch.from_numpy(out).to(depth.device)
 
 
 def released_normalise(accumulated: torch.Tensor, config: DepthCleaning) -> torch.Tensor:
