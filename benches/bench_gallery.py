@@ -122,6 +122,14 @@ def main() -> None:
             rows.append({"plants": n, **measure(root)})
             print(rows[-1], flush=True)
     lines = [
+        "## Gallery of a large dataset (`benches/bench_gallery.py`)",
+        "",
+        f"Command: `{' '.join(['python benches/bench_gallery.py', *sys.argv[1:]])}`. "
+        "`plantdreamer gallery` of a dataset of N finished plants (each with run.json, "
+        "a transforms.json of 120 views and a 512 px render and label preview), in a fresh "
+        "process: wall time with start-up and imports, that process's peak resident "
+        "memory, and the sheet, which Pillow opens.",
+        "",
         f"Host: {host_line()}.",
         "",
         "| plants | wall time (s) | peak memory (MB) | sheet (px) | PNG (MB) |",
