@@ -46,16 +46,14 @@ TILE = RASTER_DEFAULTS["tile_size"]
 ROUTES = ("render", "sds")
 
 
-def conditioners(cfg: GenerateConfig, model: GaussianModel) -> dict[str, Any]:
-    """One ``DepthConditioner`` per route over ``model`` (no cache: every map is made)."""
+def conditioners(cfg: GenerateConfig, scene: FrozenScene) -> dict[str, Any]:
+    """One ``DepthConditioner`` per route over ``scene`` (no cache: every map is made)."""
     from plantdreamer.guidance.depth import DepthCleaning, DepthConditioner
 
     sds = cfg.sds
     cleaning = DepthCleaning(
         rule=sds.depth_rule, resize=sds.control_resize, distance=sds.erosion_distance
     )
-
-    scene = FrozenScene(model, "ED")  # as the trainer renders its depth maps
 
     def render_depth(camera):
         depth, alpha, _ = scene.render([camera], cfg.train.background)
@@ -95,8 +93,8 @@ def measure(species: str, args: argparse.Namespace) -> dict[str, Any]:
     )  # fmt: skip
     resolve_runtime(cfg)
     state = RunState.fresh(cfg, show_progress=False)
-    model = GaussianModel(state.initial)
-    routes = conditioners(cfg, model)
+    scene = FrozenScene(GaussianModel(state.initial), "ED")  # as the trainer renders maps
+    routes = conditioners(cfg, scene)
     cameras = [state.sampler.sample() for _ in range(args.views)]
     times: dict[str, list[float]] = {r: [] for r in ROUTES}
     rows, nearest = [], []
@@ -116,14 +114,13 @@ def measure(species: str, args: argparse.Namespace) -> dict[str, Any]:
         "worst_mean_abs": max(r["mean_abs"] for r in rows),
         "worst_plant_iou": min(r["plant_iou"] for r in rows),
         "nearest_difference": {k: statistics.mean(r[k] for r in nearest) for k in nearest[0]},
-        "tiles": tile_sizes(model, cameras, cfg, args),
+        "tiles": tile_sizes(scene, cameras, cfg, args),
     }
 
 
-def tile_sizes(model: GaussianModel, cameras: list, cfg: GenerateConfig, args) -> dict[str, Any]:
+def tile_sizes(scene: FrozenScene, cameras: list, cfg: GenerateConfig, args) -> dict[str, Any]:
     """Core-ms of the depth render alone at the SDS size per tile size (min / median over
     the cameras, interleaved), and whether every tile size gave the first one's bits."""
-    scene = FrozenScene(model, "ED").scene
     times: dict[int, list[float]] = {t: [] for t in args.tiles}
     same = True
     for i, camera in enumerate(cameras):
@@ -132,7 +129,7 @@ def tile_sizes(model: GaussianModel, cameras: list, cfg: GenerateConfig, args) -
         for tile in args.tiles if i % 2 == 0 else args.tiles[::-1]:
             t0 = time.process_time()
             with torch.no_grad():
-                depth, alpha, _ = rasterization(**scene, **call, tile_size=tile)
+                depth, alpha, _ = rasterization(**scene.scene, **call, tile_size=tile)
             times[tile].append(1000 * (time.process_time() - t0))
             bits[tile] = depth.numpy().tobytes() + alpha.numpy().tobytes()
         same &= len(set(bits.values())) == 1

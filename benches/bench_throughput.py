@@ -383,6 +383,17 @@ def window_cameras(sampler: Any, first: int, last: int, count: int) -> list[Any]
     return [cameras[i] for i in picks]
 
 
+def forward_backward_s(model: Any, camera: Any, background: float) -> float:
+    """Process CPU seconds of one render of ``model`` and its backward (every colour's
+    gradient one)."""
+    import torch
+
+    t0 = time.process_time()
+    image, _, _ = model.render([camera], background)
+    torch.autograd.backward(image, torch.ones_like(image))
+    return time.process_time() - t0
+
+
 def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, Any]:
     """The rasterizer's own work on the window's renders: process CPU time of one forward
     and backward (``GaussianModel.render`` of a plant's initial Gaussians, every colour's
@@ -393,8 +404,6 @@ def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, An
     ``range``: the cheapest and the costliest call over the mean). The host's core-ms per
     plant-step over this is what the step adds to the rasterizer."""
     import copy
-
-    import torch
 
     from plantdreamer.pipeline.run_state import RunState
     from plantdreamer.pipeline.runtime import resolve_runtime
@@ -407,14 +416,10 @@ def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, An
         share = REFERENCE_RENDERS // len(plants) + (k < REFERENCE_RENDERS % len(plants))
         state = RunState.fresh(cfg, show_progress=False)
         cameras = window_cameras(state.sampler, first, last, share)
-        warm = k == 0  # the first call is left out: it touches its buffers first
-        for camera in [cameras[0], *cameras] if warm else cameras:
-            t0 = time.process_time()
-            image, _, _ = state.model.render([camera], cfg.train.background)
-            torch.autograd.backward(image, torch.ones_like(image))
-            if not warm:
-                times.append(time.process_time() - t0)
-            warm = False
+        background = cfg.train.background
+        if k == 0:  # left out: it touches its buffers first
+            forward_backward_s(state.model, cameras[0], background)
+        times += [forward_backward_s(state.model, c, background) for c in cameras]
     mean = statistics.mean(times)
     return {
         "core_ms": 1000 * mean,
@@ -694,8 +699,10 @@ def main() -> int:
     if args.loading:
         args.repeats = max(args.repeats, 3)
         lines = loading(args)
-        out = args.out.with_name("throughput_loading.md") if args.out else None
-        write_text(out or RESULTS / "throughput_loading.md", "\n".join(lines) + "\n")
+        name = "throughput_loading.md"
+        write_text(
+            args.out.with_name(name) if args.out else RESULTS / name, "\n".join(lines) + "\n"
+        )
         print("\n".join(lines))
         return 0
     resolve(args)
