@@ -8,6 +8,8 @@ SHELL := bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-dev
+DEPS := $(VENV)/.installed-dependencies
+CORE := $(VENV)/.installed-core
 BENCH_STAMP := $(VENV)/.installed-bench
 DOCS_STAMP := $(VENV)/.installed-docs
 PYTEST_ARGS ?=
@@ -46,18 +48,29 @@ EDITABLE_INSTALL = $(BUILD_PATH) MATURIN_PEP517_ARGS="$(BUILD_ARGS)" \
 	$(PY) -m pip install --no-build-isolation --progress-bar off -v
 BUILD_TOOLS := $(VENV)/.installed-build-tools
 
-# maturin and ziglang, as pyproject.toml pins them (scripts/build_tools.py reads them).
+# maturin and ziglang, as pyproject.toml pins them (scripts/requirements.py reads them).
 $(BUILD_TOOLS): pyproject.toml | $(PY)
-	$(PY) scripts/build_tools.py > $(VENV)/build-tools.txt
+	$(PY) scripts/requirements.py > $(VENV)/build-tools.txt
 	$(PY) -m pip install --quiet -r $(VENV)/build-tools.txt
 	touch $@
 
-# pip installs every runtime + dev dependency and the viewer extra (viser), which the
-# viewer's tests use, and builds the native module once (CORE_PROFILE).
-$(STAMP): pyproject.toml $(BUILD_TOOLS)
-	@echo "pip: installing the dependencies and compiling the native core ($(CORE_PROFILE)" \
-		"profile; minutes on 2 cores)"
-	$(EDITABLE_INSTALL) -e '.[dev,viewer]'
+# Every runtime + dev dependency and the viewer extra (viser), which the viewer's tests
+# use. pip unpacks them (about 3 minutes on one core) while cargo compiles the native module
+# (CORE): installing the package with its dependencies would build the module first and
+# unpack them only after it. (After the build tools: both lists name maturin and ziglang.)
+$(DEPS): pyproject.toml | $(BUILD_TOOLS)
+	@echo "pip: installing the dependencies (minutes on one core, beside cargo)"
+	$(PY) scripts/requirements.py --dependencies dev viewer > $(VENV)/dependencies.txt
+	$(PY) -m pip install --progress-bar off -r $(VENV)/dependencies.txt
+	touch $@
+
+# The package itself, editable, and its native module (CORE_PROFILE).
+$(CORE): pyproject.toml $(BUILD_TOOLS)
+	@echo "pip: compiling the native core ($(CORE_PROFILE) profile; minutes on 2 cores)"
+	$(EDITABLE_INSTALL) --no-deps -e .
+	touch $@
+
+$(STAMP): $(DEPS) $(CORE)
 	touch $@
 
 setup: $(STAMP) system-libs ## Create .venv with plantdreamer (editable), its dev and viewer extras, and the Debian libraries they load
@@ -96,7 +109,7 @@ test-python: build browser system-libs ## Run the Python tests but the slow tier
 	if [ $$collected = 0 ]; then echo "no test collected" >&2; exit 5; fi; exit $$failed
 
 test-slow: ## Set up everything, then run the slow tier of the Python tests (CI runs it after `make test`)
-	$(MAKE) --no-print-directory setup CORE_PROFILE=ci
+	$(MAKE) --no-print-directory -j2 setup CORE_PROFILE=ci
 	$(MAKE) --no-print-directory test-python TEST_TIER=slow
 
 browser: ## Install Debian's chromium for the viewer's browser test (when run as root)
@@ -132,10 +145,10 @@ test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust
 	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
 	$(PY) scripts/check_sdist.py dist/plantdreamer-*.tar.gz
 
-# The Rust tests compile while pip sets up .venv (pip spends most of its time unpacking on
-# one core; cargo keeps both busy), then the three test sets run in turn.
+# Three jobs at once: the Rust tests and the native module compile (cargo, both cores)
+# while pip unpacks the dependencies (one core); then the three test sets run in turn.
 test: ## Set up everything, then run the Rust tests, the Python tests but the slow tier, and the wheel check
-	$(MAKE) --no-print-directory -j2 rust-tests setup CORE_PROFILE=ci
+	$(MAKE) --no-print-directory -j3 rust-tests setup CORE_PROFILE=ci
 	$(MAKE) --no-print-directory test-rust test-python test-wheel
 
 # The demo: SDS through the known-answer models the tests use (tests/data/known_answer/: a
@@ -153,8 +166,10 @@ demo: build ## Run the main job (SDS, tiny committed models) and score it agains
 		--base-model $(DEMO_MODELS)/base --controlnet $(DEMO_MODELS)/controlnet \
 		--steps $(DEMO_STEPS) --eval-views 36 --out $(DEMO_OUT) --overwrite
 
+# The bench extra's packages alone (`pip install -e '.[bench]'` would build the core again).
 $(BENCH_STAMP): $(STAMP) | system-libs
-	$(PY) -m pip install --progress-bar off -e '.[dev,bench]'
+	$(PY) scripts/requirements.py --dependencies bench > $(VENV)/bench-requirements.txt
+	$(PY) -m pip install --progress-bar off -r $(VENV)/bench-requirements.txt
 	touch $@
 
 bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
@@ -163,7 +178,7 @@ bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
 # The docs extra's packages alone: the editable install is there already, and `pip install
 # -e '.[docs]'` would build the native module again.
 $(DOCS_STAMP): $(STAMP)
-	$(PY) scripts/build_tools.py --extra docs > $(VENV)/docs-requirements.txt
+	$(PY) scripts/requirements.py --extra docs > $(VENV)/docs-requirements.txt
 	$(PY) -m pip install --quiet -r $(VENV)/docs-requirements.txt
 	touch $@
 
