@@ -55,13 +55,15 @@ $(BUILD_TOOLS): pyproject.toml | $(PY)
 	touch $@
 
 # Every runtime + dev dependency and the viewer extra (viser), which the viewer's tests
-# use. pip unpacks them (about 3 minutes on one core) while cargo compiles the native module
-# (CORE): installing the package with its dependencies would build the module first and
-# unpack them only after it. (After the build tools: both lists name maturin and ziglang.)
+# use. pip unpacks them (minutes on one core) while cargo compiles the native module (CORE):
+# installing the package with its dependencies would build the module first and unpack
+# them only after it. --no-compile: pip would byte-compile all 21,000 modules (100 s of one
+# core, measured), where Python compiles the few hundred a run imports, once, on import.
+# (After the build tools: both lists name maturin and ziglang.)
 $(DEPS): pyproject.toml | $(BUILD_TOOLS)
 	@echo "pip: installing the dependencies (minutes on one core, beside cargo)"
 	$(PY) scripts/requirements.py --dependencies dev viewer > $(VENV)/dependencies.txt
-	$(PY) -m pip install --progress-bar off -r $(VENV)/dependencies.txt
+	$(PY) -m pip install --progress-bar off --no-compile -r $(VENV)/dependencies.txt
 	touch $@
 
 # The package itself, editable, and its native module (CORE_PROFILE).
