@@ -43,9 +43,10 @@ CORE_PROFILE ?= release
 # install runs .venv's own maturin and zig, without pip's build isolation).
 BUILD_ARGS = --profile $(CORE_PROFILE) --zig --compatibility manylinux2014
 BUILD_PATH = PATH="$(abspath $(VENV))/bin:$$PATH"
-# (-v: pip passes cargo's progress through.)
+# The package alone (its dependencies are installed apart, $(DEPS)). -v: pip passes cargo's
+# progress through.
 EDITABLE_INSTALL = $(BUILD_PATH) MATURIN_PEP517_ARGS="$(BUILD_ARGS)" \
-	$(PY) -m pip install --no-build-isolation --progress-bar off -v
+	$(PY) -m pip install --no-build-isolation --progress-bar off -v --no-deps -e .
 BUILD_TOOLS := $(VENV)/.installed-build-tools
 
 # maturin and ziglang, as pyproject.toml pins them (scripts/requirements.py reads them).
@@ -69,7 +70,7 @@ $(DEPS): pyproject.toml | $(BUILD_TOOLS)
 # The package itself, editable, and its native module (CORE_PROFILE).
 $(CORE): pyproject.toml $(BUILD_TOOLS)
 	@echo "pip: compiling the native core ($(CORE_PROFILE) profile; minutes on 2 cores)"
-	$(EDITABLE_INSTALL) --no-deps -e .
+	$(EDITABLE_INSTALL)
 	touch $@
 
 $(STAMP): $(DEPS) $(CORE)
@@ -81,7 +82,7 @@ build: $(STAMP) ## Rebuild the native module in place (CORE_PROFILE, release by 
 	@# The module is _core.abi3.so; a version-specific one left by an older build would
 	@# shadow it (Python tries _core.cpython-3XY-*.so first).
 	rm -f python/plantdreamer/_core.cpython-*.so
-	$(EDITABLE_INSTALL) --no-deps -e .
+	$(EDITABLE_INSTALL)
 
 # `cargo test` also builds the examples (to check they compile), into target/debug/examples:
 # tests/test_thread_scaling.py runs the raster_timing one from there.
@@ -180,7 +181,7 @@ bench: $(BENCH_STAMP) build ## Run the benchmarks and regenerate BENCHMARKS.md
 # The docs extra's packages alone: the editable install is there already, and `pip install
 # -e '.[docs]'` would build the native module again.
 $(DOCS_STAMP): $(STAMP)
-	$(PY) scripts/requirements.py --extra docs > $(VENV)/docs-requirements.txt
+	$(PY) scripts/requirements.py --dependencies docs > $(VENV)/docs-requirements.txt
 	$(PY) -m pip install --quiet -r $(VENV)/docs-requirements.txt
 	touch $@
 

@@ -5,15 +5,13 @@
   first, so that pip builds the editable install with .venv's own maturin and zig (no build
   isolation), the way `make wheel` builds the wheel, and cargo compiles the core once for
   both;
-- ``--extra NAME``: an extra's own requirements (`make docs`: installed without rebuilding
-  the core);
 - ``--dependencies EXTRA...``: the package's dependencies and these extras', the extras it
   names of itself (``plantdreamer[cluster]``) expanded. The Makefile installs them while
   cargo compiles the core (pip would otherwise unpack them only after the build), then
-  installs the package itself with ``--no-deps``.
+  installs the package itself with ``--no-deps``; and an extra's later (`make docs`,
+  `make bench`) without building the core again.
 
 Usage: python scripts/requirements.py > build-tools.txt
-       python scripts/requirements.py --extra docs
        python scripts/requirements.py --dependencies dev viewer
 """
 
@@ -78,9 +76,7 @@ def dependencies(pyproject: dict, extras: list[str]) -> list[str]:
 if __name__ == "__main__":
     with (ROOT / "pyproject.toml").open("rb") as f:
         pyproject = tomllib.load(f)
-    if sys.argv[1:2] == ["--extra"]:
-        print("\n".join(pyproject["project"]["optional-dependencies"][sys.argv[2]]))
-    elif sys.argv[1:2] == ["--dependencies"]:
+    if sys.argv[1:2] == ["--dependencies"]:
         print("\n".join(dependencies(pyproject, sys.argv[2:])))
     else:
         print("\n".join(build_tools(pyproject)))
