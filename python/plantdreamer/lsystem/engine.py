@@ -9,6 +9,11 @@ symbol whose conditions hold are chosen between at random with their relative
 seeded ``numpy.random.Generator`` in string order, so a seed fixes the whole derivation.
 
 Whitespace between modules is ignored. ``[`` and ``]`` never take parameters.
+
+``derive_timed`` also gives each module of the result its *birth*: the rewriting step that
+produced it (0 for the axiom's modules, 1 for those the first step wrote, ...). A module no
+rule rewrites keeps its birth; what a rule writes is born at that step. The plant's growth
+stages (``plant.py``) age its organs by it.
 """
 
 from __future__ import annotations
@@ -134,13 +139,21 @@ class LSystem:
 
     def derive(self, iterations: int, rng: np.random.Generator) -> list[Module]:
         """The string after ``iterations`` parallel rewriting steps."""
+        return self.derive_timed(iterations, rng)[0]
+
+    def derive_timed(
+        self, iterations: int, rng: np.random.Generator
+    ) -> tuple[list[Module], list[int]]:
+        """The string after ``iterations`` steps and each module's birth step (the same
+        string and draws as ``derive``)."""
         if iterations < 0:
             raise InputError(f"iterations must be >= 0, got {iterations}")
         env = self._environment(rng)
         string = [self._instantiate(t, env) for t in self._axiom]
-        for _ in range(iterations):
-            string = self._step(string, env, rng)
-        return string
+        births = [0] * len(string)
+        for step in range(1, iterations + 1):
+            string, births = self._step(string, births, step, env, rng)
+        return string, births
 
     def _environment(self, rng: np.random.Generator) -> dict[str, Any]:
         env: dict[str, Any] = dict(MATH_FUNCTIONS)
@@ -161,13 +174,20 @@ class LSystem:
         return Module(template.symbol, tuple(params))
 
     def _step(
-        self, string: list[Module], env: dict[str, Any], rng: np.random.Generator
-    ) -> list[Module]:
+        self,
+        string: list[Module],
+        births: list[int],
+        step: int,
+        env: dict[str, Any],
+        rng: np.random.Generator,
+    ) -> tuple[list[Module], list[int]]:
         out: list[Module] = []
-        for module in string:
+        out_births: list[int] = []
+        for module, birth in zip(string, births, strict=True):
             candidates = self.rules.get((module.symbol, len(module.params)))
             if not candidates:
                 out.append(module)
+                out_births.append(birth)
                 continue
             names = env
             if candidates[0].formals:
@@ -175,13 +195,15 @@ class LSystem:
             rule = self._choose(candidates, module, names, env, rng)
             if rule is None:
                 out.append(module)
+                out_births.append(birth)
                 continue
             if rule.formals != candidates[0].formals:
                 names = {**env, **dict(zip(rule.formals, module.params, strict=True))}
             out.extend(self._instantiate(t, names) for t in rule._successor)
+            out_births.extend([step] * (len(out) - len(out_births)))
             if len(out) > MAX_MODULES:
                 raise InputError(f"L-System string grew past {MAX_MODULES} modules")
-        return out
+        return out, out_births
 
     @staticmethod
     def _choose(

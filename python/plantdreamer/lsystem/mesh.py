@@ -65,8 +65,9 @@ class PlantMesh:
 
     @property
     def n_leaves(self) -> int:
-        """Number of leaf instances."""
-        return int(self.instances.max()) + 1 if len(self.instances) else 0
+        """Number of leaf instances (at an earlier growth stage the ids have gaps: those
+        of the full-grown plant's leaves not there yet)."""
+        return len(np.unique(self.instances[self.instances >= 0]))
 
     def face_areas_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """Face areas (float64 [F]) and unit face normals (float64 [F, 3]), from the winding."""

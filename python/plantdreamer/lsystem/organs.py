@@ -105,6 +105,17 @@ def build_leaves(
 
     ``floor``: the midrib is kept above this height (a drooping leaf rests on the pot rim).
     """
+    _, vertices, faces, colors = build_blades(shape, batch, rng, floor)
+    return vertices, faces, colors
+
+
+def build_blades(
+    shape: LeafShape, batch: LeafBatch, rng: np.random.Generator, floor: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``build_leaves`` with each blade's grid of surface points first: float64
+    [m, rows, cols, 3], rows along the midrib from the base (u = 0) to the tip, columns
+    across from the right margin to the left, the middle column the midrib itself (the
+    mesh's vertices are these points, the tip rows' collapsed to one)."""
     m, rows, cols = len(batch.lengths), shape.rows, shape.cols
     u = np.linspace(0.0, 1.0, rows)
     v = np.linspace(-1.0, 1.0, cols)
@@ -159,7 +170,7 @@ def build_leaves(
     faces = tipped_grid_faces(rows, cols)
 
     colors = _leaf_colors(shape, batch.tones, u, v, rng)
-    return vertices, faces, colors
+    return points, vertices, faces, colors
 
 
 def _leaf_colors(

@@ -1,16 +1,18 @@
-"""From a species and a seed to a labelled mesh: derive, interpret, build surfaces."""
+"""From a species and a seed to a labelled mesh: derive, interpret, build surfaces; at an
+earlier growth stage, the same plant younger (``growth.py``)."""
 
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from plantdreamer.errors import InputError
 from plantdreamer.lsystem.geometry import tube
+from plantdreamer.lsystem.growth import FULL_GROWN, Stage, check_growth
 from plantdreamer.lsystem.mesh import MeshAccumulator, OrganClass, PlantMesh
-from plantdreamer.lsystem.organs import LeafBatch, build_leaves, build_pot, build_soil
+from plantdreamer.lsystem.organs import LeafBatch, build_blades, build_pot, build_soil
 from plantdreamer.lsystem.species import get_species
 from plantdreamer.lsystem.species.base import Species
 from plantdreamer.lsystem.turtle import Organ, Skeleton, interpret
@@ -20,14 +22,37 @@ from plantdreamer.lsystem.turtle import Organ, Skeleton, interpret
 MIN_LEAF_LENGTH = 1e-3
 
 
+@dataclass(frozen=True)
+class Blade:
+    """A leaf blade in the mesh: its instance id, organ (insertion frame), grid of surface
+    points (float64 [rows, cols, 3], metres: rows along the midrib from base to tip, the
+    middle column the midrib; ``organs.build_blades``) and the scale of its size against the
+    full-grown leaf's (1 at the full stage)."""
+
+    instance: int
+    organ: Organ
+    grid: np.ndarray
+    scale: float
+
+    @property
+    def midrib(self) -> np.ndarray:
+        """[rows, 3]: the midrib from the blade's base to its tip."""
+        return self.grid[:, self.grid.shape[1] // 2]
+
+
 @dataclass
 class GrownPlant:
-    """A plant before and after meshing: its skeleton, its leaves in instance order, the mesh."""
+    """A plant before and after meshing: its skeleton at its stage (stems drawn so far,
+    organs born so far), the full-grown plant's leaves in instance order (leaf instance i of
+    the mesh, at any stage, is ``leaves[i]``), the blades in the mesh, the mesh, and the
+    stage it was grown to."""
 
     species: Species
     skeleton: Skeleton
     leaves: list[Organ]  # leaves[i] is leaf instance i of the mesh
     mesh: PlantMesh
+    blades: list[Blade] = field(default_factory=list)  # ascending instance
+    stage: Stage = field(default_factory=lambda: Stage(FULL_GROWN, 1))
 
 
 def _streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -37,28 +62,33 @@ def _streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     return np.random.default_rng(grammar), np.random.default_rng(shapes)
 
 
-def grow(species: str, seed: int) -> GrownPlant:
-    """Grows ``species`` from ``seed`` and keeps the intermediate skeleton (for tests, tools)."""
+def grow(species: str, seed: int, growth: float = FULL_GROWN) -> GrownPlant:
+    """Grows ``species`` from ``seed`` to the stage ``growth`` (in (0, 1]: the fraction of
+    the species' derivation steps; ``growth.py``) and keeps the skeleton and blades (for
+    traits, tests, tools). The full stage is the plant ``generate_plant`` has always made."""
     spec = get_species(species)
+    check_growth(growth)
     rng_grammar, rng_shapes = _streams(seed)
-    modules = spec.lsystem.derive(spec.iterations, rng_grammar)
-    skeleton = interpret(modules, spec.turtle)
-    mesh, leaves = _build_mesh(spec, skeleton, rng_shapes)
-    return GrownPlant(spec, skeleton, leaves, mesh)
+    modules, births = spec.lsystem.derive_timed(spec.iterations, rng_grammar)
+    skeleton = interpret(modules, spec.turtle, births)
+    stage = Stage(float(growth), spec.iterations)
+    return _build(spec, skeleton, stage, rng_shapes)
 
 
-def generate_plant(species: str, seed: int) -> PlantMesh:
-    """A potted plant of ``species`` (see ``list_species()``), fully determined by ``seed``.
+def generate_plant(species: str, seed: int, growth: float = FULL_GROWN) -> PlantMesh:
+    """A potted plant of ``species`` (see ``list_species()``), fully determined by ``seed``
+    (and ``growth``, its stage: 1 is full-grown).
 
     Metres, z up, soil surface at z = 0, pot centred on x = y = 0. Raises InputError for an
-    unknown species or a negative seed.
+    unknown species, a negative seed or a stage outside (0, 1].
     """
-    return grow(species, seed).mesh
+    return grow(species, seed, growth).mesh
 
 
-def _build_mesh(
-    spec: Species, skeleton: Skeleton, rng: np.random.Generator
-) -> tuple[PlantMesh, list[Organ]]:
+def _build(spec: Species, skeleton: Skeleton, stage: Stage, rng: np.random.Generator) -> GrownPlant:
+    """The mesh at ``stage``. Every random draw is the full-grown plant's, in its order
+    and sizes (stems and leaves not yet there are drawn for and left out), so a part looks
+    the same at every stage it exists at and the full stage is the same bytes as ever."""
     parts = MeshAccumulator()
     soil_vertices, soil_faces, soil_colors = build_soil(spec.pot, rng)
     parts.add(soil_vertices, soil_faces, soil_colors, OrganClass.SOIL)
@@ -67,18 +97,29 @@ def _build_mesh(
 
     stem_color = np.asarray(spec.stem_color)
     base_color = np.asarray(spec.stem_base_color or spec.stem_color)
-    for chain in skeleton.chains:
+    staged = stage.skeleton(skeleton)
+    for chain, now in zip(skeleton.chains, staged.chains, strict=True):
         if np.ptp(chain.points, axis=0).max() <= 1e-6:
             continue  # a stem of sub-micrometre moves only: nothing to see
         vertices, faces = tube(chain.points, chain.radii, spec.stem_sides)
-        # Colour from the base colour near the soil to the stem colour higher up.
+        full_size, drawn = len(vertices), True
+        if now is not chain:  # an earlier stage: the stem as far as it is drawn
+            drawn = len(now.points) >= 2 and np.ptp(now.points, axis=0).max() > 1e-6
+            if drawn:
+                vertices, faces = tube(now.points, now.radii, spec.stem_sides)
+        # Colour from the base colour near the soil to the stem colour higher up (the
+        # noise drawn for the full-grown stem's vertices).
         t = np.clip(vertices[:, 2:3] / 0.06, 0.0, 1.0)
         color = base_color + t * (stem_color - base_color)
-        color = color * rng.uniform(0.92, 1.08) * (1 + 0.03 * rng.standard_normal((len(t), 1)))
-        parts.add(vertices, faces, color, OrganClass.STEM)
+        tint = rng.uniform(0.92, 1.08)
+        noise = rng.standard_normal((full_size, 1))
+        if drawn:
+            color = color * tint * (1 + 0.03 * noise[: len(vertices)])
+            parts.add(vertices, faces, color, OrganClass.STEM)
 
     floor = spec.pot.rim_top + 0.003
     leaves: list[Organ] = []
+    blades: list[Blade] = []
     for symbol, shape in spec.leaves.items():
         organs = [
             o
@@ -87,18 +128,23 @@ def _build_mesh(
         ]
         if not organs:
             continue
+        scales = np.array([stage.scale(o.birth) for o in organs])
+        lengths = np.array([o.params[0] for o in organs]) * scales
         batch = LeafBatch(
             positions=np.array([o.position for o in organs]),
             headings=np.array([o.heading for o in organs]),
             lefts=np.array([o.left for o in organs]),
             ups=np.array([o.up for o in organs]),
-            lengths=np.array([o.params[0] for o in organs]),
+            lengths=lengths,
             tones=np.array(
                 [np.clip(o.params[1], 0, 1) if len(o.params) > 1 else 0.0 for o in organs]
             ),
         )
-        vertices, faces, colors = build_leaves(shape, batch, rng, floor)
-        for k in range(len(organs)):
-            parts.add(vertices[k], faces, colors[k], OrganClass.LEAF, len(leaves) + k)
+        grids, vertices, faces, colors = build_blades(shape, batch, rng, floor)
+        for k, organ in enumerate(organs):
+            instance = len(leaves) + k
+            if stage.has(organ.birth) and lengths[k] >= MIN_LEAF_LENGTH:
+                parts.add(vertices[k], faces, colors[k], OrganClass.LEAF, instance)
+                blades.append(Blade(instance, organ, grids[k], float(scales[k])))
         leaves.extend(organs)
-    return parts.build(), leaves
+    return GrownPlant(spec, staged, leaves, parts.build(), blades, stage)

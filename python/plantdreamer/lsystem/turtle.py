@@ -20,6 +20,10 @@ organs       symbols listed in ``TurtleConfig.organs`` (e.g. ``L`` leaf) are rec
              turtle frame at that point; species modules turn them into surfaces
 ===========  ==========================================================================
 
+Given each module's birth step (``LSystem.derive_timed``), the skeleton keeps when each
+stem point and organ appeared: a stem point is born with the ``F`` that drew it, an organ
+with its symbol (the plant's growth stages, ``plant.py``).
+
 Tropism (ABOP eq. 2.4): after each step of length ``s`` the frame rotates about H x T by
 ``e * s * |H x T|``, so stems bend towards the tropism vector T (gravity: (0, 0, -1)) and a
 negative ``e`` bends them away from it. Long ``F`` moves are split into steps of at most
@@ -50,11 +54,14 @@ class TurtleConfig:
 
 @dataclass
 class StemChain:
-    """A polyline drawn by consecutive ``F`` moves; ``radii`` per point; ``parent`` chain or -1."""
+    """A polyline drawn by consecutive ``F`` moves; ``radii`` per point; ``parent`` chain or
+    -1; ``births`` per point: the derivation step of the ``F`` that drew it (the first
+    point: of the ``F`` that started the chain)."""
 
     points: np.ndarray
     radii: np.ndarray
     parent: int
+    births: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass
@@ -69,6 +76,7 @@ class Organ:
     up: np.ndarray
     chain: int  # the stem chain it grows from (-1 when there is none)
     radius: float  # stem radius at insertion
+    birth: int = 0  # the derivation step that wrote its symbol
 
 
 @dataclass
@@ -94,8 +102,11 @@ class _State:
         return _State(self.pos, self.frame, self.radius, self.elasticity, self.chain, self.attach)
 
 
-def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
-    """Runs the turtle over ``modules`` and returns the stems and organ insertions."""
+def interpret(
+    modules: Sequence[Module], config: TurtleConfig, births: Sequence[int] | None = None
+) -> Skeleton:
+    """Runs the turtle over ``modules`` and returns the stems and organ insertions
+    (``births``: each module's birth step, ``LSystem.derive_timed``; None: all 0)."""
     tropism = np.asarray(config.tropism, dtype=np.float64)
     norm = np.linalg.norm(tropism)
     tropism = tropism / norm if norm > 0 else tropism
@@ -108,13 +119,15 @@ def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
     points: list[list[np.ndarray]] = []
     radii: list[list[float]] = []
     parents: list[int] = []
+    point_births: list[list[int]] = []
     organs: list[Organ] = []
 
     def arg(m: Module, default: float) -> float:
         return m.params[0] if m.params else default
 
-    for m in modules:
+    for index, m in enumerate(modules):
         s = m.symbol
+        birth = births[index] if births is not None else 0
         if s in "Ff":
             length = arg(m, config.max_step)
             if length <= 0:
@@ -127,6 +140,7 @@ def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
                 points.append([state.pos])
                 radii.append([state.radius])
                 parents.append(state.attach)
+                point_births.append([birth])
                 state.chain = state.attach = len(points) - 1
             steps = max(1, math.ceil(length / config.max_step - 1e-9))
             step = length / steps
@@ -134,6 +148,7 @@ def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
                 state.pos = state.pos + state.frame[0] * step
                 points[state.chain].append(state.pos)
                 radii[state.chain].append(state.radius)
+                point_births[state.chain].append(birth)
                 if state.elasticity and norm > 0:
                     state.frame = _bend(state.frame, tropism, state.elasticity * step)
         elif s in "+-&^\\/|":
@@ -162,12 +177,14 @@ def interpret(modules: Sequence[Module], config: TurtleConfig) -> Skeleton:
             state.elasticity = arg(m, 0.0)
         elif s in config.organs:
             h, left, up = state.frame
-            organs.append(Organ(s, m.params, state.pos, h, left, up, state.attach, state.radius))
+            organs.append(
+                Organ(s, m.params, state.pos, h, left, up, state.attach, state.radius, birth)
+            )
     if stack:
         raise InputError("unbalanced '[' in the L-System string")
     chains = [
-        StemChain(np.array(p), np.array(r), parent)
-        for p, r, parent in zip(points, radii, parents, strict=True)
+        StemChain(np.array(p), np.array(r), parent, np.array(b, dtype=np.int64))
+        for p, r, parent, b in zip(points, radii, parents, point_births, strict=True)
     ]
     return Skeleton(chains, organs)
 
