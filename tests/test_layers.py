@@ -38,8 +38,8 @@ LAYERS: list[tuple[str, set[str]]] = [
         | {"prepare", "framing", "rasterizer", "turntable", "lsystem"},
     ),
     (
-        "what reads or writes the model: guidance, scoring, label files, viewer",
-        {"guidance", "eval", "exports", "viewer"},
+        "what reads or writes the model: guidance, scoring, traits, label files, viewer",
+        {"guidance", "eval", "traits", "exports", "viewer"},
     ),
     (
         "generation and training: the pipeline, LoRA, the torch Dataset",

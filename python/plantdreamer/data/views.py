@@ -15,7 +15,13 @@ Each item is ``(image, target)``:
   ``min_area``: COCO's ``iscrowd`` 1 annotations), which the K objects leave out;
 - ``target["instance_ids"]``, ``target["area"]``, ``target["iscrowd"]`` (all 0), and
   ``target["image_id"]``: the id of the view's image in ``coco/<split>.json`` (and a plant
-  folder's ``coco.json``), so predictions score against those files as they are.
+  folder's ``coco.json``), so predictions score against those files as they are;
+- the view's traits (docs/traits.md): ``target["visible_fraction"]``, float32 [K], each
+  leaf's share of itself the view shows (NaN for other objects, or where generate
+  measured none), and the image's ``leaf_count`` (visible leaves of at least ``min_area``
+  pixels), ``plant_area_px``, ``plant_height_px``, ``plant_width_px`` (taken again from
+  ``semantic`` after the transforms) and ``metres_per_pixel`` (the written view's; NaN
+  where unknown), as COCO's image records and ``counts.csv`` give them.
 
 The area limit and stuff classes are those the folder's label files record (``coco.json``,
 ``coco/<split>.json``: what ``labels --min-instance-area --stuff`` made), so the targets are
@@ -46,18 +52,14 @@ import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.exports.dataset import SPLITS_FILE, dataset_views, labelled_plants
-from plantdreamer.exports.instances import (
-    MIN_INSTANCE_AREA,
-    read_label_maps,
-    read_png,
-    read_transforms,
-    view_objects,
-)
+from plantdreamer.exports.figures import plant_records, read_view_traits
+from plantdreamer.exports.instances import MIN_INSTANCE_AREA, read_png, read_transforms
 from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
 from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
+from plantdreamer.traits.points import plant_class_ids
 
-OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids")  # one entry per box
+OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids", "visible_fraction")  # per box
 
 
 def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
@@ -101,6 +103,9 @@ class PlantViews(torch.utils.data.Dataset):
             ]
         self.stuff_ids = classes.stuff_ids(tuple(stuff))
         self.classes: dict[int, str] = classes.things(tuple(stuff))
+        self.names = classes.names  # every class, stuff too: the traits' plant and leaves
+        self.plant_values = plant_class_ids(np.array(sorted(self.names)), self.names)
+        self._recorded: dict[Path, dict[str, dict[str, Any]]] = {}  # traits.json's views
 
     @property
     def num_classes(self) -> int:
@@ -113,10 +118,14 @@ class PlantViews(torch.utils.data.Dataset):
     def __getitem__(self, index: int) -> tuple[Any, dict[str, Any]]:
         image_id, folder, frame, lut = self.views[index]
         rgb = read_png(folder / frame["file_path"])[..., :3]
-        semantic, instance = read_label_maps(folder, frame)
-        semantic = lut[semantic]
-        objects = view_objects(semantic, instance, self.min_area).without(self.stuff_ids)
+        if folder not in self._recorded:
+            self._recorded[folder] = plant_records(folder)
+        seen = read_view_traits(folder, frame, self.min_area, lut, self.names,
+                                self.stuff_ids, self._recorded[folder])  # fmt: skip
+        semantic, objects = seen.semantic, seen.objects
         things = objects.things()
+        fraction = [o.get("visible_fraction", np.nan) for o, t in
+                    zip(seen.per_object, ~objects.iscrowd, strict=True) if t]  # fmt: skip
         image = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float() / 255.0
         h, w = objects.shape
         target: dict[str, Any] = {
@@ -128,12 +137,16 @@ class PlantViews(torch.utils.data.Dataset):
             "instance_ids": torch.from_numpy(things.instance_ids).to(torch.int64),
             "area": torch.from_numpy(things.areas).to(torch.float32),
             "iscrowd": torch.zeros(len(things.areas), dtype=torch.int64),
+            "visible_fraction": torch.tensor(fraction, dtype=torch.float32),
             "image_id": image_id,
+            **seen.fields,
         }
+        if target["metres_per_pixel"] is None:
+            target["metres_per_pixel"] = float("nan")
         image, target = _as_tv_tensors(image, target, (h, w))
         if self.transforms is not None:
             image, target = self.transforms(image, target)
-            _follow_boxes(target, self.describe(index))
+            _follow_boxes(target, self.describe(index), self.plant_values)
         return image, target
 
     def describe(self, index: int) -> str:
@@ -148,10 +161,17 @@ def collate(batch: list[tuple[Any, dict[str, Any]]]) -> tuple[tuple, tuple]:
     return images, targets
 
 
-def _follow_boxes(target: dict[str, Any], source: str) -> None:
-    """``area`` again from the masks; every per-object key as long as the boxes."""
+def _follow_boxes(target: dict[str, Any], source: str, plant_values: np.ndarray) -> None:
+    """``area`` again from the masks and the plant's pixel figures from ``semantic``;
+    every per-object key as long as the boxes."""
     if "masks" in target:
         target["area"] = torch.as_tensor(target["masks"]).flatten(1).sum(1).to(torch.float32)
+    if "semantic" in target:
+        plant = torch.isin(torch.as_tensor(target["semantic"]), torch.from_numpy(plant_values))
+        rows, cols = torch.nonzero(plant.any(1)), torch.nonzero(plant.any(0))
+        target["plant_area_px"] = int(plant.sum())
+        target["plant_height_px"] = int(rows[-1] - rows[0] + 1) if len(rows) else 0
+        target["plant_width_px"] = int(cols[-1] - cols[0] + 1) if len(cols) else 0
     k = len(target["boxes"])
     wrong = [key for key in OBJECT_KEYS if key in target and len(target[key]) != k]
     if wrong:

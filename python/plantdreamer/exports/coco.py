@@ -36,8 +36,16 @@ class CocoBuilder:
     annotations: list[dict[str, Any]] = field(default_factory=list)
     licenses: list[dict[str, Any]] = field(default_factory=list)  # COCO's "licenses"
 
-    def add(self, image_id: int, file_name: str, objects: ViewObjects, **extra: Any) -> None:
-        """One image and its objects (``extra``: more keys of the image record)."""
+    def add(
+        self,
+        image_id: int,
+        file_name: str,
+        objects: ViewObjects,
+        per_object: list[dict[str, Any]] | None = None,
+        **extra: Any,
+    ) -> None:
+        """One image and its objects (``per_object``: more keys of each object's
+        annotation; ``extra``: more keys of the image record)."""
         from pycocotools import mask as mask_utils
 
         h, w = objects.shape
@@ -62,6 +70,7 @@ class CocoBuilder:
                     "bbox": [float(v) for v in boxes[k]],
                     "iscrowd": int(objects.iscrowd[k]),
                     "instance_id": int(objects.instance_ids[k]),
+                    **(per_object[k] if per_object else {}),
                 }
             )
 

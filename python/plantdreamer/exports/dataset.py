@@ -5,7 +5,9 @@
 - ``coco/{train,val,test}.json``: COCO files whose ``file_name`` is relative to ``DIR``
   (``plants/<id>/renders/view_000.png``); image and annotation ids are unique across the
   three files, so they merge as they are, and the image ids are the torch Dataset's
-  (``dataset_views``);
+  (``dataset_views``); each image carries its view's traits (``exports.figures``);
+- ``counts/{train,val,test}.csv``: each view's visible leaves and plant size, a row per
+  image (``traits.counts``);
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
 - ``gallery.png``, the contact sheet (``exports.gallery``);
@@ -41,13 +43,9 @@ from plantdreamer.exports import yolo
 from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
 from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.figures import plant_records, read_view_traits
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
-from plantdreamer.exports.instances import (
-    MIN_INSTANCE_AREA,
-    PlantClasses,
-    labelled_frames,
-    read_view_objects,
-)
+from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses, labelled_frames
 from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
 from plantdreamer.exports.splits import (
@@ -60,6 +58,7 @@ from plantdreamer.exports.splits import (
     split_plants,
 )
 from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
+from plantdreamer.traits.counts import COUNTS_DIR, write_counts
 
 SPLITS_FILE = "splits.json"
 _SPLIT = "(?:" + "|".join(SPLITS) + ")"
@@ -69,6 +68,7 @@ DATASET_EXPORTS = (
     SPLITS_FILE,
     GALLERY_FILE,
     *tree("coco", re.compile(rf"{_SPLIT}\.json")),
+    *tree(COUNTS_DIR, re.compile(rf"{_SPLIT}\.csv")),
     *tree(
         "yolo",
         "data.yaml",
@@ -76,7 +76,7 @@ DATASET_EXPORTS = (
         *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.txt")),
     ),
 )
-EXPORT_ENTRIES = (SPLITS_FILE, "coco", "yolo", GALLERY_FILE)  # replaced together
+EXPORT_ENTRIES = (SPLITS_FILE, "coco", COUNTS_DIR, "yolo", GALLERY_FILE)  # replaced together
 
 
 @dataclass(frozen=True)
@@ -216,19 +216,22 @@ def _write_exports(
     yolo_dir = stage / "yolo"
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
+    recorded = {p.id: plant_records(p.folder) for p in labelled}
     for split in SPLITS:
         coco = CocoBuilder(things, annotation_ids, licenses=licenses)
-        report = LabelReport()
+        report, counts = LabelReport(), []
         for view in views:
             plant = view.plant
             if split_of[plant.id] != split:
                 continue
-            objects = read_view_objects(plant.folder, view.frame, min_area, classes.luts[plant.id])
-            objects = objects.without(stuff_ids)
+            seen = read_view_traits(plant.folder, view.frame, min_area, classes.luts[plant.id],
+                                    classes.names, stuff_ids, recorded[plant.id])  # fmt: skip
+            objects = seen.objects
             image = Path(view.frame["file_path"])
             relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
-            coco.add(view.image_id, relative, objects, plant_id=plant.id,
-                     license=licence_of[guidance[plant.id]])  # fmt: skip
+            coco.add(view.image_id, relative, objects, seen.per_object, plant_id=plant.id,
+                     license=licence_of[guidance[plant.id]], **seen.fields)  # fmt: skip
+            counts.append({"file_name": relative, "plant_id": plant.id, **seen.fields})
             flat = f"{plant.id}__{image.stem}"
             yolo.link_image(plant.folder / image, yolo_dir / "images" / split / f"{flat}.png")
             lines = yolo.label_lines(objects, index)
@@ -238,6 +241,7 @@ def _write_exports(
         (stage / "coco").mkdir(exist_ok=True)
         info = {**coco_fields, **report.info(f"{split} split", min_area, options.stuff)}
         coco.write(stage / "coco" / f"{split}.json", info)
+        write_counts(stage / COUNTS_DIR / f"{split}.csv", ("file_name", "plant_id"), counts)
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
     if classes.remapped:

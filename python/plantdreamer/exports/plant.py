@@ -1,6 +1,8 @@
 """The label files of one plant folder, made from what ``generate`` (or ``render --labels``)
 wrote there: ``coco.json``, ``yolo/`` (``images/`` hard-linked to ``renders/``, ``labels/``,
-``data.yaml``), ``points.ply``, and ``ply_file_path`` in ``transforms.json``.
+``data.yaml``), ``points.ply``, ``counts.csv`` (each view's visible leaves and plant size
+in pixels, also in COCO's image records; ``exports.figures``), and ``ply_file_path`` in
+``transforms.json``.
 
 Everything here is derived from the folder's PNGs and ``plant.ply``, so it can be remade at
 any time (``plantdreamer labels DIR --min-instance-area N``) and is the same bytes from the
@@ -18,16 +20,17 @@ from plantdreamer import atomic
 from plantdreamer.exports import yolo
 from plantdreamer.exports.classes import DatasetClasses, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.figures import plant_records, read_view_traits
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
     PlantClasses,
     ViewObjects,
     labelled_frames,
     read_transforms,
-    read_view_objects,
 )
 from plantdreamer.exports.points import write_points_ply
 from plantdreamer.output_folder import tree
+from plantdreamer.traits.counts import COUNTS_FILE, write_counts
 
 POINTS_FILE = "points.ply"
 COCO_FILE = "coco.json"
@@ -37,6 +40,7 @@ VIEW_PNG = re.compile(r"view_\d{3,}\.png")  # a view's picture: renders/, labels
 LABEL_FILES = (
     POINTS_FILE,
     COCO_FILE,
+    COUNTS_FILE,
     *tree(
         YOLO_DIR,
         "data.yaml",
@@ -142,11 +146,15 @@ def write_plant_exports(
     index = yolo.class_index(things)
     coco = CocoBuilder(things)
     report = LabelReport()
+    recorded, counts = plant_records(plant_dir), []
     for view in plant_views(plant_dir):
-        objects = read_view_objects(plant_dir, view.frame, min_area, classes.luts[PLANT])
-        objects = objects.without(stuff_ids)
+        lut = classes.luts[PLANT]
+        seen = read_view_traits(plant_dir, view.frame, min_area, lut, classes.names,
+                                stuff_ids, recorded)  # fmt: skip
+        objects = seen.objects
         image = Path(view.frame["file_path"])
-        coco.add(view.image_id, image.as_posix(), objects)
+        coco.add(view.image_id, image.as_posix(), objects, seen.per_object, **seen.fields)
+        counts.append({"file_name": image.as_posix(), **seen.fields})
         yolo.link_image(plant_dir / image, plant_dir / YOLO_DIR / "images" / image.name)
         labels = plant_dir / YOLO_DIR / "labels" / f"{image.stem}.txt"
         yolo.write_labels(labels, yolo.label_lines(objects, index))
@@ -155,6 +163,7 @@ def write_plant_exports(
         plant_dir / YOLO_DIR / "data.yaml", {"train": "images", "val": "images"}, things
     )
     coco.write(plant_dir / COCO_FILE, report.info(f"plant {plant_dir.name}", min_area, stuff))
+    write_counts(plant_dir / COUNTS_FILE, ("file_name",), counts)
     return report
 
 

@@ -79,7 +79,7 @@ class GenerateConfig:
         except ValueError as exc:
             raise InputError(str(exc)) from None
         self._check_numbers()
-        for section in (self.train, self.density, self.outputs):
+        for section in (self.source, self.train, self.density, self.outputs):
             section.validate()
         if self.source.species is None and self.source.pointcloud is None:
             raise InputError("give an input: a species (L-System) or a point cloud")

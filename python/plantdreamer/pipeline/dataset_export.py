@@ -215,9 +215,13 @@ def ground_truth_writer(
     return GroundTruthWriter(out_dir, label_set, transform, class_names)
 
 
-def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
+def render_views(
+    model, writer: GroundTruthWriter, cameras: list[Camera], render, observe=None
+) -> list:
     """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
-    whose instance channels reuse the render's footprints; returns the images."""
+    whose instance channels reuse the render's footprints; returns the images.
+    ``observe(name, camera, instances, meta)``, if given, sees each view: its instance ids
+    per pixel (-1: none; None without labels) and its render's ``meta``."""
     from plantdreamer.pipeline.ground_truth import GroundTruthRenderer
 
     ground_truth = GroundTruthRenderer(model, writer.label_set)
@@ -228,6 +232,10 @@ def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render
         name = f"view_{i:03d}"
         gt = ground_truth(camera, meta)
         writer.add(name, f"renders/{name}.png", camera, gt)
+        if observe is not None:
+            ls = writer.label_set
+            ids = None if ls is None else np.r_[ls.instances, -1][gt.instance]
+            observe(name, camera, ids, meta)
         images.append(image)
     if cameras:
         writer.finish(cameras[0])

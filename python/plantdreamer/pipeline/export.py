@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from plantdreamer import _core
@@ -21,10 +22,13 @@ from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+from plantdreamer.pipeline.ground_truth import Splats
 from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Counter
 from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.traits import TRAITS_FILE, ViewRecorder, write_traits
+from plantdreamer.traits.record import assemble, captured_traits, lsystem_traits, view_recorder
 from plantdreamer.versions import package_versions
 
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native
@@ -88,6 +92,12 @@ def export_run(
         # on the orbit framed on what plant.ply holds unless the distance is given.
         cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
+        labels = view_model.labels.numpy() if oc.labels and view_model.labels is not None else None
+        splats = Splats.of(view_model)
+        views = view_recorder(
+            (splats.means, splats.quats, splats.scales, splats.opacities),
+            labels, class_names, state.transform.scale,
+        )  # fmt: skip
 
         with Counter("export: views", len(cameras), show_progress) as counter:
 
@@ -96,10 +106,12 @@ def export_run(
                 counter.advance()
                 return outputs.to_uint8(image[0].numpy()), meta
 
-            frames = render_views(view_model, writer, cameras, render)
+            frames = render_views(view_model, writer, cameras, render, views.add)
         outputs.write_renders(out / "renders", frames)
         outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
+    with timer("traits"):
+        write_traits(out / TRAITS_FILE, _traits(cfg, state, final, class_names, views))
     if show_progress:
         print("export: label files (COCO, YOLO-seg, points.ply)", file=sys.stderr, flush=True)
     with timer("label files"):
@@ -109,6 +121,27 @@ def export_run(
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
+
+
+def _traits(
+    cfg: GenerateConfig,
+    state: RunState,
+    final: Gaussians,
+    class_names: dict[int, str] | None,
+    views: ViewRecorder,
+) -> dict[str, Any]:
+    """traits.json: the L-System's mesh and skeleton (grown again) or the scan's labelled
+    points the run started from, the trained Gaussians and the views (``traits``)."""
+    src, invert = cfg.source, state.transform.invert
+    if src.pointcloud is None:
+        species = src.structure()
+        assert species is not None  # validated: an L-System run names its species
+        plant = lsystem_traits(species, cfg.seed, src.growth, src.growth_since)
+    else:
+        start = state.initial
+        plant = captured_traits(invert(start.means.astype(np.float64)), start.labels, class_names)
+    means = invert(final.means.astype(np.float64))
+    return assemble(plant, means, final.labels, class_names, views.views)
 
 
 def _class_names(cfg: GenerateConfig) -> dict[int, str] | None:

@@ -12,6 +12,7 @@ from plantdreamer.pipeline.progress_pictures import (
     PROGRESS_DIR,
     PROGRESS_STRIP,
 )
+from plantdreamer.traits.files import TRAITS_FILE
 
 CHECKPOINT_NAME = "checkpoint.pt"
 PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
@@ -29,6 +30,7 @@ FINAL_OUTPUTS = (
     *tree("instances", VIEW_PNG),
     *tree("depth", VIEW_PNG),
     "transforms.json",
+    TRAITS_FILE,
     *LABEL_FILES,
 )
 # Everything a run writes.

@@ -17,6 +17,10 @@ from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.settings import setting
 
 STRUCTURES = ("plantdreamer", "released")  # species grammars: ours or the authors'
+# The full-grown stage (``lsystem.growth.FULL_GROWN``, which the settings' module may not
+# import: the command line reads it at start-up, before anything heavy; a test holds the
+# two equal).
+FULL_GROWN = 1.0
 
 
 # Scene sizes the fixed camera planes hold: below 0.1 the framed cameras come within the
@@ -40,6 +44,21 @@ class SourceConfig:
         "Which grammar a species name grows: ours, or the authors' released structure "
         "(bean -> bean-released).",
         choices=STRUCTURES,
+    )
+    growth: float = setting(
+        FULL_GROWN,
+        "Growth stage of the L-System plant in (0, 1]: the fraction of its derivation "
+        "steps (1: full-grown); a leaf keeps its id, insertion point and growing size at "
+        "every stage (docs/traits.md).",
+        range=(0.0, FULL_GROWN),
+        open=(True, False),
+    )
+    growth_since: float | None = setting(
+        None,
+        "An earlier growth stage: traits.json marks the leaves that emerged after it as "
+        "new (a dataset's growth series gives each stage the one before it).",
+        range=(0.0, FULL_GROWN),
+        open=(True, True),
     )
     pointcloud: str | None = setting(None, "A real plant point cloud (PLY).")
     points: int = setting(
@@ -72,6 +91,16 @@ class SourceConfig:
         "Point-cloud property with instance ids.",
         default_text="instance, instance_id, leaf_id, ... if present",
     )
+
+    def validate(self) -> None:
+        """A growth stage is the L-System's, and a stage's earlier one comes before it."""
+        if self.pointcloud is not None and self.growth != FULL_GROWN:
+            raise InputError("growth is a stage of an L-System plant; a point cloud is as captured")
+        if self.growth_since is not None and not self.growth_since < self.growth:
+            raise InputError(
+                f"growth-since {self.growth_since:g} must be an earlier stage than growth "
+                f"{self.growth:g}"
+            )
 
     def structure(self) -> str | None:
         """The registered species the L-System input grows (``structures`` applied)."""
@@ -143,7 +172,7 @@ def load_source(src: SourceConfig, seed: int, *, surface: bool) -> Source:
     if species is None:
         raise InputError("give an input: a species (L-System) or a point cloud")
     cloud = sample_points(
-        generate_plant(species, seed), src.points, seed, boundary_distance=surface
+        generate_plant(species, seed, src.growth), src.points, seed, boundary_distance=surface
     )
     counts = {"sampled": len(cloud)}
     if src.mesh_sor:

@@ -1,0 +1,105 @@
+"""The record of ``traits.json``, assembled from its parts (docs/traits.md lists every
+field; ``files`` writes it).
+
+- ``plant`` and ``leaves``: from the L-System's mesh and skeleton (``traits.plant``), or a
+  scan's labelled points (``traits.points``); ``source`` says which, and each record's
+  ``sources`` which part of it each figure comes from;
+- ``gaussians``: the same figures on the trained Gaussians, by class and leaf instance;
+- ``views``: what generate measured while rendering each view (``traits.views``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from plantdreamer.traits.files import FORMAT
+from plantdreamer.traits.occlusion import LeafOcclusion, SplatArrays
+from plantdreamer.traits.points import (
+    gaussian_traits,
+    leaf_class_ids,
+    plant_class_ids,
+    scan_traits,
+)
+from plantdreamer.traits.views import ViewRecorder
+
+LSYSTEM_FRAME = "metres, z up, the soil surface at z = 0, the pot centred on x = y = 0"
+SCAN_FRAME = "the scan's own frame and units (plant.ply's), z taken as up"
+SOIL_HEIGHT = 0.0  # the L-System's soil surface
+
+
+def lsystem_traits(
+    species: str, seed: int, growth: float, since: float | None = None
+) -> dict[str, Any]:
+    """The ``plant`` and ``leaves`` of an L-System plant, grown again from its species,
+    seed and stage (the mesh ``generate`` sampled, to the byte)."""
+    from plantdreamer.lsystem import grow
+    from plantdreamer.traits.plant import LEAF_SOURCES, plant_traits
+
+    record = plant_traits(grow(species, seed, growth), since)
+    return {
+        "source": "mesh and skeleton",
+        "frame": LSYSTEM_FRAME,
+        "units": {"length": "m", "area": "m^2", "angle": "degrees"},
+        "plant": {**record["plant"], "seed": seed},
+        "leaves": record["leaves"],
+        "leaf_sources": LEAF_SOURCES,
+    }
+
+
+def captured_traits(
+    positions: np.ndarray, labels: np.ndarray | None, names: Mapping[int, str] | None
+) -> dict[str, Any]:
+    """The ``plant`` and ``leaves`` of a scan from its labelled points."""
+    record = scan_traits(positions, labels, names)
+    return {
+        "source": "labelled points",
+        "frame": SCAN_FRAME,
+        "units": {"length": "input units", "area": "input units^2", "angle": "degrees"},
+        **record,
+        "leaf_sources": {"count": "points", "centroid": "points", "extent": "points"},
+    }
+
+
+def assemble(
+    plant: dict[str, Any],
+    means: np.ndarray,
+    labels: np.ndarray | None,
+    names: Mapping[int, str] | None,
+    views: list[dict[str, Any]],
+) -> dict[str, Any]:
+    """The whole record: ``plant`` (``lsystem_traits`` or ``captured_traits``), the
+    trained Gaussians' figures (``means`` in the input frame, float64) and the views."""
+    ground = SOIL_HEIGHT if plant["source"] == "mesh and skeleton" else None
+    return {
+        "format": FORMAT,
+        **plant,
+        "gaussians": gaussian_traits(means, labels, names, ground),
+        "views": views,
+    }
+
+
+def view_recorder(
+    splats: tuple[Any, Any, Any, Any],
+    labels: np.ndarray | None,
+    names: Mapping[int, str] | None,
+    scale: float,
+) -> ViewRecorder:
+    """A recorder of the views of activated Gaussians (means, quats, scales, opacities;
+    the scene frame, ``scale`` scene units per input unit) with their ``labels``."""
+    means = splats[0]
+    centre = None
+    if len(means):
+        keep = np.ones(len(means), dtype=bool)
+        if labels is not None:
+            keep = np.isin(labels[:, 0], plant_class_ids(np.unique(labels[:, 0]), names))
+        if keep.any():
+            centre = means.detach().numpy()[keep].astype(np.float64).mean(axis=0)
+    occlusion = None
+    if labels is not None:
+        leaf_ids = leaf_class_ids(np.unique(labels[:, 0]), names)
+        leaf = np.ones(len(labels), bool) if leaf_ids is None else np.isin(labels[:, 0], leaf_ids)
+        occlusion = LeafOcclusion(SplatArrays(*splats, labels[:, 1], leaf))
+    return ViewRecorder(occlusion, centre, scale)
