@@ -18,6 +18,9 @@ A spec is a TOML file::
     species = "bean"              # names the plant in the prompts
     points = 50000
 
+``growth`` (any group's, or [defaults]) may be a list or range of stages: a series of
+each seed's plant at every stage, ids ending ``-g<stage>`` (``dataset.growth``).
+
 A group's keys are spelled as `generate`'s and `dataset`'s options (``species``,
 ``pointcloud``, ``seeds``); the earlier ``pointclouds``, ``count`` and ``seed-start``
 (``count = 3`` is ``seeds = "0-2"``) are still read, and refused beside their new name when
@@ -44,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.dataset import packing
+from plantdreamer.dataset.growth import growth_series
 from plantdreamer.dataset.plant import Plant, config_hash
 from plantdreamer.digests import file_digest
 from plantdreamer.errors import InputError
@@ -147,6 +151,7 @@ def _group_plants(
         sources = [(None, species)]
     else:
         raise InputError(f"spec: {where} needs 'species' or 'pointcloud'")
+    stages = growth_series(settings, where)
     plants = []
     for pointcloud, stem in sources:
         digest = None
@@ -154,17 +159,20 @@ def _group_plants(
             path = Path(pointcloud)
             digest = digests.get(path) or digests.setdefault(path, file_digest(path))
         for seed in seeds:
-            data = {**settings, "species": species, "pointcloud": pointcloud, "seed": seed}
-            try:
-                # A preset applies as on the command line: its values, then the spec's own.
-                preset = data.pop("preset", GenerateConfig().preset)
-                cfg = resolve_config(str(preset), data)
-                cfg.validate()
-                _check_species(cfg)
-            except (InputError, TypeError, ValueError) as exc:
-                raise InputError(f"spec: {where}: {exc}") from None
-            plant_id = f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}"
-            plants.append(Plant(plant_id, name or f"group{index}", cfg, config_hash(cfg, digest)))
+            for stage in stages:
+                data = {**settings, **stage.settings, "species": species,
+                        "pointcloud": pointcloud, "seed": seed}  # fmt: skip
+                try:
+                    # A preset applies as on the command line: its values, then the spec's.
+                    preset = data.pop("preset", GenerateConfig().preset)
+                    cfg = resolve_config(str(preset), data)
+                    cfg.validate()
+                    _check_species(cfg)
+                except (InputError, TypeError, ValueError) as exc:
+                    raise InputError(f"spec: {where}: {exc}") from None
+                plant_id = f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}{stage.suffix}"
+                group_name = name or f"group{index}"
+                plants.append(Plant(plant_id, group_name, cfg, config_hash(cfg, digest)))
     return plants
 
 
