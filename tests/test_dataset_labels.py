@@ -155,6 +155,38 @@ def test_a_split_is_a_torch_dataset_of_its_plants(dataset):
     assert len(PlantViews(dataset)) == 6
 
 
+def test_each_splits_counts_are_its_coco_images_and_the_torch_targets(dataset):
+    pytest.importorskip("torchvision")
+    import csv
+
+    from plantdreamer.data import PlantViews
+
+    figures = ("leaf_count", "plant_area_px", "plant_height_px", "plant_width_px")
+    counted: dict[int, dict[str, int]] = {}
+    for min_area in (16, 1):
+        args = ("--split", "2,1,0", "--allow-empty-split", "--min-instance-area", min_area)
+        assert cli("labels", dataset, *args).exit_code == 0
+        counted[min_area] = {}
+        for split in SPLITS:
+            coco = json.loads((dataset / "coco" / f"{split}.json").read_text())
+            with open(dataset / "counts" / f"{split}.csv", newline="") as f:
+                rows = list(csv.DictReader(f))
+            assert [r["file_name"] for r in rows] == [i["file_name"] for i in coco["images"]]
+            views = PlantViews(dataset, split=split)
+            for row, image, (_, target) in zip(rows, coco["images"], views, strict=True):
+                assert row["plant_id"] == image["plant_id"]
+                for key in figures:
+                    assert int(row[key]) == image[key] == target[key]
+                leaves = [a for a in coco["annotations"] if a["image_id"] == image["id"]
+                          and a["category_id"] == 1 and not a["iscrowd"]]  # fmt: skip
+                assert image["leaf_count"] == len(leaves)
+                counted[min_area][image["file_name"]] = image["leaf_count"]
+    # A lower area limit counts as many leaves or more, somewhere more.
+    assert counted[1].keys() == counted[16].keys()
+    assert all(counted[1][k] >= n for k, n in counted[16].items())
+    assert sum(counted[1].values()) > sum(counted[16].values())
+
+
 def test_another_area_limit_remakes_each_plants_files(dataset):
     result = cli("labels", dataset, "--min-instance-area", "1", "--allow-empty-split")
     assert result.exit_code == 0, result.output

@@ -36,8 +36,16 @@ class Blade:
 
     @property
     def midrib(self) -> np.ndarray:
-        """[rows, 3]: the midrib from the blade's base to its tip."""
-        return self.grid[:, self.grid.shape[1] // 2]
+        """[rows, 3]: the mesh's midrib from the blade's base to its tip (the mesh makes
+        each end row one vertex: the midrib's at the base, the first column's at the tip,
+        which a ruffled margin lifts off the midrib's end)."""
+        return np.vstack([self.grid[:-1, self.grid.shape[1] // 2], self.grid[-1, :1]])
+
+    @property
+    def rows(self) -> np.ndarray:
+        """[rows - 2, cols, 3]: the rows across the blade that the mesh keeps (not the
+        two end rows, which it makes one vertex each)."""
+        return self.grid[1:-1]
 
 
 @dataclass

@@ -89,7 +89,7 @@ def _leaf(
     plant: GrownPlant,
     since: float | None,
 ) -> dict[str, Any]:
-    organ, grid = blade.organ, blade.grid
+    organ = blade.organ
     weights = areas[faces]
     corners = mesh.vertices[mesh.faces[faces]].astype(np.float64)  # [f, 3, 3]
     centroid = (corners.mean(axis=1) * weights[:, None]).sum(axis=0) / weights.sum()
@@ -102,7 +102,7 @@ def _leaf(
         "instance": blade.instance,
         "area": float(weights.sum()),
         "length": polyline_length(midrib),
-        "width": max(polyline_length(row) for row in grid),
+        "width": max(polyline_length(row) for row in blade.rows),
         "inclination": inclination_deg(mean_normal),
         "azimuth": azimuth_deg(midrib[-1] - midrib[0]),
         "base": [float(v) for v in organ.position],
