@@ -125,6 +125,9 @@ def test_eval_with_malformed_colmap(files, tmp_path, case):
         (["--resolution", 100000], "resolution"),
         (["--background", "nan"], "background must be finite"),
         (["--background", 1.5], "background must be a grey level"),
+        (["--growth", 0], "growth must be in (0, 1], got 0"),
+        (["--growth", 1.5], "growth must be in (0, 1], got 1.5"),
+        (["--growth", 0.5, "--growth-since", 0.5], "growth-since 0.5 must be an earlier stage"),
     ],
 )
 def test_generate_bad_numbers(tmp_path, args, message):
@@ -306,6 +309,7 @@ def interrupted_run(tmp_path_factory):
     [
         (["--seed", 6], "seed: checkpoint 5, given 6"),
         (["--species", "kale"], "species"),
+        (["--growth", 0.5], "growth: checkpoint 1.0, given 0.5"),  # another stage
         (["--steps", 1], "below the checkpoint's step"),
         (["--out", "elsewhere"], "drop --out"),
     ],

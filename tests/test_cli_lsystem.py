@@ -137,3 +137,20 @@ def test_point_cloud_option_hands_the_sampled_cloud_to_write_ply(tmp_path, monke
     assert isinstance(cloud, PointCloud) and len(cloud) == 1234
     assert set(cloud.attributes) == {"label", "instance"}
     assert cloud.colors is not None and cloud.normals is not None
+
+
+def test_a_growth_stage_is_the_younger_plant_and_a_bad_one_is_refused(tmp_path):
+    from plantdreamer.lsystem import generate_plant
+
+    result = run("bean", "--seed", "2", "--growth", "0.5", "--mesh", str(tmp_path / "b.ply"))
+    assert result.exit_code == 0, result.output
+    young = generate_plant("bean", 2, growth=0.5)
+    assert f"{young.n_leaves} leaves" in result.output
+    assert young.n_leaves < generate_plant("bean", 2).n_leaves
+    assert len(trimesh.load(tmp_path / "b.ply", process=False).faces) == len(young.faces)
+    for bad in ("0", "1.5"):  # click's range: a usage error
+        refused = run("bean", "--growth", bad, "--mesh", str(tmp_path / "c.ply"))
+        assert refused.exit_code == 2 and "--growth" in refused.output
+    refused = run("bean", "--growth", "nan", "--mesh", str(tmp_path / "c.ply"))
+    assert refused.exit_code == 1 and "error: growth must be a stage in (0, 1]" in refused.output
+    assert not (tmp_path / "c.ply").exists()

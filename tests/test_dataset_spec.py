@@ -67,6 +67,11 @@ def test_a_preset_in_the_spec_applies_under_the_spec_settings(tmp_path):
         ('pointcloud = "nothing/*.ply"', "no files match"),
         ("count = 2", "needs 'species' or 'pointcloud'"),
         ('species = "bean"\ncolor_init = "blue"', "color init must be one of"),
+        ('species = "bean"\ngrowth = [0.5, 1.5]', r"growth must be in \(0, 1\], got 1.5"),
+        ('species = "bean"\ngrowth = "0-1/3"', r"growth must be in \(0, 1\], got 0.0"),
+        ('species = "bean"\ngrowth = "0.5-0.25/2"', "is no range of stages"),
+        ('species = "bean"\ngrowth = "half"', "'half' is no stage or range"),
+        ('species = "bean"\ngrowth = [0.5, 1]\ngrowth_since = 0.25', "sets growth-since itself"),
     ],
 )
 def test_bad_groups_are_clear_errors(tmp_path, group, message):
@@ -74,6 +79,31 @@ def test_bad_groups_are_clear_errors(tmp_path, group, message):
     spec_file.write_text(f"[[group]]\n{group}\n")
     with pytest.raises(InputError, match=message):
         expand(load_spec(spec_file))
+
+
+def test_a_growth_series_is_each_seeds_plant_at_every_stage():
+    spec = {
+        "defaults": {"points": 500},
+        "group": [
+            {"species": "bean", "seeds": "0-1", "growth": "0.25-1/4"},
+            {"name": "young", "species": "mint", "growth": 0.5},
+            {"name": "listed", "species": "kale", "growth": [1, 0.3, 0.3]},
+        ],
+    }
+    plants = expand(spec)
+    series = [(p.id, p.config.source.growth, p.config.source.growth_since) for p in plants]
+    assert series[:4] == [
+        ("bean-s0000-g0.25", 0.25, None),
+        ("bean-s0000-g0.5", 0.5, 0.25),
+        ("bean-s0000-g0.75", 0.75, 0.5),
+        ("bean-s0000-g1", 1.0, 0.75),
+    ]
+    assert [s[0] for s in series[4:8]] == [f"bean-s0001-g{g}" for g in ("0.25", "0.5", "0.75", "1")]
+    # One stage is a setting like any other: no series, no suffix.
+    assert series[8] == ("young-mint-s0000", 0.5, None)
+    assert series[9:] == [("listed-kale-s0000-g0.3", 0.3, None), ("listed-kale-s0000-g1", 1.0, 0.3)]
+    # Each stage's config (and so its hash) is its own: the seed's plants never clash.
+    assert len({p.config_hash for p in plants}) == len(plants)
 
 
 def test_same_ids_in_two_groups_are_refused():

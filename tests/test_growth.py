@@ -130,3 +130,10 @@ def test_a_leaf_emerges_at_its_recorded_stage():
 def test_a_stage_outside_its_range_is_refused(growth):
     with pytest.raises(InputError, match=r"growth must be a stage in \(0, 1\]"):
         grow("bean", 0, growth)
+
+
+def test_the_settings_full_stage_is_the_lsystems():
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.source import FULL_GROWN as SETTINGS_FULL_GROWN
+
+    assert SETTINGS_FULL_GROWN == FULL_GROWN == GenerateConfig().source.growth

@@ -79,6 +79,23 @@ class GeneratedPlant:
         path = self.folder / COCO_FILE
         return path if path.is_file() else None
 
+    @property
+    def traits(self) -> Path:
+        """``traits.json``: the plant's and each leaf's traits, the trained Gaussians'
+        figures and each view's (docs/traits.md)."""
+        from plantdreamer.traits import TRAITS_FILE
+
+        return self.folder / TRAITS_FILE
+
+    @property
+    def counts(self) -> Path | None:
+        """``counts.csv``: each view's visible leaves and plant size in pixels (None for
+        an unlabelled plant)."""
+        from plantdreamer.traits.counts import COUNTS_FILE
+
+        path = self.folder / COUNTS_FILE
+        return path if path.is_file() else None
+
 
 @dataclass(frozen=True)
 class DatasetResult:
@@ -95,6 +112,13 @@ class DatasetResult:
     def coco(self) -> dict[str, Path]:
         """``coco/<split>.json`` by split."""
         return {s: self.folder / "coco" / f"{s}.json" for s in self.splits}
+
+    @property
+    def counts(self) -> dict[str, Path]:
+        """``counts/<split>.csv`` by split: each view's visible leaves and plant size."""
+        from plantdreamer.traits.counts import COUNTS_DIR
+
+        return {s: self.folder / COUNTS_DIR / f"{s}.csv" for s in self.splits}
 
     @property
     def yolo(self) -> Path:

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from plantdreamer.cli.options import apply_old_names, hidden_old_name
+from plantdreamer.lsystem.growth import FULL_GROWN
 from plantdreamer.prepare import TARGET_POINTS
 
 MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
@@ -31,6 +32,14 @@ MESH_FORMATS = ("glb", "gltf", "ply", "obj", "stl", "off")
 )
 @click.option("--points", type=click.IntRange(min=1), default=TARGET_POINTS, show_default=True,
               help="Points sampled uniformly over the surface for -o (generate's default).")  # fmt: skip
+@click.option(
+    "--growth",
+    type=click.FloatRange(0.0, FULL_GROWN, min_open=True),
+    default=FULL_GROWN,
+    show_default=True,
+    help="Growth stage in (0, 1]: the fraction of the species' derivation steps (1: "
+    "full-grown); leaves keep their ids across stages (docs/traits.md).",
+)
 @click.option("--list", "list_only", is_flag=True, help="List the species and exit.")
 @click.option("--overwrite", is_flag=True, help="Replace -o and --mesh if they exist.")
 def lsystem(
@@ -39,6 +48,7 @@ def lsystem(
     out: Path | None,
     mesh_path: Path | None,
     points: int,
+    growth: float,
     list_only: bool,
     overwrite: bool,
     **old: Path | None,
@@ -84,9 +94,9 @@ def lsystem(
                 "-o needs plantdreamer.io (PLY writing), which this installation lacks; use --mesh"
             ) from None
 
-    mesh = generate_plant(species, seed)
+    mesh = generate_plant(species, seed, growth)
     organs = (mesh.labels == OrganClass.LEAF) | (mesh.labels == OrganClass.STEM)
-    height = float(mesh.vertices[organs, 2].max())
+    height = float(mesh.vertices[organs, 2].max()) if organs.any() else 0.0
     click.echo(
         f"{species} seed {seed}: {mesh.n_leaves} leaves, height {height:.3f} m, "
         f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces"
