@@ -181,6 +181,26 @@ def test_each_splits_counts_are_its_coco_images_and_the_torch_targets(dataset):
                           and a["category_id"] == 1 and not a["iscrowd"]]  # fmt: skip
                 assert image["leaf_count"] == len(leaves)
                 counted[min_area][image["file_name"]] = image["leaf_count"]
+                traits = json.loads(
+                    (dataset / "plants" / row["plant_id"] / "traits.json").read_text()
+                )
+                assert target["traits"]["leaf_area"] == traits["plant"]["leaf_area"]
+            # One row per plant of the split, and per leaf, from its traits.json.
+            with open(dataset / "traits" / f"{split}.csv", newline="") as f:
+                plants = list(csv.DictReader(f))
+            with open(dataset / "traits" / f"{split}_leaves.csv", newline="") as f:
+                leaves = list(csv.DictReader(f))
+            assert sorted(p["plant_id"] for p in plants) == sorted({r["plant_id"] for r in rows})
+            for plant in plants:
+                traits = json.loads(
+                    (dataset / "plants" / plant["plant_id"] / "traits.json").read_text()
+                )
+                assert int(plant["leaf_count"]) == traits["plant"]["leaf_count"]
+                assert float(plant["height"]) == traits["plant"]["height"]
+                mine = [leaf for leaf in leaves if leaf["plant_id"] == plant["plant_id"]]
+                assert [float(leaf["area"]) for leaf in mine] == [
+                    leaf["area"] for leaf in traits["leaves"]
+                ]
     # A lower area limit counts as many leaves or more, somewhere more.
     assert counted[1].keys() == counted[16].keys()
     assert all(counted[1][k] >= n for k, n in counted[16].items())

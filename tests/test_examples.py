@@ -66,6 +66,27 @@ def test_the_browse_example_draws_a_view_of_a_plant_folder(example_plant, tmp_pa
     assert (tmp_path / "browse.png").read_bytes().startswith(b"\x89PNG")
 
 
+@pytest.mark.slow  # two plants generated: about 15 s of CPU
+def test_the_leaf_counting_example_reads_each_views_count(tmp_path, capsys):
+    import csv
+
+    run_example("leaf_counting.py", tmp_path / "set")
+    printed = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in printed] == ["kale-g0.5", "kale-g1"]
+    totals = []
+    for line, name in zip(printed, ("kale-g0.5", "kale-g1"), strict=True):
+        folder = tmp_path / "set" / name
+        traits = json.loads((folder / "traits.json").read_text())
+        with open(folder / "counts.csv", newline="") as f:
+            views = list(csv.DictReader(f))
+        assert len(views) == 2 and f"{traits['plant']['leaf_count']} leaves" in line
+        for view in views:
+            assert f"{view['file_name']}: {view['leaf_count']}" in line
+            assert 0 < int(view["leaf_count"]) <= traits["plant"]["leaf_count"]
+        totals.append(traits["plant"]["leaf_count"])
+    assert totals[0] < totals[1]  # the younger kale has fewer leaves
+
+
 @pytest.mark.slow
 def test_the_quickstart_notebook_runs(tmp_path):
     nbformat = pytest.importorskip("nbformat")

@@ -78,6 +78,41 @@ def test_a_leaf_half_hidden_by_another_is_half_visible():
     assert record["metres_per_pixel"] == pytest.approx((4.0 - centre[0]) / camera.K[0, 0])
 
 
+def test_leaves_sharing_a_render_are_each_alone_as_in_a_render_of_their_own():
+    """Leaves whose tiles never meet share one render: each leaf's figures are those of a
+    full-frame render of its Gaussians alone (a bean's 30-odd leaves, 2 views)."""
+    from plantdreamer.pipeline import GenerateConfig
+    from plantdreamer.pipeline.source import initial_gaussians, load_source
+    from plantdreamer.traits.occlusion import LeafOcclusion, SplatArrays
+
+    cfg = GenerateConfig.of(species="bean", seed=1, points=4000)
+    source = load_source(cfg.source, cfg.seed, surface=True)
+    g = initial_gaussians(cfg.init, source, cfg.seed)
+    model, label_set = GaussianModel(g), LabelSet.of(g.labels)
+    splats = Splats.of(model)
+    occlusion = LeafOcclusion(SplatArrays(splats.means, splats.quats, splats.scales,
+                                          splats.opacities, g.labels[:, 1], g.labels[:, 0] == 1))  # fmt: skip
+    for azimuth in (0.0, 130.0):
+        camera = orbit(4.0, 15.0, azimuth, 70.0, 192, 160)
+        _, _, meta = model.render([camera], 0.0)
+        gt = GroundTruthRenderer(model, label_set)(camera, meta)
+        ids = np.r_[label_set.instances, -1][gt.instance]
+        record = occlusion.view(camera, ids, meta)
+        assert len(record) > 20 and set(record) == set(np.unique(ids[ids >= 0]).tolist())
+        viewmats, ks = stack([camera])
+        for leaf, (alone, visible) in record.items():
+            mine = g.labels[:, 1] == leaf
+            _, alpha, _ = rasterization(splats.means[mine], splats.quats[mine],
+                                        splats.scales[mine], splats.opacities[mine],
+                                        torch.ones((int(mine.sum()), 1)),
+                                        torch.from_numpy(viewmats), torch.from_numpy(ks),
+                                        192, 160, tile_size=16)  # fmt: skip
+            silhouette = alpha[0, ..., 0].numpy() >= 0.5
+            assert [alone, visible] == [silhouette.sum(), (silhouette & (ids == leaf)).sum()]
+        # Some leaves are partly hidden, and none shows more of itself than it has.
+        assert any(v < a for a, v in record.values())
+
+
 def test_map_figures_count_leaves_by_area_and_measure_the_plant():
     semantic = np.zeros((20, 30), np.uint8)
     instance = np.zeros((20, 30), np.uint16)

@@ -21,7 +21,10 @@ Each item is ``(image, target)``:
   measured none), and the image's ``leaf_count`` (visible leaves of at least ``min_area``
   pixels), ``plant_area_px``, ``plant_height_px``, ``plant_width_px`` (taken again from
   ``semantic`` after the transforms) and ``metres_per_pixel`` (the written view's; NaN
-  where unknown), as COCO's image records and ``counts.csv`` give them.
+  where unknown), as COCO's image records and ``counts.csv`` give them;
+- ``target["traits"]``: the plant's traits (traits.json's ``plant``: species, seed, stage,
+  leaf count, leaf area, height, canopy width and hull area, stem count; empty without a
+  traits.json), for trait regression from the views.
 
 The area limit and stuff classes are those the folder's label files record (``coco.json``,
 ``coco/<split>.json``: what ``labels --min-instance-area --stuff`` made), so the targets are
@@ -52,11 +55,13 @@ import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.exports.dataset import SPLITS_FILE, dataset_views, labelled_plants
-from plantdreamer.exports.figures import plant_records, read_view_traits
+from plantdreamer.exports.figures import read_view_traits
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, read_png, read_transforms
 from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
 from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
+from plantdreamer.traits import read_traits, recorded_views
+from plantdreamer.traits.counts import plant_row
 from plantdreamer.traits.points import plant_class_ids
 
 OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids", "visible_fraction")  # per box
@@ -105,7 +110,7 @@ class PlantViews(torch.utils.data.Dataset):
         self.classes: dict[int, str] = classes.things(tuple(stuff))
         self.names = classes.names  # every class, stuff too: the traits' plant and leaves
         self.plant_values = plant_class_ids(np.array(sorted(self.names)), self.names)
-        self._recorded: dict[Path, dict[str, dict[str, Any]]] = {}  # traits.json's views
+        self._traits: dict[Path, dict[str, Any] | None] = {}  # traits.json by folder
 
     @property
     def num_classes(self) -> int:
@@ -118,10 +123,11 @@ class PlantViews(torch.utils.data.Dataset):
     def __getitem__(self, index: int) -> tuple[Any, dict[str, Any]]:
         image_id, folder, frame, lut = self.views[index]
         rgb = read_png(folder / frame["file_path"])[..., :3]
-        if folder not in self._recorded:
-            self._recorded[folder] = plant_records(folder)
+        if folder not in self._traits:
+            self._traits[folder] = read_traits(folder)
+        record = self._traits[folder]
         seen = read_view_traits(folder, frame, self.min_area, lut, self.names,
-                                self.stuff_ids, self._recorded[folder])  # fmt: skip
+                                self.stuff_ids, recorded_views(record))  # fmt: skip
         semantic, objects = seen.semantic, seen.objects
         things = objects.things()
         fraction = [o.get("visible_fraction", np.nan) for o, t in
@@ -140,6 +146,7 @@ class PlantViews(torch.utils.data.Dataset):
             "visible_fraction": torch.tensor(fraction, dtype=torch.float32),
             "image_id": image_id,
             **seen.fields,
+            "traits": plant_row(record) if record is not None else {},
         }
         if target["metres_per_pixel"] is None:
             target["metres_per_pixel"] = float("nan")

@@ -51,7 +51,7 @@ def _stages(given: list | str, where: str) -> list[float]:
     values: list[float] = []
     if isinstance(given, list):
         if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in given):
-            raise InputError(f"{what} must be a stage, a list of stages or a range like \"0.25-1/4\"")
+            raise InputError(f'{what} must be a stage, a list of stages or a range like "0.25-1/4"')
         values = [float(v) for v in given]
     else:
         for part in given.split(","):

@@ -170,7 +170,9 @@ def _group_plants(
                     _check_species(cfg)
                 except (InputError, TypeError, ValueError) as exc:
                     raise InputError(f"spec: {where}: {exc}") from None
-                plant_id = f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}{stage.suffix}"
+                plant_id = (
+                    f"{name + '-' if name else ''}{stem or 'cloud'}-s{seed:04d}{stage.suffix}"
+                )
                 group_name = name or f"group{index}"
                 plants.append(Plant(plant_id, group_name, cfg, config_hash(cfg, digest)))
     return plants

@@ -7,7 +7,8 @@
   three files, so they merge as they are, and the image ids are the torch Dataset's
   (``dataset_views``); each image carries its view's traits (``exports.figures``);
 - ``counts/{train,val,test}.csv``: each view's visible leaves and plant size, a row per
-  image (``traits.counts``);
+  image; ``traits/{train,val,test}.csv`` and ``traits/<split>_leaves.csv``: each plant's
+  and each leaf's traits from its traits.json (``traits.counts``);
 - ``yolo/images/<split>/<id>__view_000.png`` (hard links to the renders),
   ``yolo/labels/<split>/<id>__view_000.txt`` and ``yolo/data.yaml``;
 - ``gallery.png``, the contact sheet (``exports.gallery``);
@@ -58,7 +59,17 @@ from plantdreamer.exports.splits import (
     split_plants,
 )
 from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
-from plantdreamer.traits.counts import COUNTS_DIR, write_counts
+from plantdreamer.traits import read_traits
+from plantdreamer.traits.counts import (
+    COUNTS_DIR,
+    LEAF_COLUMNS,
+    PLANT_COLUMNS,
+    TRAITS_DIR,
+    leaf_rows,
+    plant_row,
+    write_counts,
+    write_table,
+)
 
 SPLITS_FILE = "splits.json"
 _SPLIT = "(?:" + "|".join(SPLITS) + ")"
@@ -69,6 +80,7 @@ DATASET_EXPORTS = (
     GALLERY_FILE,
     *tree("coco", re.compile(rf"{_SPLIT}\.json")),
     *tree(COUNTS_DIR, re.compile(rf"{_SPLIT}\.csv")),
+    *tree(TRAITS_DIR, re.compile(rf"{_SPLIT}(?:_leaves)?\.csv")),
     *tree(
         "yolo",
         "data.yaml",
@@ -76,7 +88,8 @@ DATASET_EXPORTS = (
         *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.txt")),
     ),
 )
-EXPORT_ENTRIES = (SPLITS_FILE, "coco", COUNTS_DIR, "yolo", GALLERY_FILE)  # replaced together
+# Replaced together.
+EXPORT_ENTRIES = (SPLITS_FILE, "coco", COUNTS_DIR, TRAITS_DIR, "yolo", GALLERY_FILE)
 
 
 @dataclass(frozen=True)
@@ -242,6 +255,7 @@ def _write_exports(
         info = {**coco_fields, **report.info(f"{split} split", min_area, options.stuff)}
         coco.write(stage / "coco" / f"{split}.json", info)
         write_counts(stage / COUNTS_DIR / f"{split}.csv", ("file_name", "plant_id"), counts)
+        _write_traits(stage / TRAITS_DIR, split, [p for p in plants if split_of[p.id] == split])
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
     if classes.remapped:
@@ -252,6 +266,20 @@ def _write_exports(
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
     return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
+
+
+def _write_traits(folder: Path, split: str, plants: list[PlantEntry]) -> None:
+    """``traits/<split>.csv``, one row per plant of the split with a traits.json, and
+    ``traits/<split>_leaves.csv``, one row per leaf of theirs."""
+    rows, leaves = [], []
+    for p in plants:
+        record = read_traits(p.folder)
+        if record is None:
+            continue
+        rows.append({"plant_id": p.id, **plant_row(record)})
+        leaves += [{"plant_id": p.id, **leaf} for leaf in leaf_rows(record)]
+    write_table(folder / f"{split}.csv", ("plant_id", *PLANT_COLUMNS), rows)
+    write_table(folder / f"{split}_leaves.csv", ("plant_id", *LEAF_COLUMNS), leaves)
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:

@@ -92,7 +92,7 @@ def export_run(
         # on the orbit framed on what plant.ply holds unless the distance is given.
         cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
-        labels = view_model.labels.numpy() if oc.labels and view_model.labels is not None else None
+        labels = None if view_model.labels is None else view_model.labels.numpy()
         splats = Splats.of(view_model)
         views = view_recorder(
             (splats.means, splats.quats, splats.scales, splats.opacities),

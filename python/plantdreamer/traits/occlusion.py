@@ -3,12 +3,16 @@ against its pixels when its Gaussians are rendered alone from the same camera.
 
 A leaf alone is its own Gaussians through the rasterizer, with the label renders'
 settings, and its silhouette the pixels where their accumulated alpha reaches the label
-maps' threshold (0.5). Only the window its Gaussians' footprints can touch is rendered:
-the camera's principal point moved by the window's corner, whole tiles of the label
-renders (16 px), so the window's tiles are the full view's. Every leaf of a view is one
-scene of one ``rasterization_many`` call. A leaf's figures are ``alone`` (its silhouette's
-pixels) and ``visible`` (those of them the view's instance map gives it); its visible
-fraction is visible / alone.
+maps' threshold (0.5). Leaves are not rendered one by one: the tiles (16 px, the label
+renders') each leaf's footprints can touch are painted as the rasterizer bins them, and
+leaves whose tile sets do not meet share one render (greedy colouring, as the label
+maps' instance channels are shared), for no pixel of one tile ever sees another leaf's
+Gaussians: each render's alpha in a leaf's tiles is that leaf's alone. A render covers
+the whole tiles around its leaves only (the principal point moved by the window's
+corner, so the tiles are the full view's). All renders of a view are one
+``rasterization_many`` call. A leaf's figures are ``alone`` (its silhouette's pixels) and
+``visible`` (those of them that the view's instance map gives it); its visible fraction is
+visible / alone.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import torch
 from plantdreamer.cameras import Camera, stack
 
 ALPHA_THRESHOLD = 0.5  # the label maps' foreground threshold (pipeline.ground_truth)
-TILE = 16  # the label renders' tile size: windows start on its multiples
+TILE = 16  # the label renders' tile size
 
 
 @dataclass(frozen=True)
@@ -42,51 +46,86 @@ class LeafOcclusion:
     """The visible fraction of every leaf a view shows (``view``)."""
 
     def __init__(self, splats: SplatArrays) -> None:
-        self.splats = splats
-        leaf = splats.leaf & (splats.instances >= 0)
-        index = np.flatnonzero(leaf)
-        ids = splats.instances[index]
-        order = np.argsort(ids, kind="stable")
-        self.ids, starts = np.unique(ids[order], return_index=True)
-        bounds = np.r_[starts, len(order)]
-        self.members = {
-            int(i): index[order[bounds[k] : bounds[k + 1]]] for k, i in enumerate(self.ids)
-        }
+        index = np.flatnonzero(splats.leaf & (splats.instances >= 0))
+        order = index[np.argsort(splats.instances[index], kind="stable")]
+        ids = splats.instances[order]
+        self.ids, starts = np.unique(ids, return_index=True)
+        self.bounds = np.r_[starts, len(order)]
+        self.order = order  # the leaves' Gaussians, leaf by leaf
+        # Their parameters once, leaf by leaf (a render takes slices).
+        self.params = [
+            np.ascontiguousarray(t.detach().numpy()[order])
+            for t in (splats.means, splats.quats, splats.scales, splats.opacities)
+        ]
 
     def view(self, camera: Camera, instance_map: np.ndarray, meta: dict[str, Any]) -> dict:
         """``{instance id: [alone, visible]}`` for the leaves ``instance_map`` (the view's
         instance ids per pixel, -1 none) shows; ``meta``: the view's render of all the
-        Gaussians (its footprints bound each leaf's window)."""
+        Gaussians (its footprints give each leaf's tiles)."""
         present = np.unique(instance_map[instance_map >= 0])
-        shown = [int(i) for i in present if int(i) in self.members]
-        if not shown:
+        shown = np.flatnonzero(np.isin(self.ids, present))  # indices into self.ids
+        if not len(shown):
             return {}
+        tiles = self._tiles(shown, camera, meta)  # bool [leaves, tiles_y, tiles_x]
+        on_screen = tiles.any(axis=(1, 2))
+        shown, tiles = shown[on_screen], tiles[on_screen]
+        if not len(shown):
+            return {}
+        groups = _colour(tiles)
+        calls, windows = [], []
+        for members in groups:
+            window = _window(tiles[members].any(axis=0), camera)
+            windows.append(window)
+            calls.append(self._call(shown[members], camera, window))
+        return self._measure(calls, windows, groups, shown, tiles, instance_map)
+
+    def _tiles(self, shown: np.ndarray, camera: Camera, meta: dict[str, Any]) -> np.ndarray:
+        """The tiles each shown leaf's Gaussians can touch: their footprint boxes binned as
+        the rasterizer bins them (float32, the same operations; ``pipeline.label_channels``
+        paints the label maps' tiles so), with a 2-D difference array per leaf."""
+        tiles_y, tiles_x = -(-camera.height // TILE), -(-camera.width // TILE)
         xy = meta["means2d"][0].detach().numpy()
         radii = meta["radii"][0].numpy()
-        calls, windows = [], []
-        for i in shown:
-            window = _window(self.members[i], xy, radii, camera)
-            if window is None:
-                continue
-            windows.append((i, window))
-            calls.append(self._call(self.members[i], camera, window))
-        return dict(self._measure(calls, windows, instance_map))
+        rows = np.concatenate([self.order[self.bounds[k] : self.bounds[k + 1]] for k in shown])
+        leaf = np.repeat(np.arange(len(shown)), np.diff(self.bounds)[shown])
+        seen = (radii[rows, 0] > 0) | (radii[rows, 1] > 0)
+        rows, leaf = rows[seen], leaf[seen]
+        inv = np.float32(1.0 / TILE)
+        box = []
+        for axis, count in ((0, tiles_x), (1, tiles_y)):
+            centre, r = xy[rows, axis], radii[rows, axis].astype(np.float32)
+            lo = np.maximum((centre - r) * inv, 0).astype(np.int64)
+            hi = np.ceil(np.maximum((centre + r) * inv, 0)).astype(np.int64)
+            box += [np.clip(lo, 0, count), np.clip(hi, 0, count)]
+        x0, x1, y0, y1 = box
+        base = leaf * (tiles_y + 1)
+        corners = [
+            ((base + y) * (tiles_x + 1) + x) for y, x in ((y0, x0), (y1, x1), (y0, x1), (y1, x0))
+        ]
+        size = len(shown) * (tiles_y + 1) * (tiles_x + 1)
+        diff = np.bincount(np.concatenate(corners[:2]), minlength=size) - np.bincount(
+            np.concatenate(corners[2:]), minlength=size
+        )
+        diff = diff.reshape(len(shown), tiles_y + 1, tiles_x + 1)
+        return diff.cumsum(axis=1).cumsum(axis=2)[:, :tiles_y, :tiles_x] > 0
 
-    def _call(self, members: np.ndarray, camera: Camera, window: tuple[int, ...]) -> dict:
+    def _call(self, leaves: np.ndarray, camera: Camera, window: tuple[int, ...]) -> dict:
         x0, y0, x1, y1 = window
         K = camera.K.copy()
         K[0, 2] -= x0
         K[1, 2] -= y0
         crop = replace(camera, K=K, width=x1 - x0, height=y1 - y0)
         viewmats, ks = stack([crop])
-        take = torch.from_numpy(members)
-        s = self.splats
+        spans = [slice(self.bounds[k], self.bounds[k + 1]) for k in leaves]
+        means, quats, scales, opacities = (
+            torch.from_numpy(np.concatenate([p[s] for s in spans])) for p in self.params
+        )
         return {
-            "means": s.means[take],
-            "quats": s.quats[take],
-            "scales": s.scales[take],
-            "opacities": s.opacities[take],
-            "colors": torch.ones((len(members), 1)),
+            "means": means,
+            "quats": quats,
+            "scales": scales,
+            "opacities": opacities,
+            "colors": torch.ones((len(means), 1)),
             "viewmats": torch.from_numpy(viewmats),
             "Ks": torch.from_numpy(ks),
             "width": crop.width,
@@ -95,34 +134,50 @@ class LeafOcclusion:
             "tile_size": TILE,
         }
 
-    @staticmethod
-    def _measure(calls: list[dict], windows: list, instance_map: np.ndarray):
+    def _measure(self, calls, windows, groups, shown, tiles, instance_map) -> dict:
         from plantdreamer.rasterizer import rasterization_many
 
         with torch.no_grad():
             results = rasterization_many(calls)
-        for (i, (x0, y0, x1, y1)), result in zip(windows, results, strict=True):
+        out: dict[int, list[int]] = {}
+        for window, members, result in zip(windows, groups, results, strict=True):
             if isinstance(result, Exception):
                 raise result
-            alone = result[1][0, ..., 0].numpy() >= ALPHA_THRESHOLD
-            mine = instance_map[y0:y1, x0:x1] == i
-            yield i, [int(alone.sum()), int((alone & mine).sum())]
+            x0, y0, x1, y1 = window
+            silhouette = result[1][0, ..., 0].numpy() >= ALPHA_THRESHOLD
+            # Which member owns each pixel's tile (-1: none; their tiles are disjoint).
+            owner = np.full(tiles.shape[1:], -1, dtype=np.int64)
+            for j, k in enumerate(members):
+                owner[tiles[k]] = j
+            owner = owner[y0 // TILE : -(-y1 // TILE), x0 // TILE : -(-x1 // TILE)]
+            pixel = owner.repeat(TILE, axis=0).repeat(TILE, axis=1)[: y1 - y0, : x1 - x0]
+            leaf = np.r_[self.ids[shown[members]], -2][pixel]  # -2: no member's tile
+            inside = silhouette & (pixel >= 0)
+            alone = np.bincount(pixel[inside], minlength=len(members))
+            seen = inside & (instance_map[y0:y1, x0:x1] == leaf)
+            visible = np.bincount(pixel[seen], minlength=len(members))
+            for j, k in enumerate(members):
+                out[int(self.ids[shown[k]])] = [int(alone[j]), int(visible[j])]
+        return out
 
 
-def _window(
-    members: np.ndarray, xy: np.ndarray, radii: np.ndarray, camera: Camera
-) -> tuple[int, int, int, int] | None:
-    """The pixels the footprints of ``members`` can touch, widened to whole tiles and cut
-    to the image: (x0, y0, x1, y1), or None when none is on screen."""
-    seen = members[(radii[members] > 0).any(axis=1)]
-    if len(seen) == 0:
-        return None
-    lo = np.floor((xy[seen] - radii[seen]).min(axis=0)) - 1
-    hi = np.ceil((xy[seen] + radii[seen]).max(axis=0)) + 1
-    x0 = max(0, int(lo[0]) // TILE * TILE)
-    y0 = max(0, int(lo[1]) // TILE * TILE)
-    x1 = min(camera.width, int(hi[0]))
-    y1 = min(camera.height, int(hi[1]))
-    if x1 <= x0 or y1 <= y0:
-        return None
+def _colour(tiles: np.ndarray) -> list[np.ndarray]:
+    """Groups of leaves whose tile sets do not meet (greedy, in leaf order)."""
+    n = len(tiles)
+    bits = np.packbits(tiles.reshape(n, -1), axis=1)
+    meets = np.any(bits[:, None, :] & bits[None, :, :], axis=2)
+    colour = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        taken = set(colour[:i][meets[i, :i]].tolist())
+        colour[i] = next(c for c in range(len(taken) + 1) if c not in taken)
+    return [np.flatnonzero(colour == c) for c in range(int(colour.max()) + 1)]
+
+
+def _window(tiles: np.ndarray, camera: Camera) -> tuple[int, int, int, int]:
+    """The pixels of the whole tiles around ``tiles`` (bool [tiles_y, tiles_x]), cut to
+    the image: (x0, y0, x1, y1)."""
+    ys, xs = np.flatnonzero(tiles.any(axis=1)), np.flatnonzero(tiles.any(axis=0))
+    x0, y0 = int(xs[0]) * TILE, int(ys[0]) * TILE
+    x1 = min(camera.width, (int(xs[-1]) + 1) * TILE)
+    y1 = min(camera.height, (int(ys[-1]) + 1) * TILE)
     return x0, y0, x1, y1
