@@ -45,9 +45,10 @@ def read_view_traits(
     left out) and traits (``names``: class value -> name, after ``lut``)."""
     semantic, instance = read_label_maps(plant_dir, frame)
     semantic = lut[semantic]
-    objects = view_objects(semantic, instance, min_area).without(stuff)
+    every = view_objects(semantic, instance, min_area)
+    objects = every.without(stuff)
     record = recorded.get(str(frame["file_path"]))
-    fields = view_fields(semantic, instance, names, min_area, record)
+    fields = view_fields(semantic, every, names, min_area, record)
     fractions = visible_fractions(record)
     per_object = [
         {"visible_fraction": fractions[int(i)]} if int(i) in fractions else {}

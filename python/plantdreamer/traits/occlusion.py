@@ -145,19 +145,23 @@ class LeafOcclusion:
                 raise result
             x0, y0, x1, y1 = window
             silhouette = result[1][0, ..., 0].numpy() >= ALPHA_THRESHOLD
-            # Which member owns each pixel's tile (-1: none; their tiles are disjoint).
-            owner = np.full(tiles.shape[1:], -1, dtype=np.int64)
-            for j, k in enumerate(members):
-                owner[tiles[k]] = j
-            owner = owner[y0 // TILE : -(-y1 // TILE), x0 // TILE : -(-x1 // TILE)]
-            pixel = owner.repeat(TILE, axis=0).repeat(TILE, axis=1)[: y1 - y0, : x1 - x0]
-            leaf = np.r_[self.ids[shown[members]], -2][pixel]  # -2: no member's tile
-            inside = silhouette & (pixel >= 0)
-            alone = np.bincount(pixel[inside], minlength=len(members))
-            seen = inside & (instance_map[y0:y1, x0:x1] == leaf)
-            visible = np.bincount(pixel[seen], minlength=len(members))
-            for j, k in enumerate(members):
-                out[int(self.ids[shown[k]])] = [int(alone[j]), int(visible[j])]
+            # alone: the silhouette's pixels in each member's own tiles (disjoint), by tile.
+            h, w = silhouette.shape
+            padded = np.zeros((-(-h // TILE) * TILE, -(-w // TILE) * TILE), dtype=np.int32)
+            padded[:h, :w] = silhouette
+            per_tile = padded.reshape(len(padded) // TILE, TILE, -1, TILE).sum(axis=(1, 3))
+            own = tiles[members][:, y0 // TILE : -(-y1 // TILE), x0 // TILE : -(-x1 // TILE)]
+            alone = (own * per_tile).sum(axis=(1, 2))
+            # visible: the silhouette's pixels the instance map gives each member (a
+            # leaf's pixels lie in its own tiles: no other member's).
+            leaves = self.ids[shown[members]]
+            shown_ids = instance_map[y0:y1, x0:x1][silhouette]
+            slot = np.searchsorted(leaves, shown_ids)
+            slot = np.minimum(slot, len(leaves) - 1)
+            hits = slot[leaves[slot] == shown_ids]
+            visible = np.bincount(hits, minlength=len(members))
+            for j, leaf in enumerate(leaves):
+                out[int(leaf)] = [int(alone[j]), int(visible[j])]
         return out
 
 

@@ -10,7 +10,7 @@ them with its own ``--min-instance-area``; the rendered ones are kept in traits.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -19,6 +19,19 @@ from plantdreamer.traits.points import leaf_class_ids, plant_class_ids
 
 if TYPE_CHECKING:
     from plantdreamer.traits.occlusion import LeafOcclusion
+
+
+class ViewObjectsLike(Protocol):
+    """What ``view_fields`` reads of a view's objects (``exports.instances.ViewObjects``,
+    which this layer may not import): each object's instance id (-1: a class piece), its
+    category (class value) and its area in pixels."""
+
+    @property
+    def instance_ids(self) -> np.ndarray: ...
+    @property
+    def categories(self) -> np.ndarray: ...
+    @property
+    def areas(self) -> np.ndarray: ...
 
 
 class ViewRecorder:
@@ -67,8 +80,6 @@ def map_figures(
     is the one most of its pixels have, ties to the smaller value; ``leaf_values`` None:
     every instance is a leaf), and the plant's (``plant_values``' pixels) projected area
     and the height and width of the box around it, in pixels."""
-    plant = np.isin(semantic, plant_values)
-    rows, cols = np.flatnonzero(plant.any(axis=1)), np.flatnonzero(plant.any(axis=0))
     ids = instance.reshape(-1).astype(np.int64)
     fg = np.flatnonzero(ids)
     values, inverse = np.unique(ids[fg], return_inverse=True)
@@ -77,11 +88,22 @@ def map_figures(
     ).reshape(len(values), 256)
     counts[counts[:, 1:].any(axis=1), 0] = 0  # unlabelled pixels name a class only alone
     classes = np.argmax(counts, axis=1)
-    areas = counts.sum(axis=1)
     leaf = np.ones(len(values), bool) if leaf_values is None else np.isin(classes, leaf_values)
     return {
-        "leaf_count": int((leaf & (areas >= min_area)).sum()),
-        "plant_area_px": int(plant.sum()),
+        "leaf_count": int((leaf & (counts.sum(axis=1) >= min_area)).sum()),
+        **plant_pixels(semantic, plant_values),
+    }
+
+
+def plant_pixels(semantic: np.ndarray, plant_values: np.ndarray) -> dict[str, int]:
+    """The plant's projected area (pixels of ``plant_values`` in the class map) and the
+    height and width of the box around it, in pixels."""
+    table = np.zeros(256, dtype=bool)
+    table[np.asarray(plant_values, dtype=np.int64)] = True
+    plant = table[semantic]
+    rows, cols = np.flatnonzero(plant.any(axis=1)), np.flatnonzero(plant.any(axis=0))
+    return {
+        "plant_area_px": int(np.count_nonzero(plant)),
         "plant_height_px": int(rows[-1] - rows[0] + 1) if len(rows) else 0,
         "plant_width_px": int(cols[-1] - cols[0] + 1) if len(cols) else 0,
     }
@@ -89,23 +111,26 @@ def map_figures(
 
 def view_fields(
     semantic: np.ndarray,
-    instance: np.ndarray,
+    objects: ViewObjectsLike,
     names: Mapping[int, str],
     min_area: int,
     recorded: Mapping[str, Any] | None,
 ) -> dict[str, Any]:
-    """A view's image-level figures (COCO's image fields, a row of counts.csv):
-    ``map_figures`` with the plant and leaf classes named by ``names`` (pixel value ->
-    class name), and the recorded ``metres_per_pixel`` (None where generate recorded
-    none)."""
+    """A view's image-level figures (COCO's image fields, a row of counts.csv), with the
+    plant and leaf classes named by ``names`` (pixel value -> class name): ``leaf_count``,
+    its instance objects (``objects``: all of the view's, ``exports.instances``) of a leaf
+    class and at least ``min_area`` pixels (as ``map_figures`` counts them), the plant's
+    pixels (``plant_pixels``) and the recorded ``metres_per_pixel`` (None where generate
+    recorded none)."""
     values = np.array(sorted(names), dtype=np.int64)
-    figures: dict[str, Any] = map_figures(
-        semantic,
-        instance,
-        plant_class_ids(values, names),
-        leaf_class_ids(values, names),
-        min_area,
-    )
+    leaf_values = leaf_class_ids(values, names)
+    leaf = objects.instance_ids >= 0
+    if leaf_values is not None:
+        leaf &= np.isin(objects.categories, leaf_values)
+    figures: dict[str, Any] = {
+        "leaf_count": int((leaf & (objects.areas >= min_area)).sum()),
+        **plant_pixels(semantic, plant_class_ids(values, names)),
+    }
     figures["metres_per_pixel"] = None if recorded is None else recorded.get("metres_per_pixel")
     return figures
 
