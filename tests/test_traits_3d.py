@@ -167,3 +167,41 @@ def test_the_convex_hull_is_scipys(kind):
     assert diameter(hull) == pytest.approx(spatial.distance.pdist(ends).max(), rel=1e-12)
     width, area = canopy(np.c_[points, np.zeros(len(points))])
     assert (width, area) == (diameter(hull), polygon_area(hull))
+
+
+def test_a_generated_scans_traits_come_from_its_labelled_points(tmp_path):
+    """A scan (a bean's labelled samples, in millimetres far from the origin) through
+    generate: traits.json's plant and leaves are numpy's on the scan's points."""
+    import json
+
+    from plantdreamer.io import write_ply
+    from plantdreamer.lsystem import generate_plant, sample_points
+    from plantdreamer.pipeline import GenerateConfig, generate
+
+    cloud = sample_points(generate_plant("bean", 4), 3000, seed=1)
+    cloud.positions = (cloud.positions.astype(np.float64) * 1000 + [200.0, -50.0, 30.0]).astype(
+        np.float32
+    )
+    write_ply(tmp_path / "scan.ply", cloud)
+    cfg = GenerateConfig.of(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
+                            points=0, sor_std=100.0, resolution=32, eval_views=1,
+                            turntable="none")  # fmt: skip
+    generate(cfg, tmp_path / "o", show_progress=False)
+    traits = json.loads((tmp_path / "o" / "traits.json").read_text())
+    assert traits["source"] == "labelled points" and "scan's own frame" in traits["frame"]
+    p = cloud.positions.astype(np.float64)
+    label, instance = cloud.attributes["label"], cloud.attributes["instance"]
+    # No class names: every class is the plant, every instance a leaf.
+    assert traits["plant"]["leaf_count"] == len(np.unique(instance[instance >= 0]))
+    assert traits["plant"]["height"] == pytest.approx(np.ptp(p[:, 2]), rel=1e-6)
+    hull = spatial.ConvexHull(p[:, :2])
+    assert traits["plant"]["canopy_hull_area"] == pytest.approx(hull.volume, rel=1e-5)
+    for leaf in traits["leaves"][:6]:
+        mine = p[instance == leaf["instance"]]
+        assert leaf["count"] == len(mine)
+        np.testing.assert_allclose(leaf["centroid"], mine.mean(axis=0), rtol=1e-6)
+        np.testing.assert_allclose(leaf["extent"], np.ptp(mine, axis=0), rtol=1e-5, atol=1e-6)
+    assert traits["gaussians"]["plant"]["count"] == len(p)
+    assert set(traits["gaussians"]["classes"]) == {f"class {c}" for c in np.unique(label)}
+    # Millimetres per pixel, at the scan's scale (a 32 px view of a plant ~400 mm tall).
+    assert 5 < traits["views"][0]["metres_per_pixel"] < 100

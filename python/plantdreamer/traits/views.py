@@ -10,6 +10,7 @@ them with its own ``--min-instance-area``; the rendered ones are kept in traits.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -22,9 +23,9 @@ if TYPE_CHECKING:
 
 
 class ViewObjectsLike(Protocol):
-    """What ``view_fields`` reads of a view's objects (``exports.instances.ViewObjects``,
-    which this layer may not import): each object's instance id (-1: a class piece), its
-    category (class value) and its area in pixels."""
+    """What ``view_fields`` reads of a view's objects (``exports.instances.ViewObjects``:
+    exports imports traits, not the reverse): each object's instance id (-1: a class
+    piece), its category (class value) and its area in pixels."""
 
     @property
     def instance_ids(self) -> np.ndarray: ...
@@ -35,13 +36,20 @@ class ViewObjectsLike(Protocol):
 
 
 class ViewRecorder:
-    """Collects each view's rendered figures while generate renders its views."""
+    """Collects each view's rendered figures while generate renders its views. A view's
+    leaf occlusion is measured on a thread of its own (the rasterizer releases the GIL)
+    while the run goes on to write the view's maps and render the next; at most
+    ``PENDING`` views wait, and ``views`` waits for them all."""
+
+    PENDING = 2
 
     def __init__(self, occlusion: LeafOcclusion | None, centre: np.ndarray | None, scale: float):
         """``centre``: the plant's centre in the scene frame (None: no plant Gaussians);
         ``scale``: scene units per input unit."""
         self.occlusion, self.centre, self.scale = occlusion, centre, scale
-        self.views: list[dict[str, Any]] = []
+        self._records: list[dict[str, Any]] = []
+        self._pending: list[tuple[dict[str, Any], Future]] = []
+        self._pool = ThreadPoolExecutor(1, "leaf-occlusion") if occlusion is not None else None
 
     def add(self, name: str, camera: Camera, instance_map: np.ndarray | None, meta: dict) -> None:
         """One view: ``instance_map``, its instance ids per pixel (-1: none)."""
@@ -49,10 +57,27 @@ class ViewRecorder:
             "file_path": f"renders/{name}.png",
             "metres_per_pixel": metres_per_pixel(camera, self.centre, self.scale),
         }
-        if self.occlusion is not None and instance_map is not None:
-            leaves = self.occlusion.view(camera, instance_map, meta)
-            record["leaves"] = {str(i): v for i, v in sorted(leaves.items())}
-        self.views.append(record)
+        self._records.append(record)
+        if self._pool is not None and self.occlusion is not None and instance_map is not None:
+            job = self._pool.submit(self.occlusion.view, camera, instance_map, meta)
+            self._pending.append((record, job))
+            while len(self._pending) > self.PENDING:
+                self._settle(*self._pending.pop(0))
+
+    @property
+    def views(self) -> list[dict[str, Any]]:
+        """Every view's record, once its occlusion is measured (an error there is raised
+        here)."""
+        while self._pending:
+            self._settle(*self._pending.pop(0))
+        if self._pool is not None:
+            self._pool.shutdown()
+        return self._records
+
+    @staticmethod
+    def _settle(record: dict[str, Any], job: Future) -> None:
+        leaves = job.result()
+        record["leaves"] = {str(i): v for i, v in sorted(leaves.items())}
 
 
 def metres_per_pixel(camera: Camera, centre: np.ndarray | None, scale: float) -> float | None:
