@@ -62,7 +62,7 @@ class LeafOcclusion:
         """``{instance id: [alone, visible]}`` for the leaves ``instance_map`` (the view's
         instance ids per pixel, -1 none) shows; ``meta``: the view's render of all the
         Gaussians (its footprints give each leaf's tiles)."""
-        present = np.unique(instance_map[instance_map >= 0])
+        present = _present(instance_map)
         shown = np.flatnonzero(np.isin(self.ids, present))  # indices into self.ids
         if not len(shown):
             return {}
@@ -163,6 +163,16 @@ class LeafOcclusion:
             for j, leaf in enumerate(leaves):
                 out[int(leaf)] = [int(alone[j]), int(visible[j])]
         return out
+
+
+def _present(instance_map: np.ndarray) -> np.ndarray:
+    """The instance ids of a map (-1: none), ascending, from 0 (the Gaussians a leaf's
+    occlusion is measured for have ids from 0): counted per id where the ids are small
+    (an L-System's are 0..~150), sorted otherwise (a scan's may be any int)."""
+    top = int(instance_map.max(initial=-1))
+    if top < 1 << 20 and int(instance_map.min(initial=-1)) >= -1:
+        return np.flatnonzero(np.bincount((instance_map + 1).ravel(), minlength=top + 2)[1:])
+    return np.unique(instance_map[instance_map >= 0])
 
 
 def _colour(tiles: np.ndarray) -> list[np.ndarray]:
