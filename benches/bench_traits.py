@@ -82,7 +82,7 @@ def hooks(clock: Clock | None):
     if clock is None:
         return [
             (export, "view_recorder", lambda *a, **k: NullRecorder()),
-            (export, "_traits", lambda *a, **k: {}),
+            (export, "run_traits", lambda *a, **k: {}),
             (export, "write_traits", lambda *a, **k: None),
             (plant, "plant_records", lambda *a, **k: {}),
             (figures, "view_fields", lambda *a, **k: {}),
@@ -97,7 +97,7 @@ def hooks(clock: Clock | None):
         (export, "view_recorder", clock.wrap("occlusion set-up", export.view_recorder)),
         (ViewRecorder, "add", clock.wrap("occlusion (the run waits)", ViewRecorder.add)),
         (ViewRecorder, "views", property(clock.wrap("occlusion (the run waits)", views))),
-        (export, "_traits", clock.wrap("traits.json (mesh, Gaussians)", export._traits)),
+        (export, "run_traits", clock.wrap("traits.json (mesh, Gaussians)", export.run_traits)),
         (export, "write_traits", clock.wrap("traits.json (mesh, Gaussians)", export.write_traits)),
         (plant, "plant_records", clock.wrap(figure, plant.plant_records)),
         (figures, "view_fields", clock.wrap(figure, figures.view_fields)),

@@ -27,8 +27,8 @@ from plantdreamer.pipeline.model import GaussianModel
 from plantdreamer.pipeline.progress import Counter
 from plantdreamer.pipeline.rerender import exported_scene
 from plantdreamer.pipeline.run_state import RunState
-from plantdreamer.traits import TRAITS_FILE, ViewRecorder, write_traits
-from plantdreamer.traits.record import assemble, captured_traits, lsystem_traits, view_recorder
+from plantdreamer.traits import TRAITS_FILE, write_traits
+from plantdreamer.traits.record import run_traits, view_recorder
 from plantdreamer.versions import package_versions
 
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native
@@ -110,8 +110,14 @@ def export_run(
         outputs.write_renders(out / "renders", frames)
         outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
-    with timer("traits"):
-        write_traits(out / TRAITS_FILE, _traits(cfg, state, final, class_names, views))
+    with timer("traits"):  # the L-System grown again, or the scan's points (traits/)
+        src, invert, start = cfg.source, state.transform.invert, state.initial
+        species = src.structure() if src.pointcloud is None else None
+        record = run_traits(species, cfg.seed, src.growth, src.growth_since,
+                            (invert(start.means.astype(np.float64)), start.labels),
+                            (invert(final.means.astype(np.float64)), final.labels),
+                            class_names, views)  # fmt: skip
+        write_traits(out / TRAITS_FILE, record)
     if show_progress:
         print("export: label files (COCO, YOLO-seg, points.ply)", file=sys.stderr, flush=True)
     with timer("label files"):
@@ -121,27 +127,6 @@ def export_run(
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
-
-
-def _traits(
-    cfg: GenerateConfig,
-    state: RunState,
-    final: Gaussians,
-    class_names: dict[int, str] | None,
-    views: ViewRecorder,
-) -> dict[str, Any]:
-    """traits.json: the L-System's mesh and skeleton (grown again) or the scan's labelled
-    points the run started from, the trained Gaussians and the views (``traits``)."""
-    src, invert = cfg.source, state.transform.invert
-    if src.pointcloud is None:
-        species = src.structure()
-        assert species is not None  # validated: an L-System run names its species
-        plant = lsystem_traits(species, cfg.seed, src.growth, src.growth_since)
-    else:
-        start = state.initial
-        plant = captured_traits(invert(start.means.astype(np.float64)), start.labels, class_names)
-    means = invert(final.means.astype(np.float64))
-    return assemble(plant, means, final.labels, class_names, views.views)
 
 
 def _class_names(cfg: GenerateConfig) -> dict[int, str] | None:

@@ -27,6 +27,10 @@ from plantdreamer.cameras import Camera, stack
 
 ALPHA_THRESHOLD = 0.5  # the label maps' foreground threshold (pipeline.ground_truth)
 TILE = 16  # the label renders' tile size
+# The renders' rasterizer threads: one pool of one thread, which runs beside the run's own
+# renders (ViewRecorder measures a view while the run writes it and renders the next)
+# rather than queueing in their pool.
+OWN_THREADS = 1
 
 
 @dataclass(frozen=True)
@@ -137,8 +141,8 @@ class LeafOcclusion:
     def _measure(self, calls, windows, groups, shown, tiles, instance_map) -> dict:
         from plantdreamer.rasterizer import rasterization_many
 
-        with torch.no_grad():
-            results = rasterization_many(calls)
+        with torch.no_grad():  # one thread of its own: beside the run's renders
+            results = rasterization_many(calls, threads=OWN_THREADS)
         out: dict[int, list[int]] = {}
         for window, members, result in zip(windows, groups, results, strict=True):
             if isinstance(result, Exception):

@@ -81,6 +81,27 @@ def assemble(
     }
 
 
+def run_traits(
+    species: str | None,
+    seed: int,
+    growth: float,
+    since: float | None,
+    start: tuple[np.ndarray, np.ndarray | None],
+    final: tuple[np.ndarray, np.ndarray | None],
+    names: Mapping[int, str] | None,
+    views: ViewRecorder,
+) -> dict[str, Any]:
+    """The record of a run: an L-System plant's (``species`` grown again from ``seed`` to
+    ``growth``) or a scan's (``species`` None: ``start``, the labelled points the run
+    started from), the trained Gaussians' (``final``: centres and labels) and the views.
+    Positions in the input frame (float64)."""
+    if species is not None:
+        plant = lsystem_traits(species, seed, growth, since)
+    else:
+        plant = captured_traits(start[0], start[1], names)
+    return assemble(plant, final[0], final[1], names, views.views)
+
+
 def view_recorder(
     splats: tuple[Any, Any, Any, Any],
     labels: np.ndarray | None,
