@@ -237,3 +237,16 @@ def test_the_torch_targets_carry_the_views_traits(bean):
         plant = np.isin(np.asarray(small["semantic"]), [1, 2])
         assert small["plant_area_px"] == plant.sum() < target["plant_area_px"]
         assert small["leaf_count"] == target["leaf_count"]
+
+
+@pytest.mark.slow  # a small generate
+def test_without_leaf_occlusion_the_views_have_no_visible_fractions(tmp_path):
+    from labelled_plant import make_plant
+
+    plant = make_plant(tmp_path / "p", leaf_occlusion=False)
+    traits = json.loads((plant / "traits.json").read_text())
+    assert traits["views"] and all("leaves" not in v for v in traits["views"])
+    assert all(v["metres_per_pixel"] > 0 for v in traits["views"])
+    coco = json.loads((plant / "coco.json").read_text())
+    assert coco["annotations"] and not any("visible_fraction" in a for a in coco["annotations"])
+    assert all(image["leaf_count"] >= 0 for image in coco["images"])

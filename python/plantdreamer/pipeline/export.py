@@ -96,7 +96,7 @@ def export_run(
         splats = Splats.of(view_model)
         views = view_recorder(
             (splats.means, splats.quats, splats.scales, splats.opacities),
-            labels, class_names, state.transform.scale,
+            labels, class_names, state.transform.scale, oc.leaf_occlusion,
         )  # fmt: skip
 
         with Counter("export: views", len(cameras), show_progress) as counter:

@@ -58,6 +58,12 @@ class OutputsConfig:
     labels: bool = setting(
         True, "Write label/instance into plant.ply and the class and instance masks."
     )
+    leaf_occlusion: bool = setting(
+        True,
+        "Render each view's visible leaves alone to measure how much of each the view "
+        "shows (traits.json, COCO's visible_fraction; docs/traits.md: about 8% of a "
+        "--guidance none run's CPU time).",
+    )
 
     def validate(self) -> None:
         """The evaluation orbit is a camera and the turntable a count, checked before a run

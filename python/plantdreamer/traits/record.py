@@ -107,9 +107,11 @@ def view_recorder(
     labels: np.ndarray | None,
     names: Mapping[int, str] | None,
     scale: float,
+    occlusion: bool = True,
 ) -> ViewRecorder:
     """A recorder of the views of activated Gaussians (means, quats, scales, opacities;
-    the scene frame, ``scale`` scene units per input unit) with their ``labels``."""
+    the scene frame, ``scale`` scene units per input unit) with their ``labels``;
+    ``occlusion``: measure each visible leaf's (``traits.occlusion``)."""
     means = splats[0]
     centre = None
     if len(means):
@@ -118,9 +120,9 @@ def view_recorder(
             keep = np.isin(labels[:, 0], plant_class_ids(np.unique(labels[:, 0]), names))
         if keep.any():
             centre = means.detach().numpy()[keep].astype(np.float64).mean(axis=0)
-    occlusion = None
-    if labels is not None:
+    leaves = None
+    if labels is not None and occlusion:
         leaf_ids = leaf_class_ids(np.unique(labels[:, 0]), names)
         leaf = np.ones(len(labels), bool) if leaf_ids is None else np.isin(labels[:, 0], leaf_ids)
-        occlusion = LeafOcclusion(SplatArrays(*splats, labels[:, 1], leaf))
-    return ViewRecorder(occlusion, centre, scale)
+        leaves = LeafOcclusion(SplatArrays(*splats, labels[:, 1], leaf))
+    return ViewRecorder(leaves, centre, scale)
