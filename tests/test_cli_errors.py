@@ -347,9 +347,9 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads((out / "run.json").read_text())["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
-        "coco.json", "depth", "instances", "labels", "log.csv", "plant.ply", "points.ply",
-        "progress", "progress.png", "renders", "run.json", "transforms.json", "turntable.gif",
-        "yolo",
+        "coco.json", "counts.csv", "depth", "instances", "labels", "log.csv", "plant.ply",
+        "points.ply", "progress", "progress.png", "renders", "run.json", "traits.json",
+        "transforms.json", "turntable.gif", "yolo",
     ]  # fmt: skip
 
 
