@@ -205,7 +205,7 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     sys.path.insert(0, str(BENCHES))
     from bench_gpu import build_guidance
 
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
     from plantdreamer.pipeline.step import schedule
 
     guidance = build_guidance(True, "cpu", args.sds)
@@ -233,13 +233,13 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
 
     schedule.StepSchedule.train_step = keep  # type: ignore[method-assign]
     with tempfile.TemporaryDirectory() as tmp:
-        generate(
-            cfg,
+        generate_plants(
+            [cfg],
             tmp,
             guidance=guidance,
             show_progress=False,
             on_step=lambda step: stamps.append(time.perf_counter()),
-        )
+        )[0]
         stamps = stamps[args.warmup :]
         step_s = [b - a for a, b in itertools.pairwise(stamps)]
         # Phases of the steps between the first and the last timed stamp (not the

@@ -36,7 +36,7 @@ def ious(
         turntable_frames=2, steps=0, guidance="none", init_shape=shape,
     )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        generate(cfg, tmp, show_progress=False)
+        generate_plants([cfg], tmp, show_progress=False)[0]
         out = Path(tmp)
         bound = leaf_mask_ious(out, species, seed, True) if shape == SHAPES[-1] else []
         return leaf_mask_ious(out, species, seed), bound

@@ -207,7 +207,7 @@ def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
     from stub_guidance import StubGuidance
 
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.group import generate_group
+    from plant_runs import done, failed, group, resumed_from
     from plantdreamer.pipeline.run_state import RunState
     from plantdreamer.pipeline.runtime import resolve_runtime
 
@@ -226,8 +226,8 @@ def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
         )
         for s in range(2)
     ]  # fmt: skip
-    result = generate_group(cfgs, tmp_path, guidance=Recording(resolution=16), show_progress=False)
-    assert not result.failed and sorted(seen) == list(range(6))
+    result = group(cfgs, tmp_path, guidance=Recording(resolution=16), show_progress=False)
+    assert not failed(result) and sorted(seen) == list(range(6))
     for k, cfg in enumerate(cfgs):
         resolve_runtime(cfg)
         sampler = RunState.fresh(cfg, show_progress=False).sampler

@@ -280,7 +280,7 @@ def test_malformed_checkpoint_is_one_line(interrupted_run, tmp_path, damage):
 @pytest.fixture(scope="module")
 def interrupted_run(tmp_path_factory):
     """A run folder with a checkpoint at step 2 of 4 and no final outputs."""
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
     from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 
     out = tmp_path_factory.mktemp("interrupted") / "run"
@@ -296,7 +296,7 @@ def interrupted_run(tmp_path_factory):
             os.kill(os.getpid(), signal.SIGINT)
 
     with pytest.raises(RunInterrupted):
-        generate(cfg, out, show_progress=False, on_step=ctrl_c)
+        generate_plants([cfg], out, show_progress=False, on_step=ctrl_c)[0]
     assert not (out / "run.json").exists() and (out / CHECKPOINT_NAME).is_file()
     return out
 

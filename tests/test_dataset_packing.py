@@ -19,7 +19,7 @@ from plantdreamer.dataset.tasks import run_unit
 from plantdreamer.dataset.worker import ModelCache
 from plantdreamer.errors import InputError
 from plantdreamer.output_folder import LOCK_NAME
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 from plantdreamer.pipeline.runtime import build_guidance
 
 SMALL = {"steps": 3, "points": 1500, "resolution": 32, "eval-views": 1, "turntable-frames": 2}
@@ -122,7 +122,7 @@ def test_a_packed_group_writes_each_plant_folder_and_a_bad_plant_fails_alone(tmp
             assert (folder / name).is_file(), (plant_id, name)
         assert not (folder / "checkpoint.pt").exists()
         # Without guidance a plant trained in a group is the plant trained alone.
-        alone = generate(plant_config(group, plant_id), tmp_path / plant_id, show_progress=False)
+        alone = generate_plants([plant_config(group, plant_id)], tmp_path / plant_id, show_progress=False)[0]
         assert (folder / "plant.ply").read_bytes() == alone.ply_path.read_bytes()
     assert "group of 3" in (out / "plants" / "c-s0000" / "generate.log").read_text()
 
@@ -170,8 +170,8 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         cfg = _sds_config(tiny_model_folders, seed)
         resolved = GenerateConfig.from_dict(cfg.to_dict())
         resolve_runtime(resolved)
-        fresh = generate(cfg, tmp_path / f"fresh{seed}", guidance=build_guidance(resolved),
-                         show_progress=False)  # fmt: skip
+        fresh = generate_plants([cfg], tmp_path / f"fresh{seed}", guidance=build_guidance(resolved),
+                         show_progress=False)[0]  # fmt: skip
         ours = Path(out / "plants" / f"p{seed}" / "plant.ply").read_bytes()
         assert ours == fresh.ply_path.read_bytes(), seed
     run = json.loads((out / "plants" / "p1" / "run.json").read_text())

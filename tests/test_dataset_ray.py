@@ -21,7 +21,7 @@ import pytest
 from click.testing import CliRunner
 
 from plantdreamer.cli import main
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.slow
@@ -51,7 +51,7 @@ def manifest(out_dir):
 
 def direct_ply(tmp_path, **settings):
     out = tmp_path / "direct" / f"{settings.get('species')}-{settings['seed']}"
-    generate(GenerateConfig.of(**{**SMALL, **settings}), out, show_progress=False)
+    generate_plants([GenerateConfig.of(**{**SMALL, **settings})], out, show_progress=False)[0]
     return (out / "plant.ply").read_bytes()
 
 

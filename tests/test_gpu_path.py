@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.errors import InputError, PlantDreamerError
-from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
+from plantdreamer.pipeline import GenerateConfig, StepOptions, generate_plants
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,11 +68,11 @@ def test_full_size_controlnet_is_the_unets_encoder():
 
 
 def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
-    ahead = generate(small_sds(), tmp_path / "ahead", guidance=tiny_sds(), show_progress=False)
-    inline = generate(
-        small_sds(), tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
+    ahead = generate_plants([small_sds()], tmp_path / "ahead", guidance=tiny_sds(), show_progress=False)[0]
+    inline = generate_plants(
+        [small_sds()], tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
         options=StepOptions(depth_ahead=False),
-    )  # fmt: skip
+    )[0]  # fmt: skip
     assert ahead.ply_path.read_bytes() == inline.ply_path.read_bytes()
     # The run trained (the loss log has every step) and the depth phase was timed.
     run = json.loads((tmp_path / "ahead" / "run.json").read_text())
@@ -174,7 +174,7 @@ class _PoisonedGuidance:
 def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
     cfg = small_sds(guidance="none", steps=3)
     with pytest.raises(PlantDreamerError, match="non-finite gradient on the Gaussians"):
-        generate(cfg, tmp_path / "o", guidance=_PoisonedGuidance(), show_progress=False)
+        generate_plants([cfg], tmp_path / "o", guidance=_PoisonedGuidance(), show_progress=False)[0]
     assert not (tmp_path / "o" / "plant.ply").exists()
 
 
@@ -380,7 +380,7 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
     returns: under CUDA's sync debug mode "error" any host sync in it raises. The first
     launches capture the graphs and the view prompts are encoded beforehand (one-off syncs)."""
     from plantdreamer.guidance.prompts import VIEWS, base_prompt
-    from plantdreamer.pipeline.group import generate_group
+    from plant_runs import done, failed, group, resumed_from
     from plantdreamer.pipeline.step import schedule
 
     guidance = tiny_sds(device="cuda")
@@ -402,8 +402,8 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
 
     monkeypatch.setattr(schedule, "launch_guidance", strict_launch)
     cfgs = [small_sds(seed=s, steps=4, overlap="on", device="cuda") for s in range(4)]
-    result = generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
-    assert not result.failed and len(launches) == 8
+    result = group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
+    assert not failed(result) and len(launches) == 8
 
 
 @pytest.mark.slow

@@ -52,6 +52,7 @@ LAYERS: list[tuple[str, set[str]]] = [
 # Inside ``pipeline``, lowest first, the same rule: a module imports only from its own
 # part or the parts below it (the package's ``__init__`` is with the runs).
 PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
+    ("what watches a trainer", {"observer"}),
     (
         "a plant's parts: model, cameras, density control, labels, outputs, progress",
         {"model", "sampler", "source", "init", "culling", "density", "density_ops"}
@@ -60,13 +61,20 @@ PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
     ),
     (
         "settings: the config, presets, the resolved run, what a run writes",
-        {"config", "presets", "resolved"} | {"runtime", "group_record", "run_outputs"},
+        {"config", "presets", "resolved", "group_settings"} | {"runtime", "run_outputs"},
     ),
-    ("a run's state and its checkpoints", {"run_state", "checkpoint", "rerender"}),
+    (
+        "a run's state and its checkpoints",
+        {"run_state", "checkpoint", "group_noise", "rerender", "runs.record"},
+    ),
     ("a plant of a trainer, the step's options", {"step.plant", "step.options"}),
     ("the training step: a plant's update, the step's order", {"step.update", "step.schedule"}),
-    ("the step's package and the loop around the steps", {"step", "trainer"}),
-    ("runs of one plant or many", {"pipeline", "export", "run", "group", "plants"}),
+    ("the step's package and the loop around the steps", {"step", "trainer", "export"}),
+    (
+        "the run's lifecycle: where plants live, what is done with each, a part's sequence",
+        {"runs.layout", "runs.plan", "runs.start", "runs.results", "runs.sequence"},
+    ),
+    ("the one entry of runs of one plant or many", {"pipeline", "runs", "runs.entry"}),
 ]
 
 # (importing module, imported module): why the upward import is deliberate. Empty today;

@@ -110,7 +110,7 @@ def test_a_plant_cut_to_sh_degree_0_is_reproduced_too(tmp_path):
 
     from labelled_plant import SETTINGS
     from plantdreamer.guidance.base import PhotometricGuidance
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     target = torch.full((1, 64, 64, 3), 0.3)
     target[..., 1] = 0.7
@@ -118,6 +118,6 @@ def test_a_plant_cut_to_sh_degree_0_is_reproduced_too(tmp_path):
         **{**SETTINGS, "resolution": 64, "steps": 30, "sh_degree": 3, "sh_degree_export": 0}
     )
     plant = tmp_path / "bean"
-    generate(cfg, plant, guidance=PhotometricGuidance(target), show_progress=False)
+    generate_plants([cfg], plant, guidance=PhotometricGuidance(target), show_progress=False)[0]
     render(plant, "--labels", "--out", tmp_path / "v")
     assert_same_views(tmp_path / "v", plant, 3)

@@ -14,7 +14,7 @@ from plantdreamer.cli.options import config_from_options
 from plantdreamer.errors import CheckpointError
 from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS, SdsConfig
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 from plantdreamer.pipeline.checkpoint import CheckpointRecord
 from plantdreamer.pipeline.density import CullConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
@@ -111,11 +111,10 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
     changes `--resume` checks: the same name reaches the same field everywhere."""
     from plantdreamer.cli.dataset import _toml_value
     from plantdreamer.dataset.spec import expand
-    from plantdreamer.pipeline.run import resumed_config
+    from plantdreamer.pipeline.runs.start import resumed_config
 
     base = GenerateConfig.of(species="bean")
     command = generate_cli.build_command()
-    saved = CheckpointRecord(base, {"step": 0}, {})
     for name, value in base.settings().items():
         new = _other_value(name, value, base)
         if name in ("prompt-template", "negative-prompt", "schedule", "device"):
@@ -138,8 +137,8 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
         # A resume given the setting again: refused by name (only steps may change).
         if name != "steps":
             with pytest.raises(CheckpointError, match=f"{name}: checkpoint"):
-                resumed_config(saved, {name: new}, tmp_path)
-        assert resumed_config(saved, {name: value}, tmp_path)[1] is None
+                resumed_config(base, 0, {name: new}, tmp_path)
+        assert resumed_config(base, 0, {name: value}, tmp_path)[1] is None
 
 
 def test_an_unknown_or_old_setting_name_says_which_one_is_meant():
@@ -169,7 +168,7 @@ def test_generate_does_not_change_the_callers_config(tmp_path):
         species="kale", points=1500, eval_views=1, turntable_frames=1, steps=0, guidance="none"
     )
     before = GenerateConfig.from_dict(cfg.to_dict())
-    generate(cfg, tmp_path, show_progress=False)
+    generate_plants([cfg], tmp_path, show_progress=False)[0]
     assert cfg == before and cfg.train.resolution is None
 
 
@@ -209,7 +208,7 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     with pytest.raises(_Stop):
-        generate(cfg, tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1))
+        generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1))[0]
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert state["step"] == 2
     assert GenerateConfig.from_dict(state["config"]) == dataclasses.replace(cfg)
@@ -223,7 +222,7 @@ def test_a_finished_run_leaves_no_checkpoint(tmp_path):
         steps=3, checkpoint_every=2,
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
-    generate(cfg, tmp_path, guidance=guidance, show_progress=False)
+    generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False)[0]
     assert (tmp_path / "run.json").is_file() and not (tmp_path / "checkpoint.pt").exists()
 
 
@@ -249,7 +248,7 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     from plantdreamer.cli import main
     from plantdreamer.exports.listing import plant_species
     from plantdreamer.pipeline.config import from_record
-    from plantdreamer.pipeline.run import resumed_config
+    from plantdreamer.pipeline.runs.start import resumed_config
 
     old = json.loads(OLD_RUN.read_text())
     assert old["config"]["density"]["densify"]["every"] == 2  # the sectioned form
@@ -258,13 +257,13 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     assert plant_species(OLD_RUN) == "bean"
     # --resume reads a checkpoint's config through the same function.
     record = CheckpointRecord.from_saved({"config": old["config"], "step": 2}, tmp_path)
-    resumed, note = resumed_config(record, {"steps": 6}, tmp_path)
+    resumed, note = resumed_config(record.config, record.step, {"steps": 6}, tmp_path)
     assert resumed.train.steps == 6 and note == {
         "step": 2, "event": "steps changed", "from": 4, "to": 6
     }  # fmt: skip
     # `render` of a plant folder takes the orbit of the run.json beside plant.ply.
     plant = tmp_path / "plant"
-    generate(GenerateConfig.of(**OLD_RUN_SETTINGS), plant, show_progress=False)
+    generate_plants([GenerateConfig.of(**OLD_RUN_SETTINGS)], plant, show_progress=False)[0]
     new = json.loads((plant / "run.json").read_text())
     # Every setting as resolved by that version, but the orbit's distance: 4.0 was then the
     # default; now none is set and generate frames the orbit on the plant.

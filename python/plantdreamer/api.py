@@ -136,28 +136,35 @@ def generate(
     that cannot work (before any model loads), ``ModelNotFoundError`` for missing weights
     and ``RunInterrupted`` on Ctrl-C (a checkpoint is written: resume it).
     """
-    from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import GROUP_FILE, parse_seeds
-    from plantdreamer.pipeline.plants import generate_plants
+    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, generate_plants, resolve_config
+    from plantdreamer.pipeline.runs.layout import found_layout
+    from plantdreamer.pipeline.runs.record import GROUP_FILE, parse_group_seeds
+    from plantdreamer.pipeline.runs.results import finished_or_raise
 
     out, t0, show = Path(out), time.perf_counter(), not quiet
     if resume:
         unchanged = set(settings) - {"steps"}
         if unchanged or seeds is not None or overwrite:
             raise InputError("resume continues with the settings it started with: give only steps")
-        results = generate_plants(None, out, resume=True, changes=settings, show_progress=show)
-        plants = [_plant(r, t0) for r in results]
-        return plants if (out / GROUP_FILE).is_file() else plants[0]
+        layout = found_layout(out)
+        grouped = isinstance(layout, FolderPerPlant)
+        results = generate_plants(None, out, layout=layout, resume=True, changes=settings,
+                                  failures="record" if grouped else "raise", show_progress=show)  # fmt: skip
+        plants = [_plant(r, t0) for r in finished_or_raise(results, out / GROUP_FILE)]
+        return plants if grouped else plants[0]
     preset = settings.pop("preset", GenerateConfig().preset)
     if seeds is None:
         cfg = resolve_config(preset, settings)
-        return _plant(generate_plants([cfg], out, overwrite=overwrite, show_progress=show)[0], t0)
+        results = generate_plants([cfg], out, layout=PlantAlone(), overwrite=overwrite,
+                                  show_progress=show)  # fmt: skip
+        return _plant(results[0], t0)
     if "seed" in settings:
         raise InputError("give seed or seeds, not both")
-    seed_list = parse_seeds(seeds) if isinstance(seeds, str) else [int(s) for s in seeds]
+    seed_list = parse_group_seeds(seeds) if isinstance(seeds, str) else [int(s) for s in seeds]
     cfgs = [resolve_config(preset, {**settings, "seed": s}) for s in seed_list]
-    results = generate_plants(cfgs, out, group=True, overwrite=overwrite, show_progress=show)
-    return [_plant(r, t0) for r in results]
+    results = generate_plants(cfgs, out, layout=FolderPerPlant(), failures="record",
+                              overwrite=overwrite, show_progress=show)  # fmt: skip
+    return [_plant(r, t0) for r in finished_or_raise(results, out / GROUP_FILE)]
 
 
 def make_dataset(
@@ -282,7 +289,7 @@ def _given(cls: type, **values: Any) -> Any:
 
 def _plant(result: Any, t0: float) -> GeneratedPlant:
     return GeneratedPlant(
-        Path(result.out_dir),
+        Path(result.folder),
         Path(result.ply_path),
         result.steps,
         result.gaussians,

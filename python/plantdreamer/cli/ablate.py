@@ -79,7 +79,7 @@ def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
     from plantdreamer.eval import evaluate
     from plantdreamer.eval.report import write_ablation_table, write_json
     from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     background = base.train.background
     results: dict[str, float] = {}
@@ -88,7 +88,7 @@ def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
         cfg = GenerateConfig.from_settings(
             {**base.settings(), "pointcloud": pointcloud, "color-init": color, "eval-views": 0}
         )
-        run = generate(cfg, out / color, show_progress=not quiet)
+        run = generate_plants([cfg], out / color, show_progress=not quiet)[0]
         scored = evaluate(read_splat_ply(run.ply_path), frames, (background,) * 3, keep_views=0)
         write_json(scored, out / color / "eval.json", setting=color)
         value = scored.mean["masked_psnr"]

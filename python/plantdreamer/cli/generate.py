@@ -152,8 +152,7 @@ def build_command() -> click.Command:
                 if print_config:
                     from plantdreamer.pipeline.resolved import resolved_settings
 
-                    shown = [resolved_settings(cfg) for cfg in cfgs]
-                    click.echo(json.dumps(shown if seeds is not None else shown[0], indent=2))
+                    click.echo(json.dumps(resolved_settings(cfgs), indent=2))
                     return
                 results = _run(cfgs, Path(out_dir), quiet, group=seeds is not None,
                                overwrite=overwrite)  # fmt: skip
@@ -179,7 +178,7 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
     """The end of a run: what each plant wrote, the time it took and the next command."""
     lines = []
     for r in results:
-        folder = Path(r.out_dir)
+        folder = Path(r.folder)
         made = [name for name in FINISHED_FILES if (folder / name).exists()]
         lines.append(f"wrote {r.ply_path} ({r.gaussians:,} Gaussians) and {', '.join(made)} "
                      f"in {folder}")  # fmt: skip
@@ -195,7 +194,7 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
 def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:
     """The run's config, or with ``--seeds`` one per seed (the same settings otherwise)."""
     from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import parse_seeds
+    from plantdreamer.pipeline.runs.record import parse_group_seeds
 
     preset = options.pop("preset")
     typed = options_to_settings(GenerateConfig, given_on_command_line(options))
@@ -206,7 +205,7 @@ def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]
         raise click.UsageError("give --seed or --seeds, not both")
     return [
         resolve_config(preset, {**typed, "seed": seed}, base=defaults)
-        for seed in parse_seeds(seeds)
+        for seed in parse_group_seeds(seeds)
     ]
 
 
@@ -220,14 +219,22 @@ def _run(
     changes: dict[str, Any] | None = None,
     overwrite: bool = False,
 ) -> list:
-    """Trains the plants (one, or a group under ``out``), or resumes ``out``; each finished
-    plant's result. A failed plant of a group makes the command fail once the others are
-    written (they are listed first)."""
-    from plantdreamer.pipeline.plants import PlantsFailed, generate_plants
+    """Trains the plants (one in ``out``, or a group with a folder each under it), or
+    resumes ``out``; each plant's result. A failed plant of a group makes the command fail
+    once the others are written (they are listed first)."""
+    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, PlantsFailed, generate_plants
+    from plantdreamer.pipeline.runs.layout import found_layout
+    from plantdreamer.pipeline.runs.record import GROUP_FILE
+    from plantdreamer.pipeline.runs.results import finished_or_raise
 
+    layout = found_layout(out) if resume else FolderPerPlant() if group else PlantAlone()
+    grouped = isinstance(layout, FolderPerPlant)
     try:
-        return generate_plants(cfgs, out, group=group, resume=resume, changes=changes,
-                               overwrite=overwrite, show_progress=not quiet)  # fmt: skip
+        results = generate_plants(
+            cfgs, out, layout=layout, failures="record" if grouped else "raise",
+            resume=resume, changes=changes, overwrite=overwrite, show_progress=not quiet,
+        )  # fmt: skip
+        return finished_or_raise(results, out / GROUP_FILE)
     except PlantsFailed as failed:
         for result in failed.done:
             click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")

@@ -25,7 +25,7 @@ from plantdreamer.dataset import engine
 from plantdreamer.dataset.display import DatasetProgress, print_summary
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
-from plantdreamer.dataset.plan import GROUPS_DIR, base_record, check_models, plan, work_units
+from plantdreamer.dataset.plan import base_record, check_models, plan, work_units
 from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.scheduler import Dispatcher, Unit
 from plantdreamer.dataset.tasks import HOLD_ENV, StatusBoard, first_line
@@ -202,9 +202,6 @@ class _DatasetRun:
         finally:
             if started_ray:
                 ray.shutdown()
-            groups = self.out_dir / GROUPS_DIR
-            if groups.is_dir() and not any(groups.iterdir()):
-                groups.rmdir()
 
     def _follow(self, ray, workers: Dispatcher, board, ids: list[str]) -> dict[str, dict[str, Any]]:
         results: dict[str, dict[str, Any]] = {}

@@ -35,25 +35,24 @@ class ModelCache:
         self.parts: Any = None
         self.loads = 0
 
-    def guidance_for(self, cfg: Any) -> Any:
-        """The guidance of a resolved config (``runtime.resolve_runtime``)."""
+    def guidance_for(self, group: Any) -> Any:
+        """The guidance of plants' shared settings (``GroupSettings``, resolved)."""
         from plantdreamer.pipeline.runtime import build_guidance
 
-        if cfg.sds.guidance == "none":
-            return build_guidance(cfg)
-        key = model_key(cfg)
+        if group.sds.guidance == "none":
+            return build_guidance(group)
+        key = model_key(group.sds)
         if key == self.key:
-            return build_guidance(cfg, components=self.parts)
+            return build_guidance(group, components=self.parts)
         self.key = self.parts = None  # the old networks go before the new ones load
-        guidance = build_guidance(cfg)
+        guidance = build_guidance(group)
         self.key, self.parts = key, guidance.parts  # type: ignore[attr-defined]
         self.loads += 1
         return guidance
 
 
-def model_key(cfg: Any) -> tuple[Any, ...]:
+def model_key(sds: Any) -> tuple[Any, ...]:
     """What the loaded networks depend on: which weights, their precision and device."""
-    sds = cfg.sds
     return (sds.base_model, sds.controlnet, sds.lora, sds.network_dtype, sds.vae_dtype,
             sds.device)  # fmt: skip
 

@@ -52,10 +52,10 @@ def true_gaussians(spec: KnownAnswerSpec, work_dir: Path) -> Gaussians:
     plant, in the L-System's own units, 7.7 times smaller for bean seed 0: the models
     learned a plant covering about 1.4% of a view that generate shows at 20-50%.)"""
     from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     cfg = generate_config(spec, guidance="none", steps=0, color_init="original")
-    result = generate(cfg, work_dir / "target", overwrite=True, show_progress=False)
+    result = generate_plants([cfg], work_dir / "target", overwrite=True, show_progress=False)[0]
     return in_generate_frame(read_splat_ply(result.ply_path), Path(result.ply_path))
 
 

@@ -11,18 +11,23 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from plantdreamer.pipeline.config import GenerateConfig
-    from plantdreamer.pipeline.plants import generate_plants
     from plantdreamer.pipeline.presets import PRESETS, resolve_config
-    from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
+    from plantdreamer.pipeline.runs.entry import generate_plants
+    from plantdreamer.pipeline.runs.layout import FolderPerPlant, GivenFolders, PlantAlone
+    from plantdreamer.pipeline.runs.results import PlantResult, PlantsFailed
     from plantdreamer.pipeline.step.options import StepOptions
+    from plantdreamer.pipeline.trainer import RunInterrupted
 
 __all__ = [
     "PRESETS",
+    "FolderPerPlant",
     "GenerateConfig",
+    "GivenFolders",
+    "PlantAlone",
+    "PlantResult",
+    "PlantsFailed",
     "RunInterrupted",
-    "RunResult",
     "StepOptions",
-    "generate",
     "generate_plants",
     "resolve_config",
 ]
@@ -31,10 +36,13 @@ _MODULES = {
     "GenerateConfig": "plantdreamer.pipeline.config",
     "PRESETS": "plantdreamer.pipeline.presets",
     "resolve_config": "plantdreamer.pipeline.presets",
-    "RunInterrupted": "plantdreamer.pipeline.run",
-    "RunResult": "plantdreamer.pipeline.run",
-    "generate": "plantdreamer.pipeline.run",
-    "generate_plants": "plantdreamer.pipeline.plants",
+    "generate_plants": "plantdreamer.pipeline.runs.entry",
+    "FolderPerPlant": "plantdreamer.pipeline.runs.layout",
+    "GivenFolders": "plantdreamer.pipeline.runs.layout",
+    "PlantAlone": "plantdreamer.pipeline.runs.layout",
+    "PlantResult": "plantdreamer.pipeline.runs.results",
+    "PlantsFailed": "plantdreamer.pipeline.runs.results",
+    "RunInterrupted": "plantdreamer.pipeline.trainer",
     "StepOptions": "plantdreamer.pipeline.step.options",
 }
 

@@ -1,8 +1,10 @@
 """Resumable checkpoints of a generation run (``OUT/checkpoint.pt``), written atomically.
 
-A checkpoint is a ``CheckpointRecord``: the config, ``RunState.state_dict()`` and the
-guidance's noise state, built (for the trainer) and taken apart (for a resume) here only.
-Older formats still load where their contents carry over exactly; others fail with one line.
+A checkpoint is a ``CheckpointRecord``: the config and ``RunState.state_dict()``, built (for
+the trainer) and taken apart (for a resume) here only. The guidance's noise state is the
+group's, not a plant's: it is saved once per trainer (``group_noise.py``). Older formats
+still load where their contents carry over exactly (format 4's copy of the noise state in
+every plant's checkpoint is read back from its plants); others fail with one line.
 
 ``PlantCheckpoints`` writes a plant's checkpoints (for the trainer) and reads them back (for a
 resume), one object for both. Plants trained together write one after another, so a kill
@@ -32,32 +34,35 @@ if TYPE_CHECKING:
 #    so resuming one would record a shape its model was not made with);
 # 4: the config in sections (source, init, train, sds, density, outputs); density control's
 #    state under "density". Format 3 converts exactly (each old key has one new name).
-FORMAT_VERSION = 4
+# 5: no noise state (the group's, in group_noise.py); format 4's loads with its copy.
+FORMAT_VERSION = 5
 _CONVERTS = (3,)
-# The entries of the guidance's noise generator (``noise_state``).
+_READS = (4, FORMAT_VERSION)  # loaded as they are
+# A format-4 checkpoint's entries of the guidance's noise generator (``noise_state``).
 _NOISE_KEYS = ("guidance", "guidance_device")
 
 
 @dataclass
 class CheckpointRecord:
-    """One plant's checkpoint: its settings (``config``, a resolved run's), its run state
-    (``RunState.state_dict()``) and the guidance's noise state (``noise_state``)."""
+    """One plant's checkpoint: its settings (``config``, a resolved run's) and its run state
+    (``RunState.state_dict()``); ``noise``: the guidance's noise state a format-4 file
+    carried (None since: the group's noise is saved apart)."""
 
     config: GenerateConfig
     state: dict[str, Any]
-    noise: dict[str, Any]
+    noise: dict[str, Any] | None = None
 
     @property
     def step(self) -> int:
         return int(self.state["step"])
 
     @classmethod
-    def of(cls, config: GenerateConfig, state: RunState, generator: Any) -> CheckpointRecord:
-        return cls(config, state.state_dict(), noise_state(generator))
+    def of(cls, config: GenerateConfig, state: RunState) -> CheckpointRecord:
+        return cls(config, state.state_dict())
 
     def to_saved(self) -> dict[str, Any]:
         """The file's contents (format ``FORMAT_VERSION``, plain data and tensors)."""
-        return {"config": self.config.to_dict(), **self.state, **self.noise}
+        return {"config": self.config.to_dict(), **self.state}
 
     @classmethod
     def from_saved(cls, saved: dict[str, Any], path: Path) -> CheckpointRecord:
@@ -71,7 +76,7 @@ class CheckpointRecord:
             int(saved["step"])
         except (KeyError, TypeError, ValueError, InputError) as exc:
             raise CheckpointError(f"{path}: damaged checkpoint, bad config ({exc})") from exc
-        noise = {k: saved[k] for k in _NOISE_KEYS if k in saved}
+        noise = {k: saved[k] for k in _NOISE_KEYS if k in saved} or None
         state = {k: v for k, v in saved.items() if k not in ("format", "config", *_NOISE_KEYS)}
         return cls(config, state, noise)
 
@@ -88,10 +93,10 @@ def load_checkpoint(out_dir: Path, name: str = CHECKPOINT_NAME) -> dict[str, Any
     found = state.get("format")
     if found in _CONVERTS:
         return _from_format_3(state, path)
-    if found != FORMAT_VERSION:
+    if found not in _READS:
         what = f"format {found}" if isinstance(found, int) else "not a plantdreamer checkpoint"
         raise CheckpointError(
-            f"{path}: {what}; this plantdreamer resumes formats 3 and {FORMAT_VERSION} only "
+            f"{path}: {what}; this plantdreamer resumes formats 3 to {FORMAT_VERSION} only "
             "(start the run again with --overwrite)"
         )
     return state
@@ -151,6 +156,20 @@ def damaged(path: Path, exc: BaseException) -> CheckpointError:
     )
 
 
+def read_config(path: Path) -> GenerateConfig:
+    """A checkpoint's config, read without loading its tensors (memory-mapped);
+    CheckpointError when it cannot be read."""
+    import torch
+
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception:  # unreadable: read it the ordinary way for the one-line error
+        saved = load_checkpoint(path.parent, path.name)
+    if saved.get("format") in _CONVERTS:
+        saved = _from_format_3(saved, path)
+    return CheckpointRecord.from_saved(saved, path).config
+
+
 def _step_of(path: Path) -> int:
     """A checkpoint's step, read without loading its tensors (memory-mapped)."""
     import torch
@@ -183,46 +202,6 @@ def common_starts(starts: dict[Any, dict[int, str]]) -> list[tuple[int | None, l
     return ([(None, fresh)] if fresh else []) + parts
 
 
-# Bytes of a saved torch generator state, by device: the CPU's Mersenne Twister, CUDA's
-# Philox (seed and offset).
-_STATE_BYTES = {5056: "cpu", 16: "cuda"}
-
-
-def noise_state(generator: Any) -> dict[str, Any]:
-    """The checkpoint's entries for the guidance's noise generator (``None``: it has none)."""
-    if generator is None:
-        return {"guidance": None}
-    return {"guidance": generator.get_state(), "guidance_device": generator.device.type}
-
-
-def restore_noise_state(generator: Any, record: CheckpointRecord, where: Path) -> None:
-    """Sets the guidance's noise generator to the checkpoint's state, so the resumed run draws
-    the same noise. A state drawn on another kind of device (a CPU run resumed on CUDA, or a
-    checkpoint from before the CUDA generator moved onto the GPU) cannot go on with the
-    same noise: one line says so rather than torch's error."""
-    saved = record.noise
-    state = saved.get("guidance")
-    if state is None:
-        return
-    if generator is None:
-        raise InputError(
-            f"{where}: the checkpoint holds a guidance's noise state; this one has none"
-        )
-    here = generator.device.type
-    # Checkpoints without the device name are told apart by the state's size.
-    saved_on = saved.get("guidance_device") or _STATE_BYTES.get(int(state.numel()), "unknown")
-    if saved_on != here:
-        raise CheckpointError(
-            f"{where}: its SDS noise was drawn on {saved_on} and this run's guidance draws on "
-            f"{here}; resume with the device it was made on (--device), or start again with "
-            "--overwrite"
-        )
-    try:
-        generator.set_state(state)
-    except (RuntimeError, TypeError) as exc:
-        raise CheckpointError(f"{where}: damaged guidance noise state ({exc})") from exc
-
-
 def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:
     from plantdreamer.pipeline.config import from_flat_dict
 
@@ -231,5 +210,5 @@ def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:
     except (KeyError, TypeError, AttributeError, InputError) as exc:
         raise CheckpointError(f"{path}: damaged checkpoint, bad config ({exc})") from exc
     converted = {k: v for k, v in state.items() if k != "densify"}
-    converted.update(format=FORMAT_VERSION, config=config, density=state.get("densify"))
+    converted.update(format=4, config=config, density=state.get("densify"))
     return converted

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,6 +32,9 @@ MAX_RESOLUTION = 8192  # largest training / evaluation render side
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
 # pipeline/presets.py holds each preset's values.
 PRESET_NAMES = ("plantdreamer", "released", "paper")
+# The settings in which plants trained together (a group, a dataset's packed unit) may
+# differ; they share every other one (``shared_settings``).
+PER_PLANT = ("seed", "pointcloud")
 
 
 @dataclass
@@ -65,6 +68,10 @@ class GenerateConfig:
     def settings(self) -> dict[str, Any]:
         """Every setting by its one name."""
         return {s.name: settings.value_at(self, s.path) for s in settings.walk(type(self))}
+
+    def shared_settings(self) -> dict[str, Any]:
+        """Every setting but the ``PER_PLANT`` ones: what plants trained together share."""
+        return {k: v for k, v in self.settings().items() if k not in PER_PLANT}
 
     def get(self, name: str) -> Any:
         try:
@@ -130,6 +137,17 @@ class GenerateConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> GenerateConfig:
         """The config a record holds, in any saved form (``from_record``)."""
         return from_record(data)
+
+
+def check_shared(cfgs: Sequence[GenerateConfig]) -> None:
+    """InputError unless the plants share every setting but the ``PER_PLANT`` ones."""
+    shared = [c.shared_settings() for c in cfgs]
+    if any(s != shared[0] for s in shared[1:]):
+        differ = sorted({k for s in shared[1:] for k in s if s[k] != shared[0][k]})
+        raise InputError(
+            f"plants trained together share every setting but {' and '.join(PER_PLANT)}; "
+            f"these differ: {', '.join(differ)}"
+        )
 
 
 # Settings added after records were written, each with the value that does what the

@@ -105,7 +105,8 @@ def export_run(
     with timer("label files"):
         write_plant_exports(out)
     summary = _summary(cfg, state, final, device, export_offset)
-    summary["eval_distance"] = eval_distance  # the orbit's distance (framed, or given)
+    # What the export decided: the orbit's distance (framed on plant.ply, or given).
+    summary["outputs"] = {"eval_distance": eval_distance}
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
@@ -133,7 +134,6 @@ def _summary(
     }
     return {
         "config": cfg.to_dict(),
-        "seed": cfg.seed,
         "versions": package_versions(),
         "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),

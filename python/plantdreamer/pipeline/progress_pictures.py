@@ -1,5 +1,5 @@
-"""Pictures of a run in progress, written with each checkpoint so a long run can be looked
-at before it ends:
+"""Pictures of a run in progress, written at each checkpoint (``ProgressPictures``, a
+trainer's observer) so a long run can be looked at before it ends:
 
 - ``progress/step_NNNNNN.png``: the Gaussians at that checkpoint, one small view from the
   evaluation orbit's first camera (elevation, field of view and azimuth), at the distance
@@ -11,7 +11,9 @@ at before it ends:
 
 Each file is rewritten atomically and depends only on the model and the log at that step, so
 a resumed run leaves the same bytes as one never stopped (a picture past the resumed step is
-left out of the strip, then made again; a stop's own checkpoint makes none).
+left out of the strip, then made again; a stop's own checkpoint makes none). They are written
+before the checkpoint of their step: a run killed between the two resumes from the
+checkpoint before and makes them again, so no picture a resume needs is ever missing.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from plantdreamer import atomic
+from plantdreamer.pipeline.observer import TrainerObserver
 
 PROGRESS_DIR = "progress"
 PROGRESS_STRIP = "progress.png"
@@ -34,10 +37,18 @@ _CAPTION_PX = 14
 FRAME_NAME = re.compile(r"step_(\d{6,})\.png")
 
 
+class ProgressPictures(TrainerObserver):
+    """Each plant's pictures at the checkpoints of the schedule."""
+
+    def checkpoint(self, step: int, plants: Any) -> None:
+        for plant in plants:
+            write_progress(plant, step)
+
+
 def write_progress(plant: Any, step: int) -> None:
-    """The pictures of a ``PlantRun`` whose checkpoint at ``step`` was just written: at the
-    checkpoints of the schedule (every ``checkpoint-every`` steps, and the last), not at a
-    stop's, so a stopped and resumed run shows the same pictures."""
+    """The pictures of a ``PlantRun`` whose checkpoint at ``step`` is due: at the checkpoints
+    of the schedule (every ``checkpoint-every`` steps, and the last), not at a stop's, so a
+    stopped and resumed run shows the same pictures."""
     train = plant.cfg.train
     if step % train.checkpoint_every and step != train.steps:
         return

@@ -67,11 +67,12 @@ class GenerateFrame:
 
 def _orbit_distance(given: float | None, run: dict[str, Any]) -> float | None:
     """The distance generate's orbit was rendered at: given in its config, else the one it
-    framed and recorded (``eval_distance``); None for a run without views (``render``
-    frames the plant by generate's rule then)."""
+    framed and recorded (``outputs.eval_distance``; top-level ``eval_distance`` in run.json
+    files written before); None for a run without views (``render`` frames the plant by
+    generate's rule then)."""
     if given is not None:
         return float(given)
-    framed = run.get("eval_distance")
+    framed = run.get("outputs", {}).get("eval_distance", run.get("eval_distance"))
     return None if framed is None else float(framed)
 
 

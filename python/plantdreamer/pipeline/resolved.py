@@ -1,15 +1,18 @@
 """The fully resolved settings of a run, as ``plantdreamer generate --print-config`` shows them.
 
-A run's config after its preset, the user's options and the runtime fills (a LoRA's recorded
-prompt template, the resolution and precision of this machine), plus what those settings
-turn into: the species structure grown, the prompts as the text encoder receives them, the
-timestep range of each phase and the steps where density control and culling run (as
-progressions: first, last, every and count). Users
-check a run here before spending GPU hours on it; tests check the presets through it.
+Each plant's config after its preset, the user's options and the settings the run decides
+(``runtime.resolve_plants``, the one function the run calls too: a LoRA's recorded prompt
+template, the resolution and precision of this machine, overlap for the plant count), so
+its ``config`` is what run.json records; plus what those settings turn into: the species
+structure grown, the prompts as the text encoder receives them, the timestep range of each
+phase and the steps where density control and culling run (as progressions: first, last,
+every and count). Users check a run here before spending GPU hours on it; tests check the
+presets through it.
 """
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 from plantdreamer.pipeline.config import GenerateConfig
@@ -17,15 +20,25 @@ from plantdreamer.pipeline.config import GenerateConfig
 NUM_TRAIN_TIMESTEPS = 1000  # Stable Diffusion's scheduler (integer timesteps shown for it)
 
 
-def resolved_settings(cfg: GenerateConfig) -> dict[str, Any]:
-    """Validates ``cfg``, fills its runtime settings (as the run would) and returns a
-    JSON-ready description of the run. Loads no model."""
+def resolved_settings(cfgs: list[GenerateConfig]) -> list[dict[str, Any]]:
+    """Validates the configs of plants trained together, decides their open settings as the
+    run would and returns a JSON-ready description of each plant's run (one plant: a list
+    of one). Loads no model; the callers' configs are not changed."""
+    from plantdreamer.pipeline.config import check_shared
+    from plantdreamer.pipeline.runtime import check_inputs, resolve_plants
+
+    cfgs = [copy.deepcopy(c) for c in cfgs]
+    for cfg in cfgs:
+        check_inputs(cfg)
+    check_shared(cfgs)
+    resolve_plants(cfgs)
+    return [_described(cfg) for cfg in cfgs]
+
+
+def _described(cfg: GenerateConfig) -> dict[str, Any]:
     from plantdreamer.guidance.prompts import VIEWS, base_prompt
     from plantdreamer.guidance.schedules import make_schedule
-    from plantdreamer.pipeline.runtime import check_inputs, resolve_runtime
 
-    check_inputs(cfg)
-    resolve_runtime(cfg)
     out: dict[str, Any] = {
         "config": cfg.to_dict(),
         "structure": None if cfg.source.pointcloud is not None else cfg.source.structure(),
@@ -34,7 +47,7 @@ def resolved_settings(cfg: GenerateConfig) -> dict[str, Any]:
     }
     if cfg.sds.guidance == "none":
         return {**out, "prompts": None, "negative_prompt": None, "timesteps": None}
-    assert cfg.sds.prompt_template is not None  # resolve_runtime filled it
+    assert cfg.sds.prompt_template is not None  # resolve_plants filled it
     prompt = base_prompt(cfg.source.plant_name(), cfg.sds.prompt_template)
     out["prompts"] = {view: f"{prompt}, {view} view" for view in VIEWS}
     out["negative_prompt"] = cfg.sds.negative_prompt

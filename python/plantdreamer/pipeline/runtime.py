@@ -1,17 +1,21 @@
-"""What a config becomes on this machine: its inputs checked, the settings left open decided
-(render size, network precision, prompt template; for plants trained together, overlap) and
-its guidance built. Each decided value is written into the config, so run.json and the
-checkpoints record the value used and a resume keeps it."""
+"""What configs become on this machine: their inputs checked, the settings left open decided
+once (``resolve_plants``: render size, network precision, prompt template, overlap) and
+the guidance of plants trained together built. Each decided value is written into the
+config, so run.json and the checkpoints record the value used and a resume keeps it."""
 
 from __future__ import annotations
 
-import torch
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from plantdreamer.errors import InputError
-from plantdreamer.guidance.base import Guidance
-from plantdreamer.guidance.models import DiffusionComponents
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+
+if TYPE_CHECKING:
+    from plantdreamer.guidance.base import Guidance
+    from plantdreamer.guidance.models import DiffusionComponents
+    from plantdreamer.pipeline.group_settings import GroupSettings
 
 
 def check_inputs(cfg: GenerateConfig) -> None:
@@ -54,35 +58,37 @@ def check_models(cfg: GenerateConfig) -> None:
     check_model_present(sds.controlnet, "controlnet")
 
 
-def resolve_runtime(cfg: GenerateConfig) -> None:
-    """Fills the settings decided by the machine or the inputs, so run.json and the
-    checkpoints record the values used: the training resolution, the network precision and
-    the prompt template (a LoRA's recorded template, else the default)."""
-    sds = cfg.sds
-    # The networks' device (checked by check_inputs): CUDA when usable unless one is named.
-    cuda = torch.cuda.is_available() if sds.device is None else sds.device.startswith("cuda")
-    if cfg.train.resolution is None:
-        cfg.train.resolution = AUTO_RESOLUTION["cuda" if cuda else "cpu"]
-    if sds.network_dtype == "auto":
-        sds.network_dtype = "float16" if cuda else "float32"
-    if sds.prompt_template is None:
-        sds.prompt_template = lora_template(sds.lora)
+def resolve_plants(cfgs: Sequence[GenerateConfig]) -> None:
+    """Decides every setting left open, for plants trained together, from their configs,
+    their count and the machine: the render size and the networks' precision (by the
+    networks' device), the prompt template (a LoRA's recorded one, else the default) and
+    ``overlap`` (on for a group whose guidance runs on CUDA). Each value is written into
+    each config, so run.json, group.json and the checkpoints record the value used, a
+    resume keeps it, and ``--print-config`` (which calls this too) shows it. Nothing
+    downstream decides them again."""
+    from plantdreamer.guidance.models import resolve_device
+
+    first = cfgs[0]  # the settings decided here are shared (config.PER_PLANT aside)
+    cuda = resolve_device(first.sds.device).type == "cuda"
+    overlap = resolve_overlap(first.train.overlap, first.sds.guidance != "none" and cuda, len(cfgs))
+    template = lora_template(first.sds.lora) if first.sds.prompt_template is None else None
+    for cfg in cfgs:
+        sds = cfg.sds
+        if cfg.train.resolution is None:
+            cfg.train.resolution = AUTO_RESOLUTION["cuda" if cuda else "cpu"]
+        if sds.network_dtype == "auto":
+            sds.network_dtype = "float16" if cuda else "float32"
+        if sds.prompt_template is None:
+            sds.prompt_template = template
+        cfg.train.overlap = "on" if overlap else "off"
 
 
-def resolve_overlap(setting: str, device: torch.device, plants: int) -> bool:
+def resolve_overlap(setting: str, cuda_guidance: bool, plants: int) -> bool:
     """``overlap``'s ``auto``: on for a group whose guidance runs on CUDA. On the CPU the
     networks and the renders share the same cores, so the halves cannot hide each other."""
     if setting == "auto":
-        return device.type == "cuda" and plants > 1
+        return cuda_guidance and plants > 1
     return setting == "on"
-
-
-def record_overlap(cfgs: list[GenerateConfig], device: torch.device) -> None:
-    """Decides ``overlap`` for plants trained together by a guidance on ``device``, and
-    writes the value used (``on`` or ``off``) into each plant's config."""
-    on = resolve_overlap(cfgs[0].train.overlap, device, len(cfgs))
-    for cfg in cfgs:
-        cfg.train.overlap = "on" if on else "off"
 
 
 def lora_template(lora: str | None) -> str:
@@ -94,33 +100,36 @@ def lora_template(lora: str | None) -> str:
     return recorded or DEFAULT_PROMPT_TEMPLATE
 
 
-def build_guidance(cfg: GenerateConfig, components: DiffusionComponents | None = None) -> Guidance:
-    """The guidance a config asks for; missing weights raise ModelNotFoundError here,
-    before anything is written. ``components``: the networks of this config's base model,
-    ControlNet and LoRA, already loaded (LoRA applied) by an earlier guidance of a worker
-    that keeps them between plants (``guidance.parts``)."""
+def build_guidance(group: GroupSettings, components: DiffusionComponents | None = None) -> Guidance:
+    """The guidance of plants trained together (their settings resolved by
+    ``resolve_plants``); missing weights raise ModelNotFoundError here, before anything is
+    written. ``components``: the networks of its base model, ControlNet and LoRA, already
+    loaded (LoRA applied) by an earlier guidance of a worker that keeps them between
+    plants (``guidance.parts``)."""
     from plantdreamer.guidance.base import NoGuidance
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
 
-    sds = cfg.sds
+    sds = group.sds
     if sds.guidance == "none":
         return NoGuidance()
+    if sds.prompt_template is None or sds.network_dtype == "auto":
+        raise RuntimeError("the settings are decided by runtime.resolve_plants first")
     return StableDiffusionDepthGuidance(
         base_model=sds.base_model,
         controlnet=sds.controlnet,
         lora=sds.lora if components is None else None,
         components=components,
-        species=cfg.source.plant_name(),
+        species=group.prompt_name,
         guidance_scale=sds.guidance_scale,
         conditioning_scale=sds.conditioning_scale,
         schedule=sds.schedule,
-        total_steps=cfg.train.steps,
-        seed=cfg.seed,
+        total_steps=group.train.steps,
+        seed=group.noise_seed,
         resolution=sds.resolution,
         negative_prompt=sds.negative_prompt,
-        prompt_template=sds.prompt_template or lora_template(sds.lora),
+        prompt_template=sds.prompt_template,
         control_resize=sds.control_resize,
-        dtype=None if sds.network_dtype == "auto" else sds.network_dtype,
+        dtype=sds.network_dtype,
         vae_dtype=sds.vae_dtype,
         device=sds.device,
     )
