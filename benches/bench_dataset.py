@@ -31,13 +31,13 @@ FLAGS = ["--guidance", "none", "--points", "20000", "--steps", "20", "--eval-vie
          "--resolution", "128"]  # fmt: skip
 BASELINE = """
 import sys, time
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 settings, out = {settings!r}, sys.argv[1]
 t0 = time.perf_counter()
 for species in {species!r}:
     for seed in {seeds!r}:
         cfg = GenerateConfig.of(species=species, seed=seed, **settings)
-        generate(cfg, f"{{out}}/{{species}}-{{seed}}", show_progress=False)
+        generate_plants([cfg], f"{{out}}/{{species}}-{{seed}}", show_progress=False)
 print(time.perf_counter() - t0)
 """
 

@@ -26,7 +26,7 @@ def run(cfg, guidance=None):
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        generate_plants([cfg], tmp, guidance=guidance, show_progress=False)[0]
+        generate_plants([cfg], tmp, guidance=guidance, show_progress=False)
         wall = time.perf_counter() - t0
         summary = json.loads((Path(tmp) / "run.json").read_text())
     return wall, summary

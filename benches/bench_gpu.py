@@ -208,7 +208,7 @@ def run_once(
             show_progress=False,
             on_step=lambda step: stamps.append(time.perf_counter()),
             options=StepOptions(depth_ahead=depth_ahead),
-        )[0]
+        )
         if profiler is not None:
             profiler.disable()
         wall = time.perf_counter() - t0

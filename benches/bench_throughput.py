@@ -306,8 +306,7 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     import torch
 
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
-    from plantdreamer.pipeline import GenerateConfig, StepOptions
-    from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline import FolderPerPlant, GenerateConfig, StepOptions, generate_plants
 
     cuda = args.device.startswith("cuda")
     cfgs = [
@@ -337,14 +336,16 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     options = StepOptions(sleeping_wait=v.cuda_wait == "sleep")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
-                                on_step=hook, options=options)  # fmt: skip
+        results = generate_plants(cfgs, tmp, layout=FolderPerPlant(), failures="record",
+                                  guidance=guidance, show_progress=False, on_step=hook,
+                                  options=options)  # fmt: skip
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
             hook.stop()
-        if result.failed:
-            raise SystemExit(f"error: plants failed: {result.failed}")
+        failed = {r.name: r.error for r in results if not r.done}
+        if failed:
+            raise SystemExit(f"error: plants failed: {failed}")
         runs = [json.loads(p.read_text()) for p in sorted(Path(tmp).glob("*/run.json"))]
     timings = {k: sum(r["timings_s"].get(k, 0.0) for r in runs) for k in PHASES}
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
@@ -406,13 +407,12 @@ def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, An
     import copy
 
     from plantdreamer.pipeline.run_state import RunState
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.runtime import resolve_plants
 
-    plants = cfgs[:REFERENCE_PLANTS]
+    plants = [copy.deepcopy(cfg) for cfg in cfgs[:REFERENCE_PLANTS]]
+    resolve_plants(plants)
     times = []
     for k, cfg in enumerate(plants):
-        cfg = copy.deepcopy(cfg)
-        resolve_runtime(cfg)
         share = REFERENCE_RENDERS // len(plants) + (k < REFERENCE_RENDERS % len(plants))
         state = RunState.fresh(cfg, show_progress=False)
         cameras = window_cameras(state.sampler, first, last, share)
@@ -565,7 +565,8 @@ def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
     """Seconds to build each of ``n`` plants' guidance (tiny models from ``folder``)."""
     from plantdreamer.dataset.worker import ModelCache
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.group_settings import GroupSettings
+    from plantdreamer.pipeline.runtime import resolve_plants
 
     cache, times = ModelCache(), []
     for seed in range(n):
@@ -573,11 +574,11 @@ def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
             species="bean", seed=seed, base_model=str(folder / "base"),
             controlnet=str(folder / "controlnet"), device="cpu", sds_resolution=64,
         )  # fmt: skip
-        resolve_runtime(cfg)
+        resolve_plants([cfg])
         if not shared:
             cache = ModelCache()
         t0 = time.perf_counter()
-        cache.guidance_for(cfg)
+        cache.guidance_for(GroupSettings.of([cfg]))
         times.append(time.perf_counter() - t0)
     return times
 

@@ -114,7 +114,7 @@ def main() -> int:
             eval_views=args.views, turntable="none", steps=0, guidance="none",
         )  # fmt: skip
         with tempfile.TemporaryDirectory() as tmp:
-            generate_plants([cfg], tmp, show_progress=False)[0]
+            generate_plants([cfg], tmp, show_progress=False)
             touching, views, share = border_views(Path(tmp))
             for maps in ("instances", "labels"):
                 m = measure(Path(tmp), maps)

@@ -34,7 +34,7 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = GenerateConfig.of(species="bean", seed=1, guidance="none", eval_views=8)
-        generate_plants([cfg], tmp, show_progress=False)[0]
+        generate_plants([cfg], tmp, show_progress=False)
         out = Path(tmp)
         rgb = iio.imread(out / "renders" / "view_001.png")
         semantic = iio.imread(out / "labels" / "preview" / "view_001.png")[..., :3]

@@ -102,6 +102,8 @@ def cut_and_resume(cmd: list[str], folder: Path, scenario: str) -> dict[str, str
     _, err = proc.communicate(timeout=600)
     if proc.returncode == 0:
         raise RuntimeError(f"{scenario}: finished before it could be cut")
+    if b"interrupted" not in err.lower():
+        raise RuntimeError(f"{scenario}: the cut run failed: {err.decode()[-2000:]}")
     if scenario == "dataset":
         again = cmd
     else:

@@ -20,5 +20,5 @@ SETTINGS = dict(
 
 
 def make_plant(out: Path, **settings) -> Path:
-    generate_plants([GenerateConfig.of(**{**SETTINGS, **settings})], out, show_progress=False)[0]
+    generate_plants([GenerateConfig.of(**{**SETTINGS, **settings})], out, show_progress=False)
     return out

@@ -296,7 +296,7 @@ def interrupted_run(tmp_path_factory):
             os.kill(os.getpid(), signal.SIGINT)
 
     with pytest.raises(RunInterrupted):
-        generate_plants([cfg], out, show_progress=False, on_step=ctrl_c)[0]
+        generate_plants([cfg], out, show_progress=False, on_step=ctrl_c)
     assert not (out / "run.json").exists() and (out / CHECKPOINT_NAME).is_file()
     return out
 
@@ -341,7 +341,7 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert (out / "plant.ply").read_bytes() == before
     again = run(*GEN, "--out", out, "--quiet", "--seed", 1, "--overwrite")
     assert again.exit_code == 0, again.output
-    assert json.loads((out / "run.json").read_text())["seed"] == 1
+    assert json.loads((out / "run.json").read_text())["config"]["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
         "coco.json", "depth", "instances", "labels", "log.csv", "plant.ply", "points.ply",
         "progress", "progress.png", "renders", "run.json", "transforms.json", "turntable.gif",

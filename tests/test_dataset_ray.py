@@ -51,7 +51,7 @@ def manifest(out_dir):
 
 def direct_ply(tmp_path, **settings):
     out = tmp_path / "direct" / f"{settings.get('species')}-{settings['seed']}"
-    generate_plants([GenerateConfig.of(**{**SMALL, **settings})], out, show_progress=False)[0]
+    generate_plants([GenerateConfig.of(**{**SMALL, **settings})], out, show_progress=False)
     return (out / "plant.ply").read_bytes()
 
 

@@ -322,7 +322,7 @@ def test_renders_are_clamped_before_encoding():
 
 def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     from plantdreamer.guidance.lora_weights import recorded_template
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.runtime import resolve_plants
 
     guidance = _guidance(prompt_template="A photo of {species} plants", species="mint")
     assert guidance.prompts_for(_inputs()[2]) == ["A photo of mint plants, front view"]
@@ -332,10 +332,10 @@ def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     assert recorded_template(tmp_path) == "{species} leaves"
     assert recorded_template(tmp_path / "pytorch_lora_weights.safetensors") == "{species} leaves"
     cfg = GenerateConfig.of(species="mint", lora=str(tmp_path))
-    resolve_runtime(cfg)
+    resolve_plants([cfg])
     assert cfg.sds.prompt_template == "{species} leaves"
     cfg = GenerateConfig.of(species="mint")
-    resolve_runtime(cfg)
+    resolve_plants([cfg])
     assert cfg.sds.prompt_template == "a {species} plant in a pot"
     assert cfg.sds.network_dtype in ("float16", "float32")
 

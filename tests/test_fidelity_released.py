@@ -20,9 +20,11 @@ from plantdreamer.pipeline.sampler import (
 
 
 def print_config(*args):
+    """The one plant's resolved settings (``--print-config`` prints a list: a plant each)."""
     result = CliRunner().invoke(main, ["generate", *args, "--print-config"])
     assert result.exit_code == 0, result.output
-    return json.loads(result.output)
+    (shown,) = json.loads(result.output)
+    return shown
 
 
 def test_released_preset_with_bean_resolves_to_the_authors_run(tmp_path):

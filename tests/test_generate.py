@@ -102,7 +102,7 @@ def run_stopped_by(sig, at_step: int, cfg: dict, out, guidance) -> int:
             os.kill(os.getpid(), sig)
 
     with pytest.raises(RunInterrupted) as stop:
-        generate_plants([small(**cfg)], out, guidance=guidance, show_progress=False, on_step=send)[0]
+        generate_plants([small(**cfg)], out, guidance=guidance, show_progress=False, on_step=send)
     return stop.value.step
 
 
@@ -170,7 +170,9 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     # And the optimisation really changed the model.
     from plantdreamer.io import read_splat_ply
 
-    untrained = generate_plants([small(species="mint", seed=3)], tmp_path / "untrained", show_progress=False)[0]
+    untrained = generate_plants(
+        [small(species="mint", seed=3)], tmp_path / "untrained", show_progress=False
+    )[0]
     assert not np.array_equal(
         read_splat_ply(untrained.ply_path).sh, read_splat_ply(full.ply_path).sh
     )
@@ -354,7 +356,7 @@ def test_missing_weights_name_what_to_download(tmp_path):
             [small(guidance="sds", species="bean", base_model=str(tmp_path / "no-model"))],
             tmp_path / "o",
             show_progress=False,
-        )[0]
+        )
     assert "no-model" in str(err.value)
     assert not (tmp_path / "o" / "plant.ply").exists()
 

@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from plant_runs import done, failed, group
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
-from plant_runs import done, failed, group, resumed_from
-
 from plantdreamer.pipeline.runs.record import parse_group_seeds as parse_seeds
 
 SMALL = dict(points=1500, resolution=48, eval_views=2, turntable_frames=2)
@@ -154,7 +153,8 @@ def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
                             show_progress=False)  # fmt: skip
     assert sorted(done(result)) == ["mint-s0000", "mint-s0002"]
     assert (
-        "non-finite" in failed(result)["mint-s0001"] or "loss became" in failed(result)["mint-s0001"]
+        "non-finite" in failed(result)["mint-s0001"]
+        or "loss became" in failed(result)["mint-s0001"]
     )
     assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
     assert (tmp_path / "g" / "mint-s0002" / "plant.ply").is_file()
@@ -262,7 +262,7 @@ def _interrupted(out, seeds=None):
                               seed=s) for s in (seeds or [5])]  # fmt: skip
     with pytest.raises(RunInterrupted):
         if seeds is None:
-            generate_plants([cfgs[0]], out, show_progress=False, on_step=_stop_at(1))[0]
+            generate_plants([cfgs[0]], out, show_progress=False, on_step=_stop_at(1))
         else:
             group(cfgs, out, show_progress=False, on_step=_stop_at(1))
 

@@ -16,8 +16,8 @@ import textwrap
 
 import pytest
 
-from plantdreamer.pipeline import GenerateConfig, RunInterrupted
 from plant_runs import done, failed, group, resumed_from
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted
 
 SETTINGS = dict(species="mint", steps=6, checkpoint_every=2, points=1500, resolution=48,
                 eval_views=2, turntable_frames=2)  # fmt: skip
@@ -77,7 +77,8 @@ def killed_in_a_subprocess(out, hook: str) -> None:
     script = "\n".join([
         "import os, signal, torch",
         f"torch.set_num_threads({torch.get_num_threads()})",
-        "from plantdreamer.pipeline import run, checkpoint",
+        "from plantdreamer.pipeline import checkpoint",
+        "from plantdreamer.pipeline.runs import sequence as run",
         "from plant_runs import group",
         "from test_group_resume import configs, tiny_sds",
         hook,
@@ -148,7 +149,7 @@ def test_a_plant_finished_before_a_kill_in_the_export_is_found_finished(tmp_path
 def test_sigterm_during_the_export_stops_between_plants_and_resumes(
     tmp_path, straight, monkeypatch
 ):
-    from plantdreamer.pipeline import run
+    from plantdreamer.pipeline.runs import sequence as run
 
     export = run.export_run
 
@@ -170,7 +171,7 @@ def test_sigterm_during_the_export_stops_between_plants_and_resumes(
 
 @pytest.mark.slow
 def test_a_plant_failed_on_a_full_disk_is_tried_again_on_resume(tmp_path, straight, monkeypatch):
-    from plantdreamer.pipeline import run
+    from plantdreamer.pipeline.runs import sequence as run
 
     export = run.export_run
 

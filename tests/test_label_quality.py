@@ -31,7 +31,7 @@ def plants(tmp_path_factory):
                 species=species, seed=0, points=5000, resolution=size, eval_views=views,
                 turntable="none", steps=0, guidance="none",
             )  # fmt: skip
-            generate_plants([cfg], folder, show_progress=False)[0]
+            generate_plants([cfg], folder, show_progress=False)
             out[species, size] = folder
     return out
 

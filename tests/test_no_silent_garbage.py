@@ -83,7 +83,7 @@ def test_plant_near_the_origin_has_no_offset(tmp_path):
 
     cfg = GenerateConfig.of(species="kale", guidance="none", steps=0, points=500, resolution=32,
                          eval_views=1, turntable_frames=1)  # fmt: skip
-    generate_plants([cfg], tmp_path / "o", show_progress=False)[0]
+    generate_plants([cfg], tmp_path / "o", show_progress=False)
     assert json.loads((tmp_path / "o" / "run.json").read_text())["export_offset"] is None
     assert b"offset" not in (tmp_path / "o" / "plant.ply").read_bytes()[:2000]
 

@@ -7,8 +7,8 @@ import json
 import pytest
 import torch
 
+from plant_runs import done, failed, group
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-from plant_runs import done, failed, group, resumed_from
 from plantdreamer.pipeline.runtime import resolve_overlap
 from plantdreamer.pipeline.step.schedule import StepSchedule
 from test_group import SMALL, _stop_at, outputs_of, tiny_sds

@@ -68,7 +68,7 @@ def test_checkpoint_of_an_older_format_is_refused_with_the_way_out(tmp_path):
     # Format 2 runs began from spheres; resuming one under the disc default would mislabel it.
     torch.save({"format": 2, "step": 3}, tmp_path / "checkpoint.pt")
     with pytest.raises(
-        CheckpointError, match=r"format 2; .* resumes formats 3 and 4 only .*--overwrite"
+        CheckpointError, match=r"format 2; .* resumes formats 3 to 5 only .*--overwrite"
     ):
         load_checkpoint(tmp_path)
 

@@ -176,9 +176,9 @@ def test_the_core_returns_each_scenes_error_in_its_place():
 def test_a_plant_trains_to_the_same_bytes_alone_and_in_a_group(tmp_path):
     """A plant alone is the batch of one of the group's path: a per-sample guidance (a
     fixed target) gives each plant of a group of three the bits it gets alone."""
+    from plant_runs import done, failed, group
     from plantdreamer.guidance.base import PhotometricGuidance
     from plantdreamer.pipeline import GenerateConfig, generate_plants
-    from plant_runs import done, failed, group
 
     def cfg(seed):
         return GenerateConfig.of(species="bean", seed=seed, steps=3, points=500, resolution=32,

@@ -168,7 +168,7 @@ def test_generate_does_not_change_the_callers_config(tmp_path):
         species="kale", points=1500, eval_views=1, turntable_frames=1, steps=0, guidance="none"
     )
     before = GenerateConfig.from_dict(cfg.to_dict())
-    generate_plants([cfg], tmp_path, show_progress=False)[0]
+    generate_plants([cfg], tmp_path, show_progress=False)
     assert cfg == before and cfg.train.resolution is None
 
 
@@ -208,7 +208,9 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     with pytest.raises(_Stop):
-        generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1))[0]
+        generate_plants(
+            [cfg], tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1)
+        )
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert state["step"] == 2
     assert GenerateConfig.from_dict(state["config"]) == dataclasses.replace(cfg)
@@ -222,7 +224,7 @@ def test_a_finished_run_leaves_no_checkpoint(tmp_path):
         steps=3, checkpoint_every=2,
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
-    generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False)[0]
+    generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False)
     assert (tmp_path / "run.json").is_file() and not (tmp_path / "checkpoint.pt").exists()
 
 
@@ -263,7 +265,7 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     }  # fmt: skip
     # `render` of a plant folder takes the orbit of the run.json beside plant.ply.
     plant = tmp_path / "plant"
-    generate_plants([GenerateConfig.of(**OLD_RUN_SETTINGS)], plant, show_progress=False)[0]
+    generate_plants([GenerateConfig.of(**OLD_RUN_SETTINGS)], plant, show_progress=False)
     new = json.loads((plant / "run.json").read_text())
     # Every setting as resolved by that version, but the orbit's distance: 4.0 was then the
     # default; now none is set and generate frames the orbit on the plant.

@@ -55,7 +55,7 @@ def generate_plants(
     overwrite: bool = False,
     changes: Mapping[str, Any] | None = None,
     guidance: Guidance | None = None,
-    guidance_for: GuidanceFor = build_guidance,
+    guidance_for: GuidanceFor | None = None,
     options: StepOptions | None = None,
     observers: Sequence[TrainerObserver] = (),
     on_step: Callable[[int], None] | None = None,
@@ -69,8 +69,8 @@ def generate_plants(
     earlier run's outputs (the run's own files only) before a fresh start. ``changes``:
     settings given again on a resume: equal ones are fine, more ``steps`` continue the
     run further, any other difference is a CheckpointError. ``guidance`` overrides the one
-    the configs name (tests inject tiny models); else ``guidance_for`` builds it from the
-    plants' shared settings. ``options``: how the step runs (the same bits either way).
+    the configs name (tests inject tiny models); else ``guidance_for`` (``build_guidance``,
+    looked up when called) builds it from the plants' shared settings. ``options``: how the step runs (the same bits either way).
     ``observers`` watch the trainer (``observer.py``); ``on_step`` hears each step's end.
     The callers' configs are not changed. Ctrl-C is honoured at the next step boundary:
     the checkpoints are written, then ``RunInterrupted`` is raised."""
@@ -101,8 +101,8 @@ def generate_plants(
     if guidance is None and live:  # the plants share their models: found before anything
         check_models(live[0].config)
     run = RunContext(
-        out, layout, fail, failures == "record", changes, guidance, guidance_for, options,
-        observers, on_step, show_progress,
+        out, layout, fail, failures == "record", changes, guidance,
+        guidance_for or build_guidance, options, observers, on_step, show_progress,
     )  # fmt: skip
     trained: dict[str, RunResult] = {}
     resumed_from: dict[str, int] = {}
