@@ -219,3 +219,24 @@ def test_info_check_says_what_is_present_and_fails_on_a_missing_lora(tmp_path):
     result = CliRunner().invoke(main, ["info", "--check", "--lora", str(tmp_path / "nothere")])
     assert f"LoRA {tmp_path / 'nothere'}" in result.output and "missing: LoRA" in result.output
     assert result.exit_code == 1
+
+
+def test_dataset_help_ends_with_examples_that_parse(tmp_path):
+    import shlex
+
+    from plantdreamer.cli.dataset import dataset
+
+    help_text = CliRunner().invoke(main, ["dataset", "--help"]).output
+    assert "Examples:" in help_text and "--dry-run" in help_text.split("Examples:")[1]
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[group]]\nspecies = "bean"\n')
+    examples = [
+        line.strip() for line in help_text.split("Examples:")[1].splitlines()
+        if line.strip().startswith("plantdreamer dataset")
+    ]  # fmt: skip
+    assert len(examples) >= 4
+    for example in examples:
+        args = [str(spec) if a == "spec.toml" else a for a in shlex.split(example)[2:]]
+        # Parsed as the command would parse them (no run): every option exists and is valid.
+        with dataset.make_context("dataset", args) as ctx:
+            assert ctx.params["out_dir"]
