@@ -63,6 +63,10 @@ def test_a_run_records_each_model_file_it_read_by_name_and_hash(tmp_path):
     assert models["depth ControlNet"]["name"] == "cn"
     assert models["species LoRA"]["name"] == "lora"
     assert models["species LoRA"]["files"][0]["sha256"] == hashlib.sha256(b"lora v1").hexdigest()
+    # A model that cannot be read at the end of a run (a LoRA deleted meanwhile) is
+    # recorded as such: the finished run is still written.
+    gone = model_files_record(str(base), str(control), str(tmp_path / "deleted"))
+    assert gone[2]["files"] == [] and gone[2]["sha256"] is None and "error" in gone[2]
     # One hash per model over its files' paths and hashes.
     again = model_files_record(str(base), str(control), str(lora))
     assert [m["sha256"] for m in again] == [m["sha256"] for m in models.values()]

@@ -18,10 +18,12 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from plantdreamer.digests import cached_file_digest
+from plantdreamer.errors import PlantDreamerError
 
 # The parts of a Stable Diffusion folder the loaders read (guidance/models.py).
 BASE_PARTS = ("unet", "vae", "text_encoder", "tokenizer", "scheduler")
@@ -45,12 +47,30 @@ def model_files_record(base_model: str, controlnet: str, lora: str | None) -> li
     source (``hub`` or ``local folder``), hub revision, files (path inside the model,
     bytes, sha256) and one SHA-256 over them all."""
     records = [
-        _folder_model("base model", base_model, BASE_PARTS),
-        _folder_model("depth ControlNet", controlnet, ("",)),
+        _readable(
+            "base model", base_model, lambda: _folder_model("base model", base_model, BASE_PARTS)
+        ),
+        _readable(
+            "depth ControlNet",
+            controlnet,
+            lambda: _folder_model("depth ControlNet", controlnet, ("",)),
+        ),
     ]
     if lora:
-        records.append(_lora_model(lora))
+        records.append(_readable("species LoRA", lora, lambda: _lora_model(lora)))
     return records
+
+
+def _readable(role: str, ident: str, record: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """``record()``, or, when the model cannot be read now (a LoRA deleted during the run),
+    a record that says so: a finished run is written whatever its record can hold."""
+    try:
+        return record()
+    except (OSError, PlantDreamerError) as exc:
+        named = _folder_name(ident) if Path(ident).exists() or role == "species LoRA" else ident
+        entry = _record(role, named, "unknown", None, [])
+        entry["error"] = " ".join(str(exc).split())[:300]
+        return entry
 
 
 def _folder_model(role: str, ident: str, parts: tuple[str, ...]) -> dict[str, Any]:
