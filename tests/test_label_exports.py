@@ -29,7 +29,7 @@ from plantdreamer.exports.splits import (
 )
 from plantdreamer.exports.yolo import label_lines, link_image, mask_polygons, object_polygon
 from plantdreamer.guidance.model_files import model_files_record
-from test_dataset_card import ALL_TRAIN, HOSTILE, SD, dataset_of, local_models
+from test_card_records import ALL_TRAIN, HOSTILE, SD, dataset_of, local_models
 
 pycocotools = pytest.importorskip("pycocotools")
 
@@ -470,7 +470,7 @@ def test_transforms_json_follows_nerfstudio_and_names_the_point_cloud(bean):
         assert (bean / frame["file_path"]).is_file()
 
 
-# --- the dataset's card (its helpers and the model records: test_dataset_card.py) -------
+# --- the dataset's card (its helpers and the model records: test_card_records.py) -------
 
 
 def test_the_card_reads_what_each_plant_recorded_and_the_hub_reads_the_card(
