@@ -147,6 +147,9 @@ test-wheel: CORE_PROFILE := ci
 test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust on PATH and run it
 	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
 	$(PY) scripts/check_sdist.py dist/plantdreamer-*.tar.gz
+	@# Every address in the built wheel and sdist is a reviewed one (tests/test_urls.py).
+	PLANTDREAMER_BUILT="$$(echo dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz)" \
+		$(PY) -m pytest -q tests/test_urls.py -k built
 
 # Three jobs at once: the Rust tests and the native module compile (cargo, both cores)
 # while pip unpacks the dependencies (one core); then the three test sets run in turn.
@@ -185,8 +188,9 @@ $(DOCS_STAMP): $(STAMP)
 	$(PY) -m pip install --quiet -r $(VENV)/docs-requirements.txt
 	touch $@
 
-# mkdocs (strict: a broken link or anchor is an error); the CLI reference is generated from
-# the click commands, so the package must import.
+# mkdocs (strict: a broken link or anchor is an error); the CLI reference is written from
+# the click commands (scripts/docs_cli_reference.py) and the API reference from the
+# docstrings (mkdocstrings), so the package must import.
 docs: $(DOCS_STAMP) ## Build the documentation site into site/, warnings as errors
 	$(VENV)/bin/mkdocs build --strict
 

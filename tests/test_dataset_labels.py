@@ -256,7 +256,8 @@ def test_the_summary_names_the_gallery_as_the_folder_was_typed(dataset, monkeypa
     assert result.exit_code == 0, result.output
     assert f"gallery: {dataset.name}/gallery.png" in result.output.splitlines()
     assert f"card: {dataset.name}/README.md (" in result.output
-    assert (dataset / "README.md").read_text().startswith("# A plantdreamer dataset")
+    readme = (dataset / "README.md").read_text()
+    assert readme.startswith("---\n") and "\n---\n# A plantdreamer dataset\n" in readme
 
 
 def test_label_maps_of_another_size_than_their_render_are_refused(dataset, tmp_path):

@@ -393,10 +393,10 @@ def test_the_dataset_example_makes_a_dataset_with_its_card_and_trains_a_detector
     ]  # fmt: skip
     assert card["species"] == {"bean": 2} and card["splits"]["train"]["plants"] == 2
     assert card["splits"]["train"]["images"] == 4  # two views per plant
-    assert card["models"] == [] and card["licences"]["weights"] is None  # no guidance
+    assert card["models"] == [] and card["licences"]["data"] == "unknown"  # no guidance
     assert card["licences"]["code"] == "Apache-2.0" and "2505.15528" in card["citation"]
     readme = (out / "README.md").read_text()
-    assert readme.startswith("# A plantdreamer dataset")
+    assert readme.startswith("---\n") and "\n---\n# A plantdreamer dataset\n" in readme
     assert "| 1 | leaf | #1f77b4 | yes |" in readme and "| train | 2 | 4 | 2 bean |" in readme
     coco = json.loads((out / "coco" / "train.json").read_text())
     assert coco["info"]["version"] == plantdreamer.__version__

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
+from plantdreamer.digests import file_digest
 from plantdreamer.errors import ModelNotFoundError
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
 from plantdreamer.pipeline.export import STEP_PHASES
@@ -436,6 +437,13 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
     assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
     run = json.loads((out / "run.json").read_text())
     assert set(STEP_PHASES) <= set(run["per_step_s"])
+    # What the run read of its models, recorded as it finished: names, never paths.
+    models = {m["role"]: m for m in run["models"]}
+    unet = base / "unet" / "diffusion_pytorch_model.safetensors"
+    files = {f["path"]: f["sha256"] for f in models["base model"]["files"]}
+    assert files["unet/diffusion_pytorch_model.safetensors"] == file_digest(unet)
+    assert models["depth ControlNet"]["name"] == controlnet.name
+    assert str(tmp_path) not in json.dumps(run["models"])
     # The run ends saying what it wrote, how long it took and what to type next.
     assert f"wrote {out / 'plant.ply'} (" in result.output
     assert "progress.png, loss.png" in result.output and "done in " in result.output

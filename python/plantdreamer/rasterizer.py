@@ -173,12 +173,17 @@ def rasterization(
     """Renders N Gaussians into C cameras (gsplat 1.5 ``rasterization``, CPU).
 
     Args:
-        means: [N, 3] centres (world). quats: [N, 4] (w, x, y, z), any norm.
-        scales: [N, 3] standard deviations (activated). opacities: [N] in [0, 1].
+        means: [N, 3] centres (world).
+        quats: [N, 4] (w, x, y, z), any norm.
+        scales: [N, 3] standard deviations (activated).
+        opacities: [N] in [0, 1].
         colors: [N, D] colours, or [N, K, 3] SH coefficients when ``sh_degree`` is given
             (0..3, K >= (sh_degree + 1)^2; colour = max(SH(dir) + 0.5, 0)).
-        viewmats: [C, 4, 4] world-to-camera (OpenCV axes). Ks: [C, 3, 3] intrinsics.
-        width, height: image size in pixels.
+        viewmats: [C, 4, 4] world-to-camera (OpenCV axes).
+        Ks: [C, 3, 3] intrinsics.
+        width: image width in pixels.
+        height: image height in pixels.
+        sh_degree: the SH degree of ``colors`` (None: plain colours).
         backgrounds: [C, D] colour behind the Gaussians (colour channels only).
         render_mode: "RGB", "D" (sum of T alpha z), "ED" (D / alpha), "RGB+D", "RGB+ED";
             the depth channel comes last.

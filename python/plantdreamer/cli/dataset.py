@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.cli.dataset_help import DATASET_EXAMPLES
 from plantdreamer.cli.label_options import label_options
 from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
@@ -38,7 +39,7 @@ def _toml_value(text: str) -> object:
         return text
 
 
-@click.command()
+@click.command(epilog=DATASET_EXAMPLES)
 @click.argument("spec_file", required=False, type=click.Path(dir_okay=False, exists=True))
 @click.option(
     "--out",

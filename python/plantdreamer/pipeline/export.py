@@ -17,6 +17,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.exports import write_plant_exports
 from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
+from plantdreamer.guidance.model_files import run_models
 from plantdreamer.pipeline import outputs
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.config import GenerateConfig
@@ -135,6 +136,7 @@ def _summary(
     return {
         "config": cfg.to_dict(),
         "versions": package_versions(),
+        "models": run_models(cfg.sds),  # each model file read, with its SHA-256
         "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),
         "device": device,
