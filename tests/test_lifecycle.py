@@ -83,7 +83,7 @@ def test_the_failure_policy_is_a_parameter_not_the_layout(tmp_path):
     """A plant whose input cannot work raises under ``raise`` and is recorded under
     ``record``, in a folder per plant alike."""
     cfgs = [tiny(pointcloud=str(tmp_path / "missing.ply")), tiny(seed=1)]
-    with pytest.raises(Exception, match="missing.ply"):
+    with pytest.raises(Exception, match=r"missing\.ply"):
         generate_plants(cfgs, tmp_path / "r", layout=FolderPerPlant(), show_progress=False)
     assert not (tmp_path / "r").exists()  # refused before anything was claimed
     results = generate_plants(cfgs, tmp_path / "g", layout=FolderPerPlant(), failures="record",
