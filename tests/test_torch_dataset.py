@@ -184,7 +184,7 @@ def test_target_keys_choose_the_keys_as_torchvision_takes_them(bean):
     scope: dict = {}
     exec(code.replace('PlantViews("ds/", split="train", ', f"PlantViews({str(bean)!r}, "), scope)
     torch.manual_seed(0)
-    for image, target in scope["data"]:
+    for _, target in scope["data"]:
         assert list(target) == ["boxes", "labels", "masks", "image_id"]
         assert len(target["labels"]) == len(target["boxes"]) == len(target["masks"])
 
