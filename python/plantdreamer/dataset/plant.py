@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass
 
 from plantdreamer import settings
+from plantdreamer.exports.listing import species_name
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.outputs import WATCHING
 
@@ -25,6 +26,11 @@ class Plant:
     @property
     def species(self) -> str | None:
         return self.config.source.species
+
+    @property
+    def species_name(self) -> str:
+        """Its species as the dataset's splits and card count it (``exports.listing``)."""
+        return species_name(self.config.source.species, self.config.source.pointcloud)
 
     @property
     def source(self) -> str:

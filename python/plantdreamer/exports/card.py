@@ -79,9 +79,11 @@ def dataset_card(
     species: dict[str, dict[str, int]],
     min_area: int,
     images: dict[str, int],
+    split_rule: str = "",
 ) -> dict[str, Any]:
     """The card of a dataset's finished ``plants`` (``classes``: category id ->
-    name; ``species``: split -> species -> plants; ``images``: split -> labelled views)."""
+    name; ``species``: split -> species -> plants; ``images``: split -> labelled views;
+    ``split_rule``: how the splits were made, a sentence)."""
     configs = {p.id: _config(p.folder / "run.json") for p in plants}
     guided = sorted(i for i, c in configs.items() if _setting(c, "guidance", "sds") != "none")
     return {
@@ -107,6 +109,7 @@ def dataset_card(
             s: {"plants": len(ids), "images": images.get(s, 0), "species": species.get(s, {})}
             for s, ids in splits.items()
         },
+        "split_rule": split_rule,
         "presets": sorted(
             {str(_setting(c, "preset", None) or "plantdreamer") for c in configs.values()}
         ),
@@ -209,7 +212,10 @@ def card_markdown(card: dict[str, Any]) -> str:
         species = ", ".join(f"{n} {name}" for name, n in row["species"].items()) or "-"
         lines.append(f"| {split} | {row['plants']} | {row['images']} | {species} |")
     total = ", ".join(f"{n} {name}" for name, n in card["species"].items())
-    lines += ["", f"All: {total}. Presets: {', '.join(card['presets'])}.", "", "## Models", ""]
+    lines += ["", f"All: {total}. Presets: {', '.join(card['presets'])}."]
+    if card.get("split_rule"):
+        lines += ["", card["split_rule"]]
+    lines += ["", "## Models", ""]
     if card["models"]:
         for m in card["models"]:
             lines.append(f"- {m['role']}: `{m['id']}` ({m['hash'] or 'hash unknown here'})")
