@@ -163,6 +163,8 @@ test: ## Set up everything, then run the Rust tests, the Python tests but the sl
 # DEMO_OUT (generate's outputs, demo.json, demo.png); anything else there is left alone.
 DEMO_OUT ?= out/demo
 DEMO_STEPS ?= 200
+# Steps between the demo's progress pictures: progress.png shows its 200 steps in 8.
+DEMO_PROGRESS ?= 25
 DEMO_MODELS := tests/data/known_answer/bean_s0_r64
 
 demo: build ## Run the main job (SDS, tiny committed models) and score it against the truth
@@ -170,7 +172,8 @@ demo: build ## Run the main job (SDS, tiny committed models) and score it agains
 		$(VENV)/bin/plantdreamer generate --species bean --seed 0 --points 100000 \
 		--resolution 64 --sds-resolution 64 --color-init noise --guidance sds \
 		--base-model $(DEMO_MODELS)/base --controlnet $(DEMO_MODELS)/controlnet \
-		--steps $(DEMO_STEPS) --eval-views 36 --out $(DEMO_OUT) --overwrite
+		--steps $(DEMO_STEPS) --progress-every $(DEMO_PROGRESS) --eval-views 36 \
+		--out $(DEMO_OUT) --overwrite
 
 # The bench extra's packages alone (`pip install -e '.[bench]'` would build the core again).
 $(BENCH_STAMP): $(STAMP) | system-libs

@@ -134,8 +134,8 @@ def checkpoint_digest(path: Path) -> str:
         elif isinstance(value, torch.Tensor):
             h.update(prefix.encode())
             h.update(value.contiguous().cpu().numpy().tobytes())
-        elif prefix.startswith("/config") or prefix.startswith("/events"):
-            return  # the settings and notes: compared through run.json
+        elif prefix.startswith(("/config", "/events", "/timings")):
+            return  # the settings, notes and wall times: compared through run.json
         else:
             h.update(f"{prefix}={value!r}".encode())
 

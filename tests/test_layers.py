@@ -58,7 +58,8 @@ PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
         "a plant's parts: model, cameras, density control, labels, outputs, progress",
         {"model", "sampler", "source", "init", "culling", "density", "density_ops"}
         | {"ground_truth", "label_channels", "label_pieces", "dataset_export", "outputs"}
-        | {"progress", "progress_pictures", "train_config"},
+        | {"progress", "progress_pictures", "train_config"}
+        | {"log_plot", "tensorboard_writer", "run_observers"},
     ),
     (
         "settings: the config, presets, the resolved run, what a run writes",

@@ -185,6 +185,7 @@ def make_dataset(
     max_retries: int | None = None,
     split: str | tuple[float, float, float] | None = None,
     split_seed: int | None = None,
+    split_mode: str | None = None,
     stuff: str | Iterable[str] | None = None,
     allow_empty_split: bool | None = None,
     min_instance_area: int | None = None,
@@ -200,7 +201,8 @@ def make_dataset(
     spelling). ``settings`` are
     generate's settings by name (listed below), for every plant, over the spec's
     ``[defaults]``. The other arguments are ``dataset``'s options of the same names
-    (``split``: ``"0.8,0.1,0.1"`` or three numbers; ``stuff``: class names; ``resources``:
+    (``split``: ``"0.8,0.1,0.1"`` or three numbers, expected shares unless ``split_mode``
+    is ``"exact"``; ``stuff``: class names; ``resources``:
     custom Ray resources per plant); None leaves each at the command's default. Plants run
     on Ray: a local instance, or the cluster at ``address``.
 
@@ -226,7 +228,7 @@ def make_dataset(
     if isinstance(stuff, str):
         stuff = [n.strip() for n in stuff.split(",") if n.strip()]
     labels = _given(
-        LabelOptions, ratios=split, seed=split_seed, min_area=min_instance_area,
+        LabelOptions, ratios=split, seed=split_seed, mode=split_mode, min_area=min_instance_area,
         allow_empty_split=allow_empty_split, stuff=None if stuff is None else tuple(stuff),
     )  # fmt: skip
     options = _given(

@@ -139,6 +139,7 @@ def dataset(
     dry_run: bool,
     split_ratios: str,
     split_seed: int,
+    split_mode: str,
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
@@ -185,11 +186,12 @@ def dataset(
 
     check_models(plants)  # the LoRA and models found, before any plan or model load
     labels = make_label_options(
-        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff, split_mode
     )
     if dry_run:  # the label options' refusals, as the run would give them
         planned = planned_classes(plants)
-        check_planned_splits(Path(out_dir), [p.id for p in plants], labels, planned)
+        species_of = {p.id: p.species_name for p in plants}
+        check_planned_splits(Path(out_dir), species_of, labels, planned)
         _print_plan(plants, out_dir, packing.plants_per_gpu)
         return
     custom = custom_resources(_key_values(resources, "--resource"))

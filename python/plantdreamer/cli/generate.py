@@ -39,7 +39,7 @@ RUN_OPTIONS = (
 )
 # What the end-of-run line lists, when the run wrote it.
 FINISHED_FILES = ("renders", "labels", "turntable.gif", "turntable.mp4", "coco.json",
-                  "progress.png", "loss.png", "run.json")  # fmt: skip
+                  "progress.png", "loss.png", "tensorboard", "run.json")  # fmt: skip
 # \b keeps click from rewrapping the lines that follow it.
 EXAMPLES = """Examples:
 
@@ -122,7 +122,8 @@ def build_command() -> click.Command:
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
         and ground truth per view: labels/, instances/, depth/, transforms.json. At each
-        checkpoint progress.png (the Gaussians so far) and loss.png show how it goes."""
+        checkpoint (or every --progress-every steps) progress.png (the Gaussians so far) and
+        loss.png show how it goes; --tensorboard writes TensorBoard events too."""
         from plantdreamer.pipeline import RunInterrupted
 
         started = time.perf_counter()

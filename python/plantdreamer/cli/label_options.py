@@ -11,11 +11,12 @@ import click
 # Literal copies of exports' defaults would drift; these are read from there (light imports).
 from plantdreamer.exports.card import README_FILE as CARD_FILE
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
-from plantdreamer.exports.splits import DEFAULT_RATIOS, DEFAULT_SEED
+from plantdreamer.exports.splits import DEFAULT_MODE, DEFAULT_RATIOS, DEFAULT_SEED, SPLIT_MODES
 
 
 def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Adds --split, --split-seed, --stuff, --allow-empty-split and --min-instance-area."""
+    """Adds --split, --split-seed, --split-mode, --stuff, --allow-empty-split and
+    --min-instance-area."""
     for option in reversed(
         (
             click.option(
@@ -24,7 +25,8 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
                 default=",".join(f"{r:g}" for r in DEFAULT_RATIOS),
                 show_default=True,
                 metavar="TRAIN,VAL,TEST",
-                help="Shares of plants in the train, val and test splits (whole plants).",
+                help="Shares of plants in the train, val and test splits (whole plants): "
+                "expected shares, each plant drawing its split, unless --split-mode exact.",
             ),
             click.option(
                 "--split-seed",
@@ -32,6 +34,16 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
                 default=DEFAULT_SEED,
                 show_default=True,
                 help="Seed of the split.",
+            ),
+            click.option(
+                "--split-mode",
+                type=click.Choice(SPLIT_MODES),
+                default=DEFAULT_MODE,
+                show_default=True,
+                help="draw: each plant draws its split from its id and the seed, so a plant "
+                "keeps its split as the dataset grows and the shares hold on average; exact: "
+                "each species' counts (and each split's total) within one plant of the shares, "
+                "a few plants moving when plants are added.",
             ),
             click.option(
                 "--stuff",
@@ -65,6 +77,7 @@ def make_label_options(
     min_instance_area: int,
     allow_empty_split: bool = False,
     stuff: str = "",
+    split_mode: str = DEFAULT_MODE,
 ):
     """The ``LabelOptions`` of the parsed values."""
     from plantdreamer.exports.dataset import LabelOptions
@@ -72,8 +85,9 @@ def make_label_options(
 
     names = tuple(dict.fromkeys(n.strip() for n in stuff.split(",") if n.strip()))
     return LabelOptions(
-        parse_ratios(split_ratios), split_seed, min_instance_area, allow_empty_split, names
-    )
+        parse_ratios(split_ratios), split_seed, min_instance_area, allow_empty_split, names,
+        split_mode,
+    )  # fmt: skip
 
 
 def describe(labels, folder: str) -> str:

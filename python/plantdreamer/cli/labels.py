@@ -16,6 +16,7 @@ def labels(
     folder: str,
     split_ratios: str,
     split_seed: int,
+    split_mode: str,
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
@@ -30,7 +31,7 @@ def labels(
     from plantdreamer.output_folder import LOCK_NAME, locked, survey
 
     options = make_label_options(
-        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff, split_mode
     )
     root = Path(folder)
     if (root / "run.json").is_file() and not (root / "transforms.json").is_file():

@@ -26,18 +26,23 @@ label files takes them as given (defaults: ``labels``' defaults).
 ``semantic`` and ``ignore`` are ``data.pixel_map.PixelMap`` tensors: the geometric v2
 transforms move them as they move a mask, and ``SanitizeBoundingBoxes`` leaves them whole.
 
-A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops only what its
-``labels_getter`` names: pass ``labels_getter=object_keys`` and ``labels``, ``area``,
-``iscrowd`` and ``instance_ids`` follow the boxes. ``area`` is taken again from the masks
-after the transforms (a resize or crop changes it), and an item whose per-object keys no
-longer line up with its boxes is refused in one line. The 16-bit instance PNGs never reach
+``target_keys`` picks the keys, as torchvision's ``wrap_dataset_for_transforms_v2`` takes
+them: ``None`` or ``"all"`` (every key above), or the names wanted, such as the detection
+references' ``DETECTION_KEYS`` (``boxes``, ``labels``, ``image_id``, ``masks``).
+
+A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops the boxes, the masks and
+what its ``labels_getter`` names (by default ``labels``): on ``DETECTION_KEYS`` the default
+transform is all it takes; with every key, pass ``labels_getter=object_keys`` and
+``labels``, ``area``, ``iscrowd`` and ``instance_ids`` follow the boxes. ``area`` is taken
+again from the masks after the transforms (a resize or crop changes it), and an item whose
+per-object keys no longer line up with its boxes is refused in one line naming both fixes. The 16-bit instance PNGs never reach
 the user: torch has few uint16 kernels.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +63,12 @@ from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_vi
 from plantdreamer.exports.splits import SPLITS
 
 OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids")  # one entry per box
+# Every key of a target, in the order an item holds them.
+TARGET_KEYS = (
+    "boxes", "labels", "masks", "semantic", "ignore", "instance_ids", "area", "iscrowd", "image_id"
+)  # fmt: skip
+# The keys torchvision's detection references ask of a dataset (Mask R-CNN's: with masks).
+DETECTION_KEYS = ("boxes", "labels", "image_id", "masks")
 
 
 def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
@@ -71,7 +82,8 @@ class PlantViews(torch.utils.data.Dataset):
     """The labelled views under ``root``: a plant folder (with ``transforms.json``) or a
     dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``;
     ``min_area`` and ``stuff`` (class names that are no objects): those of the label files,
-    which these may only repeat."""
+    which these may only repeat; ``target_keys``: the keys of each target (the module's
+    docstring)."""
 
     def __init__(
         self,
@@ -80,8 +92,10 @@ class PlantViews(torch.utils.data.Dataset):
         min_area: int | None = None,
         transforms: Callable[[Any, dict[str, Any]], tuple[Any, dict[str, Any]]] | None = None,
         stuff: tuple[str, ...] | None = None,
+        target_keys: str | Iterable[str] | None = None,
     ) -> None:
         self.root, self.transforms = Path(root), transforms
+        self.target_keys = _target_keys(target_keys)
         self.min_area, stuff = _label_options(self.root, split, min_area, stuff)
         # (image id, folder, frame, class lookup table) per view
         self.views: list[tuple[int, Path, dict, np.ndarray]] = []
@@ -130,6 +144,7 @@ class PlantViews(torch.utils.data.Dataset):
             "iscrowd": torch.zeros(len(things.areas), dtype=torch.int64),
             "image_id": image_id,
         }
+        target = {key: target[key] for key in self.target_keys}
         image, target = _as_tv_tensors(image, target, (h, w))
         if self.transforms is not None:
             image, target = self.transforms(image, target)
@@ -148,16 +163,44 @@ def collate(batch: list[tuple[Any, dict[str, Any]]]) -> tuple[tuple, tuple]:
     return images, targets
 
 
+def _target_keys(given: str | Iterable[str] | None) -> tuple[str, ...]:
+    """The keys of each target: every one (None, ``"all"``) or those given, in the order
+    of ``TARGET_KEYS``; an unknown name is refused, naming the known ones."""
+    if given is None or given == "all":
+        return TARGET_KEYS
+    if isinstance(given, str):
+        raise InputError(
+            f"target_keys must be 'all' or a list of key names, got {given!r} "
+            f"(one key: target_keys=[{given!r}])"
+        )
+    names = set(given)
+    unknown = sorted(n for n in names if n not in TARGET_KEYS)
+    if unknown:
+        raise InputError(
+            f"target_keys has no {', '.join(map(repr, unknown))}: the keys are "
+            f"{', '.join(TARGET_KEYS)}, or 'all'"
+        )
+    if "boxes" not in names and names & set(OBJECT_KEYS):
+        raise InputError(
+            f"target_keys {', '.join(k for k in TARGET_KEYS if k in names)} need boxes: "
+            "their entries are one per box"
+        )
+    return tuple(k for k in TARGET_KEYS if k in names)
+
+
 def _follow_boxes(target: dict[str, Any], source: str) -> None:
     """``area`` again from the masks; every per-object key as long as the boxes."""
-    if "masks" in target:
+    if "masks" in target and "area" in target:
         target["area"] = torch.as_tensor(target["masks"]).flatten(1).sum(1).to(torch.float32)
+    if "boxes" not in target:
+        return
     k = len(target["boxes"])
     wrong = [key for key in OBJECT_KEYS if key in target and len(target[key]) != k]
     if wrong:
         raise InputError(
             f"{source}: after the transforms {', '.join(wrong)} no longer have one entry per "
-            f"box ({k}); give SanitizeBoundingBoxes labels_getter=plantdreamer.data.object_keys"
+            f"box ({k}); give SanitizeBoundingBoxes labels_getter=plantdreamer.data.object_keys, "
+            "or PlantViews target_keys=plantdreamer.data.DETECTION_KEYS"
         )
 
 
@@ -218,10 +261,15 @@ def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int,
         from torchvision import tv_tensors
     except ImportError:
         return image, target
-    target["boxes"] = tv_tensors.BoundingBoxes(target["boxes"], format="XYXY", canvas_size=size)
-    target["masks"] = tv_tensors.Mask(target["masks"])
     from plantdreamer.data.pixel_map import PixelMap
 
-    target["semantic"] = PixelMap(target["semantic"])
-    target["ignore"] = PixelMap(target["ignore"])
+    wrappers: dict[str, Callable[[Any], Any]] = {
+        "boxes": lambda t: tv_tensors.BoundingBoxes(t, format="XYXY", canvas_size=size),
+        "masks": tv_tensors.Mask,
+        "semantic": PixelMap,
+        "ignore": PixelMap,
+    }
+    for key, wrap in wrappers.items():
+        if key in target:
+            target[key] = wrap(target[key])
     return tv_tensors.Image(image), target

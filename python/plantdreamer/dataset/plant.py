@@ -8,7 +8,10 @@ import hashlib
 import json
 from dataclasses import dataclass
 
+from plantdreamer import settings
+from plantdreamer.exports.listing import species_name
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.outputs import WATCHING
 
 
 @dataclass(frozen=True)
@@ -25,6 +28,11 @@ class Plant:
         return self.config.source.species
 
     @property
+    def species_name(self) -> str:
+        """Its species as the dataset's splits and card count it (``exports.listing``)."""
+        return species_name(self.config.source.species, self.config.source.pointcloud)
+
+    @property
     def source(self) -> str:
         return self.config.source.pointcloud or "lsystem"
 
@@ -33,8 +41,18 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     """A stable hash of every setting (sorted JSON) and of the input file's contents
     (``source_digest``), to tell whether a plant is up to date. It hashes the config's
     sections (the saved form of 689da5e), so the manifests of datasets made before records
-    used setting names still match their plants."""
-    text = json.dumps(dataclasses.asdict(cfg), sort_keys=True, separators=(",", ":"))
+    used setting names still match their plants, and leaves out the settings that only
+    watch a run (``outputs.WATCHING``: progress pictures, TensorBoard), so the manifests
+    of datasets made before them match too."""
+    data = dataclasses.asdict(cfg)
+    for s in settings.walk(GenerateConfig):  # watching a run changes none of its plant
+        if s.name in WATCHING:
+            *sections, name = s.path
+            held = data
+            for section in sections:
+                held = held[section]
+            del held[name]
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"))
     if source_digest is not None:
         text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -126,7 +126,7 @@ class _DatasetRun:
         # A split the plants would leave empty: refused before any plant runs.
         check_planned_splits(
             self.out_dir,
-            [p.id for p in self.plants],
+            {p.id: p.species_name for p in self.plants},
             self.options.labels,
             planned_classes(self.plants),
         )

@@ -67,9 +67,11 @@ def dataset_card(
     species: dict[str, dict[str, int]],
     min_area: int,
     images: dict[str, int],
+    split_rule: str = "",
 ) -> dict[str, Any]:
     """The card of a dataset's finished ``plants`` (``classes``: category id ->
-    name; ``species``: split -> species -> plants; ``images``: split -> labelled views)."""
+    name; ``species``: split -> species -> plants; ``images``: split -> labelled views;
+    ``split_rule``: how the splits were made, a sentence)."""
     records = {p.id: _record(p.folder / "run.json") for p in plants}
     configs = {i: _config_of(r) for i, r in records.items()}
     guided = sorted(
@@ -99,6 +101,7 @@ def dataset_card(
             s: {"plants": len(ids), "images": images.get(s, 0), "species": species.get(s, {})}
             for s, ids in splits.items()
         },
+        "split_rule": split_rule,
         "presets": sorted(
             {str(recorded_setting(c, "preset", None) or "plantdreamer") for c in configs.values()}
         ),
@@ -219,7 +222,10 @@ def card_markdown(card: dict[str, Any]) -> str:
         lines.append(f"| {split} | {row['plants']} | {row['images']} | {species} |")
     total = ", ".join(f"{n} {md(name)}" for name, n in card["species"].items())
     presets = ", ".join(md(p) for p in card["presets"])
-    lines += ["", f"All: {total}. Presets: {presets}.", "", "## Models", ""]
+    lines += ["", f"All: {total}. Presets: {presets}."]
+    if card.get("split_rule"):
+        lines += ["", card["split_rule"]]
+    lines += ["", "## Models", ""]
     lines += model_lines(card["models"])
     lines += [
         "",

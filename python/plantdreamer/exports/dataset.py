@@ -1,7 +1,7 @@
 """The label files of a whole dataset folder (``DIR/plants/<id>/``), split by plant:
 
-- ``splits.json``: the seed, the ratios, the plant ids of each split and the number of
-  plants of each species in it (``exports.splits``);
+- ``splits.json``: the seed, the ratios, the mode, the plant ids of each split and the
+  number of plants of each species in it (``exports.splits``, ``exports.exact_splits``);
 - ``coco/{train,val,test}.json``: COCO files whose ``file_name`` is relative to ``DIR``
   (``plants/<id>/renders/view_000.png``); image and annotation ids are unique across the
   three files, so they merge as they are, and the image ids are the torch Dataset's
@@ -30,7 +30,7 @@ import json
 import re
 import shutil
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +41,7 @@ from plantdreamer.exports import yolo
 from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
 from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.exact_splits import make_splits, split_rule
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
@@ -51,13 +52,14 @@ from plantdreamer.exports.instances import (
 from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
 from plantdreamer.exports.splits import (
+    DEFAULT_MODE,
     DEFAULT_RATIOS,
     DEFAULT_SEED,
+    SPLIT_MODES,
     SPLITS,
     check_splits,
     species_counts,
     species_gaps,
-    split_plants,
 )
 from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
 
@@ -88,6 +90,13 @@ class LabelOptions:
     min_area: int = MIN_INSTANCE_AREA
     allow_empty_split: bool = False
     stuff: tuple[str, ...] = ()  # class names that are no objects (``exports.classes``)
+    mode: str = DEFAULT_MODE  # each plant draws its split, or exact counts (``SPLIT_MODES``)
+
+    def __post_init__(self) -> None:
+        if self.mode not in SPLIT_MODES:
+            raise InputError(
+                f"split mode must be one of {', '.join(SPLIT_MODES)}, got {self.mode!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -134,15 +143,16 @@ def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
 
 def check_planned_splits(
     dataset_dir: Path,
-    plant_ids: list[str],
+    plants: Mapping[str, str],
     options: LabelOptions,
     classes: Iterable[str] | None = None,
 ) -> None:
-    """Refuses, before any plant runs, splits that the plants to come (with those already
-    finished in the folder) would leave empty, and ``--stuff`` that names no class or every
-    class of ``classes`` (the plants' class names; None: not known before they run)."""
-    done = [p.id for p in finished_plants(dataset_dir)]
-    splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
+    """Refuses, before any plant runs, splits that the plants to come (``plants``: id ->
+    species, ``Plant.species_name``), with those already finished in the folder, would leave
+    empty, and ``--stuff`` that names no class or every class of ``classes`` (the plants'
+    class names; None: not known before they run)."""
+    species_of = {p.id: p.species for p in finished_plants(dataset_dir)} | dict(plants)
+    splits = make_splits(species_of, options.ratios, options.seed, options.mode)
     check_splits(splits, options.ratios, options.allow_empty_split)
     if classes is not None:
         check_stuff(options.stuff, classes)
@@ -182,7 +192,8 @@ def _write_exports(
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
     labelled, classes = labelled_plants(plants)
     stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
-    splits = split_plants([p.id for p in plants], ratios, seed)
+    species_of = {p.id: p.species for p in plants}
+    splits = make_splits(species_of, ratios, seed, options.mode)
     warnings = check_splits(splits, ratios, options.allow_empty_split)
     for p in labelled:
         if _plant_options(p.folder) == (min_area, list(options.stuff)):
@@ -194,7 +205,6 @@ def _write_exports(
             )
             continue
         write_plant_exports(p.folder, min_area, options.stuff)
-    species_of = {p.id: p.species for p in plants}
     species = species_counts(splits, species_of)
     warnings += species_gaps(splits, species_of, ratios)
     atomic.write_json(
@@ -202,6 +212,7 @@ def _write_exports(
         {
             "seed": seed,
             "ratios": dict(zip(SPLITS, ratios, strict=True)),
+            "mode": options.mode,
             **splits,
             "species": species,
         },
@@ -209,7 +220,8 @@ def _write_exports(
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
-    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
+    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images,
+                        split_rule=split_rule(ratios, seed, options.mode))  # fmt: skip
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
     index = yolo.class_index(things)

@@ -38,6 +38,12 @@ def plant_species(run_json: Path) -> str:
         species, cloud = section.get("species"), section.get("pointcloud")
     except (OSError, ValueError, AttributeError):
         return "?"
+    return species_name(species, cloud)
+
+
+def species_name(species: str | None, pointcloud: str | None) -> str:
+    """What a dataset calls a plant's species (its splits and card count by it): the
+    L-System species, else its point cloud's file name; "?" for neither."""
     if species:
         return str(species)
-    return Path(str(cloud or "?")).name
+    return Path(str(pointcloud or "?")).name

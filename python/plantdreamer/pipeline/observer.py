@@ -6,7 +6,8 @@ The points, in order within a step: ``phase_start`` / ``phase_end`` around each 
 of the step (the renders, the guidance's launch and wait, the backward passes, the
 optimiser; density control's rounds, per plant), ``step_end`` once the step's updates are
 done, and ``checkpoint`` when a checkpoint is due at a step, *before* its files are written
-(what an observer writes there is never behind the checkpoint a resume starts from).
+(what an observer writes there is never behind the checkpoint a resume starts from), and
+``train_end`` once the trainer's loop is over, however it ended (files to close).
 Observers run on the trainer's thread: what they do adds to the run's time.
 """
 
@@ -30,6 +31,9 @@ class TrainerObserver:
     def checkpoint(self, step: int, plants: Sequence[Any]) -> None:
         """A checkpoint of the live ``plants`` for a run continuing at ``step`` is about to
         be written (at the schedule's steps, the last, and a stop's)."""
+
+    def train_end(self) -> None:
+        """The trainer's loop is over: finished, stopped or failed."""
 
 
 def notify(observers: Sequence[TrainerObserver], method: str, *args: Any) -> None:

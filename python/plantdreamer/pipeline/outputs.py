@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import importlib.util
 import io
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ import numpy as np
 from plantdreamer import atomic, turntable
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import orbit_ring
-from plantdreamer.errors import InputError
+from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.settings import setting
@@ -29,6 +30,11 @@ EXPORT_PRECISION = 1e-5
 # Every camera and view of the orbit is held until the export ends: one view per 0.1
 # degree is more than any use of the orbit needs.
 MAX_EVAL_VIEWS = 3600
+# The longest cadence of progress pictures taken: beyond any run's steps (whose last step
+# has its pictures whatever the cadence).
+MAX_PROGRESS_EVERY = 2**31 - 1
+# Settings that only watch a run: they change none of its plant's outputs.
+WATCHING = ("progress-every", "tensorboard")
 
 
 @dataclass
@@ -58,6 +64,18 @@ class OutputsConfig:
     labels: bool = setting(
         True, "Write label/instance into plant.ply and the class and instance masks."
     )
+    progress_every: int | None = setting(
+        None,
+        "Steps between the progress pictures (progress/step_N.png, progress.png, loss.png), "
+        "and at the last step.",
+        range=(1, MAX_PROGRESS_EVERY),
+        default_text="at each checkpoint",
+    )
+    tensorboard: bool = setting(
+        False,
+        "Write TensorBoard events in each plant's tensorboard/ folder: log.csv's figures at "
+        "every step and the progress pictures (the tensorboard extra).",
+    )
 
     def validate(self) -> None:
         """The evaluation orbit is a camera and the turntable a count, checked before a run
@@ -70,11 +88,23 @@ class OutputsConfig:
             raise InputError(
                 f"eval-elevation-deg must be in [-90, 90] degrees, got {self.eval_elevation_deg}"
             )
+        if self.tensorboard:  # found before anything trains, not after
+            check_tensorboard()
         if self.turntable_frames < 0:
             raise InputError(
                 f"turntable-frames must be >= 0, got {self.turntable_frames} "
                 "(--turntable none makes no turntable)"
             )
+
+
+def check_tensorboard() -> None:
+    """PlantDreamerError saying what to install when ``tensorboard`` is on and TensorBoard is
+    not there (looked for, not imported)."""
+    if importlib.util.find_spec("tensorboard") is None:
+        raise PlantDreamerError(
+            "the tensorboard setting needs the tensorboard package, which is not installed: "
+            "pip install 'plantdreamer[tensorboard]' (or: pip install tensorboard)"
+        )
 
 
 def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:

@@ -14,6 +14,7 @@ from plantdreamer.pipeline.progress_pictures import (
     PROGRESS_DIR,
     PROGRESS_STRIP,
 )
+from plantdreamer.pipeline.tensorboard_writer import EVENTS_NAME, TENSORBOARD_DIR
 
 CHECKPOINT_NAME = "checkpoint.pt"
 PREVIOUS_NAME = "checkpoint.prev.pt"  # kept while the plants of a group write the next one
@@ -39,8 +40,14 @@ FINAL_OUTPUTS = (
     *LABEL_FILES,
 )
 # Everything a run writes.
-# The pictures of the trainings progress (pipeline.progress_pictures).
-PROGRESS_OUTPUTS = (*tree(PROGRESS_DIR, FRAME_NAME), PROGRESS_STRIP, LOSS_PLOT)
+# The pictures of the training's progress (pipeline.progress_pictures) and its TensorBoard
+# events (pipeline.tensorboard_writer, with --tensorboard).
+PROGRESS_OUTPUTS = (
+    *tree(PROGRESS_DIR, FRAME_NAME),
+    PROGRESS_STRIP,
+    LOSS_PLOT,
+    *tree(TENSORBOARD_DIR, EVENTS_NAME),
+)
 RUN_OUTPUTS = (*FINAL_OUTPUTS, "log.csv", *CHECKPOINT_FILES, NOISE_NAME, *PROGRESS_OUTPUTS)
 
 

@@ -183,6 +183,7 @@ class Trainer:
             progress.close()
             self.guidance.close()
             self.pool.shutdown()
+            notify(self.observers, "train_end")
 
     def _pictures(self) -> str:
         """Where the latest progress pictures are: each plant's folder."""

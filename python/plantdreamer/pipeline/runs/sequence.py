@@ -20,7 +20,7 @@ from plantdreamer.pipeline.export import RunResult, export_run
 from plantdreamer.pipeline.group_noise import GroupNoise, restore_noise_state
 from plantdreamer.pipeline.group_settings import GroupSettings
 from plantdreamer.pipeline.observer import TrainerObserver
-from plantdreamer.pipeline.progress_pictures import ProgressPictures
+from plantdreamer.pipeline.run_observers import run_observers
 from plantdreamer.pipeline.runs.layout import Layout
 from plantdreamer.pipeline.runs.plan import Fail, Part
 from plantdreamer.pipeline.runs.record import DONE, PlantEntry
@@ -85,7 +85,7 @@ def train_part(part: Part, run: RunContext) -> dict[str, RunResult]:
         trainer = Trainer(
             plants, guidance, settings, start=start, noise=noise, resume_folder=run.out,
             options=run.options, isolate_failures=run.isolate,
-            observers=[ProgressPictures(), *run.observers],
+            observers=[*run_observers(settings.outputs), *run.observers],
         )  # fmt: skip
         with trainer.stops_handled():
             try:
