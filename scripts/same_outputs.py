@@ -43,7 +43,7 @@ SCENARIOS: dict[str, list[str]] = {
         "dataset", "--species", "bean", "--seeds", "0-3", "--plants-per-gpu", "2",
         "--gpus-per-plant", "0", "--cpus-per-plant", "1", "--local-cpus", "2",
         "--allow-empty-split",
-        *[f"--set={name[2:]}={value}" for name, value in zip(SETTINGS[::2], SETTINGS[1::2])],
+        *[f"--set={name[2:]}={value}" for name, value in zip(SETTINGS[::2], SETTINGS[1::2], strict=True)],
     ],
 }  # fmt: skip
 # run.json's entries that say how and where it ran, not what it made.

@@ -36,7 +36,10 @@ class GroupNoise:
     def write(self, step: int, generator: Any) -> None:
         """The state at ``step``, beside the steps kept until ``commit``."""
         saved = self._load()
-        entry = self._own(saved, create=True)
+        entry = self._own(saved)
+        if entry is None:
+            entry = {"plants": self.plants, "steps": {}}
+            saved["trainers"].append(entry)
         entry["steps"][str(step)] = noise_state(generator)
         write_checkpoint(self.path, saved)
 
@@ -79,15 +82,9 @@ class GroupNoise:
             raise CheckpointError(f"{self.path}: not a noise state of this plantdreamer")
         return saved
 
-    def _own(self, saved: dict[str, Any], create: bool = False) -> dict[str, Any] | None:
-        for entry in saved["trainers"]:
-            if entry["plants"] == self.plants:
-                return entry
-        if not create:
-            return None
-        entry = {"plants": self.plants, "steps": {}}
-        saved["trainers"].append(entry)
-        return entry
+    def _own(self, saved: dict[str, Any]) -> dict[str, Any] | None:
+        """This trainer's entry (its plants, in its order), if the file holds one."""
+        return next((t for t in saved["trainers"] if t["plants"] == self.plants), None)
 
 
 def noise_state(generator: Any) -> dict[str, Any]:

@@ -19,7 +19,6 @@ class PlantResult:
     folder: Path
     status: str  # record.DONE, FAILED or INTERRUPTED
     error: str | None = None  # FAILED: the one-line error
-    ply_path: Path | None = None  # DONE: the 3DGS model
     steps: int = 0
     gaussians: int = 0  # DONE: in plant.ply
     timings: dict[str, float] = field(default_factory=dict)  # seconds per phase (run.json)
@@ -30,6 +29,11 @@ class PlantResult:
     @property
     def done(self) -> bool:
         return self.status == DONE
+
+    @property
+    def ply_path(self) -> Path:
+        """The 3DGS model (written once the plant is done)."""
+        return self.folder / "plant.ply"
 
 
 def result_of(
@@ -42,12 +46,14 @@ def result_of(
     """``entry``'s result: ``trained`` in this run, or (done before) read from its run.json."""
     if entry.status == DONE and trained is None:
         trained = finished_result(entry.folder)
-    common = dict(resumed_from=resumed_from, trained_with=trained_with, retried=retried)
     if entry.status != DONE or trained is None:
-        return PlantResult(entry.name, entry.folder, entry.status, entry.error, **common)
+        return PlantResult(
+            entry.name, entry.folder, entry.status, entry.error,
+            resumed_from=resumed_from, trained_with=trained_with, retried=retried,
+        )  # fmt: skip
     return PlantResult(
-        entry.name, entry.folder, DONE, None, trained.ply_path, trained.steps,
-        trained.gaussians, dict(trained.timings), **common,
+        entry.name, entry.folder, DONE, None, trained.steps, trained.gaussians,
+        dict(trained.timings), resumed_from, trained_with, retried,
     )  # fmt: skip
 
 
