@@ -135,7 +135,7 @@ def instrument(guidance: Any, clock: Clock) -> TimedCore:
     import torch
 
     from plantdreamer import rasterizer
-    from plantdreamer.pipeline import density
+    from plantdreamer.pipeline.model import density
     from plantdreamer.pipeline.step import update
 
     for part in ("text_embedding", "noise_prediction", "encode"):

@@ -306,9 +306,9 @@ def resolved(cfgs: list) -> None:
     """Decides the configs' open settings as a run does (a baseline package from before
     ``resolve_plants``: its ``resolve_runtime``, plant by plant)."""
     try:
-        from plantdreamer.pipeline.runtime import resolve_plants
+        from plantdreamer.pipeline.settings.runtime import resolve_plants
     except ImportError:
-        from plantdreamer.pipeline.runtime import resolve_runtime
+        from plantdreamer.pipeline.settings.runtime import resolve_runtime
 
         for cfg in cfgs:
             resolve_runtime(cfg)
@@ -433,7 +433,7 @@ def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, An
     plant-step over this is what the step adds to the rasterizer."""
     import copy
 
-    from plantdreamer.pipeline.run_state import RunState
+    from plantdreamer.pipeline.state.run_state import RunState
 
     plants = [copy.deepcopy(cfg) for cfg in cfgs[:REFERENCE_PLANTS]]
     resolved(plants)
@@ -591,8 +591,8 @@ def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
     """Seconds to build each of ``n`` plants' guidance (tiny models from ``folder``)."""
     from plantdreamer.dataset.worker import ModelCache
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.group_settings import GroupSettings
-    from plantdreamer.pipeline.runtime import resolve_plants
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
 
     cache, times = ModelCache(), []
     for seed in range(n):

@@ -208,8 +208,8 @@ def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
 
     from plant_runs import failed, group
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.run_state import RunState
-    from plantdreamer.pipeline.runtime import resolve_plants
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
+    from plantdreamer.pipeline.state.run_state import RunState
 
     seen: dict[int, list] = {}
 

@@ -147,7 +147,7 @@ def shown_options(command):
 
 def test_every_command_spells_each_concept_one_way_with_generates_default():
     from plantdreamer import settings
-    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     generate = {f"--{s.name}": s.default for s in settings.walk(GenerateConfig)}
     problems = []
@@ -180,7 +180,7 @@ def test_the_concept_table_names_options_that_exist():
 
 def test_generate_help_lists_its_options_by_section_then_examples():
     from plantdreamer.cli.help_sections import SECTION_TITLES
-    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     result = CliRunner().invoke(main, ["generate", "--help"])
     assert result.exit_code == 0

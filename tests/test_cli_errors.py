@@ -18,7 +18,7 @@ from PIL import Image
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
 
 GEN = ["generate", "--species", "bean", "--guidance", "none", "--steps", "0", "--points", "500",
        "--resolution", "32", "--eval-views", "1"]  # fmt: skip
@@ -281,7 +281,7 @@ def test_malformed_checkpoint_is_one_line(interrupted_run, tmp_path, damage):
 def interrupted_run(tmp_path_factory):
     """A run folder with a checkpoint at step 2 of 4 and no final outputs."""
     from plantdreamer.pipeline import GenerateConfig, generate_plants
-    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
+    from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
 
     out = tmp_path_factory.mktemp("interrupted") / "run"
     cfg = GenerateConfig.of(species="bean", guidance="none", steps=4, checkpoint_every=2,

@@ -20,7 +20,7 @@ from plantdreamer.dataset.worker import ModelCache
 from plantdreamer.errors import InputError
 from plantdreamer.output_folder import LOCK_NAME
 from plantdreamer.pipeline import GenerateConfig, generate_plants
-from plantdreamer.pipeline.runtime import build_guidance
+from plantdreamer.pipeline.settings.runtime import build_guidance
 
 SMALL = {"steps": 3, "points": 1500, "resolution": 32, "eval-views": 1, "turntable-frames": 2}
 
@@ -151,8 +151,8 @@ def _sds_config(models, seed):
 def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_load(
     tiny_model_folders, tmp_path
 ):
-    from plantdreamer.pipeline.group_settings import GroupSettings
-    from plantdreamer.pipeline.runtime import resolve_plants
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
 
     cache = ModelCache()
     out = tmp_path / "out"

@@ -192,7 +192,7 @@ def test_the_built_site_has_whole_references_and_no_sentence_cut_short(site):
     api = page_text(built["api/index.html"])
     for name in ("plantdreamer.api.generate", "plantdreamer.api.make_dataset",
                  "plantdreamer.data.PlantViews", "plantdreamer.rasterizer.rasterization",
-                 "plantdreamer.pipeline.config.GenerateConfig", "ModelNotFoundError"):  # fmt: skip
+                 "plantdreamer.pipeline.settings.config.GenerateConfig", "ModelNotFoundError"):  # fmt: skip
         assert name in api.headings or any(h.startswith(name) for h in api.headings), name
     import plantdreamer.api
 

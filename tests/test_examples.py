@@ -17,7 +17,7 @@ import pytest
 import plantdreamer
 from plantdreamer import settings
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
 

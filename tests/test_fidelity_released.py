@@ -10,13 +10,13 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.guidance.depth import DepthCleaning, kernel_size
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.resolved import steps_of
-from plantdreamer.pipeline.sampler import (
+from plantdreamer.pipeline.model.sampler import (
     area_uniform_elevation,
     legacy_area_uniform_elevation,
     mixed_elevation,
 )
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.resolved import steps_of
 
 
 def print_config(*args):
@@ -132,9 +132,9 @@ def test_downsample_tolerance_is_the_released_band():
 def test_screen_size_prune_removes_gaussians_wider_than_the_threshold_before_densifying():
     import torch
 
-    from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
-    from plantdreamer.pipeline.init import init_gaussians
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     def model_and_stats():
         rng = np.random.default_rng(0)

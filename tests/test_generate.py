@@ -369,8 +369,8 @@ def test_ablate_scores_each_colour_init(tmp_path):
 
     from plantdreamer.cameras import orbit_ring
     from plantdreamer.io import write_ply
-    from plantdreamer.pipeline.init import init_gaussians
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     rng = np.random.default_rng(1)
     pts = (rng.normal(size=(2000, 3)) * [0.3, 0.3, 1.0]).astype(np.float32)

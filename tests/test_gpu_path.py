@@ -83,8 +83,8 @@ def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
 
 
 def test_sampler_peek_does_not_draw():
-    from plantdreamer.pipeline.sampler import CameraSampler
-    from plantdreamer.pipeline.train_config import CameraRanges
+    from plantdreamer.pipeline.model.sampler import CameraSampler
+    from plantdreamer.pipeline.settings.train_config import CameraRanges
 
     a, b = CameraSampler(CameraRanges(), 32, 5), CameraSampler(CameraRanges(), 32, 5)
     peeked = a.peek()
@@ -282,8 +282,8 @@ def test_half_precision_networks_give_finite_render_gradients(dtype):
 def test_vae_dtype_setting_reaches_the_guidance(monkeypatch, name):
     from plantdreamer.guidance import sds
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.group_settings import GroupSettings
-    from plantdreamer.pipeline.runtime import build_guidance, resolve_plants
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import build_guidance, resolve_plants
 
     # The guidance resolves the name to that dtype, and the VAE runs in it.
     guidance = _large_posterior_guidance(torch.float32, name)

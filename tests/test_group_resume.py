@@ -118,7 +118,7 @@ def test_plants_killed_between_two_checkpoint_writes_resume_from_their_common_st
             write(self, record)
         checkpoint.PlantCheckpoints.write = second_plant_dies
         """))  # fmt: skip
-    from plantdreamer.pipeline.checkpoint import PlantCheckpoints
+    from plantdreamer.pipeline.state.checkpoint import PlantCheckpoints
 
     # The first plant holds step 4 (and its step 2 kept), the others step 2 only.
     assert sorted(PlantCheckpoints(out / NAMES[0]).starts()) == [2, 4]

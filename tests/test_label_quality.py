@@ -15,7 +15,7 @@ import pytest
 
 from label_pieces_reference import specks
 from plantdreamer.pipeline import GenerateConfig, generate_plants
-from plantdreamer.pipeline.label_pieces import MIN_PIECE
+from plantdreamer.pipeline.truth.label_pieces import MIN_PIECE
 
 SPECIES = ("bean", "mint", "kale")
 SIZES = {320: 4, 512: 1}  # image size: views (the cheapest that showed specks before)

@@ -17,16 +17,16 @@ from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_ply, write_splat_ply
 from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, voxel_majority
 from plantdreamer.pipeline import GenerateConfig, generate_plants
-from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
-from plantdreamer.pipeline.ground_truth import (
+from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.settings.train_config import LearningRates
+from plantdreamer.pipeline.truth.ground_truth import (
     LabelSet,
     Splats,
     _blend,
     render_ground_truth,
 )
-from plantdreamer.pipeline.label_channels import one_hot
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.train_config import LearningRates
+from plantdreamer.pipeline.truth.label_channels import one_hot
 from plantdreamer.pointcloud import voxel_downsample
 
 

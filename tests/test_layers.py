@@ -55,19 +55,22 @@ LAYERS: list[tuple[str, set[str]]] = [
 PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
     ("what watches a trainer", {"observer"}),
     (
-        "a plant's parts: model, cameras, density control, labels, outputs, progress",
-        {"model", "sampler", "source", "init", "culling", "density", "density_ops"}
-        | {"ground_truth", "label_channels", "label_pieces", "dataset_export", "outputs"}
-        | {"progress", "progress_pictures", "train_config"}
-        | {"log_plot", "tensorboard_writer", "run_observers"},
+        "a plant's parts: the model wing, ground truth, outputs and progress",
+        {"model", "model.gaussian_model", "model.render", "model.sampler", "model.source"}
+        | {"model.init", "model.culling", "model.density", "model.density_ops"}
+        | {"truth", "truth.ground_truth", "truth.label_channels", "truth.label_pieces"}
+        | {"truth.dataset_export", "outputs", "progress", "progress_pictures", "log_plot"}
+        | {"tensorboard_writer", "run_observers", "settings.train_config"},
     ),
     (
-        "settings: the config, presets, the resolved run, what a run writes",
-        {"config", "presets", "resolved", "group_settings"} | {"runtime", "run_outputs"},
+        "the settings wing: the config, presets, the resolved run, what a run writes",
+        {"settings", "settings.config", "settings.presets", "settings.resolved"}
+        | {"settings.group_settings", "settings.runtime", "state.run_outputs"},
     ),
     (
-        "a run's state and its checkpoints",
-        {"run_state", "checkpoint", "group_noise", "rerender", "runs.record"},
+        "the run's state wing: its state, checkpoints and noise; the record",
+        {"state", "state.run_state", "state.checkpoint", "state.group_noise", "rerender"}
+        | {"runs.record"},
     ),
     ("a plant of a trainer, the step's options", {"step.plant", "step.options"}),
     ("the training step: a plant's update, the step's order", {"step.update", "step.schedule"}),
@@ -199,9 +202,9 @@ def test_every_area_has_a_layer(graph: dict[str, set[str]]) -> None:
 
 def test_imports_run_downward(graph: dict[str, set[str]]) -> None:
     # The reader sees imports at every place they are written (sanity of the reader).
-    assert "plantdreamer.guidance.config" in graph["plantdreamer.pipeline.config"]
+    assert "plantdreamer.guidance.config" in graph["plantdreamer.pipeline.settings.config"]
     assert "plantdreamer._core" in graph["plantdreamer.io"]
-    assert "plantdreamer.io" in graph["plantdreamer.pipeline.source"]  # inside a function
+    assert "plantdreamer.io" in graph["plantdreamer.pipeline.model.source"]  # inside a function
     bad = upward_imports(graph)
     assert not bad, "imports of a higher layer (move the shared name down):\n" + "\n".join(bad)
 
@@ -276,6 +279,9 @@ def test_the_checker_finds_upward_imports_and_cycles(tmp_path: Path) -> None:
     ]
     cycle = find_cycle(g)
     assert cycle is not None and cycle[0] == cycle[-1]
-    assert set(cycle) == {"plantdreamer.pipeline.config", "plantdreamer.pipeline.source"}
+    assert set(cycle) == {
+        "plantdreamer.pipeline.config",
+        "plantdreamer.pipeline.source",
+    }
     assert find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
     assert find_cycle({"a": {"a"}}) == ["a", "a"]

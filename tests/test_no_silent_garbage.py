@@ -163,7 +163,7 @@ def test_render_counts_its_views(tmp_path):
 
 def _scene_with_floaters(up_axis=2):
     """A dense unit blob at (10, 10, 10) plus two far, opaque floaters."""
-    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     rng = np.random.default_rng(0)
     blob = rng.normal(size=(2000, 3)) * 0.2
@@ -234,7 +234,7 @@ def _api_calls():
     from plantdreamer import pointcloud, rasterization
     from plantdreamer.cameras import Camera
     from plantdreamer.io import write_splat_ply
-    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     pts = np.random.default_rng(0).random((50, 3), dtype=np.float32)
     g = init_gaussians(pts, np.full((50, 3), 0.5, np.float32), 0.5)

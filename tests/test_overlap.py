@@ -9,7 +9,7 @@ import torch
 
 from plant_runs import done, failed, group
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-from plantdreamer.pipeline.runtime import resolve_overlap
+from plantdreamer.pipeline.settings.runtime import resolve_overlap
 from plantdreamer.pipeline.step.schedule import StepSchedule
 from test_group import SMALL, _stop_at, outputs_of, tiny_sds
 

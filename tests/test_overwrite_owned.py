@@ -17,7 +17,7 @@ from PIL import Image
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
 
 
 def run(*args):
@@ -220,7 +220,7 @@ def test_generate_overwrite_deletes_its_own_files_and_keeps_the_users(tmp_path):
 
 def test_resume_removes_a_killed_writes_temporary(tmp_path):
     from plantdreamer.output_folder import claim_folder
-    from plantdreamer.pipeline.run_outputs import RUN_OUTPUTS
+    from plantdreamer.pipeline.state.run_outputs import RUN_OUTPUTS
 
     out = tmp_path / "run"
     finished_run(out)

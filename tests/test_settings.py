@@ -15,11 +15,11 @@ from plantdreamer.errors import CheckpointError
 from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS, SdsConfig
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
 from plantdreamer.pipeline import GenerateConfig, generate_plants
-from plantdreamer.pipeline.checkpoint import CheckpointRecord
-from plantdreamer.pipeline.density import CullConfig
+from plantdreamer.pipeline.model.density import CullConfig
+from plantdreamer.pipeline.model.source import SourceConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
-from plantdreamer.pipeline.source import SourceConfig
-from plantdreamer.pipeline.train_config import TrainConfig
+from plantdreamer.pipeline.settings.train_config import TrainConfig
+from plantdreamer.pipeline.state.checkpoint import CheckpointRecord
 
 
 def patch_default(monkeypatch, cls, name, value):
@@ -249,8 +249,8 @@ OLD_RUN_SETTINGS = dict(
 def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp_path):
     from plantdreamer.cli import main
     from plantdreamer.exports.listing import plant_species
-    from plantdreamer.pipeline.config import from_record
     from plantdreamer.pipeline.runs.start import resumed_config
+    from plantdreamer.pipeline.settings.config import from_record
 
     old = json.loads(OLD_RUN.read_text())
     assert old["config"]["density"]["densify"]["every"] == 2  # the sectioned form
@@ -335,7 +335,7 @@ def test_lora_train_options_are_its_config(monkeypatch):
 
 
 def test_a_record_without_a_later_setting_reads_as_the_version_that_wrote_it():
-    from plantdreamer.pipeline.config import RECORDED_BEFORE, from_record
+    from plantdreamer.pipeline.settings.config import RECORDED_BEFORE, from_record
 
     cfg = GenerateConfig.of(species="bean", seed=1)
     record = cfg.to_dict()

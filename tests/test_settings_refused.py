@@ -96,7 +96,7 @@ def test_print_config_of_a_billion_steps_returns_at_once():
 )  # fmt: skip
 def test_schedule_steps_match_the_rules_step_by_step(steps, start, until, every, offset, after):
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.resolved import resolved_settings, steps_of
+    from plantdreamer.pipeline.settings.resolved import resolved_settings, steps_of
 
     cfg = GenerateConfig.of(
         species="bean", guidance="none", steps=steps, densify_start=start, densify_until=until,

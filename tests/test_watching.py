@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from plantdreamer.errors import PlantDreamerError
-from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.log_plot import (
     RUNNING_MIN,
     loss_figure,
@@ -22,6 +21,7 @@ from plantdreamer.pipeline.log_plot import (
 from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.progress_pictures import ProgressPictures
 from plantdreamer.pipeline.run_observers import run_observers
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 
 def sds_rows(steps: int, start: int = 0, loss: bool = True) -> list[dict]:
@@ -84,7 +84,7 @@ def test_loss_plot_has_a_panel_per_logged_figure_and_a_running_mean_under_100_st
 
 @pytest.fixture(scope="module")
 def start_state():
-    from plantdreamer.pipeline.run_state import RunState
+    from plantdreamer.pipeline.state.run_state import RunState
 
     cfg = GenerateConfig.of(species="bean", points=300, resolution=32, guidance="none")
     return cfg, RunState.fresh(cfg, show_progress=False)

@@ -42,7 +42,7 @@ __all__ = [
 # API (plantdreamer.api) and the torch-backed rasterizer.
 _LAZY = {
     "DatasetResult": "plantdreamer.api",
-    "GenerateConfig": "plantdreamer.pipeline.config",
+    "GenerateConfig": "plantdreamer.pipeline.settings.config",
     "GeneratedPlant": "plantdreamer.api",
     "generate": "plantdreamer.api",
     "make_dataset": "plantdreamer.api",

@@ -20,7 +20,7 @@ from typing import Any
 
 from plantdreamer import settings as settings_of
 from plantdreamer.errors import InputError, PlantDreamerError
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 __all__ = ["DatasetResult", "GeneratedPlant", "generate", "make_dataset"]
 

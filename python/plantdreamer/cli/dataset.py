@@ -11,7 +11,7 @@ from plantdreamer.cli.label_options import label_options
 from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
 from plantdreamer.dataset.packing import PackingConfig
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
 # Generate settings with an option of their own here (any other: --set NAME=VALUE).

@@ -3,7 +3,7 @@
 The run's options are the settings of ``GenerateConfig``, each under its one name (defaults,
 choices and help come from the sections' dataclasses); this module only adds the output folder, ``--resume``, ``--overwrite``,
 ``--quiet``, ``--view``, ``--seeds`` and ``--print-config`` (not settings of the run). ``--preset`` picks the base values
-(``pipeline/presets.py``); only the options given on the command line override them.
+(``pipeline/settings/presets.py``); only the options given on the command line override them.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from plantdreamer.cli.options import (
     options_to_settings,
     typed_options,
 )
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.viewer import DEFAULT_PORT, HOST
 
 # Options of the command that are no settings of the run: listed under the run's heading.
@@ -151,7 +151,7 @@ def build_command() -> click.Command:
             else:
                 cfgs = _configs(options, seeds)
                 if print_config:
-                    from plantdreamer.pipeline.resolved import resolved_settings
+                    from plantdreamer.pipeline.settings.resolved import resolved_settings
 
                     click.echo(json.dumps(resolved_settings(cfgs), indent=2))
                     return

@@ -17,9 +17,9 @@ from plantdreamer.cli.options import (
     options_to_settings,
     typed_options,
 )
-from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.rerender import ORBIT
-from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 from plantdreamer.turntable import TURNTABLE_FRAMES
 
 # The orbit, render size, background and turntable are generate's settings, under generate's
@@ -43,7 +43,7 @@ def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tu
     at a transforms.json's cameras, the ``files`` named from its frames; else the orbit's
     views and turntable."""
     if ground_truth:
-        from plantdreamer.pipeline.run_outputs import FINAL_OUTPUTS
+        from plantdreamer.pipeline.state.run_outputs import FINAL_OUTPUTS
 
         kept = tuple(e for e in FINAL_OUTPUTS if e not in ("run.json", "plant.ply", *TURNTABLES))
         return kept if transforms else (*TURNTABLES, *kept)
@@ -226,7 +226,7 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
     import torch
 
     from plantdreamer.pipeline import outputs
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
     from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
@@ -243,7 +243,7 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
             return frames
         from plantdreamer.exports.plant import write_plant_exports
         from plantdreamer.exports.points import read_class_names
-        from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
+        from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
 
         writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
         frames = render_views(model, writer, cameras, render_view)
@@ -293,7 +293,7 @@ def _render_dataset_views(gaussians, views, files: list[str], out: Path, backgro
     import torch
 
     from plantdreamer.atomic import write_image, write_json
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 
     model = GaussianModel(gaussians)
     out.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 RAY_MISSING = (
     "`plantdreamer dataset` runs on Ray, which is not installed; install it with "

@@ -1,7 +1,7 @@
 """Packing a dataset's plants into groups trained together on one GPU (``plants-per-gpu``).
 
 A group is up to B plants that share every setting but their seed and point cloud
-(``pipeline.config.PER_PLANT``): one trainer, one batched guidance call per step. Plants are
+(``pipeline.settings.config.PER_PLANT``): one trainer, one batched guidance call per step. Plants are
 taken in spec order; each joins the first open group of its settings, and a group closes
 when it holds B. The packing depends only on the spec (all its plants, finished or not),
 so a rerun finds every plant in the group it started in: an interrupted group resumes as

@@ -21,7 +21,7 @@ from plantdreamer.dataset.tasks import HELD_MARKER, LOG_NAME
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.exports.listing import PLANTS_DIR
 from plantdreamer.output_folder import remove_owned, survey
-from plantdreamer.pipeline.run_outputs import COMPLETE_FILES, RUN_OUTPUTS, is_finished
+from plantdreamer.pipeline.state.run_outputs import COMPLETE_FILES, RUN_OUTPUTS, is_finished
 
 ACTIONS = ("make", "resume", "skip", "redo")  # what a run does with a plant
 # What a dataset writes in a plant folder (output_folder.Owned): a run's outputs, the log of
@@ -88,7 +88,7 @@ def same_settings(folder: Path, plant: Plant) -> bool:
     run.json: such a plant is never taken as the same without its record."""
     import json
 
-    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     if plant.config.source.pointcloud is not None:
         return False
@@ -129,7 +129,9 @@ def decide(
     if not same_config and record is not None and record.get("status") == "done":
         return "redo", clear
     if not stale and folder.is_dir():
-        from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME  # torch: only when needed
+        from plantdreamer.pipeline.state.checkpoint import (
+            CHECKPOINT_NAME,  # torch: only when needed
+        )
 
         if (folder / CHECKPOINT_NAME).is_file():
             return "resume", False
@@ -139,7 +141,7 @@ def decide(
 def check_models(plants: list[Plant]) -> None:
     """Every plant's LoRA, base model and ControlNet found (not loaded), before a plan is
     made or a folder cleared; each distinct set of models once."""
-    from plantdreamer.pipeline.runtime import check_models as check
+    from plantdreamer.pipeline.settings.runtime import check_models as check
 
     seen = set()
     for plant in plants:

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 from plantdreamer import settings
 from plantdreamer.exports.listing import species_name
-from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.outputs import WATCHING
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 
 @dataclass(frozen=True)

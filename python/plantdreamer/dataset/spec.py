@@ -47,8 +47,8 @@ from plantdreamer.dataset import packing
 from plantdreamer.dataset.plant import Plant, config_hash
 from plantdreamer.digests import file_digest
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.presets import resolve_config
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.presets import resolve_config
 from plantdreamer.seeds import parse_seeds, seed_range, seeds_text
 from plantdreamer.settings import by_name, canonical
 

@@ -37,7 +37,7 @@ class ModelCache:
 
     def guidance_for(self, group: Any) -> Any:
         """The guidance of plants' shared settings (``GroupSettings``, resolved)."""
-        from plantdreamer.pipeline.runtime import build_guidance
+        from plantdreamer.pipeline.settings.runtime import build_guidance
 
         if group.sds.guidance == "none":
             return build_guidance(group)

@@ -51,7 +51,7 @@ SUMMARY_FILE = "dataset.json"  # the dataset's record (dataset/manifest.py write
 CARD_KEY = "card"
 CODE_LICENCE = "Apache-2.0"
 PAPER_URL = "https://arxiv.org/abs/2505.15528"
-# The label previews' colours (pipeline/dataset_export.py draws a plant's k-th class value in
+# The label previews' colours (pipeline/truth/dataset_export.py draws a plant's k-th class value in
 # the k-th colour); the card gives each class the colour of its rank among the classes.
 PREVIEW_COLOURS = (
     (31, 119, 180), (44, 160, 44), (140, 86, 75), (214, 39, 40), (148, 103, 189),

@@ -30,7 +30,7 @@ def finished_plants(dataset_dir: Path) -> list[PlantEntry]:
 
 def plant_species(run_json: Path) -> str:
     """The ``species`` setting a run recorded, else its ``pointcloud``'s file name; "?" for
-    a record that names neither. Records keep settings by name (``pipeline.config``); those
+    a record that names neither. Records keep settings by name (``pipeline.settings.config``); those
     of the sectioned versions kept these two under ``source``."""
     try:
         config = json.loads(run_json.read_text()).get("config", {})

@@ -69,7 +69,7 @@ def score(out: Path, seconds: float) -> dict[str, Any]:
     from plantdreamer.known_answer import views
     from plantdreamer.known_answer.check import Truth
     from plantdreamer.pipeline import generate_plants
-    from plantdreamer.pipeline.config import GenerateConfig, from_record
+    from plantdreamer.pipeline.settings.config import GenerateConfig, from_record
 
     run_json = out / "run.json"
     if not run_json.is_file():

@@ -20,7 +20,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer.spec import KnownAnswerSpec
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 # Offsets of the camera streams: training views, held-out views (generate uses ``seed``).
 TRAIN_STREAM = 1_000_000
@@ -71,8 +71,8 @@ def in_generate_frame(gaussians: Gaussians, ply: Path) -> Gaussians:
 
 
 def sample_cameras(spec: KnownAnswerSpec, n: int, stream: int) -> list[Camera]:
-    from plantdreamer.pipeline.sampler import CameraSampler
-    from plantdreamer.pipeline.train_config import CameraRanges
+    from plantdreamer.pipeline.model.sampler import CameraSampler
+    from plantdreamer.pipeline.settings.train_config import CameraRanges
 
     sampler = CameraSampler(CameraRanges(), spec.resolution, spec.seed + stream)
     return [sampler.sample() for _ in range(n)]

@@ -1,6 +1,6 @@
 """The generation pipeline: point cloud -> initial Gaussians -> guided optimisation -> outputs.
 
-Names load on first use, so ``plantdreamer.pipeline.config`` (read by the CLI at start-up)
+Names load on first use, so ``plantdreamer.pipeline.settings.config`` (read by the CLI at start-up)
 does not import torch.
 """
 
@@ -10,11 +10,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from plantdreamer.pipeline.config import GenerateConfig
-    from plantdreamer.pipeline.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.runs.entry import generate_plants
     from plantdreamer.pipeline.runs.layout import FolderPerPlant, GivenFolders, PlantAlone
     from plantdreamer.pipeline.runs.results import PlantResult, PlantsFailed
+    from plantdreamer.pipeline.settings.config import GenerateConfig
+    from plantdreamer.pipeline.settings.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.step.options import StepOptions
     from plantdreamer.pipeline.trainer import RunInterrupted
 
@@ -33,9 +33,9 @@ __all__ = [
 ]
 
 _MODULES = {
-    "GenerateConfig": "plantdreamer.pipeline.config",
-    "PRESETS": "plantdreamer.pipeline.presets",
-    "resolve_config": "plantdreamer.pipeline.presets",
+    "GenerateConfig": "plantdreamer.pipeline.settings.config",
+    "PRESETS": "plantdreamer.pipeline.settings.presets",
+    "resolve_config": "plantdreamer.pipeline.settings.presets",
     "generate_plants": "plantdreamer.pipeline.runs.entry",
     "FolderPerPlant": "plantdreamer.pipeline.runs.layout",
     "GivenFolders": "plantdreamer.pipeline.runs.layout",

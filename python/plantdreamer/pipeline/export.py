@@ -19,13 +19,13 @@ from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.guidance.model_files import run_models
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 from plantdreamer.pipeline.progress import Counter
 from plantdreamer.pipeline.rerender import exported_scene
-from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
+from plantdreamer.pipeline.state.run_state import RunState
+from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
 from plantdreamer.versions import package_versions
 
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native

@@ -21,7 +21,7 @@ import numpy as np
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.config import from_record
+from plantdreamer.pipeline.settings.config import from_record
 from plantdreamer.pointcloud import NormalizeTransform
 
 RUN_FILE = "run.json"

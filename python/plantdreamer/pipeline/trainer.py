@@ -33,12 +33,13 @@ from typing import Any
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import CheckpointRecord, PlantCheckpoints
-from plantdreamer.pipeline.group_noise import GroupNoise
-from plantdreamer.pipeline.group_settings import GroupSettings
-from plantdreamer.pipeline.model import FrozenScene, GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.render import FrozenScene
 from plantdreamer.pipeline.observer import TrainerObserver, notify
 from plantdreamer.pipeline.progress import Progress
+from plantdreamer.pipeline.settings.group_settings import GroupSettings
+from plantdreamer.pipeline.state.checkpoint import CheckpointRecord, PlantCheckpoints
+from plantdreamer.pipeline.state.group_noise import GroupNoise
 from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.step.plant import PlantRun
 from plantdreamer.pipeline.step.schedule import StepSchedule

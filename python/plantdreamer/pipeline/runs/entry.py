@@ -29,7 +29,6 @@ from typing import Any
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult
 from plantdreamer.pipeline.observer import TrainerObserver
 from plantdreamer.pipeline.runs.layout import GivenFolders, Layout, PlantAlone
@@ -38,7 +37,8 @@ from plantdreamer.pipeline.runs.record import DONE, FAILED, INTERRUPTED, RUNNING
 from plantdreamer.pipeline.runs.results import PlantResult, result_of
 from plantdreamer.pipeline.runs.sequence import GuidanceFor, PlantFailure, RunContext, train_part
 from plantdreamer.pipeline.runs.start import resumed_config
-from plantdreamer.pipeline.runtime import build_guidance, check_models, resolve_plants
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.runtime import build_guidance, check_models, resolve_plants
 from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.trainer import RunInterrupted
 

@@ -23,19 +23,19 @@ from pathlib import Path
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.output_folder import Owned, claim_folder, tree
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.run_outputs import (
-    CHECKPOINT_NAME,
-    NOISE_NAME,
-    RUN_OUTPUTS,
-    is_finished,
-)
 from plantdreamer.pipeline.runs.record import (
     DONE,
     GROUP_FILE,
     PlantEntry,
     RunRecord,
     plant_name,
+)
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.state.run_outputs import (
+    CHECKPOINT_NAME,
+    NOISE_NAME,
+    RUN_OUTPUTS,
+    is_finished,
 )
 
 
@@ -51,7 +51,7 @@ class PlantAlone:
     def found_record(self, out: Path) -> RunRecord:
         """The plant's record from its folder: its latest checkpoint's config, or a finished
         run's (``done``)."""
-        from plantdreamer.pipeline.checkpoint import PlantCheckpoints, read_config
+        from plantdreamer.pipeline.state.checkpoint import PlantCheckpoints, read_config
 
         if is_finished(out):
             import json

@@ -12,10 +12,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from plantdreamer.errors import PlantDreamerError
-from plantdreamer.pipeline.checkpoint import PlantCheckpoints, common_starts
-from plantdreamer.pipeline.run_outputs import is_finished
 from plantdreamer.pipeline.runs.record import DONE, FAILED, RUNNING, PlantEntry, RunRecord
-from plantdreamer.pipeline.runtime import check_inputs
+from plantdreamer.pipeline.settings.runtime import check_inputs
+from plantdreamer.pipeline.state.checkpoint import PlantCheckpoints, common_starts
+from plantdreamer.pipeline.state.run_outputs import is_finished
 
 Fail = Callable[[PlantEntry, BaseException], None]
 

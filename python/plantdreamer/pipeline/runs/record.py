@@ -22,7 +22,7 @@ from typing import Any
 
 from plantdreamer import atomic
 from plantdreamer.errors import InputError, PlantDreamerError
-from plantdreamer.pipeline.config import GenerateConfig, check_shared
+from plantdreamer.pipeline.settings.config import GenerateConfig, check_shared
 
 GROUP_FILE = "group.json"
 # The most plants one trainer holds (each keeps its model, optimiser and renders in memory

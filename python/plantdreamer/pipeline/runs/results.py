@@ -59,7 +59,7 @@ def result_of(
 
 def finished_result(folder: Path) -> RunResult:
     """A finished plant's figures, from its run.json."""
-    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     run = json.loads((folder / "run.json").read_text())
     return RunResult(

@@ -15,16 +15,16 @@ from typing import Any
 
 from plantdreamer.errors import CheckpointError
 from plantdreamer.guidance.base import Guidance
-from plantdreamer.pipeline.checkpoint import CheckpointRecord
 from plantdreamer.pipeline.export import RunResult, export_run
-from plantdreamer.pipeline.group_noise import GroupNoise, restore_noise_state
-from plantdreamer.pipeline.group_settings import GroupSettings
 from plantdreamer.pipeline.observer import TrainerObserver
 from plantdreamer.pipeline.run_observers import run_observers
 from plantdreamer.pipeline.runs.layout import Layout
 from plantdreamer.pipeline.runs.plan import Fail, Part
 from plantdreamer.pipeline.runs.record import DONE, PlantEntry
 from plantdreamer.pipeline.runs.start import start_fresh, start_resumed
+from plantdreamer.pipeline.settings.group_settings import GroupSettings
+from plantdreamer.pipeline.state.checkpoint import CheckpointRecord
+from plantdreamer.pipeline.state.group_noise import GroupNoise, restore_noise_state
 from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.step.plant import PlantRun
 from plantdreamer.pipeline.trainer import Trainer

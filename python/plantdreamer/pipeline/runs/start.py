@@ -9,12 +9,12 @@ from typing import Any
 
 from plantdreamer.errors import CheckpointError
 from plantdreamer.output_folder import check_inputs_outside, remove_owned
-from plantdreamer.pipeline.checkpoint import CheckpointRecord, PlantCheckpoints
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.run_outputs import FINAL_OUTPUTS, RUN_OUTPUTS
-from plantdreamer.pipeline.run_state import RunState
 from plantdreamer.pipeline.runs.record import PlantEntry
-from plantdreamer.pipeline.runtime import check_inputs
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.runtime import check_inputs
+from plantdreamer.pipeline.state.checkpoint import CheckpointRecord, PlantCheckpoints
+from plantdreamer.pipeline.state.run_outputs import FINAL_OUTPUTS, RUN_OUTPUTS
+from plantdreamer.pipeline.state.run_state import RunState
 from plantdreamer.pipeline.step.plant import PlantRun
 from plantdreamer.settings import canonical
 

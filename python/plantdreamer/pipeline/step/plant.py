@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.state.run_state import RunState
 
 
 @dataclass

@@ -49,9 +49,9 @@ from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
-from plantdreamer.pipeline.group_settings import GroupSettings
-from plantdreamer.pipeline.model import RenderInputs, render_many
+from plantdreamer.pipeline.model.render import RenderInputs, render_many
 from plantdreamer.pipeline.observer import TrainerObserver, notify
+from plantdreamer.pipeline.settings.group_settings import GroupSettings
 from plantdreamer.pipeline.step.options import StepOptions
 from plantdreamer.pipeline.step.plant import PlantRun
 from plantdreamer.pipeline.step.update import update_plant

@@ -21,16 +21,16 @@ from typing import Any
 from plantdreamer import settings
 from plantdreamer.errors import InputError
 from plantdreamer.guidance.config import SdsConfig
-from plantdreamer.pipeline.density import DensityConfig
-from plantdreamer.pipeline.init import InitConfig
+from plantdreamer.pipeline.model.density import DensityConfig
+from plantdreamer.pipeline.model.init import InitConfig
+from plantdreamer.pipeline.model.source import SourceConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
-from plantdreamer.pipeline.source import SourceConfig
-from plantdreamer.pipeline.train_config import TrainConfig
+from plantdreamer.pipeline.settings.train_config import TrainConfig
 from plantdreamer.settings import option_prefix, setting
 
 MAX_RESOLUTION = 8192  # largest training / evaluation render side
 # Where ours, the paper and the authors' released code differ (docs/fidelity.md);
-# pipeline/presets.py holds each preset's values.
+# pipeline/settings/presets.py holds each preset's values.
 PRESET_NAMES = ("plantdreamer", "released", "paper")
 # The settings in which plants trained together (a group, a dataset's packed unit) may
 # differ; they share every other one (``shared_settings``).

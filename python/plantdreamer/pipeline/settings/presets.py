@@ -19,7 +19,7 @@ from plantdreamer.guidance.config import (
     RELEASED_NEGATIVE_PROMPT,
     RELEASED_PROMPT_TEMPLATE,
 )
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.settings import canonical
 
 PRESETS: dict[str, dict[str, Any]] = {

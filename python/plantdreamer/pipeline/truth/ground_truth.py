@@ -28,9 +28,9 @@ import torch
 
 from plantdreamer.cameras import Camera, stack
 from plantdreamer.gaussians import activate_opacities, activate_scales
-from plantdreamer.pipeline.label_channels import TILE, LabelSet, one_hot, share_channels
-from plantdreamer.pipeline.label_pieces import BACKGROUND, MIN_PIECE, remove_specks
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.truth.label_channels import TILE, LabelSet, one_hot, share_channels
+from plantdreamer.pipeline.truth.label_pieces import BACKGROUND, MIN_PIECE, remove_specks
 
 ALPHA_THRESHOLD = 0.5  # below: background (also for depth)
 CHANNELS_PER_PASS = 32  # instance channels blended per rasterizer pass

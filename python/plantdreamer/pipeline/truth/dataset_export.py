@@ -26,7 +26,7 @@ import numpy as np
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import Camera
 from plantdreamer.labels import MAX_CLASSES, MAX_INSTANCES, check_mask_limits
-from plantdreamer.pipeline.ground_truth import GroundTruth, LabelSet
+from plantdreamer.pipeline.truth.ground_truth import GroundTruth, LabelSet
 from plantdreamer.pointcloud import NormalizeTransform
 
 DEPTH_UNIT_SCALE = 0.001  # depth PNG value * this = depth in input units, unless too far
@@ -218,7 +218,7 @@ def ground_truth_writer(
 def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
     """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
     whose instance channels reuse the render's footprints; returns the images."""
-    from plantdreamer.pipeline.ground_truth import GroundTruthRenderer
+    from plantdreamer.pipeline.truth.ground_truth import GroundTruthRenderer
 
     ground_truth = GroundTruthRenderer(model, writer.label_set)
     writer.choose_depth_unit(model.params["means"].detach().numpy(), cameras)

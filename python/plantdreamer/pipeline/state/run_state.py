@@ -17,11 +17,11 @@ import numpy as np
 import torch
 
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.density import DensityControl
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.density import DensityControl
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.sampler import CameraSampler
 from plantdreamer.pipeline.progress import PhaseTimer
-from plantdreamer.pipeline.sampler import CameraSampler
+from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.pointcloud import NormalizeTransform
 
 _GAUSSIAN_FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh", "labels")
@@ -44,7 +44,7 @@ class RunState:
     @classmethod
     def fresh(cls, cfg: GenerateConfig, show_progress: bool) -> RunState:
         """Step 0: the source loaded and turned into the initial Gaussians."""
-        from plantdreamer.pipeline.source import initial_gaussians, load_source
+        from plantdreamer.pipeline.model.source import initial_gaussians, load_source
 
         timer = PhaseTimer()
         with timer("prepare"):

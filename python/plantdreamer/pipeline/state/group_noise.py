@@ -18,7 +18,7 @@ from typing import Any
 
 from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError, InputError
-from plantdreamer.pipeline.run_outputs import NOISE_NAME
+from plantdreamer.pipeline.state.run_outputs import NOISE_NAME
 
 FORMAT = 1
 # Bytes of a saved torch generator state, by device: the CPU's Mersenne Twister, CUDA's

@@ -23,11 +23,11 @@ from typing import TYPE_CHECKING, Any
 from plantdreamer.atomic import _umask  # noqa: F401  (tests check the file mode with it)
 from plantdreamer.checkpoint_io import read_checkpoint, write_checkpoint
 from plantdreamer.errors import CheckpointError, InputError
-from plantdreamer.pipeline.run_outputs import CHECKPOINT_FILES, CHECKPOINT_NAME, PREVIOUS_NAME
+from plantdreamer.pipeline.state.run_outputs import CHECKPOINT_FILES, CHECKPOINT_NAME, PREVIOUS_NAME
 
 if TYPE_CHECKING:
-    from plantdreamer.pipeline.config import GenerateConfig
-    from plantdreamer.pipeline.run_state import RunState
+    from plantdreamer.pipeline.settings.config import GenerateConfig
+    from plantdreamer.pipeline.state.run_state import RunState
 
 # 2: nested config sections, plain data only (weights_only loads);
 # 3: the config records init_shape (format 2 runs began from spheres, the default is now discs,
@@ -68,7 +68,7 @@ class CheckpointRecord:
     def from_saved(cls, saved: dict[str, Any], path: Path) -> CheckpointRecord:
         """A loaded checkpoint file's record; CheckpointError when its config or step
         cannot be read."""
-        from plantdreamer.pipeline.config import GenerateConfig
+        from plantdreamer.pipeline.settings.config import GenerateConfig
 
         try:
             config = GenerateConfig.from_dict(saved["config"])
@@ -142,7 +142,7 @@ class PlantCheckpoints:
     def restore(self, cfg: GenerateConfig, record: CheckpointRecord) -> RunState:
         """The run state a checkpoint holds, for the run's ``cfg`` (the record's, with the
         changes a resume allows); CheckpointError when it is damaged."""
-        from plantdreamer.pipeline.run_state import RunState
+        from plantdreamer.pipeline.state.run_state import RunState
 
         try:
             return RunState.resumed(cfg, record.state)
@@ -203,7 +203,7 @@ def common_starts(starts: dict[Any, dict[int, str]]) -> list[tuple[int | None, l
 
 
 def _from_format_3(state: dict[str, Any], path: Path) -> dict[str, Any]:
-    from plantdreamer.pipeline.config import from_flat_dict
+    from plantdreamer.pipeline.settings.config import from_flat_dict
 
     try:
         config = from_flat_dict(state["config"]).to_dict()

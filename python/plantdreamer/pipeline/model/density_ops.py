@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 
 
 @dataclass

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from plantdreamer.cameras import Camera, orbit
-from plantdreamer.pipeline.train_config import CameraRanges
+from plantdreamer.pipeline.settings.train_config import CameraRanges
 
 ElevationDraw = Callable[[np.random.Generator, float, float], float]
 

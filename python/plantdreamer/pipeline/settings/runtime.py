@@ -9,13 +9,13 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 
 if TYPE_CHECKING:
     from plantdreamer.guidance.base import Guidance
     from plantdreamer.guidance.models import DiffusionComponents
-    from plantdreamer.pipeline.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
 
 
 def check_inputs(cfg: GenerateConfig) -> None:

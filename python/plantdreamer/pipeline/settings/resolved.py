@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 NUM_TRAIN_TIMESTEPS = 1000  # Stable Diffusion's scheduler (integer timesteps shown for it)
 
@@ -24,8 +24,8 @@ def resolved_settings(cfgs: list[GenerateConfig]) -> list[dict[str, Any]]:
     """Validates the configs of plants trained together, decides their open settings as the
     run would and returns a JSON-ready description of each plant's run (one plant: a list
     of one). Loads no model; the callers' configs are not changed."""
-    from plantdreamer.pipeline.config import check_shared
-    from plantdreamer.pipeline.runtime import check_inputs, resolve_plants
+    from plantdreamer.pipeline.settings.config import check_shared
+    from plantdreamer.pipeline.settings.runtime import check_inputs, resolve_plants
 
     cfgs = [copy.deepcopy(c) for c in cfgs]
     for cfg in cfgs:

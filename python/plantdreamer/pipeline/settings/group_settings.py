@@ -6,9 +6,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from plantdreamer.guidance.config import SdsConfig
-from plantdreamer.pipeline.config import PER_PLANT, GenerateConfig, check_shared
 from plantdreamer.pipeline.outputs import OutputsConfig
-from plantdreamer.pipeline.train_config import TrainConfig
+from plantdreamer.pipeline.settings.config import PER_PLANT, GenerateConfig, check_shared
+from plantdreamer.pipeline.settings.train_config import TrainConfig
 
 __all__ = ["PER_PLANT", "GroupSettings"]
 

@@ -21,8 +21,8 @@ from plantdreamer.settings import option_prefix, setting
 
 if TYPE_CHECKING:
     from plantdreamer.cameras import Camera
-    from plantdreamer.pipeline.density_ops import DensifyStats
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.density_ops import DensifyStats
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 
 
 @dataclass
@@ -100,7 +100,7 @@ class DensityControl:
     """Density control of one plant: settings, gradient statistics, hooks."""
 
     def __init__(self, cfg: DensityConfig, seed: int, n_gaussians: int) -> None:
-        from plantdreamer.pipeline.density_ops import DensifyStats
+        from plantdreamer.pipeline.model.density_ops import DensifyStats
 
         self.cfg, self.seed = cfg, seed
         self.stats: DensifyStats = DensifyStats.zeros(n_gaussians)
@@ -117,8 +117,8 @@ class DensityControl:
         """Densifies and culls when due; returns the events (what each round did)."""
         import torch
 
-        from plantdreamer.pipeline.culling import large_gaussian_mask
-        from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune, remove
+        from plantdreamer.pipeline.model.culling import large_gaussian_mask
+        from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune, remove
 
         timed = timer or (lambda name: nullcontext())
         dens, cull, events = self.cfg.densify, self.cfg.cull, []
@@ -158,7 +158,7 @@ class DensityControl:
         return {"grad_sum": stats.grad_sum, "count": stats.count, "max_radius": stats.max_radius}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        from plantdreamer.pipeline.density_ops import DensifyStats
+        from plantdreamer.pipeline.model.density_ops import DensifyStats
 
         # Checkpoints before the screen-size prune hold no max_radius: zeros.
         self.stats = DensifyStats(state["grad_sum"], state["count"], state.get("max_radius"))

@@ -12,7 +12,7 @@ from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.labels import NO_INSTANCE, as_int_labels, find_label_fields
-from plantdreamer.pipeline.init import InitConfig, init_gaussians, initial_colors
+from plantdreamer.pipeline.model.init import InitConfig, init_gaussians, initial_colors
 from plantdreamer.pointcloud import NormalizeTransform
 from plantdreamer.settings import setting
 
