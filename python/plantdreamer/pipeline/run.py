@@ -19,6 +19,7 @@ import torch
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.output_folder import claim_folder, remove_owned
+from plantdreamer.output_locks import check_not_inside_held
 from plantdreamer.pipeline.checkpoint import (
     CHECKPOINT_NAME,
     CheckpointRecord,
@@ -89,6 +90,7 @@ def generate(
         check_inputs(cfg)
         if guidance is None:
             check_models(cfg)
+    check_not_inside_held(out_dir, f"output folder {out_dir}")  # in use: said first
     if not resume and not overwrite and (out_dir / CHECKPOINT_NAME).is_file():
         raise InputError(
             f"{out_dir} holds a checkpoint of an earlier run; continue it with --resume "
