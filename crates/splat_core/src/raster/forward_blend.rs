@@ -17,6 +17,7 @@
 use rayon::prelude::*;
 
 use super::buffers::filled;
+use crate::CoreResult;
 use super::lanes::{exp_neg, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
@@ -53,12 +54,12 @@ pub fn blend(
     count: bool,
     render: &mut [f32],
     alpha: &mut [f32],
-) -> (Blended, EvalCount) {
+) -> CoreResult<(Blended, EvalCount)> {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let mut out = Blended {
-        t_final: filled(bins.n_tiles() * tp, 1.0),
-        last: filled(bins.n_tiles() * tp, 0),
+        t_final: filled(bins.n_tiles() * tp, 1.0)?,
+        last: filled(bins.n_tiles() * tp, 0)?,
     };
     // Each tile's rows of the image, so that tiles write the row-major image directly.
     let mut render_rows = tile_rows(render, ch, bins, width, height);
@@ -109,7 +110,7 @@ pub fn blend(
             })
         });
     let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
-    (out, evals)
+    Ok((out, evals))
 }
 
 thread_local! {
