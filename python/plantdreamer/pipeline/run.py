@@ -207,7 +207,7 @@ def train_plants(
                 trainer.stop_point()
                 try:
                     results[p.out_dir] = export_run(
-                        p.cfg, p.state, p.out_dir, device, show_progress
+                        p.cfg, p.state, p.out_dir, device, show_progress, trainer.stop_point
                     )
                 except Exception as exc:
                     if on_failure is None:
