@@ -13,7 +13,7 @@ write (SIGKILL, a power cut) cannot remove its temporary, and the next run that 
 folder removes it (``output_folder``), never a user's file of a similar name. A target
 whose name is as long as the file system allows still gets a temporary (its name is
 shortened). Several outputs replaced together are built in a ``staging_folder`` and moved
-in by ``output_folder.replace_entries``.
+in together (``exports.dataset_files``).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from plantdreamer.temporaries import STAGING, name_max, temporary_name
 __all__ = [
     "atomic_path",
     "atomic_write",
+    "fsync_folder",
     "staging_folder",
     "write_bytes",
     "write_image",
@@ -57,7 +58,7 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(target.parent)
+    fsync_folder(target.parent)
 
 
 def _new_temporary(target: Path) -> Path:
@@ -124,7 +125,7 @@ def _umask() -> int:
     return mask
 
 
-def _fsync_dir(folder: Path) -> None:
+def fsync_folder(folder: Path) -> None:
     """Flushes the rename itself; some file systems cannot open a folder, which is fine."""
     try:
         fd = os.open(folder, os.O_RDONLY)

@@ -57,7 +57,6 @@ __all__ = [
     "output_file",
     "remove_owned",
     "remove_temporaries",
-    "replace_entries",
     "survey",
     "tree",
 ]
@@ -298,21 +297,6 @@ def claim_files(
                     if is_temporary_of(stale.name, p.name, limit) and stale.is_file():
                         stale.unlink(missing_ok=True)
         yield files
-
-
-def replace_entries(folder: Path, stage: Path, names: Iterable[str]) -> None:
-    """Moves each of ``names`` from the staging folder ``stage`` (made in ``folder`` by
-    ``atomic.staging_folder``) over the same name in ``folder``: every new entry complete
-    before any old one goes, so a failure while staging leaves the previous ones whole."""
-    retired = stage / ".retired"
-    retired.mkdir()
-    for name in names:
-        new, old = stage / name, folder / name
-        if old.exists() or old.is_symlink():
-            os.rename(old, retired / name)
-        if new.exists():
-            os.rename(new, old)
-    shutil.rmtree(stage)
 
 
 def remove_temporaries(folder: Path, owned: Iterable[Owned]) -> None:
