@@ -14,26 +14,29 @@ import pytest
 
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
 from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
-from plantdreamer.pipeline.outputs import StreamedViews
+from plantdreamer.pipeline.model import GaussianModel
 
 SETTINGS = dict(species="bean", guidance="none", points=300, steps=0, eval_views=8,
                 resolution=16, turntable="none", seed=2)  # fmt: skip
 
 
 def test_sigterm_during_the_export_stops_it_and_resume_redoes_it(tmp_path, monkeypatch):
-    written = StreamedViews.add
+    rendered = GaussianModel.render
+    calls = []
 
-    def add_then_signal(self, index, frame):  # the notice comes as view 2 is written
-        written(self, index, frame)
-        if index == 2:
+    def render_then_signal(self, *args, **kwargs):  # the notice comes as view 2 renders
+        calls.append(1)
+        if len(calls) == 3:
             os.kill(os.getpid(), signal.SIGTERM)
+        return rendered(self, *args, **kwargs)
 
-    monkeypatch.setattr(StreamedViews, "add", add_then_signal)
+    monkeypatch.setattr(GaussianModel, "render", render_then_signal)
     out = tmp_path / "stopped"
     with pytest.raises(RunInterrupted):
         generate(GenerateConfig.of(**SETTINGS), out, show_progress=False)
     monkeypatch.undo()
-    assert len(list((out / "renders").glob("view_*.png"))) == 3  # stopped within one view
+    assert len(calls) == 3  # stopped within one view: nothing rendered after the notice
+    assert 0 < len(list((out / "renders").glob("view_*.png"))) < 8
     assert (out / CHECKPOINT_NAME).is_file() and not (out / "run.json").exists()
     first = (out / "renders" / "view_000.png").read_bytes()
     generate(None, out, resume=True, show_progress=False)  # the export again, whole
