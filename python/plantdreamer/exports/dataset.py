@@ -169,8 +169,8 @@ def check_exports_owned(dataset_dir: Path) -> None:
     """Refuses a dataset folder whose export folders hold what the exports do not write
     (or are links), or that holds any file the exports write without a dataset's record
     (``dataset_files``): checked before a run starts and again before an export."""
-    check_top_files(Path(dataset_dir), TOP_ENTRIES)
     survey(Path(dataset_dir), DATASET_EXPORTS).refuse(Path(dataset_dir))
+    check_top_files(Path(dataset_dir), TOP_ENTRIES)
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:

@@ -32,7 +32,8 @@ pub fn check_vertex_data(path: &Path) -> CoreResult<()> {
         .iter()
         .position(|e| e.name == "vertex")
         .ok_or_else(|| err("the file has no 'vertex' element".into()))?;
-    let data = usize::try_from(length.saturating_sub(header.data_start as u64)).unwrap_or(usize::MAX);
+    let data =
+        usize::try_from(length.saturating_sub(header.data_start as u64)).unwrap_or(usize::MAX);
     let upto = &header.elements[..=vertex];
     check_claimed_sizes(upto, header.format, data).map_err(err)?;
     let fixed = header.format != Format::Ascii && upto.iter().all(|e| e.fixed_row_size().is_some());

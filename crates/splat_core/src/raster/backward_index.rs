@@ -80,6 +80,9 @@ mod tests {
         }
         assert!(idx.rows(7, 8).is_empty());
         assert_eq!(idx.rows(0, n), 0..gids.len());
-        assert!(SplatIntersections::new(&[], 3).unwrap().rows(0, 3).is_empty());
+        assert!(SplatIntersections::new(&[], 3)
+            .unwrap()
+            .rows(0, 3)
+            .is_empty());
     }
 }

@@ -89,8 +89,7 @@ pub fn backward(
         let blended;
         let v_alpha_ci = match (&state.background, v_alpha_ci) {
             (Some(bg), va) => {
-                blended =
-                    background::alpha_gradient(v_render_ci, va, &bg[ci * ch..(ci + 1) * ch])?;
+                blended = background::alpha_gradient(v_render_ci, va, &bg[ci * ch..(ci + 1) * ch])?;
                 &blended[..]
             }
             (None, Some(va)) => va,

@@ -17,13 +17,13 @@
 use rayon::prelude::*;
 
 use super::buffers::filled;
-use crate::CoreResult;
 use super::lanes::{exp_neg, sigma_at, LANES};
 use super::options::{ALPHA_MAX, ALPHA_MIN};
 use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::tile_geometry::{pixel_boxes, BlendRecord, TileList, TileRect};
 use super::tile_walk::{for_each_splat, kept_scratch, EvalCount, TileInput, TileScratch};
+use crate::CoreResult;
 
 /// Blend results of one camera that the backward pass needs.
 #[derive(Debug, Clone, Default)]
