@@ -30,7 +30,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     (
         "foundation: errors, files, settings, seeds, process state",
         {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder", "digests"}
-        | {"temporaries", "output_locks", "output_names", "source_date"}
+        | {"temporaries", "output_locks", "output_names", "output_survey", "source_date"}
         | {"settings", "seeds", "thread_policy", "stop_signals"},
     ),
     (

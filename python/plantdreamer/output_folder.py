@@ -37,13 +37,13 @@ import re
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path, PurePath
+from pathlib import Path
 
 from plantdreamer.errors import InputError
 from plantdreamer.output_locks import LOCK_NAME, locked
 from plantdreamer.output_names import check_name, file_lock_name, new_file, output_file
-from plantdreamer.temporaries import STAGING, is_temporary_of, name_max, temporary_target
+from plantdreamer.output_survey import Owned, OwnedSpec, check_owned_name, survey
+from plantdreamer.temporaries import is_temporary_of, name_max
 
 __all__ = [
     "LOCK_NAME",
@@ -62,15 +62,11 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike[str]
-# An entry a command writes in its folder, as a relative POSIX path: a literal file name,
-# a literal folder name ending in "/" (its contents: the entries under it), or a pattern a
-# file's whole relative path matches.
-Owned = str | re.Pattern[str]
 
 
 def tree(name: str, *contents: Owned) -> tuple[Owned, ...]:
     """A folder ``name`` the command makes, and what it writes in it (relative to it)."""
-    _check_name(name)
+    check_owned_name(name)
     out: list[Owned] = [name.rstrip("/") + "/"]
     for entry in contents:
         if isinstance(entry, str):
@@ -78,110 +74,6 @@ def tree(name: str, *contents: Owned) -> tuple[Owned, ...]:
         else:
             out.append(re.compile(f"{re.escape(name.rstrip('/'))}/(?:{entry.pattern})"))
     return tuple(out)
-
-
-@dataclass
-class Survey:
-    """What a command owns in a folder as it is now: its files (in ``owned`` order: the
-    file that marks a finished run first), its folders (deepest first) and anything in its
-    way (foreign files in its folders, links or folders where it writes)."""
-
-    files: list[Path] = field(default_factory=list)
-    folders: list[Path] = field(default_factory=list)
-    foreign: list[str] = field(default_factory=list)
-
-    def refuse(self, root: Path) -> None:
-        if self.foreign:
-            shown = ", ".join(self.foreign[:5]) + (
-                f" and {len(self.foreign) - 5} more" if len(self.foreign) > 5 else ""
-            )
-            raise InputError(
-                f"{root} holds, where this command writes, what it does not write: {shown}; "
-                "nothing was deleted: move them away, or choose another output folder"
-            )
-
-
-class _Owned:
-    """A command's ``Owned`` entries, checked, with its folders apart."""
-
-    def __init__(self, owned: Iterable[Owned]) -> None:
-        self.entries = list(owned)
-        for entry in self.entries:
-            if isinstance(entry, str):
-                _check_name(entry)
-        self.folders = {
-            e.rstrip("/") for e in self.entries if isinstance(e, str) and e.endswith("/")
-        }
-
-    def file_rank(self, rel: str) -> int | None:
-        for i, entry in enumerate(self.entries):
-            if entry == rel if isinstance(entry, str) else entry.fullmatch(rel):
-                return i
-        return None
-
-    def holds(self, rel: str) -> bool:
-        """Whether the relative path is one of the outputs or lies in an output folder."""
-        if self.file_rank(rel) is not None:
-            return True
-        return any(rel == d or rel.startswith(d + "/") for d in self.folders)
-
-    def owns_temporary(self, rel_dir: str, entry: str, limit: int) -> bool:
-        """Whether ``entry`` in ``rel_dir`` is a killed write's temporary of one of the
-        command's files (or, at the top, a staging folder of its exports)."""
-        carried = temporary_target(entry)
-        if carried is None:
-            return False
-        if not rel_dir and carried == STAGING:
-            return True
-        prefix = f"{rel_dir}/" if rel_dir else ""
-        if self.file_rank(prefix + carried) is not None:
-            return True
-        literals = [e for e in self.entries if isinstance(e, str) and not e.endswith("/")]
-        return any(
-            is_temporary_of(entry, e[len(prefix) :], limit)
-            for e in literals
-            if e.startswith(prefix) and "/" not in e[len(prefix) :]
-        )
-
-
-def survey(folder: Path, owned: Iterable[Owned]) -> Survey:
-    """What the command owns in ``folder`` now (see ``Survey``); reads only, follows no link.
-    The temporaries of killed atomic writes, at the top and in its folders, are its own."""
-    spec = _Owned(owned)
-    found = Survey()
-    ranked: list[tuple[int, Path]] = []
-    limit = name_max(folder)
-
-    def walk(rel_dir: str) -> None:
-        inside = bool(rel_dir)
-        with os.scandir(folder / rel_dir if inside else folder) as entries:
-            listing = sorted(entries, key=lambda e: e.name)
-        for entry in listing:
-            rel = f"{rel_dir}/{entry.name}" if inside else entry.name
-            is_link = entry.is_symlink()
-            is_dir = entry.is_dir(follow_symlinks=False)
-            if not inside and entry.name == LOCK_NAME:
-                continue
-            if not is_link and spec.owns_temporary(rel_dir, entry.name, limit):
-                ranked.append((-1, folder / rel))  # a killed write's temporary: first
-            elif rel in spec.folders:
-                if is_dir:
-                    walk(rel)
-                    found.folders.append(folder / rel)
-                else:
-                    found.foreign.append(f"{rel} ({'a link' if is_link else 'a file'})")
-            elif (rank := spec.file_rank(rel)) is not None:
-                if is_dir:
-                    found.foreign.append(f"{rel}/ (a folder)")
-                else:
-                    ranked.append((rank, folder / rel))
-            elif inside:
-                found.foreign.append(rel + ("/" if is_dir else ""))
-
-    if folder.is_dir():  # the folder itself as given (a link the user chose); none inside
-        walk("")
-    found.files = [path for _, path in sorted(ranked, key=lambda r: r[0])]
-    return found
 
 
 def remove_owned(folder: Path, owned: Iterable[Owned]) -> None:
@@ -203,7 +95,7 @@ def remove_owned(folder: Path, owned: Iterable[Owned]) -> None:
 
 def check_inputs_outside(folder: Path, owned: Iterable[Owned], inputs: Iterable[PathLike]) -> None:
     """Refuses inputs that lie among the outputs the command writes in ``folder``."""
-    spec = _Owned(owned)
+    spec = OwnedSpec(owned)
     root = folder.resolve()
     for given in inputs:
         path = Path(given).resolve()
@@ -233,7 +125,7 @@ def claim_folder(
     """
     path = Path(folder)
     owned = list(owned)
-    spec = _Owned(owned)  # checks the literal names before anything else
+    spec = OwnedSpec(owned)  # checks the literal names before anything else
     check_inputs_outside(path, owned, inputs)
     if path.exists() and not path.is_dir():
         raise PermissionError(f"output folder {path} is not writable: it is a file")
@@ -304,7 +196,7 @@ def remove_temporaries(folder: Path, owned: Iterable[Owned]) -> None:
     or in its command's folders (``Survey``: verified names of its own files only)."""
     if not folder.is_dir():
         return
-    spec = _Owned(owned)
+    spec = OwnedSpec(owned)
     limit = name_max(folder)
     for rel_dir in ["", *sorted(spec.folders)]:
         place = folder / rel_dir if rel_dir else folder
@@ -337,9 +229,3 @@ def _removed_if_refused(folder: Path) -> Iterator[None]:
             except OSError:  # not empty (or gone): left as it is
                 break
         raise
-
-
-def _check_name(name: str) -> None:
-    parts = PurePath(name).parts
-    if not parts or PurePath(name).is_absolute() or ".." in parts:
-        raise InputError(f"{name!r} is not a name inside the output folder")
