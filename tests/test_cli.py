@@ -213,7 +213,7 @@ def test_info_check_says_what_is_present_and_fails_on_a_missing_lora(tmp_path):
         for line in result.output.splitlines()
     }
     assert rows["base model"].startswith(f"incomplete: folder {base} lacks unet/config.json")
-    assert rows[f"LoRA {lora}"] == f"present: {lora / LORA_WEIGHT_NAME}"
+    assert rows[f"LoRA {lora}"].startswith(f"damaged: LoRA file '{lora / LORA_WEIGHT_NAME}'")
     assert "extra [cluster]" in rows and "extra [dev]" not in rows
     assert result.exit_code == 1  # a model is missing
     result = CliRunner().invoke(main, ["info", "--check", "--lora", str(tmp_path / "nothere")])

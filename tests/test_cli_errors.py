@@ -426,12 +426,15 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
 
 
 def fake_base(folder):
-    """A folder laid out as a Stable Diffusion model (found by the checks, never loaded)."""
+    """A folder laid out as a Stable Diffusion model, its weight files whole safetensors
+    files (found by the checks, never loaded)."""
+    from safetensors.numpy import save_file
+
     base = folder / "base"
     for part in ("unet", "vae", "text_encoder"):
         (base / part).mkdir(parents=True)
         (base / part / "config.json").write_text("{}")
-        (base / part / "model.safetensors").write_bytes(b"")
+        save_file({"weight": np.zeros(4, np.float32)}, str(base / part / "model.safetensors"))
     (base / "tokenizer").mkdir()
     (base / "tokenizer" / "vocab.json").write_text("{}")
     (base / "scheduler").mkdir()

@@ -30,7 +30,8 @@ LAYERS: list[tuple[str, set[str]]] = [
     (
         "foundation: errors, files, settings, seeds, process state",
         {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder", "digests"}
-        | {"text_escape"}
+        | {"text_escape", "temporaries", "output_locks", "output_names", "output_survey"}
+        | {"source_date"}
         | {"settings", "seeds", "thread_policy", "stop_signals"},
     ),
     (

@@ -295,7 +295,9 @@ class RasterBatch:
         rendered: list[dict[str, Any]] = []
         for k, native in zip(ok, natives, strict=True):
             if isinstance(native, BaseException):
-                error = native if isinstance(native, PlantDreamerError) else InputError(str(native))
+                # MemoryError stays one (a buffer the data sized could not be allocated).
+                kept = isinstance(native, (PlantDreamerError, MemoryError))
+                error = native if kept else InputError(str(native))
                 self.outcomes[k] = error
                 continue
             means2d = prepared[k].means2d(native)
@@ -328,7 +330,8 @@ class RasterBatch:
     def results(
         self,
     ) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
-        """Each scene's (render, alpha, meta), or its error naming it (``scene K: ...``)."""
+        """Each scene's (render, alpha, meta), or its error naming it (``scene K: ...``; one
+        that ran out of memory as an InputError saying so: a plant of a group fails alone)."""
         named: list[Any] = []
         for k, result in enumerate(self.outcomes):
             if result is None:

@@ -76,7 +76,8 @@ class _LazyGroup(click.Group):
                 # Expected failures (bad input, missing files or models): one line, exit 1.
                 _fail(ctx, str(exc))
             except MemoryError as exc:
-                _fail(ctx, f"out of memory{f' ({exc})' if str(exc) else ''}; use smaller sizes")
+                detail = str(exc).removeprefix("out of memory: ")  # the native core's own
+                _fail(ctx, f"out of memory{f' ({detail})' if detail else ''}; use smaller sizes")
             except KeyboardInterrupt:
                 click.secho("interrupted", err=True, fg="yellow")
                 ctx.exit(130)

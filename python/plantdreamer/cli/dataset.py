@@ -163,7 +163,7 @@ def dataset(
     from plantdreamer.dataset.runner import DatasetStopped, planned_classes
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.errors import InputError
-    from plantdreamer.exports.dataset import check_planned_splits
+    from plantdreamer.exports.dataset import check_exports_owned, check_planned_splits
 
     if not dry_run:
         import_ray()  # fail first, with what to install, when Ray is missing
@@ -188,9 +188,10 @@ def dataset(
     labels = make_label_options(
         split_ratios, split_seed, min_instance_area, allow_empty_split, stuff, split_mode
     )
-    if dry_run:  # the label options' refusals, as the run would give them
+    if dry_run:  # the label options' and the folder's refusals, as the run would give them
         planned = planned_classes(plants)
         species_of = {p.id: p.species_name for p in plants}
+        check_exports_owned(Path(out_dir))
         check_planned_splits(Path(out_dir), species_of, labels, planned)
         _print_plan(plants, out_dir, packing.plants_per_gpu)
         return

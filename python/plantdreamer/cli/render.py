@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 from pathlib import Path, PurePath
 from typing import Any
 
 import click
 
+from plantdreamer.cli import render_transforms
 from plantdreamer.cli.options import (
     apply_old_names,
     config_options,
@@ -53,9 +53,9 @@ def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tu
     return ORBIT_OUTPUTS
 
 
-# The files a --transforms render wrote (named by its frames, so no pattern finds them):
-# --overwrite deletes them too, so a render with fewer frames leaves none of the earlier.
-VIEWS_RECORD = "rendered_views.json"
+# The files a --transforms render wrote (named by its frames, so no pattern finds them),
+# with their digests: --overwrite deletes those it can prove it wrote (render_transforms).
+VIEWS_RECORD = render_transforms.VIEWS_RECORD
 
 
 @click.command()
@@ -164,16 +164,13 @@ def render(
         inputs.append(_transforms_file(Path(transforms)))
         if not ground_truth:
             views_at = scan_transforms_json(transforms, images_required=False)
-            files = view_files(views_at, transforms)
+            files = render_transforms.view_files(views_at, transforms)
             inputs += [Path(p) for v in views_at for p in (v.image_path, v.mask_path) if p]
-    earlier = _recorded_views(out) if overwrite else []
-    # the record last: a stopped --overwrite leaves it, naming what is still to delete
-    named = [*files, *earlier] if transforms is not None else files  # and their folders
-    owned = [*render_outputs(ground_truth, transforms is not None, named), *earlier, VIEWS_RECORD]
-    with claim_folder(out, overwrite=overwrite, owned=owned, inputs=inputs):
-        if views_at:
-            _render_dataset_views(gaussians, views_at, files, out, background)
-            return
+    # The cameras, checked before anything is written: a refused command writes nothing.
+    scene = transform = None
+    if views_at:
+        cameras = [v.camera for v in views_at]
+    else:
         scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
         if transforms is not None:
             from plantdreamer.pipeline.rerender import scene_cameras
@@ -186,12 +183,21 @@ def render(
             if distance is None:  # generate's framing (a plant generated without views too)
                 distance = framed_distance(scene, views, elevation, fovy, resolution, resolution)
             cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
-        frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
-        if transforms is None:
-            from plantdreamer.pipeline import outputs
-
-            outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
-    click.echo(f"wrote {len(frames)} views of {len(gaussians)} Gaussians to {out}")
+    for i, camera in enumerate(cameras):
+        camera.check_renderable(f"camera {i}")
+    earlier = render_transforms.proven_views(out) if overwrite else []
+    # the record last: a stopped --overwrite leaves it, naming what is still to delete
+    named = [*files, *earlier] if transforms is not None else files  # and their folders
+    owned = [*render_outputs(ground_truth, transforms is not None, named), *earlier, VIEWS_RECORD]
+    with claim_folder(out, overwrite=overwrite, owned=owned, inputs=inputs):
+        if views_at:
+            render_transforms.render_dataset_views(gaussians, views_at, files, out, background)
+            return
+        turntables = "none" if transforms is not None else turntable
+        written = _render_views(
+            scene, transform, cameras, out, background, ground_truth, path, turntables
+        )
+    click.echo(f"wrote {written} views of {len(gaussians)} Gaussians to {out}")
 
 
 def parse_center(value: str) -> tuple[float, float, float]:
@@ -220,9 +226,10 @@ def _scene(gaussians, frame, own_frame: bool, up: str, center):
     return to_scene_frame(gaussians, up=up, center=center)
 
 
-def _render_views(scene, transform, cameras, out, background, ground_truth, ply):
+def _render_views(scene, transform, cameras, out, background, ground_truth, ply, turntable):
     """Renders ``cameras`` into ``out`` (with ``ground_truth``, in generate's dataset layout,
-    with the label files); returns the frames."""
+    with the label files), each view written as it is made (``outputs.StreamedViews``: the
+    turntable's frames are all it keeps); returns the number of views."""
     import torch
 
     from plantdreamer.pipeline import outputs
@@ -230,6 +237,8 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
     from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
+    folder = out / "renders" if ground_truth else out
+    views = outputs.StreamedViews(folder, len(cameras), TURNTABLE_FRAMES, turntable)
     with torch.no_grad(), Counter("render: views", len(cameras)) as counter:
 
         def render_view(camera):
@@ -238,70 +247,18 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
             return outputs.to_uint8(image[0].numpy()), meta
 
         if not ground_truth:
-            frames = [render_view(camera)[0] for camera in cameras]
-            outputs.write_renders(out, frames)
-            return frames
+            for i, camera in enumerate(cameras):
+                views.add(i, render_view(camera)[0])
+        else:
+            from plantdreamer.exports.points import read_class_names
+            from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
+
+            names = read_class_names(ply)
+            writer = ground_truth_writer(out, model, transform, class_names=names)
+            render_views(model, writer, cameras, render_view, views.add)
+    views.write_turntables(out)
+    if ground_truth:
         from plantdreamer.exports.plant import write_plant_exports
-        from plantdreamer.exports.points import read_class_names
-        from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
 
-        writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
-        frames = render_views(model, writer, cameras, render_view)
-        outputs.write_renders(out / "renders", frames)
-    write_plant_exports(out)
-    return frames
-
-
-def view_files(views, transforms: str) -> list[str]:
-    """Where each camera of a transforms.json is written in --out: its image's file name as
-    a PNG, or, when two frames share a name (``cam0/0001.png``, ``cam1/0001.png``), its
-    path relative to the transforms.json; refused when even those collide."""
-    from plantdreamer.errors import InputError
-    from plantdreamer.eval.datasets import _transforms_file
-
-    flat = [f"{view.name}.png" for view in views]
-    if len(set(flat)) == len(flat):
-        return flat
-    root = _transforms_file(Path(transforms)).parent
-    files: dict[str, int] = {}
-    for i, view in enumerate(views):
-        relative = PurePath(os.path.relpath(view.image_path, root))
-        name = relative.with_name(f"{view.name}.png").as_posix()
-        if ".." in relative.parts or name in files:
-            j = files.get(name, flat.index(flat[i]))
-            raise InputError(
-                f"{transforms}: frames {j} and {i} would both be written as {name}; give "
-                "the frames distinct file names"
-            )
-        files[name] = i
-    return list(files)
-
-
-def _recorded_views(out: Path) -> list[str]:
-    """The files an earlier --transforms render recorded in ``out`` (none when unreadable)."""
-    import json
-
-    try:
-        files = json.loads((out / VIEWS_RECORD).read_text(encoding="utf-8"))["files"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
-    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
-
-
-def _render_dataset_views(gaussians, views, files: list[str], out: Path, background) -> None:
-    import numpy as np
-    import torch
-
-    from plantdreamer.atomic import write_image, write_json
-    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
-
-    model = GaussianModel(gaussians)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / VIEWS_RECORD, {"files": files})  # before them: one stopped is owned too
-    for view, name in zip(views, files, strict=True):
-        with torch.no_grad():
-            rgb = model.render([view.camera], background)[0][0].numpy()
-        image = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        (out / name).parent.mkdir(parents=True, exist_ok=True)
-        write_image(out / name, image)
-    click.echo(f"wrote {len(views)} views of {len(model)} Gaussians to {out}")
+        write_plant_exports(out)
+    return views.written

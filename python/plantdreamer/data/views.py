@@ -21,7 +21,8 @@ The area limit and stuff classes are those the folder's label files record (``co
 ``coco/<split>.json``: what ``labels --min-instance-area --stuff`` made), so the targets are
 the objects, category ids and ``num_classes`` of the COCO and YOLO files; ``min_area`` or
 ``stuff`` given otherwise is refused (remake the label files instead). A folder without
-label files takes them as given (defaults: ``labels``' defaults).
+label files takes them as given (defaults: ``labels``' defaults). A dataset folder whose
+label files a stopped export left a mix of two (``export.incomplete``) is refused.
 
 ``semantic`` and ``ignore`` are ``data.pixel_map.PixelMap`` tensors: the geometric v2
 transforms move them as they move a mask, and ``SanitizeBoundingBoxes`` leaves them whole.
@@ -51,6 +52,7 @@ import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.exports.dataset import SPLITS_FILE, dataset_views, labelled_plants
+from plantdreamer.exports.dataset_files import check_incomplete
 from plantdreamer.exports.instances import (
     MIN_INSTANCE_AREA,
     read_label_maps,
@@ -239,6 +241,7 @@ def _recorded_options(path: Path) -> tuple[int, tuple[str, ...]]:
 def _dataset_plants(root: Path):
     if not (root / PLANTS_DIR).is_dir():
         raise InputError(f"{root} is neither a plant folder nor a dataset folder")
+    check_incomplete(root)  # a stopped swap's mix of two exports
     plants = [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
     for p in plants:
         read_transforms(p.folder)  # a damaged one is refused, not left out

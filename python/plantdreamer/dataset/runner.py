@@ -38,6 +38,7 @@ from plantdreamer.exports.dataset import (
     write_dataset_exports,
 )
 from plantdreamer.output_folder import remove_temporaries
+from plantdreamer.output_locks import HELD_ENV, held_tokens
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
@@ -197,6 +198,7 @@ class _DatasetRun:
             self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
             board = ray.remote(num_cpus=0)(StatusBoard).remote()
             extra_env = {HOLD_ENV: os.environ[HOLD_ENV]} if HOLD_ENV in os.environ else {}
+            extra_env[HELD_ENV] = ",".join(held_tokens())  # the workers write inside our lock
             workers = Dispatcher(ray, units, board, self.options.max_retries, extra_env)
             return self._follow(ray, workers, board, [p.id for p in todo])
         finally:

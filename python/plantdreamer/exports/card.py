@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import datetime
 import json
-import os
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -43,6 +42,7 @@ from plantdreamer.exports.card_text import (
     plant_views,
 )
 from plantdreamer.exports.listing import PlantEntry
+from plantdreamer.source_date import source_date_epoch
 from plantdreamer.text_escape import markdown_text as md
 
 README_FILE = "README.md"
@@ -151,15 +151,17 @@ def plant_guidance(folder: Path) -> str:
     )
 
 
-def write_card(dataset_dir: Path, card: dict[str, Any]) -> str | None:
-    """``README.md`` and the ``card`` block of ``dataset.json`` (the rest of it kept). A
-    README.md the card did not write is left as it is: the warning says so."""
+def write_card(dataset_dir: Path, card: dict[str, Any], into: Path | None = None) -> str | None:
+    """``README.md`` and the ``card`` block of ``dataset.json`` (the rest of it kept), into
+    ``into`` (a staging folder; default: the dataset folder). A README.md the card did not
+    write is left as it is (none is written): the warning says so."""
     dataset_dir = Path(dataset_dir)
+    target = Path(into) if into is not None else dataset_dir
     readme, warning = dataset_dir / README_FILE, None
     if readme.is_file() and not is_card(readme.read_text(errors="replace")):
         warning = f"{readme} is not a dataset card: left as it is (the card is in {SUMMARY_FILE})"
     else:
-        atomic.write_text(readme, card_markdown(card))
+        atomic.write_text(target / README_FILE, card_markdown(card))
     path = dataset_dir / SUMMARY_FILE
     try:
         summary = json.loads(path.read_text()) if path.is_file() else {}
@@ -168,7 +170,7 @@ def write_card(dataset_dir: Path, card: dict[str, Any]) -> str | None:
     if not isinstance(summary, dict):
         summary = {}
     summary[CARD_KEY] = card
-    atomic.write_text(path, json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    atomic.write_text(target / SUMMARY_FILE, json.dumps(summary, indent=2, sort_keys=True) + "\n")
     return warning
 
 
@@ -252,8 +254,8 @@ def card_markdown(card: dict[str, Any]) -> str:
 def made_on(records: list[Path]) -> str:
     """The card's date (YYYY-MM-DD, UTC): ``SOURCE_DATE_EPOCH`` when set, else the day
     the newest of ``records`` was written, else today."""
-    epoch = os.environ.get("SOURCE_DATE_EPOCH")
-    if epoch is not None and epoch.strip().isdigit():
+    epoch = source_date_epoch()  # InputError for a malformed value, checked up front too
+    if epoch is not None:
         stamp = float(epoch)
     else:
         times = [p.stat().st_mtime for p in records if p.is_file()]

@@ -14,9 +14,11 @@
 
 These are the files the exports own in ``DIR`` (``DATASET_EXPORTS``; ``output_folder``):
 they are built in a staging folder beside them and moved in only when all are complete, so
-a failed export (an unreadable view) leaves the previous one whole; a ``yolo/`` or
-``coco/`` that holds anything else, or is a link, is refused before anything is written.
-The caller holds the folder's lock (``dataset``, ``labels``).
+a failed export (an unreadable view) leaves the previous one whole, and a process killed
+while they move in leaves ``export.incomplete``, which ``PlantViews`` refuses
+(``dataset_files``); a ``yolo/`` or ``coco/`` that holds anything else, or is a link, and
+any of these files in a folder that holds no dataset's record, are refused before
+anything is written. The caller holds the folder's lock (``dataset``, ``labels``).
 
 The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
@@ -38,9 +40,17 @@ from typing import Any
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
-from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
+from plantdreamer.exports.card import (
+    README_FILE,
+    SUMMARY_FILE,
+    coco_info,
+    dataset_card,
+    plant_guidance,
+    write_card,
+)
 from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.dataset_files import INCOMPLETE, check_top_files, swap_in
 from plantdreamer.exports.exact_splits import make_splits, split_rule
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
 from plantdreamer.exports.instances import (
@@ -61,7 +71,8 @@ from plantdreamer.exports.splits import (
     species_counts,
     species_gaps,
 )
-from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
+from plantdreamer.output_folder import remove_temporaries, survey, tree
+from plantdreamer.source_date import source_date_epoch
 
 SPLITS_FILE = "splits.json"
 _SPLIT = "(?:" + "|".join(SPLITS) + ")"
@@ -70,6 +81,7 @@ _VIEW = r"[^/]+__view_\d{3,}"  # <plant id>__<view>: a plant's view, flattened
 DATASET_EXPORTS = (
     SPLITS_FILE,
     GALLERY_FILE,
+    INCOMPLETE,
     *tree("coco", re.compile(rf"{_SPLIT}\.json")),
     *tree(
         "yolo",
@@ -79,6 +91,9 @@ DATASET_EXPORTS = (
     ),
 )
 EXPORT_ENTRIES = (SPLITS_FILE, "coco", "yolo", GALLERY_FILE)  # replaced together
+CARD_ENTRIES = (README_FILE, SUMMARY_FILE)  # with them, when the card writes them
+# Every top-level entry the exports write: a user's, unless the folder holds a dataset.
+TOP_ENTRIES = (*EXPORT_ENTRIES, SUMMARY_FILE, INCOMPLETE)
 
 
 @dataclass(frozen=True)
@@ -149,8 +164,10 @@ def check_planned_splits(
 ) -> None:
     """Refuses, before any plant runs, splits that the plants to come (``plants``: id ->
     species, ``Plant.species_name``), with those already finished in the folder, would leave
-    empty, and ``--stuff`` that names no class or every class of ``classes`` (the plants'
-    class names; None: not known before they run)."""
+    empty, ``--stuff`` that names no class or every class of ``classes`` (the plants' class
+    names; None: not known before they run), and a malformed ``SOURCE_DATE_EPOCH`` (the
+    card's date)."""
+    source_date_epoch()  # the card's date: a malformed one refused before any plant runs
     species_of = {p.id: p.species for p in finished_plants(dataset_dir)} | dict(plants)
     splits = make_splits(species_of, options.ratios, options.seed, options.mode)
     check_splits(splits, options.ratios, options.allow_empty_split)
@@ -160,8 +177,10 @@ def check_planned_splits(
 
 def check_exports_owned(dataset_dir: Path) -> None:
     """Refuses a dataset folder whose export folders hold what the exports do not write
-    (or are links): checked before a run starts and again before an export."""
+    (or are links), or that holds any file the exports write without a dataset's record
+    (``dataset_files``): checked before a run starts and again before an export."""
     survey(Path(dataset_dir), DATASET_EXPORTS).refuse(Path(dataset_dir))
+    check_top_files(Path(dataset_dir), TOP_ENTRIES)
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
@@ -174,9 +193,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     stage = atomic.staging_folder(dataset_dir)
     try:
         labels, card = _write_exports(dataset_dir, stage, options or LabelOptions())
-        replace_entries(dataset_dir, stage, EXPORT_ENTRIES)
-        # The card (README.md, dataset.json's card) once the exports it describes are in.
-        labels.warnings.extend(w for w in [write_card(dataset_dir, card)] if w)
+        # The card (README.md, dataset.json's card) with the exports it describes.
+        labels.warnings.extend(w for w in [write_card(dataset_dir, card, into=stage)] if w)
+        swap_in(dataset_dir, stage, EXPORT_ENTRIES, CARD_ENTRIES)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return labels

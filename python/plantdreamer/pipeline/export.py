@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,10 +55,14 @@ def export_run(
     out: Path,
     device: str,
     show_progress: bool = False,
+    stop_point: Callable[[], None] | None = None,
 ) -> RunResult:
     """Writes every output of a finished run into ``out`` (``show_progress``: a count of
     the views rendered, then a line before the label files); a model that training left
-    without Gaussians is refused before anything is written."""
+    without Gaussians is refused before anything is written. ``stop_point`` raises when a
+    stop was asked for (``Trainer.stop_point``): called before each view and before the
+    label files, so a stop during the export ends it within one view (the final
+    checkpoint is written: a resume redoes the export)."""
     final = state.model.to_gaussians()
     if len(final) == 0:
         emptied = next((e for e in state.events if e.get("gaussians") == 0), None)
@@ -90,17 +95,23 @@ def export_run(
         cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
+        views = outputs.StreamedViews(
+            out / "renders", len(cameras), oc.turntable_frames, oc.turntable
+        )  # each view written as it is made
         with Counter("export: views", len(cameras), show_progress) as counter:
 
             def render(camera):
+                if stop_point is not None:  # a stop asked for: within one view
+                    stop_point()
                 image, _, meta = view_model.render([camera], cfg.train.background)
                 counter.advance()
                 return outputs.to_uint8(image[0].numpy()), meta
 
-            frames = render_views(view_model, writer, cameras, render)
-        outputs.write_renders(out / "renders", frames)
-        outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
+            render_views(view_model, writer, cameras, render, views.add)
+        views.write_turntables(out)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
+    if stop_point is not None:
+        stop_point()
     if show_progress:
         print("export: label files (COCO, YOLO-seg, points.ply)", file=sys.stderr, flush=True)
     with timer("label files"):

@@ -27,8 +27,8 @@ from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
 EXPORT_PRECISION = 1e-5
 
 
-# Every camera and view of the orbit is held until the export ends: one view per 0.1
-# degree is more than any use of the orbit needs.
+# The orbit's cameras are held until the export ends (its views are written as they are
+# made): one view per 0.1 degree is more than any use of the orbit needs.
 MAX_EVAL_VIEWS = 3600
 # The longest cadence of progress pictures taken: beyond any run's steps (whose last step
 # has its pictures whatever the cadence).
@@ -175,12 +175,52 @@ def write_turntables(
 ) -> list[Path]:
     """``turntable.gif`` and/or ``turntable.mp4`` (``fmt``: one of TURNTABLE_FORMATS) of
     ``count`` frames evenly picked from the orbit renders; returns the files written."""
+    picks = turntable_picks(len(frames), count)
+    return write_turntable_frames(out_dir, [frames[i] for i in picks], fmt)
+
+
+def turntable_picks(views: int, count: int) -> list[int]:
+    """The views of an orbit of ``views`` that a turntable of ``count`` frames shows (evenly
+    spaced, from the first)."""
+    if views <= 0 or count <= 0:
+        return []
+    return [int(i) for i in np.linspace(0, views, num=min(count, views), endpoint=False)]
+
+
+class StreamedViews:
+    """The orbit's views written as they are made (``view_NNN.png`` in ``out_dir``), with
+    only the frames its turntable shows kept: the memory a render holds is the turntable's
+    frames (``turntable_frames`` at most), whatever the number of views."""
+
+    def __init__(self, out_dir: Path, views: int, turntable_frames: int, fmt: str) -> None:
+        if fmt not in TURNTABLE_FORMATS:
+            raise InputError(
+                f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}"
+            )
+        self.out_dir, self.fmt = out_dir, fmt
+        count = turntable_frames if fmt != "none" else 0
+        self.picks = set(turntable_picks(views, count))
+        self.kept: list[np.ndarray] = []
+        self.written = 0
+        out_dir.mkdir(parents=True, exist_ok=True)
+
+    def add(self, index: int, frame: np.ndarray) -> None:
+        atomic.write_image(self.out_dir / f"view_{index:03d}.png", frame)
+        self.written += 1
+        if index in self.picks:
+            self.kept.append(frame)
+
+    def write_turntables(self, folder: Path) -> list[Path]:
+        """The turntable of the kept frames, into ``folder``."""
+        return write_turntable_frames(folder, self.kept, self.fmt)
+
+
+def write_turntable_frames(out_dir: Path, chosen: list[np.ndarray], fmt: str) -> list[Path]:
+    """``turntable.gif`` and/or ``turntable.mp4`` of the frames ``chosen``."""
     if fmt not in TURNTABLE_FORMATS:
         raise InputError(f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}")
-    if not frames or count <= 0:
+    if not chosen:
         return []
-    picks = np.linspace(0, len(frames), num=min(count, len(frames)), endpoint=False).astype(int)
-    chosen = [frames[i] for i in picks]
     writers = {"gif": turntable.write_gif, "mp4": turntable.write_mp4}
     paths = []
     for suffix in turntable.suffixes(fmt):

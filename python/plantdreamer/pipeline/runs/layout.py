@@ -23,6 +23,7 @@ from pathlib import Path
 
 from plantdreamer.errors import CheckpointError, InputError
 from plantdreamer.output_folder import Owned, claim_folder, tree
+from plantdreamer.output_locks import check_not_inside_held
 from plantdreamer.pipeline.runs.record import (
     DONE,
     GROUP_FILE,
@@ -69,6 +70,7 @@ class PlantAlone:
     def claim(
         self, stack: ExitStack, out: Path, record: RunRecord, *, overwrite: bool, resume: bool
     ) -> None:
+        check_not_inside_held(out, f"output folder {out}")  # in use: said first
         if not resume and not overwrite and (out / CHECKPOINT_NAME).is_file():
             raise InputError(
                 f"{out} holds a checkpoint of an earlier run; continue it with --resume "

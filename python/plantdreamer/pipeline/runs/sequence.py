@@ -103,7 +103,7 @@ def train_part(part: Part, run: RunContext) -> dict[str, RunResult]:
                 device = str(getattr(guidance, "device", "cpu"))
                 try:
                     results[entry.name] = export_run(
-                        p.cfg, p.state, p.out_dir, device, run.show_progress
+                        p.cfg, p.state, p.out_dir, device, run.show_progress, trainer.stop_point
                     )
                 except Exception as exc:
                     run.fail(entry, exc)

@@ -40,15 +40,17 @@ def check_inputs(cfg: GenerateConfig) -> None:
 
 def check_models(cfg: GenerateConfig) -> None:
     """The models a config's guidance loads are there, looked at without loading them: the
-    LoRA file (and the template it recorded), and the base model and ControlNet when they
-    are local folders or paths (offline, hub ids must be in the Hugging Face cache).
+    LoRA file (its header: LoRA weights of a whole safetensors file; and the template it
+    recorded), and the base model and ControlNet when they are local folders or paths, each
+    weight file's header read (offline, hub ids must be in the Hugging Face cache).
     ModelNotFoundError or InputError naming what is missing. A LoRA given is checked even
     when no guidance loads it (a wrong path is a mistake either way)."""
     sds = cfg.sds
     if sds.lora is not None:
         from plantdreamer.guidance.lora_weights import find_lora_file, recorded_template
+        from plantdreamer.guidance.weight_files import check_lora_weights
 
-        find_lora_file(sds.lora)
+        check_lora_weights(find_lora_file(sds.lora))  # its header read: it will load
         recorded_template(sds.lora)
     if sds.guidance == "none":
         return

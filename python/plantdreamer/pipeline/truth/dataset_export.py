@@ -215,20 +215,20 @@ def ground_truth_writer(
     return GroundTruthWriter(out_dir, label_set, transform, class_names)
 
 
-def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render) -> list:
-    """Renders each view (``render(camera) -> (image, meta)``) and writes its ground truth,
-    whose instance channels reuse the render's footprints; returns the images."""
+def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render, keep) -> None:
+    """Renders each view (``render(camera) -> (image, meta)``), hands the image to
+    ``keep(index, image)`` (which writes it: ``outputs.StreamedViews.add``) and writes its
+    ground truth, whose instance channels reuse the render's footprints: one view is held
+    at a time."""
     from plantdreamer.pipeline.truth.ground_truth import GroundTruthRenderer
 
     ground_truth = GroundTruthRenderer(model, writer.label_set)
     writer.choose_depth_unit(model.params["means"].detach().numpy(), cameras)
-    images = []
     for i, camera in enumerate(cameras):
         image, meta = render(camera)
         name = f"view_{i:03d}"
+        keep(i, image)
         gt = ground_truth(camera, meta)
         writer.add(name, f"renders/{name}.png", camera, gt)
-        images.append(image)
     if cameras:
         writer.finish(cameras[0])
-    return images
