@@ -172,3 +172,36 @@ def test_layouts_are_found_by_their_record(tmp_path):
                     failures="record", show_progress=False)  # fmt: skip
     assert found_layout(tmp_path / "g") == FolderPerPlant()
     assert found_layout(tmp_path / "g" / "bean-s0000") == PlantAlone()
+
+
+class _Killed(BaseException):
+    """A kill, in-process: nothing after it runs but the finally blocks."""
+
+
+def test_a_kill_right_after_a_checkpoint_leaves_no_picture_missing_on_resume(
+    tmp_path, monkeypatch
+):
+    """The progress pictures of a step are written before its checkpoint: a run killed just
+    after writing the checkpoint at step 4 resumes there with step 4's picture on disk, and
+    ends with the unbroken run's pictures."""
+    from plantdreamer.pipeline.state import checkpoint
+
+    cfg = tiny(steps=6, checkpoint_every=2)
+    generate_plants([cfg], tmp_path / "full", guidance=photometric(), show_progress=False)
+    write = checkpoint.PlantCheckpoints.write
+
+    def killed_after_step_4(self, record):
+        write(self, record)
+        if record.step == 4:
+            raise _Killed
+
+    monkeypatch.setattr(checkpoint.PlantCheckpoints, "write", killed_after_step_4)
+    with pytest.raises(_Killed):
+        generate_plants([cfg], tmp_path / "cut", guidance=photometric(), show_progress=False)
+    monkeypatch.setattr(checkpoint.PlantCheckpoints, "write", write)
+    assert (tmp_path / "cut" / "progress" / "step_000004.png").is_file()
+    resumed = generate_plants(None, tmp_path / "cut", guidance=photometric(), resume=True,
+                              show_progress=False)[0]  # fmt: skip
+    assert resumed.resumed_from == 4
+    for name in ("progress.png", *(f"progress/step_00000{s}.png" for s in (2, 4, 6))):
+        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "full" / name).read_bytes()

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
 from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
 
@@ -33,13 +33,13 @@ def test_sigterm_during_the_export_stops_it_and_resume_redoes_it(tmp_path, monke
     monkeypatch.setattr(GaussianModel, "render", render_then_signal)
     out = tmp_path / "stopped"
     with pytest.raises(RunInterrupted):
-        generate(GenerateConfig.of(**SETTINGS), out, show_progress=False)
+        generate_plants([GenerateConfig.of(**SETTINGS)], out, show_progress=False)
     monkeypatch.undo()
     assert len(calls) == 3  # stopped within one view: nothing rendered after the notice
     assert 0 < len(list((out / "renders").glob("view_*.png"))) < 8
     assert (out / CHECKPOINT_NAME).is_file() and not (out / "run.json").exists()
     first = (out / "renders" / "view_000.png").read_bytes()
-    generate(None, out, resume=True, show_progress=False)  # the export again, whole
+    generate_plants(None, out, resume=True, show_progress=False)  # the export again, whole
     assert len(list((out / "renders").glob("view_*.png"))) == 8 and (out / "run.json").is_file()
     assert (out / "renders" / "view_000.png").read_bytes() == first  # the same model's view
     assert not (out / CHECKPOINT_NAME).exists()
