@@ -123,7 +123,7 @@ def build_command() -> click.Command:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
         and ground truth per view: labels/, instances/, depth/, transforms.json. At each
         checkpoint progress.png (the Gaussians so far) and loss.png show how it goes."""
-        from plantdreamer.pipeline import RunInterrupted
+        from plantdreamer.errors import RunInterrupted
 
         started = time.perf_counter()
         given = typed_options(ctx)
@@ -193,21 +193,14 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
 
 
 def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:
-    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise)."""
-    from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import parse_seeds
+    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise),
+    each checked before torch is imported (``pipeline.requested``, as the API's)."""
+    from plantdreamer.pipeline.requested import requested_configs
 
     preset = options.pop("preset")
     typed = options_to_settings(GenerateConfig, given_on_command_line(options))
     defaults = options_to_settings(GenerateConfig, options)
-    if seeds is None:
-        return [resolve_config(preset, typed, base=defaults)]
-    if "seed" in typed:
-        raise click.UsageError("give --seed or --seeds, not both")
-    return [
-        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
-        for seed in parse_seeds(seeds)
-    ]
+    return requested_configs(preset, typed, seeds, base=defaults)
 
 
 def _run(
@@ -223,7 +216,8 @@ def _run(
     """Trains the plants (one, or a group under ``out``), or resumes ``out``; each finished
     plant's result. A failed plant of a group makes the command fail once the others are
     written (they are listed first)."""
-    from plantdreamer.pipeline.plants import PlantsFailed, generate_plants
+    from plantdreamer.errors import PlantsFailed
+    from plantdreamer.pipeline.plants import generate_plants
 
     try:
         return generate_plants(cfgs, out, group=group, resume=resume, changes=changes,

@@ -8,19 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.errors import InputError, PlantDreamerError
+from plantdreamer.errors import InputError, PlantsFailed
 from plantdreamer.pipeline.config import GenerateConfig
 from plantdreamer.pipeline.export import RunResult
 from plantdreamer.pipeline.group import GROUP_FILE, GroupResult, generate_group
 from plantdreamer.pipeline.run import generate
 
-
-class PlantsFailed(PlantDreamerError):
-    """Plants of a group failed; ``done`` are the others' results, written."""
-
-    def __init__(self, message: str, done: list[RunResult]) -> None:
-        super().__init__(message)
-        self.done = done
+__all__ = ["PlantsFailed", "generate_plants"]  # PlantsFailed: plantdreamer.errors'
 
 
 def generate_plants(
