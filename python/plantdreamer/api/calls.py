@@ -1,12 +1,6 @@
-"""The Python API: ``generate`` and ``make_dataset``, the commands ``plantdreamer generate``
-and ``plantdreamer dataset`` as functions.
-
-They take the same settings by the same names (``_`` for ``-``: ``eval_views=2`` is
-``--eval-views 2``), with the same defaults: every setting is a field of ``GenerateConfig``
-(``plantdreamer.settings``), read from there to build each function's signature and the list
-in its docstring, so ``help(plantdreamer.generate)`` shows them all. Errors are the
-package's own (``InputError``, ``ModelNotFoundError``, ...), never an exit. Each returns what
-a caller opens next: the files written, and the run's figures.
+"""The Python API's two calls: ``generate`` and ``make_dataset``, the commands
+``plantdreamer generate`` and ``plantdreamer dataset`` as functions (``plantdreamer.api``
+says what they share with the command line).
 """
 
 from __future__ import annotations
@@ -14,103 +8,16 @@ from __future__ import annotations
 import inspect
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from plantdreamer import settings as settings_of
+from plantdreamer.api.results import DatasetResult, GeneratedPlant
+from plantdreamer.api.words import python_words
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.pipeline.config import GenerateConfig
 
-__all__ = ["DatasetResult", "GeneratedPlant", "generate", "make_dataset"]
-
-
-@dataclass(frozen=True)
-class GeneratedPlant:
-    """A finished plant folder: the files a caller opens next and the run's figures."""
-
-    folder: Path
-    ply: Path  # the 3DGS model (INRIA layout, labels as ``label`` / ``instance``)
-    steps: int
-    gaussians: int
-    seconds: float  # wall-clock time of the call that made it (0 for a plant already made)
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per phase (run.json)
-
-    @property
-    def renders(self) -> list[Path]:
-        """The evaluation orbit's views (``renders/view_NNN.png``)."""
-        return sorted((self.folder / "renders").glob("view_*.png"))
-
-    @property
-    def turntable(self) -> Path | None:
-        found = [self.folder / f"turntable.{s}" for s in ("gif", "mp4")]
-        return next((p for p in found if p.is_file()), None)
-
-    @property
-    def progress(self) -> Path:
-        """The Gaussians at each checkpoint, side by side (``progress.png``)."""
-        from plantdreamer.pipeline.progress_pictures import PROGRESS_STRIP
-
-        return self.folder / PROGRESS_STRIP
-
-    @property
-    def loss_plot(self) -> Path | None:
-        """``loss.png`` (None for a run without guidance: it has no loss)."""
-        from plantdreamer.pipeline.progress_pictures import LOSS_PLOT
-
-        path = self.folder / LOSS_PLOT
-        return path if path.is_file() else None
-
-    @property
-    def log(self) -> Path:
-        """``log.csv``: one row per trained step."""
-        return self.folder / "log.csv"
-
-    @property
-    def record(self) -> Path:
-        """``run.json``: every setting, versions, timings."""
-        return self.folder / "run.json"
-
-    @property
-    def coco(self) -> Path | None:
-        """The plant's COCO file (None for an unlabelled plant)."""
-        from plantdreamer.exports.plant import COCO_FILE
-
-        path = self.folder / COCO_FILE
-        return path if path.is_file() else None
-
-
-@dataclass(frozen=True)
-class DatasetResult:
-    """A dataset folder after a run: its plants, splits and label files."""
-
-    folder: Path
-    done: int  # plants made by this call
-    skipped: int  # plants already complete in the folder
-    seconds: float
-    splits: dict[str, list[str]]  # split -> plant ids
-    plants: list[Path]  # every finished plant folder
-
-    @property
-    def coco(self) -> dict[str, Path]:
-        """``coco/<split>.json`` by split."""
-        return {s: self.folder / "coco" / f"{s}.json" for s in self.splits}
-
-    @property
-    def yolo(self) -> Path:
-        """``yolo/data.yaml`` (Ultralytics' dataset file)."""
-        return self.folder / "yolo" / "data.yaml"
-
-    @property
-    def gallery(self) -> Path:
-        return self.folder / "gallery.png"
-
-    @property
-    def card(self) -> Path:
-        """The dataset's card, ``README.md`` (also under ``card`` in ``dataset.json``)."""
-        from plantdreamer.exports.card import README_FILE
-
-        return self.folder / README_FILE
+__all__ = ["generate", "make_dataset"]
 
 
 def generate(
@@ -121,43 +28,47 @@ def generate(
     overwrite: bool = False,
     quiet: bool = False,
     **settings: Any,
-) -> GeneratedPlant | list[GeneratedPlant]:
-    """Generates a plant into the folder ``out``, as ``plantdreamer generate --out OUT``.
+) -> list[GeneratedPlant]:
+    """Generates plants into the folder ``out``, as ``plantdreamer generate --out OUT``.
 
     ``settings`` are generate's settings by name (listed below, with their defaults);
-    ``preset`` picks the base values and the settings given override them. ``seeds``
-    (``"0-7"``, ``"0,3,5"`` or a list) trains several plants together, one folder per seed
-    under ``out``, and returns a list. ``resume=True`` continues the run in ``out`` with the
-    settings it started with (only ``steps`` may be given, to go further). ``overwrite``
-    replaces an earlier run's outputs in ``out``; ``quiet`` shows no progress.
+    ``preset`` picks the base values and the settings given override them. One plant is
+    made in ``out`` itself; ``seeds`` (``"0-7"``, ``"0,3,5"`` or a list of integers) trains
+    several together, one folder per seed under ``out``. ``resume=True`` continues the run
+    in ``out`` with the settings it started with (only ``steps`` may be given, to go
+    further). ``overwrite=True`` replaces an earlier run's outputs in ``out``;
+    ``quiet=True`` shows no progress.
 
-    Returns the finished plant (its folder, ``ply``, ``renders``, ``progress``,
-    ``loss_plot``, ``gaussians``, ``seconds``, ...); raises ``InputError`` for a setting
-    that cannot work (before any model loads), ``ModelNotFoundError`` for missing weights
-    and ``RunInterrupted`` on Ctrl-C (a checkpoint is written: resume it).
+    Returns the finished plants, always a list (one item without ``seeds``), each with
+    its folder, ``ply``, ``renders``, ``progress``, ``loss_plot``, ``gaussians``,
+    ``seconds``, ...; every path absolute. Raises ``InputError`` for a setting that cannot
+    work (checked before torch is imported), ``ModelNotFoundError`` for missing weights,
+    ``PlantsFailed`` naming the plants of a group that failed (the others are written) and
+    ``RunInterrupted`` on Ctrl-C (a checkpoint is written: resume it).
     """
-    from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import GROUP_FILE, parse_seeds
-    from plantdreamer.pipeline.plants import generate_plants
+    from plantdreamer.pipeline.requested import requested_configs
 
-    out, t0, show = Path(out), time.perf_counter(), not quiet
-    if resume:
-        unchanged = set(settings) - {"steps"}
-        if unchanged or seeds is not None or overwrite:
-            raise InputError("resume continues with the settings it started with: give only steps")
-        results = generate_plants(None, out, resume=True, changes=settings, show_progress=show)
-        plants = [_plant(r, t0) for r in results]
-        return plants if (out / GROUP_FILE).is_file() else plants[0]
-    preset = settings.pop("preset", GenerateConfig().preset)
-    if seeds is None:
-        cfg = resolve_config(preset, settings)
-        return _plant(generate_plants([cfg], out, overwrite=overwrite, show_progress=show)[0], t0)
-    if "seed" in settings:
-        raise InputError("give seed or seeds, not both")
-    seed_list = parse_seeds(seeds) if isinstance(seeds, str) else [int(s) for s in seeds]
-    cfgs = [resolve_config(preset, {**settings, "seed": s}) for s in seed_list]
-    results = generate_plants(cfgs, out, group=True, overwrite=overwrite, show_progress=show)
-    return [_plant(r, t0) for r in results]
+    with python_words():
+        for name, flag in (("resume", resume), ("overwrite", overwrite), ("quiet", quiet)):
+            _check_flag(name, flag)
+        out, t0, show = _folder(out), time.perf_counter(), not quiet
+        if resume:
+            unchanged = set(settings) - {"steps"}
+            if unchanged or seeds is not None or overwrite:
+                raise InputError(
+                    "resume continues with the settings it started with: give only steps"
+                )
+            cfgs = None
+        else:
+            preset = settings.pop("preset", GenerateConfig().preset)
+            cfgs = requested_configs(preset, settings, seeds)
+        from plantdreamer.pipeline.plants import generate_plants
+
+        results = generate_plants(
+            cfgs, out, group=seeds is not None, resume=resume, changes=settings if resume else None,
+            overwrite=overwrite, show_progress=show,
+        )  # fmt: skip
+        return [_plant(r, t0) for r in results]
 
 
 def make_dataset(
@@ -167,8 +78,6 @@ def make_dataset(
     species: str | Iterable[str] | None = None,
     pointcloud: str | Path | None = None,
     seeds: str | Iterable[int] | None = None,
-    count: int | None = None,
-    seed_start: int | None = None,
     plants_per_gpu: int | None = None,
     address: str | None = None,
     local_cpus: int | None = None,
@@ -189,101 +98,70 @@ def make_dataset(
 
     The plants come from ``spec`` (a TOML file, or the same as a dict) or from ``species``
     (``"bean"`` or a list) and/or ``pointcloud`` (a PLY file or a glob) with ``seeds``
-    (generate's grammar, ``"0-7,9"``, or a list; ``count``/``seed_start`` are the earlier
-    spelling). ``settings`` are
-    generate's settings by name (listed below), for every plant, over the spec's
-    ``[defaults]``. The other arguments are ``dataset``'s options of the same names
-    (``split``: ``"0.8,0.1,0.1"`` or three numbers; ``stuff``: class names; ``resources``:
-    custom Ray resources per plant); None leaves each at the command's default. Plants run
-    on Ray: a local instance, or the cluster at ``address``.
+    (generate's grammar, ``"0-7,9"``, or a list of integers). ``settings`` are generate's
+    settings by name (listed below), for every plant, over the spec's ``[defaults]``. The
+    other arguments are ``dataset``'s options of the same names (``split``:
+    ``"0.8,0.1,0.1"`` or three non-negative numbers, normalised to shares; ``stuff``: class
+    names; ``resources``: custom Ray resources per plant), checked as the command line
+    checks them; None leaves each at the command's default. Plants run on worker
+    processes of this machine, or on Ray with ``address`` (``"auto"`` or ``HOST:PORT``: a
+    cluster; ``"local"``: a private Ray started here).
 
     Plants already complete in ``out`` are skipped. At the end the finished plants are split
     into train/val/test and written as COCO, YOLO, a gallery and the dataset's card
-    (README.md). Returns the folder, splits and files; raises ``PlantDreamerError`` naming
-    the plants that failed (after the others are written).
+    (README.md). Returns the folder, splits and files (absolute paths); raises
+    ``InputError`` for an option or setting that cannot work, before anything starts,
+    ``PlantDreamerError`` naming the plants that failed (after the others are written),
+    and ``DatasetStopped`` on Ctrl-C (running plants checkpoint: call again to finish).
     """
-    from plantdreamer.dataset import RunOptions, expand, run_dataset
-    from plantdreamer.dataset.engine import custom_resources
-    from plantdreamer.dataset.packing import packing_from
-    from plantdreamer.dataset.spec import with_settings
-    from plantdreamer.exports.dataset import LabelOptions
+    from plantdreamer.dataset import run_dataset
+    from plantdreamer.dataset.request import check_flag, dataset_request
     from plantdreamer.exports.listing import finished_plants
-    from plantdreamer.exports.splits import parse_ratios
 
-    table = _spec(spec, species, pointcloud, seeds, count, seed_start)
-    packing = packing_from(table, {"plants-per-gpu": plants_per_gpu})
-    table = with_settings(table, {settings_of.canonical(k): v for k, v in settings.items()})
-    plants = expand(table)
-    if isinstance(split, str):
-        split = parse_ratios(split)
-    if isinstance(stuff, str):
-        stuff = [n.strip() for n in stuff.split(",") if n.strip()]
-    labels = _given(
-        LabelOptions, ratios=split, seed=split_seed, min_area=min_instance_area,
-        allow_empty_split=allow_empty_split, stuff=None if stuff is None else tuple(stuff),
-    )  # fmt: skip
-    options = _given(
-        RunOptions, address=address, local_cpus=local_cpus, cpus_per_plant=cpus_per_plant,
-        gpus_per_plant=gpus_per_plant, max_retries=max_retries,
-        resources=custom_resources({k: str(v) for k, v in (resources or {}).items()}),
-        plants_per_gpu=packing.plants_per_gpu, show_progress=not quiet, labels=labels,
-        redo_changed=redo_changed,
-    )  # fmt: skip
-    report = run_dataset(table, plants, out, options)
-    if report.failed:
-        failures = "; ".join(f"{i}: {e}" for i, e in sorted(report.failures.items()))
-        raise PlantDreamerError(
-            f"{report.failed} of {len(plants)} plants failed ({failures}); "
-            f"see {report.out_dir / 'manifest.jsonl'}"
-        )
+    with python_words():
+        check_flag("quiet", quiet)
+        folder = _folder(out)
+        request = dataset_request(
+            spec=spec, species=species, pointcloud=pointcloud, seeds=seeds, settings=settings,
+            plants_per_gpu=plants_per_gpu, address=address, local_cpus=local_cpus,
+            cpus_per_plant=cpus_per_plant, gpus_per_plant=gpus_per_plant, resources=resources,
+            max_retries=max_retries, split=split, split_seed=split_seed, stuff=stuff,
+            allow_empty_split=allow_empty_split, min_instance_area=min_instance_area,
+            redo_changed=redo_changed, show_progress=not quiet,
+        )  # fmt: skip
+        report = run_dataset(request.spec, request.plants, folder, request.options)
+        if report.failed:
+            failures = "; ".join(f"{i}: {e}" for i, e in sorted(report.failures.items()))
+            raise PlantDreamerError(
+                f"{report.failed} of {len(request.plants)} plants failed ({failures}); "
+                f"see {report.out_dir / 'manifest.jsonl'}"
+            )
     return DatasetResult(
         report.out_dir,
         report.done,
         report.skipped,
         report.seconds,
         report.labels.splits if report.labels is not None else {},
-        [p.folder for p in finished_plants(report.out_dir)],
+        [p.folder.resolve() for p in finished_plants(report.out_dir)],
     )
 
 
-def _spec(
-    spec: str | Path | Mapping[str, Any] | None,
-    species: str | Iterable[str] | None,
-    pointcloud: str | Path | None,
-    seeds: str | Iterable[int] | None,
-    count: int | None,
-    seed_start: int | None,
-) -> dict[str, Any]:
-    """The spec as ``dataset`` builds it: a file, a table, or one group per species."""
-    from plantdreamer.cli.dataset import spec_of_options
-
-    if isinstance(spec, Mapping):
-        if any(v is not None for v in (species, pointcloud, seeds, count, seed_start)):
-            raise InputError("give a spec or species, pointcloud and seeds, not both")
-        return {"base_dir": str(Path.cwd()), **spec}
-    if spec is None and species is None and pointcloud is None:
-        raise InputError("give a spec or species")
-    names = (species,) if isinstance(species, str) else tuple(species or ())
-    seed_text = seeds if seeds is None or isinstance(seeds, str) else ",".join(map(str, seeds))
-    return spec_of_options(
-        None if spec is None else str(spec),
-        names,
-        None if pointcloud is None else str(pointcloud),
-        seed_text,
-        count,
-        seed_start,
-    )
+def _check_flag(name: str, value: Any) -> None:
+    if not isinstance(value, bool):
+        raise InputError(f"{name} must be True or False, got {value!r}")
 
 
-def _given(cls: type, **values: Any) -> Any:
-    """``cls`` with the values given (not None); the rest keep the dataclass's defaults."""
-    return cls(**{k: v for k, v in values.items() if v is not None})
+def _folder(out: Any) -> Path:
+    """``out`` as an absolute path (the form every returned path takes)."""
+    if not isinstance(out, (str, Path)) or not str(out):
+        raise InputError(f"out must be a folder's path, got {out!r}")
+    return Path(out).resolve()
 
 
 def _plant(result: Any, t0: float) -> GeneratedPlant:
     return GeneratedPlant(
-        Path(result.out_dir),
-        Path(result.ply_path),
+        Path(result.out_dir).resolve(),
+        Path(result.ply_path).resolve(),
         result.steps,
         result.gaussians,
         round(time.perf_counter() - t0, 3),
