@@ -1,0 +1,98 @@
+"""Where a dataset's units run: the local pool on one machine, Ray for a cluster.
+
+Without ``--address`` the plants run on worker processes this command starts on this
+machine (``local_pool.py``); with ``--address auto|HOST:PORT`` on a Ray cluster it joins,
+and with ``--address local`` on a private Ray it starts here (``ray_workers.py``,
+``engine.py``). Both give the scheduler the same ``Workers``: long-lived workers that keep
+their models loaded, one unit in flight each, start reports with attempt numbers, a stop
+request the running units honour at their next step, and a lost worker's unit run again
+up to ``max_retries`` times. A plant's bytes are the same on either.
+
+Why the pool on one machine: what a local dataset waits for before its first plant can
+start, measured on the 2-core benchmark machine by ``benches/bench_dataset_start.py``
+(BENCHMARKS.md, "Dataset start"): a worker that has imported the pipeline, from a cold
+driver, Ray started as lean as its API allows (no dashboard, no log monitor's output, no
+prestarted workers) against ``local_pool``'s process. Ray's start alone (its GCS, raylet
+and agents on two cores) took longer than the whole of the pool's worker start, and a
+rerun or a refusal paid Ray's import; the pool needs no port, no token and no Ray
+installed. Ray stays for what only it does: several machines.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any, Protocol
+
+from plantdreamer.dataset.demand import LOCAL_MORE, Demand, check_fits
+
+
+class Workers(Protocol):
+    """What the scheduler (``scheduler.py``) and the runner ask of a place to run units."""
+
+    nodes: int | None  # machines that may run workers (dataset.json records it)
+
+    def check_feasible(self, demands: set[Demand]) -> None: ...
+
+    def capacity(self, demand: Demand) -> int: ...
+
+    def start(self, demand: Demand, max_retries: int, env: dict[str, str]) -> Any: ...
+
+    def submit(self, worker: Any, request: dict[str, Any]) -> Any: ...
+
+    def wait(self, calls: list[Any], timeout: float) -> list[Any]: ...
+
+    def result(self, call: Any) -> dict[str, dict[str, Any]] | str: ...
+
+    def release(self, worker: Any) -> None: ...
+
+    def starts(self) -> list[dict[str, Any]]: ...
+
+    def stop(self) -> None: ...
+
+
+def local_resources(local_cpus: int | None) -> tuple[int, list[str]]:
+    """This machine's CPUs for the plants (``local_cpus``, else all) and its GPUs
+    (``CUDA_VISIBLE_DEVICES`` entries), counted without torch or Ray."""
+    from plantdreamer.devices import visible_gpu_ids
+
+    return local_cpus or os.cpu_count() or 1, visible_gpu_ids()
+
+
+def check_before_start(address: str | None, local_cpus: int | None, demands: set[Demand]) -> None:
+    """The refusals that need no running Ray, before any starts: on this machine (the
+    pool, or a local Ray) every worker's demand fits it; for Ray, it is installed and its
+    token is present and private (``ray_token.py``). A cluster's nodes are known only once
+    it is joined (``Workers.check_feasible``)."""
+    from plantdreamer.dataset import engine
+
+    if address is None or address == engine.LOCAL_RAY:
+        cpus, gpus = local_resources(local_cpus)
+        check_fits(demands, [{"CPU": float(cpus), "GPU": float(len(gpus))}], "this machine",
+                   LOCAL_MORE)  # fmt: skip
+    if address is not None:
+        from plantdreamer.dataset.ray_token import check_token
+
+        engine.import_ray()
+        check_token(local=address == engine.LOCAL_RAY)
+
+
+@contextmanager
+def open_workers(address: str | None, local_cpus: int | None) -> Iterator[Workers]:
+    """The local pool (``address`` None), or Ray started or joined; closed (the pool's
+    processes ended, a Ray this call started stopped) when the block ends."""
+    cpus, gpus = local_resources(local_cpus)
+    if address is None:
+        from plantdreamer.dataset.local_pool import LocalPool
+
+        pool = LocalPool(cpus, gpus)
+        try:
+            yield pool
+        finally:
+            pool.close()
+        return
+    from plantdreamer.dataset.ray_workers import ray_workers
+
+    with ray_workers(address, local_cpus, len(gpus)) as workers:
+        yield workers
