@@ -32,6 +32,7 @@ RAY_MISSING = (
 )
 LOCAL_RAY = "local"  # --address local: a private Ray on this machine (Ray's own word)
 LOCAL_HOST = "127.0.0.1"
+JOIN_PROBE_S = 5.0  # how long a cluster's address may take to answer before a join
 # Where Ray logs, on every local start, that it turned token authentication on by itself
 # ("Set RAY_AUTH_MODE=disabled to opt out"): the instance is ours, on 127.0.0.1, and stops
 # with the command, so the warning only tells a user about a choice that is not theirs.
@@ -107,6 +108,30 @@ def connect(address: str, local_cpus: int | None, local_gpus: int = 0) -> bool:
         if threading.current_thread() is threading.main_thread() and previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return True
+
+
+def check_reachable(address: str) -> None:
+    """Something answers at the cluster's address (``auto`` as Ray finds it): Ray's own
+    join waits minutes on an address where nothing listens."""
+    import socket
+
+    try:
+        from ray._private.services import canonicalize_bootstrap_address, parse_address
+
+        written = canonicalize_bootstrap_address(address) if address == "auto" else address
+        parsed = parse_address(written or "")
+    except Exception:  # an address Ray reads otherwise (ray://): Ray's join says
+        return
+    if parsed is None:
+        return
+    host, port = parsed
+    try:
+        socket.create_connection((host, int(port)), timeout=JOIN_PROBE_S).close()
+    except (OSError, ValueError) as exc:
+        raise RayStartError(
+            f"cannot join the Ray cluster at {address}: nothing answers at {host}:{port} "
+            f"({getattr(exc, 'strerror', None) or exc}); start the cluster or check --address"
+        ) from None
 
 
 def is_loopback(host: str) -> bool:

@@ -62,9 +62,9 @@ def local_resources(local_cpus: int | None) -> tuple[int, list[str]]:
 
 def check_before_start(address: str | None, local_cpus: int | None, demands: set[Demand]) -> None:
     """The refusals that need no running Ray, before any starts: on this machine (the
-    pool, or a local Ray) every worker's demand fits it; for Ray, it is installed and its
-    token is present and private (``ray_token.py``). A cluster's nodes are known only once
-    it is joined (``Workers.check_feasible``)."""
+    pool, or a local Ray) every worker's demand fits it; for Ray, it is installed, its
+    token is present and private (``ray_token.py``) and a cluster's address answers. A
+    cluster's nodes are known only once it is joined (``Workers.check_feasible``)."""
     from plantdreamer.dataset import engine
 
     if address is None or address == engine.LOCAL_RAY:
@@ -76,6 +76,8 @@ def check_before_start(address: str | None, local_cpus: int | None, demands: set
 
         engine.import_ray()
         check_token(local=address == engine.LOCAL_RAY)
+        if address != engine.LOCAL_RAY:
+            engine.check_reachable(address)
 
 
 @contextmanager
