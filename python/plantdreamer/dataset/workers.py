@@ -9,13 +9,20 @@ request the running units honour at their next step, and a lost worker's unit ru
 up to ``max_retries`` times. A plant's bytes are the same on either.
 
 Why the pool on one machine: what a local dataset waits for before its first plant can
-start, measured on the 2-core benchmark machine by ``benches/bench_dataset_start.py``
-(BENCHMARKS.md, "Dataset start"): a worker that has imported the pipeline, from a cold
-driver, Ray started as lean as its API allows (no dashboard, no log monitor's output, no
-prestarted workers) against ``local_pool``'s process. Ray's start alone (its GCS, raylet
-and agents on two cores) took longer than the whole of the pool's worker start, and a
-rerun or a refusal paid Ray's import; the pool needs no port, no token and no Ray
-installed. Ray stays for what only it does: several machines.
+start, measured on the 2-core benchmark machine under other work by
+``benches/bench_dataset_start.py`` (BENCHMARKS.md, "Dataset start and early refusals";
+min / median of 3 interleaved rounds, from the launch of a cold process): a worker that
+has imported the pipeline took 22.9 / 40.9 s through a local Ray as ``--address local``
+starts it, 18.6 / 21.0 s through a Ray started as lean as ``ray.init`` allows (no
+prestarted worker, no metrics, no usage report, the smallest object store), and 6.2 /
+13.7 s as the pool's process. Two ``--guidance none`` plants: the first started 7.9 / 8.0 s
+after launch on the pool, 28.9 / 36.4 s on a local Ray; the whole command took 22.5 s
+against 53.1 s (medians). Ray's start is its GCS, raylet and agents on the same two cores
+the plants need (and its node can time out while starting on a loaded machine: "The
+current node timed out during startup"); the pool is one process per worker, needs no
+port, no token and no Ray installed, and a run with nothing to train starts none. Ray stays
+for what only it does: several machines (and ``--address local``, to try a cluster's path
+on one).
 """
 
 from __future__ import annotations
