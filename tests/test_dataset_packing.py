@@ -25,17 +25,17 @@ from plantdreamer.pipeline.settings.runtime import build_guidance
 SMALL = {"steps": 3, "points": 1500, "resolution": 32, "eval-views": 1, "turntable-frames": 2}
 
 
-class _Call:
-    def __init__(self, fn):
-        self.remote = fn
-
-
 class FakeBoard:
-    """The status board's methods as a worker calls them, without Ray."""
+    """The driver's board as a worker sees it (``tasks.Board``), in this process."""
 
     def __init__(self):
         self.starts = []
-        self.started = _Call(lambda plant_id, info: self.starts.append(plant_id))
+
+    def started(self, plant_id, info):
+        self.starts.append(plant_id)
+
+    def stopping(self):
+        return False
 
 
 def test_plants_are_packed_in_spec_order_by_shared_settings():

@@ -116,6 +116,9 @@ def test_make_dataset_takes_the_options_of_the_dataset_command():
     for option in dataset.params:
         if option.name in ("settings", "dry_run", "help"):
             continue
+        if option.name in ("count", "seed_start"):  # the command's earlier --seeds (hidden)
+            assert option.hidden and option.name not in params, option.name
+            continue
         assert renamed.get(option.name, option.name) in params, option.name
 
 
@@ -124,6 +127,6 @@ def test_the_api_refuses_a_wrong_setting_before_any_run(tmp_path):
         plantdreamer.generate(tmp_path / "p", species="bean", pointz=10)
     with pytest.raises(InputError, match="resume continues with the settings it started with"):
         plantdreamer.generate(tmp_path / "p", resume=True, points=10)
-    with pytest.raises(InputError, match="give a spec or species"):
+    with pytest.raises(InputError, match="give a spec, species or pointcloud"):
         plantdreamer.make_dataset(tmp_path / "d", steps=2)
     assert not (tmp_path / "p").exists() and not (tmp_path / "d").exists()

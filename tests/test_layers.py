@@ -32,7 +32,7 @@ LAYERS: list[tuple[str, set[str]]] = [
         {"errors", "integers", "atomic", "checkpoint_io", "versions", "output_folder", "digests"}
         | {"text_escape", "temporaries", "output_locks", "output_names", "output_survey"}
         | {"source_date"}
-        | {"settings", "seeds", "thread_policy", "stop_signals"},
+        | {"settings", "seeds", "thread_policy", "stop_signals", "devices"},
     ),
     (
         "the model and its I/O: clouds, Gaussians, cameras, PLY, the rasterizer, plants",
@@ -66,7 +66,8 @@ PIPELINE_LAYERS: list[tuple[str, set[str]]] = [
     (
         "the settings wing: the config, presets, the resolved run, what a run writes",
         {"settings", "settings.config", "settings.presets", "settings.resolved"}
-        | {"settings.group_settings", "settings.runtime", "state.run_outputs"},
+        | {"settings.group_settings", "settings.runtime", "settings.requested"}
+        | {"state.run_outputs"},
     ),
     (
         "the run's state wing: its state, checkpoints and noise; the record",
@@ -241,6 +242,18 @@ def test_no_import_cycle(graph: dict[str, set[str]]) -> None:
     assert find_cycle(graph) is None, f"import cycle between modules: {find_cycle(graph)}"
     areas = area_graph(graph)
     assert find_cycle(areas) is None, f"import cycle between areas: {find_cycle(areas)}"
+
+
+def test_only_the_command_line_imports_the_command_line(graph: dict[str, set[str]]) -> None:
+    """The API and everything else sit below ``cli/`` (the routines both front ends call
+    live in ``pipeline`` and ``dataset``): only ``__main__`` and ``cli`` import it."""
+    assert "plantdreamer.cli.options" in graph["plantdreamer.cli.generate"]  # the reader sees it
+    importers = sorted(
+        module
+        for module, targets in graph.items()
+        if area(module) not in ("cli", "__main__") and any(area(t) == "cli" for t in targets)
+    )
+    assert importers == [], f"modules importing plantdreamer.cli: {importers}"
 
 
 def test_exceptions_are_still_needed(graph: dict[str, set[str]]) -> None:

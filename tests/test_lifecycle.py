@@ -178,9 +178,7 @@ class _Killed(BaseException):
     """A kill, in-process: nothing after it runs but the finally blocks."""
 
 
-def test_a_kill_right_after_a_checkpoint_leaves_no_picture_missing_on_resume(
-    tmp_path, monkeypatch
-):
+def test_a_kill_right_after_a_checkpoint_leaves_no_picture_missing_on_resume(tmp_path, monkeypatch):
     """The progress pictures of a step are written before its checkpoint: a run killed just
     after writing the checkpoint at step 4 resumes there with step 4's picture on disk, and
     ends with the unbroken run's pictures."""

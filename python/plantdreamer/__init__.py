@@ -12,11 +12,14 @@ thread_policy.settle()
 from plantdreamer import _core  # noqa: E402
 from plantdreamer.errors import (  # noqa: E402
     CheckpointError,
+    DatasetStopped,
     InputError,
     ModelNotFoundError,
     PlantDreamerError,
+    PlantsFailed,
     PlyError,
     PlyWarning,
+    RunInterrupted,
 )
 
 __version__: str = _core.__version__
@@ -24,13 +27,16 @@ __version__: str = _core.__version__
 __all__ = [
     "CheckpointError",
     "DatasetResult",
+    "DatasetStopped",
     "GenerateConfig",
     "GeneratedPlant",
     "InputError",
     "ModelNotFoundError",
     "PlantDreamerError",
+    "PlantsFailed",
     "PlyError",
     "PlyWarning",
+    "RunInterrupted",
     "__version__",
     "generate",
     "make_dataset",

@@ -124,7 +124,7 @@ def build_command() -> click.Command:
         and ground truth per view: labels/, instances/, depth/, transforms.json. At each
         checkpoint (or every --progress-every steps) progress.png (the Gaussians so far) and
         loss.png show how it goes; --tensorboard writes TensorBoard events too."""
-        from plantdreamer.pipeline import RunInterrupted
+        from plantdreamer.errors import RunInterrupted
 
         started = time.perf_counter()
         given = typed_options(ctx)
@@ -193,21 +193,14 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
 
 
 def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:
-    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise)."""
-    from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.runs.record import parse_group_seeds
+    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise),
+    each checked before torch is imported (``pipeline.settings.requested``, as the API's)."""
+    from plantdreamer.pipeline.settings.requested import requested_configs
 
     preset = options.pop("preset")
     typed = options_to_settings(GenerateConfig, given_on_command_line(options))
     defaults = options_to_settings(GenerateConfig, options)
-    if seeds is None:
-        return [resolve_config(preset, typed, base=defaults)]
-    if "seed" in typed:
-        raise click.UsageError("give --seed or --seeds, not both")
-    return [
-        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
-        for seed in parse_group_seeds(seeds)
-    ]
+    return requested_configs(preset, typed, seeds, base=defaults)
 
 
 def _run(
@@ -223,7 +216,8 @@ def _run(
     """Trains the plants (one in ``out``, or a group with a folder each under it), or
     resumes ``out``; each plant's result. A failed plant of a group makes the command fail
     once the others are written (they are listed first)."""
-    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, PlantsFailed, generate_plants
+    from plantdreamer.errors import PlantsFailed
+    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, generate_plants
     from plantdreamer.pipeline.runs.layout import found_layout
     from plantdreamer.pipeline.runs.record import GROUP_FILE
     from plantdreamer.pipeline.runs.results import finished_or_raise

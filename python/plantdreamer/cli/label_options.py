@@ -8,7 +8,9 @@ from typing import Any
 
 import click
 
-# Literal copies of exports' defaults would drift; these are read from there (light imports).
+# Literal copies of exports' defaults would drift; these are read from there (light imports),
+# the least values from the dataset request (the Python API checks the same).
+from plantdreamer.dataset.request import OPTION_LIMITS
 from plantdreamer.exports.card import README_FILE as CARD_FILE
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
 from plantdreamer.exports.splits import DEFAULT_MODE, DEFAULT_RATIOS, DEFAULT_SEED, SPLIT_MODES
@@ -30,7 +32,7 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
             ),
             click.option(
                 "--split-seed",
-                type=click.IntRange(0),
+                type=click.IntRange(int(OPTION_LIMITS["split_seed"][1])),
                 default=DEFAULT_SEED,
                 show_default=True,
                 help="Seed of the split.",
@@ -59,7 +61,7 @@ def label_options(command: Callable[..., Any]) -> Callable[..., Any]:
             ),
             click.option(
                 "--min-instance-area",
-                type=click.IntRange(1),
+                type=click.IntRange(int(OPTION_LIMITS["min_instance_area"][1])),
                 default=MIN_INSTANCE_AREA,
                 show_default=True,
                 help="Objects of fewer pixels are ignore regions: COCO iscrowd 1, left out of "

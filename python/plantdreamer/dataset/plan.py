@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.dataset.engine import Demand
+from plantdreamer.dataset.demand import Demand
 from plantdreamer.dataset.manifest import Manifest
 from plantdreamer.dataset.packing import pack
 from plantdreamer.dataset.plant import Plant
@@ -140,16 +140,18 @@ def decide(
 
 def check_models(plants: list[Plant]) -> None:
     """Every plant's LoRA, base model and ControlNet found (not loaded), before a plan is
-    made or a folder cleared; each distinct set of models once."""
-    from plantdreamer.pipeline.settings.runtime import check_models as check
-
+    made or a folder cleared; each distinct set of models once (torch is imported only
+    when there is one to look at)."""
     seen = set()
     for plant in plants:
         sds = plant.config.sds
         key = (sds.guidance, sds.lora, sds.base_model, sds.controlnet)
-        if key not in seen:
-            seen.add(key)
-            check(plant.config)
+        if key in seen or (sds.guidance == "none" and sds.lora is None):
+            continue
+        seen.add(key)
+        from plantdreamer.pipeline.settings.runtime import check_models as check
+
+        check(plant.config)
 
 
 def describe_plan(

@@ -196,13 +196,11 @@ def _group_name(name: Any, where: str) -> str:
 
 
 def _check_species(cfg: GenerateConfig) -> None:
-    """An L-System species must exist (a point cloud's species only names it in prompts)."""
-    species = cfg.source.species
-    if cfg.source.pointcloud is None:
-        from plantdreamer.lsystem import list_species
+    """An L-System species must exist (a point cloud's species only names it in prompts);
+    a mistyped one is named with the closest known."""
+    from plantdreamer.pipeline.settings.requested import check_species
 
-        if species not in list_species():
-            raise InputError(f"unknown species {species!r}; known: {', '.join(list_species())}")
+    check_species(cfg)
 
 
 def _seeds(table: dict[str, Any], where: str) -> list[int]:

@@ -3,9 +3,9 @@ pipeline's entry (``generate_plants`` with the unit's folders: ``GivenFolders``)
 in its own dataset folder with its own record in the manifest, and the board workers
 report to.
 
-These are plain functions and classes; the runner wraps them with ``ray.remote`` so this
-module imports without Ray. A plant's own errors never raise: they come back as a
-``failed`` record with one line.
+These are plain functions and classes, run by a process of the local pool or a Ray actor
+(``ray_workers.py`` wraps them), so this module imports without Ray. A plant's own errors
+never raise: they come back as a ``failed`` record with one line.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import traceback
 from collections.abc import Callable
 from contextlib import ExitStack, redirect_stderr, redirect_stdout
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 LOG_NAME = "generate.log"
 HELD_MARKER = ".held"  # a plant the test hook held once (its retry runs through)
@@ -30,6 +30,15 @@ HOLD_ENV = "PLANTDREAMER_DATASET_HOLD"
 # `build_guidance`).
 GuidanceFor = Callable[[Any], Any]
 StepHook = Callable[[int], None]
+
+
+class Board(Protocol):
+    """The driver as a worker sees it: where a unit reports that a plant started, and asks
+    whether the driver wants the run to stop."""
+
+    def started(self, plant_id: str, info: dict[str, Any]) -> None: ...
+
+    def stopping(self) -> bool: ...
 
 
 class StatusBoard:
@@ -63,17 +72,15 @@ class StatusBoard:
 
 
 def worker_info() -> dict[str, Any]:
-    try:
-        import ray
+    import sys
 
-        node = ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
-    except ImportError:
-        node = None
+    ray = sys.modules.get("ray")  # a Ray actor's node; none in the local pool (no import)
+    node = ray.get_runtime_context().get_node_id() if ray and ray.is_initialized() else None
     return {"pid": os.getpid(), "node": node, "host": socket.gethostname(), "started": time.time()}
 
 
 def run_unit(
-    request: dict[str, Any], board: Any, guidance_for: GuidanceFor, on_step: StepHook | None
+    request: dict[str, Any], board: Board, guidance_for: GuidanceFor, on_step: StepHook | None
 ) -> dict[str, dict[str, Any]]:
     """Trains a unit's plants together (one plant is a unit of one), each in its own
     dataset folder; returns each plant's record. A plant with a checkpoint resumes from it
@@ -85,7 +92,7 @@ def run_unit(
     threads = int(request["threads"])  # the rasterizer's; torch's are the plants' setting
     info = worker_info()
     for plant in plants:
-        board.started.remote(plant["id"], info)
+        board.started(plant["id"], info)
     ids = [p["id"] for p in plants]
     dirs = [Path(p["plant_dir"]) for p in plants]
     hidden = folder_not_visible(dirs[0], info)

@@ -1,5 +1,6 @@
-"""The long-lived worker of a dataset run: one Ray actor per plant slot (with SDS, per GPU),
-which keeps its diffusion models loaded from one plant (or packed group) to the next.
+"""The long-lived worker of a dataset run: one per plant slot (with SDS, per GPU), a process
+of the local pool (``local_worker.py``) or a Ray actor (``ray_workers.py``), which keeps
+its diffusion models loaded from one plant (or packed group) to the next.
 
 A ``PlantWorker`` holds its CPUs and GPU for the whole run and trains the units the driver
 hands it, one at a time. ``ModelCache`` keeps the networks of the last guidance it built
@@ -10,10 +11,11 @@ guidance of its own (its seed's noise generator, its timestep schedule, its prom
 plant's bytes do not depend on what the worker ran before. One set of networks is kept:
 a unit naming other models replaces it.
 
-Ray cannot interrupt an actor's running call, so a unit asks the status board whether the
-driver wants to stop (from its step hook, at most every ``STOP_POLL_S``) and, if so,
-interrupts its own main thread as Ctrl-C would: the trainer writes its checkpoints at the
-next step boundary and stops.
+The driver cannot interrupt a worker's running call, so a unit asks its ``Board`` (the
+driver's side of the run, seen from the worker: ``tasks.Board``) whether the driver wants to
+stop (from its step hook, at most every ``STOP_POLL_S``) and, if so, interrupts its own
+main thread as Ctrl-C would: the trainer writes its checkpoints at the next step boundary
+and stops.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import _thread
 import time
 from typing import Any
 
-from plantdreamer.dataset.tasks import run_unit
+from plantdreamer.dataset.tasks import Board, run_unit
 
 STOP_POLL_S = 0.5
 
@@ -60,7 +62,7 @@ def model_key(sds: Any) -> tuple[Any, ...]:
 class StopCheck:
     """A step hook that turns the driver's stop request into Ctrl-C in this process."""
 
-    def __init__(self, board: Any) -> None:
+    def __init__(self, board: Board) -> None:
         self.board = board
         self.next_poll = 0.0
 
@@ -69,19 +71,17 @@ class StopCheck:
         if now < self.next_poll:
             return
         self.next_poll = now + STOP_POLL_S
-        import ray
-
-        if ray.get(self.board.stopping.remote()):
+        if self.board.stopping():
             _thread.interrupt_main()  # the trainer's Ctrl-C handler: checkpoint, then stop
 
 
 class PlantWorker:
-    """Trains units (one plant, or a packed group) one after another (a Ray actor)."""
+    """Trains units (one plant, or a packed group) one after another."""
 
     def __init__(self) -> None:
         self.cache = ModelCache()
 
-    def run(self, unit: dict[str, Any], board: Any) -> dict[str, dict[str, Any]]:
+    def run(self, unit: dict[str, Any], board: Board) -> dict[str, dict[str, Any]]:
         """Each plant's record, by plant id."""
         return run_unit(unit, board, self.cache.guidance_for, StopCheck(board))
 

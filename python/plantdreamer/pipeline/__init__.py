@@ -10,13 +10,13 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from plantdreamer.errors import PlantsFailed, RunInterrupted
     from plantdreamer.pipeline.runs.entry import generate_plants
     from plantdreamer.pipeline.runs.layout import FolderPerPlant, GivenFolders, PlantAlone
-    from plantdreamer.pipeline.runs.results import PlantResult, PlantsFailed
+    from plantdreamer.pipeline.runs.results import PlantResult
     from plantdreamer.pipeline.settings.config import GenerateConfig
     from plantdreamer.pipeline.settings.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.step.options import StepOptions
-    from plantdreamer.pipeline.trainer import RunInterrupted
 
 __all__ = [
     "PRESETS",
@@ -41,8 +41,8 @@ _MODULES = {
     "GivenFolders": "plantdreamer.pipeline.runs.layout",
     "PlantAlone": "plantdreamer.pipeline.runs.layout",
     "PlantResult": "plantdreamer.pipeline.runs.results",
-    "PlantsFailed": "plantdreamer.pipeline.runs.results",
-    "RunInterrupted": "plantdreamer.pipeline.trainer",
+    "PlantsFailed": "plantdreamer.errors",
+    "RunInterrupted": "plantdreamer.errors",
     "StepOptions": "plantdreamer.pipeline.step.options",
 }
 

@@ -28,8 +28,8 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
+from plantdreamer.errors import RunInterrupted
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.pipeline import outputs
@@ -46,17 +46,6 @@ from plantdreamer.pipeline.step.schedule import StepSchedule
 from plantdreamer.stop_signals import stop_signals_handled
 
 __all__ = ["PlantRun", "RunInterrupted", "Trainer"]
-
-
-class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C during a run; a checkpoint at ``step`` was written before stopping.
-    ``out_dir`` is the folder to resume; ``results`` (filled by the run's entry) says
-    where each of its plants stood."""
-
-    def __init__(self, step: int, out_dir: Path) -> None:
-        super().__init__(f"interrupted at step {step}")
-        self.step, self.out_dir = step, out_dir
-        self.results: list[Any] = []
 
 
 class Trainer:

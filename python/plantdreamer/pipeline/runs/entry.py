@@ -27,7 +27,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.errors import CheckpointError, InputError
+from plantdreamer.errors import CheckpointError, InputError, RunInterrupted
 from plantdreamer.guidance.base import Guidance
 from plantdreamer.pipeline.export import RunResult
 from plantdreamer.pipeline.observer import TrainerObserver
@@ -40,7 +40,6 @@ from plantdreamer.pipeline.runs.start import resumed_config
 from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.pipeline.settings.runtime import build_guidance, check_models, resolve_plants
 from plantdreamer.pipeline.step.options import StepOptions
-from plantdreamer.pipeline.trainer import RunInterrupted
 
 FAILURE_POLICIES = ("raise", "record")
 

@@ -6,7 +6,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plantdreamer.errors import PlantDreamerError
+from plantdreamer.errors import PlantsFailed
 from plantdreamer.pipeline.export import RunResult
 from plantdreamer.pipeline.runs.record import DONE, PlantEntry
 
@@ -66,14 +66,6 @@ def finished_result(folder: Path) -> RunResult:
         folder, folder / "plant.ply", GenerateConfig.from_dict(run["config"]).train.steps,
         run["gaussians"]["final"], run["timings_s"],
     )  # fmt: skip
-
-
-class PlantsFailed(PlantDreamerError):
-    """Plants of a run failed; ``done`` are the others' results, written."""
-
-    def __init__(self, message: str, done: list[PlantResult]) -> None:
-        super().__init__(message)
-        self.done = done
 
 
 def finished_or_raise(results: list[PlantResult], record_file: Path | None) -> list[PlantResult]:

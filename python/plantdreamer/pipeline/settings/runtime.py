@@ -8,7 +8,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from plantdreamer.errors import InputError
 from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 
@@ -20,22 +19,15 @@ if TYPE_CHECKING:
 
 def check_inputs(cfg: GenerateConfig) -> None:
     """Fails fast on inputs that cannot work, before any model is loaded or any output
-    deleted (the models themselves: ``check_models``)."""
-    cfg.validate()
-    src = cfg.source
-    if cfg.sds.guidance != "none":
+    deleted (the models themselves: ``check_models``): ``requested``' torch-free
+    checks, then torch's own look at a device that is named or that a guidance uses."""
+    from plantdreamer.pipeline.settings.requested import check_config
+
+    check_config(cfg)
+    if cfg.sds.device is not None or cfg.sds.guidance != "none":
         from plantdreamer.guidance.models import resolve_device
 
         resolve_device(cfg.sds.device)
-    if src.pointcloud is not None:
-        from plantdreamer.io import check_ply_file
-
-        check_ply_file(src.pointcloud, "point cloud")
-    if src.pointcloud is None:
-        from plantdreamer.lsystem import list_species
-
-        if cfg.source.structure() not in list_species():
-            raise InputError(f"unknown species {src.species!r}; known: {', '.join(list_species())}")
 
 
 def check_models(cfg: GenerateConfig) -> None:
