@@ -13,7 +13,7 @@ from plant_runs import done, failed, group
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
-from plantdreamer.pipeline.runs.record import parse_group_seeds as parse_seeds
+from plantdreamer.pipeline.settings.group_settings import parse_group_seeds as parse_seeds
 
 SMALL = dict(points=1500, resolution=48, eval_views=2, turntable_frames=2)
 

@@ -69,7 +69,7 @@ def test_dataset_set_refuses_impossible_settings_before_ray(tmp_path, _, setting
 @pytest.mark.parametrize("seeds", ["5-2,7", "5-2", "7,5-2"])
 def test_a_reversed_seed_range_is_refused_not_dropped(tmp_path, seeds):
     from plantdreamer.errors import InputError
-    from plantdreamer.pipeline.runs.record import parse_group_seeds as parse_seeds
+    from plantdreamer.pipeline.settings.group_settings import parse_group_seeds as parse_seeds
 
     with pytest.raises(InputError, match="5-2 is a reversed range; write 2-5"):
         parse_seeds(seeds)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from plantdreamer import settings
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.runs.record import MAX_GROUP_PLANTS
+from plantdreamer.pipeline.settings.group_settings import MAX_GROUP_PLANTS
 from plantdreamer.settings import by_name, canonical, setting
 
 if TYPE_CHECKING:

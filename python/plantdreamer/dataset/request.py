@@ -201,9 +201,9 @@ def label_options(
 ) -> Any:
     """The ``LabelOptions`` of the options given (None: each at its default): ``split`` as
     ``"0.8,0.1,0.1"`` or three non-negative numbers, normalised to shares either way;
-    ``stuff`` as ``"pot,soil"`` or names; ``split_mode`` one of ``SPLIT_MODES``."""
+    ``stuff`` as ``"pot,soil"`` or names; ``split_mode`` one of ``exports.splits.SPLIT_MODES`` (``LabelOptions`` checks it)."""
     from plantdreamer.exports.dataset import LabelOptions
-    from plantdreamer.exports.splits import SPLIT_MODES, parse_ratios
+    from plantdreamer.exports.splits import parse_ratios
 
     given: dict[str, Any] = {}
     if split is not None:
@@ -218,10 +218,6 @@ def label_options(
         given["ratios"] = parse_ratios(split)
     if stuff is not None:
         given["stuff"] = tuple(dict.fromkeys(_names(stuff, "stuff")))
-    if split_mode is not None and split_mode not in SPLIT_MODES:
-        raise InputError(
-            f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}"
-        )
     for key, value in (("seed", split_seed), ("min_area", min_instance_area),
                        ("allow_empty_split", allow_empty_split), ("mode", split_mode)):  # fmt: skip
         if value is not None:

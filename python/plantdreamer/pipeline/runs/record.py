@@ -23,11 +23,9 @@ from typing import Any
 from plantdreamer import atomic
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.pipeline.settings.config import GenerateConfig, check_shared
+from plantdreamer.pipeline.settings.group_settings import check_group_size
 
 GROUP_FILE = "group.json"
-# The most plants one trainer holds (each keeps its model, optimiser and renders in memory
-# from step 0); dataset's --plants-per-gpu has the same limit.
-MAX_GROUP_PLANTS = 64
 # A plant's folder name: never a path (no separator, no leading dot, not "..").
 PLANT_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]")
@@ -40,29 +38,6 @@ def plant_name(cfg: GenerateConfig) -> str:
     src = cfg.source
     stem = Path(src.pointcloud).stem if src.pointcloud is not None else str(src.species)
     return f"{_UNSAFE.sub('_', stem).lstrip('.') or 'plant'}-s{cfg.seed:04d}"
-
-
-def check_group_size(plants: int, what: str = "a group") -> None:
-    if plants > MAX_GROUP_PLANTS:
-        raise InputError(
-            f"{what} of {plants} plants is more than one trainer holds (at most "
-            f"{MAX_GROUP_PLANTS}, as --plants-per-gpu); train them as several groups, or "
-            "with `plantdreamer dataset`"
-        )
-
-
-def parse_group_seeds(text: str) -> list[int]:
-    """``--seeds`` (``plantdreamer.seeds``' grammar), no more than one trainer holds."""
-    from plantdreamer.seeds import TooManySeeds, parse_seeds
-
-    try:
-        return parse_seeds(text, MAX_GROUP_PLANTS)
-    except TooManySeeds as many:
-        raise InputError(
-            f"--seeds {text} makes a group of {many.count} plants; one trainer holds at most "
-            f"{MAX_GROUP_PLANTS} (as --plants-per-gpu): train them as several groups, or with "
-            "`plantdreamer dataset --seeds`"
-        ) from None
 
 
 @dataclass

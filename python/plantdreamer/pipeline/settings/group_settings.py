@@ -1,16 +1,28 @@
-"""The settings a trainer's plants share, and what their one guidance is made of."""
+"""The settings a trainer's plants share, what their one guidance is made of, and the most
+plants one trainer holds."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from plantdreamer.errors import InputError
 from plantdreamer.guidance.config import SdsConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
 from plantdreamer.pipeline.settings.config import PER_PLANT, GenerateConfig, check_shared
 from plantdreamer.pipeline.settings.train_config import TrainConfig
 
-__all__ = ["PER_PLANT", "GroupSettings"]
+__all__ = [
+    "MAX_GROUP_PLANTS",
+    "PER_PLANT",
+    "GroupSettings",
+    "check_group_size",
+    "parse_group_seeds",
+]
+
+# The most plants one trainer holds (each keeps its model, optimiser and renders in memory
+# from step 0); dataset's --plants-per-gpu has the same limit.
+MAX_GROUP_PLANTS = 64
 
 
 @dataclass(frozen=True)
@@ -42,3 +54,26 @@ class GroupSettings:
         if self.train.overlap not in ("on", "off"):
             raise RuntimeError("overlap is decided by runtime.resolve_overlap first")
         return self.train.overlap == "on"
+
+
+def check_group_size(plants: int, what: str = "a group") -> None:
+    if plants > MAX_GROUP_PLANTS:
+        raise InputError(
+            f"{what} of {plants} plants is more than one trainer holds (at most "
+            f"{MAX_GROUP_PLANTS}, as --plants-per-gpu); train them as several groups, or "
+            "with `plantdreamer dataset`"
+        )
+
+
+def parse_group_seeds(text: str) -> list[int]:
+    """``--seeds`` (``plantdreamer.seeds``' grammar), no more than one trainer holds."""
+    from plantdreamer.seeds import TooManySeeds, parse_seeds
+
+    try:
+        return parse_seeds(text, MAX_GROUP_PLANTS)
+    except TooManySeeds as many:
+        raise InputError(
+            f"--seeds {text} makes a group of {many.count} plants; one trainer holds at most "
+            f"{MAX_GROUP_PLANTS} (as --plants-per-gpu): train them as several groups, or with "
+            "`plantdreamer dataset --seeds`"
+        ) from None

@@ -14,6 +14,7 @@ from typing import Any
 from plantdreamer.devices import check_device
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.group_settings import parse_group_seeds
 from plantdreamer.pipeline.settings.presets import resolve_config
 
 __all__ = ["check_config", "check_species", "requested_configs", "seeds_of"]
@@ -37,29 +38,32 @@ def requested_configs(
             raise InputError("give seed or seeds, not both")
         configs = [
             resolve_config(preset, {**settings, "seed": seed}, base=base)
-            for seed in seeds_of(seeds)
+            for seed in seeds_of(seeds, group=True)
         ]
     for cfg in configs:
         check_config(cfg)
     return configs
 
 
-def seeds_of(seeds: str | Iterable[int]) -> list[int]:
+def seeds_of(seeds: str | Iterable[int], group: bool = False) -> list[int]:
     """Seeds in the one grammar (``plantdreamer.seeds``): ``"0-7,9"``, or a list of
-    integers (read as the same text, so its limits and repeats are refused alike)."""
+    integers (read as the same text, so its limits and repeats are refused alike).
+    ``group``: the plants train together, at most ``MAX_GROUP_PLANTS`` of them."""
     from plantdreamer.seeds import parse_seeds
 
     if isinstance(seeds, str):
-        return parse_seeds(seeds)
-    try:
-        listed = list(seeds)
-    except TypeError:
-        raise InputError(
-            f"seeds must be text like '0-7' or a list of integers, got {seeds!r}"
-        ) from None
-    if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in listed):
-        raise InputError(f"seeds must be text like '0-7' or integers >= 0, got {listed!r}")
-    return parse_seeds(",".join(map(str, listed)))
+        text = seeds
+    else:
+        try:
+            listed = list(seeds)
+        except TypeError:
+            raise InputError(
+                f"seeds must be text like '0-7' or a list of integers, got {seeds!r}"
+            ) from None
+        if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in listed):
+            raise InputError(f"seeds must be text like '0-7' or integers >= 0, got {listed!r}")
+        text = ",".join(map(str, listed))
+    return parse_group_seeds(text) if group else parse_seeds(text)
 
 
 def check_config(cfg: GenerateConfig, *, device_here: bool = True) -> None:
