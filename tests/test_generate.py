@@ -196,8 +196,8 @@ def stop_after(step):
 
 
 try:
-    generate(GenerateConfig.of(**settings), out, guidance=guidance, show_progress=False,
-             on_step=stop_after)
+    generate_plants([GenerateConfig.of(**settings)], out, guidance=guidance, show_progress=False,
+                    on_step=stop_after)
 except RunInterrupted as stop:
     print(torch.get_num_threads(), stop.step)
 """

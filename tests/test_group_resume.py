@@ -77,7 +77,7 @@ def killed_in_a_subprocess(out, hook: str) -> None:
     script = "\n".join([
         "import os, signal, torch",
         f"torch.set_num_threads({torch.get_num_threads()})",
-        "from plantdreamer.pipeline import checkpoint",
+        "from plantdreamer.pipeline.state import checkpoint",
         "from plantdreamer.pipeline.runs import sequence as run",
         "from plant_runs import group",
         "from test_group_resume import configs, tiny_sds",

@@ -46,10 +46,6 @@ def generate(
     ``PlantsFailed`` naming the plants of a group that failed (the others are written) and
     ``RunInterrupted`` on Ctrl-C (a checkpoint is written: resume it).
     """
-    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, generate_plants
-    from plantdreamer.pipeline.runs.layout import found_layout
-    from plantdreamer.pipeline.runs.record import GROUP_FILE
-    from plantdreamer.pipeline.runs.results import finished_or_raise
     from plantdreamer.pipeline.settings.requested import requested_configs
 
     with python_words():
@@ -66,6 +62,12 @@ def generate(
         else:
             preset = settings.pop("preset", GenerateConfig().preset)
             cfgs = requested_configs(preset, settings, seeds)
+        # The run's modules (torch) only once the request is checked.
+        from plantdreamer.pipeline import FolderPerPlant, PlantAlone, generate_plants
+        from plantdreamer.pipeline.runs.layout import found_layout
+        from plantdreamer.pipeline.runs.record import GROUP_FILE
+        from plantdreamer.pipeline.runs.results import finished_or_raise
+
         if resume:
             layout = found_layout(out)
         else:
