@@ -18,13 +18,13 @@ from plantdreamer.cli.options import (
     typed_options,
 )
 from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.rerender import ORBIT
+from plantdreamer.pipeline.rerender import ORBIT, VIEWS
 from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
 from plantdreamer.turntable import TURNTABLE_FRAMES
 
 # The orbit, render size, background and turntable are generate's settings, under generate's
 # names and defaults (a size left open is generate's on the CPU, where render renders).
-ORBIT_SETTINGS = (*ORBIT, "turntable")
+ORBIT_SETTINGS = (*ORBIT, "turntable", *VIEWS)
 # The names render gave them before (hidden, still accepted).
 OLD_NAMES = {
     "--views": "eval-views", "--distance": "eval-distance", "--elevation": "eval-elevation-deg",
@@ -148,6 +148,10 @@ def render(
     # No distance: the orbit is framed on the model (framing.framed_distance), as generate's.
     if not ((distance is None or (math.isfinite(distance) and distance > 0)) and 0 < fovy < 180):
         raise InputError("--eval-distance must be positive and --eval-fovy-deg in (0, 180) degrees")
+    from plantdreamer.views import ViewsConfig
+
+    looks = ViewsConfig.from_settings(orbit)  # the rig, background and jitter, as generate's
+    looks.validate()
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
         raise InputError("--labels writes poses in the PLY's own frame; use it with --up z")
@@ -175,22 +179,33 @@ def render(
             _render_dataset_views(gaussians, views_at, files, out, background)
             return
         scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
+        from plantdreamer.views import ViewPlan, plan_views
+
         if transforms is not None:
             from plantdreamer.pipeline.rerender import scene_cameras
 
             cameras = scene_cameras(transforms, transform)
+            plan = ViewPlan(cameras, [{} for _ in cameras], background)
         else:
-            from plantdreamer.cameras import orbit_ring
-            from plantdreamer.framing import framed_distance
 
-            if distance is None:  # generate's framing (a plant generated without views too)
-                distance = framed_distance(scene, views, elevation, fovy, resolution, resolution)
-            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
-        frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
+            def orbit_views():
+                from plantdreamer.cameras import orbit_ring
+                from plantdreamer.framing import framed_distance
+
+                framed = distance  # else generate's framing (of a plant without views too)
+                if framed is None:
+                    framed = framed_distance(scene, views, elevation, fovy, resolution, resolution)
+                ring = orbit_ring(views, framed, elevation, fovy, resolution, resolution)
+                return ring, framed
+
+            seed = int(orbit["seed"])
+            plan = plan_views(looks, scene, seed, views, fovy, resolution, background, orbit_views)
+        frames = _render_views(scene, transform, plan, out, ground_truth, path)
         if transforms is None:
             from plantdreamer.pipeline import outputs
 
-            outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
+            frames_shown = TURNTABLE_FRAMES if plan.turns else 0  # no turntable of a rig
+            outputs.write_turntables(out, frames, frames_shown, turntable)
     click.echo(f"wrote {len(frames)} views of {len(gaussians)} Gaussians to {out}")
 
 
@@ -220,9 +235,9 @@ def _scene(gaussians, frame, own_frame: bool, up: str, center):
     return to_scene_frame(gaussians, up=up, center=center)
 
 
-def _render_views(scene, transform, cameras, out, background, ground_truth, ply):
-    """Renders ``cameras`` into ``out`` (with ``ground_truth``, in generate's dataset layout,
-    with the label files); returns the frames."""
+def _render_views(scene, transform, plan, out, ground_truth, ply):
+    """Renders the views of ``plan`` into ``out`` (with ``ground_truth``, in generate's
+    dataset layout, with the label files); returns the frames."""
     import torch
 
     from plantdreamer.pipeline import outputs
@@ -230,12 +245,14 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
     from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
+    cameras = plan.cameras
     with torch.no_grad(), Counter("render: views", len(cameras)) as counter:
 
         def render_view(camera):
-            image, _, meta = model.render([camera], background)
+            image, alpha, meta = model.render([camera], plan.render_background)
             counter.advance()
-            return outputs.to_uint8(image[0].numpy()), meta
+            picture = plan.finish(plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy())
+            return outputs.to_uint8(picture), meta
 
         if not ground_truth:
             frames = [render_view(camera)[0] for camera in cameras]
@@ -246,7 +263,7 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply)
         from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 
         writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
-        frames = render_views(model, writer, cameras, render_view)
+        frames = render_views(model, writer, cameras, render_view, plan.records)
         outputs.write_renders(out / "renders", frames)
     write_plant_exports(out)
     return frames

@@ -6,7 +6,7 @@ import csv
 import functools
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +18,9 @@ from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
-from plantdreamer.settings import setting
+from plantdreamer.settings import option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+from plantdreamer.views.config import ViewsConfig
 
 # float32 positions must resolve the plant at least this finely (relative to its size);
 # georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
@@ -58,6 +59,8 @@ class OutputsConfig:
     labels: bool = setting(
         True, "Write label/instance into plant.ply and the class and instance masks."
     )
+    # The exported views' rig, background and jitter (the orbit on grey by default).
+    views: ViewsConfig = field(default_factory=ViewsConfig, metadata=option_prefix(""))
 
     def validate(self) -> None:
         """The evaluation orbit is a camera and the turntable a count, checked before a run
@@ -75,6 +78,7 @@ class OutputsConfig:
                 f"turntable-frames must be >= 0, got {self.turntable_frames} "
                 "(--turntable none makes no turntable)"
             )
+        self.views.validate()
 
 
 def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:
