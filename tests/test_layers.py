@@ -45,6 +45,7 @@ LAYERS: list[tuple[str, set[str]]] = [
         "generation and training: the pipeline, LoRA, the torch Dataset",
         {"pipeline", "lora", "data"},
     ),
+    ("scenes of finished plants, rendered together", {"scenes"}),
     ("drivers of many runs: datasets on Ray, the known answer", {"dataset", "known_answer"}),
     ("the Python API and the command line", {"api", "install_check", "cli", "__main__"}),
 ]

@@ -31,9 +31,11 @@ __all__ = [
     "PlantDreamerError",
     "PlyError",
     "PlyWarning",
+    "SceneResult",
     "__version__",
     "generate",
     "make_dataset",
+    "make_scene",
     "rasterization",
 ]
 
@@ -46,6 +48,8 @@ _LAZY = {
     "GeneratedPlant": "plantdreamer.api",
     "generate": "plantdreamer.api",
     "make_dataset": "plantdreamer.api",
+    "make_scene": "plantdreamer.scenes",
+    "SceneResult": "plantdreamer.scenes",
     "rasterization": "plantdreamer.rasterizer",
 }
 

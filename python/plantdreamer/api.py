@@ -90,6 +90,7 @@ class DatasetResult:
     seconds: float
     splits: dict[str, list[str]]  # split -> plant ids
     plants: list[Path]  # every finished plant folder
+    scenes: list[Path] = field(default_factory=list)  # every finished scene folder
 
     @property
     def coco(self) -> dict[str, Path]:
@@ -183,6 +184,10 @@ def make_dataset(
     min_instance_area: int | None = None,
     redo_changed: bool = False,
     quiet: bool = False,
+    scenes: str | Iterable[int] | None = None,
+    scene_plants: int | None = None,
+    scene_layout: str | None = None,
+    scene_spacing: float | None = None,
     **settings: Any,
 ) -> DatasetResult:
     """Makes a dataset of plants in the folder ``out``, as ``plantdreamer dataset --out OUT``.
@@ -199,21 +204,31 @@ def make_dataset(
 
     Plants already complete in ``out`` are skipped. At the end the finished plants are split
     into train/val/test and written as COCO, YOLO, a gallery and the dataset's card
-    (README.md). Returns the folder, splits and files; raises ``PlantDreamerError`` naming
-    the plants that failed (after the others are written).
+    (README.md). ``scenes`` (seeds, as ``seeds``) adds scenes of the finished plants
+    (``dataset --scenes``: ``scene_plants`` of one split together, at ``scene_layout``,
+    ``scene_spacing`` apart), in ``out/scenes/``; a spec's ``[[scene]]`` tables do the same.
+    Returns the folder, splits and files; raises ``PlantDreamerError`` naming the plants
+    that failed (after the others are written).
     """
+    from plantdreamer.cli.dataset import with_scene_options
     from plantdreamer.dataset import RunOptions, expand, run_dataset
+    from plantdreamer.dataset.scenes import expand_scenes
     from plantdreamer.dataset.engine import custom_resources
     from plantdreamer.dataset.packing import packing_from
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.exports.dataset import LabelOptions
-    from plantdreamer.exports.listing import finished_plants
+    from plantdreamer.exports.listing import finished_plants, finished_scenes
     from plantdreamer.exports.splits import parse_ratios
 
     table = _spec(spec, species, pointcloud, seeds, count, seed_start)
     packing = packing_from(table, {"plants-per-gpu": plants_per_gpu})
+    scene_values = {"scene-plants": scene_plants, "scene-layout": scene_layout,
+                    "scene-spacing": scene_spacing}  # fmt: skip
+    scene_text = scenes if scenes is None or isinstance(scenes, str) else ",".join(map(str, scenes))
+    table = with_scene_options(table, scene_text, scene_values)
     table = with_settings(table, {settings_of.canonical(k): v for k, v in settings.items()})
     plants = expand(table)
+    scene_plans = expand_scenes(table)
     if isinstance(split, str):
         split = parse_ratios(split)
     if isinstance(stuff, str):
@@ -227,7 +242,7 @@ def make_dataset(
         gpus_per_plant=gpus_per_plant, max_retries=max_retries,
         resources=custom_resources({k: str(v) for k, v in (resources or {}).items()}),
         plants_per_gpu=packing.plants_per_gpu, show_progress=not quiet, labels=labels,
-        redo_changed=redo_changed,
+        redo_changed=redo_changed, scenes=scene_plans,
     )  # fmt: skip
     report = run_dataset(table, plants, out, options)
     if report.failed:
@@ -243,6 +258,7 @@ def make_dataset(
         report.seconds,
         report.labels.splits if report.labels is not None else {},
         [p.folder for p in finished_plants(report.out_dir)],
+        [s.folder for s in finished_scenes(report.out_dir)],
     )
 
 

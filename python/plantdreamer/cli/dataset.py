@@ -11,6 +11,7 @@ from plantdreamer.cli.options import config_options, options_to_settings
 from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
 from plantdreamer.dataset.packing import PackingConfig
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.scenes.config import SceneConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
 # Generate settings with an option of their own here (any other: --set NAME=VALUE).
@@ -78,6 +79,14 @@ def _toml_value(text: str) -> object:
     metavar="NAME=VALUE",
     help="Any generate setting for every plant, by its option name: --set points=5000.",
 )
+@click.option(
+    "--scenes",
+    "scene_seeds",
+    metavar="SEEDS",
+    help="Also scenes of the finished plants (trays: scene-plants of one split together), "
+    "one per seed (0-9: ten), into OUT/scenes/; their views take the views' settings.",
+)
+@config_options(SceneConfig, with_defaults=False, note=" With --scenes [default: 4, grid].")
 @click.option("--address", help="Join a Ray cluster: auto or HOST:PORT [default: local Ray].")
 @click.option("--local-cpus", type=click.IntRange(1), help="CPUs of the local Ray [all].")
 @click.option(
@@ -141,6 +150,7 @@ def dataset(
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
+    scene_seeds: str | None,
     **quick_settings: object,
 ) -> None:
     """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
@@ -167,6 +177,7 @@ def dataset(
         import_ray()  # fail first, with what to install, when Ray is missing
     spec = spec_of_options(spec_file, species, pointcloud, seeds, count, seed_start)
     packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
+    spec = with_scene_options(spec, scene_seeds, options_to_settings(SceneConfig, quick_settings))
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
@@ -180,6 +191,9 @@ def dataset(
             )
     spec = with_settings(spec, overrides)
     plants = expand(spec)  # every plant's config is checked here, before Ray starts
+    from plantdreamer.dataset.scenes import expand_scenes
+
+    scenes = expand_scenes(spec)  # and every scene's settings
     from plantdreamer.dataset.plan import check_models
 
     check_models(plants)  # the LoRA and models found, before any plan or model load
@@ -190,6 +204,8 @@ def dataset(
         planned = planned_classes(plants)
         check_planned_splits(Path(out_dir), [p.id for p in plants], labels, planned)
         _print_plan(plants, out_dir, packing.plants_per_gpu)
+        if scenes:
+            click.echo(f"then {len(scenes)} scenes of the finished plants into {out_dir}/scenes/")
         return
     custom = custom_resources(_key_values(resources, "--resource"))
     options = RunOptions(
@@ -203,6 +219,7 @@ def dataset(
         show_progress=not quiet,
         redo_changed=redo_changed,
         labels=labels,
+        scenes=scenes,
     )
     try:
         report, stopped = run_dataset(spec, plants, out_dir, options), False
@@ -232,6 +249,18 @@ def dataset(
     )
     if report.labels is not None:
         click.echo(describe(report.labels, out_dir))
+
+
+def with_scene_options(spec: dict, seeds: str | None, options: dict) -> dict:
+    """The spec with the scenes ``--scenes`` asks for (one more [[scene]] table)."""
+    from plantdreamer.errors import InputError
+
+    given = {k: v for k, v in options.items() if v is not None}
+    if seeds is None:
+        if given:
+            raise InputError(f"--{next(iter(given))} describes the scenes of --scenes SEEDS")
+        return spec
+    return {**spec, "scene": [*spec.get("scene", []), {"seeds": seeds, **given}]}
 
 
 def spec_of_options(

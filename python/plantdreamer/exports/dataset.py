@@ -48,7 +48,13 @@ from plantdreamer.exports.instances import (
     labelled_frames,
     read_view_objects,
 )
-from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
+from plantdreamer.exports.listing import (
+    PLANTS_DIR,
+    PlantEntry,
+    finished_plants,
+    finished_scenes,
+    scene_record,
+)
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
 from plantdreamer.exports.splits import (
     DEFAULT_RATIOS,
@@ -180,10 +186,12 @@ def _write_exports(
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
-    labelled, classes = labelled_plants(plants)
+    scenes = finished_scenes(dataset_dir)
+    labelled, classes = labelled_plants(plants + scenes)
     stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
     splits = split_plants([p.id for p in plants], ratios, seed)
     warnings = check_splits(splits, ratios, options.allow_empty_split)
+    scene_splits = _scene_splits(scenes, splits)
     for p in labelled:
         if _plant_options(p.folder) == (min_area, list(options.stuff)):
             continue
@@ -204,14 +212,17 @@ def _write_exports(
             "ratios": dict(zip(SPLITS, ratios, strict=True)),
             **splits,
             "species": species,
+            **({"scenes": scene_splits} if scenes else {}),
         },
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
+    split_of |= {scene_id: split for split in SPLITS for scene_id in scene_splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
     card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
+    guidance |= {s.id: str(scene_record(s).get("guidance", "sds")) for s in scenes}
     index = yolo.class_index(things)
     yolo_dir = stage / "yolo"
     total = LabelReport()
@@ -226,7 +237,7 @@ def _write_exports(
             objects = read_view_objects(plant.folder, view.frame, min_area, classes.luts[plant.id])
             objects = objects.without(stuff_ids)
             image = Path(view.frame["file_path"])
-            relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
+            relative = f"{plant.folder.parent.name}/{plant.id}/{image.as_posix()}"
             coco.add(view.image_id, relative, objects, plant_id=plant.id,
                      license=licence_of[guidance[plant.id]])  # fmt: skip
             flat = f"{plant.id}__{image.stem}"
@@ -248,6 +259,21 @@ def _write_exports(
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
     return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
+
+
+def _scene_splits(scenes: list[PlantEntry], splits: dict[str, list[str]]) -> dict[str, list[str]]:
+    """The scene ids of each split: the split each scene was made for (``scene.json``; all
+    its plants are of it). A scene whose record names no split, or whose id is a plant's,
+    is refused."""
+    plant_ids = {i for ids in splits.values() for i in ids}
+    cut: dict[str, list[str]] = {split: [] for split in SPLITS}
+    for scene in scenes:
+        split = scene_record(scene).get("split")
+        if split not in cut or scene.id in plant_ids:
+            why = "names no split" if split not in cut else "has a plant's id"
+            raise InputError(f"scene {scene.folder} {why}: remake it (plantdreamer dataset)")
+        cut[split].append(scene.id)
+    return cut
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:
