@@ -51,6 +51,7 @@ def render_scene(composed: ComposedScene, out: Path, cfg: GenerateConfig) -> int
     import torch
 
     from plantdreamer.atomic import write_image
+    from plantdreamer.exports.instances import read_png
     from plantdreamer.exports.plant import write_plant_exports
     from plantdreamer.pipeline import outputs
     from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
@@ -63,24 +64,34 @@ def render_scene(composed: ComposedScene, out: Path, cfg: GenerateConfig) -> int
     model = GaussianModel(scene)
     plan = export_plan(cfg, scene)
     writer = ground_truth_writer(out, model, transform, True, composed.class_names)
-    plant_labels = np.stack([composed.plant_of, np.full_like(composed.plant_of, -1)], axis=1)
+    # Which plant each pixel shows: the plant of its instance where it has one, else the
+    # plant of largest weight among those of its class (the instance rule, plants as units).
+    plant_labels = np.stack([composed.gaussians.labels[:, 0], composed.plant_of], axis=1)
     plant_set = LabelSet.of(plant_labels)
     plant_maps = GroundTruthRenderer(model, plant_set)
-    plant_values = np.r_[plant_set.classes + 1, 0].astype(np.uint8)  # index -1: background
+    by_class: list[np.ndarray] = []
     with torch.no_grad():
 
         def render(camera):
             view = plan.index(camera)
             image, alpha, meta = model.render([camera], plan.render_background)
             picture = plan.finish(view, image[0].numpy(), alpha[0, ..., 0].numpy())
-            plants = plant_maps(camera, meta).label
-            (out / PLANT_MAPS).mkdir(parents=True, exist_ok=True)
-            write_image(out / PLANT_MAPS / f"view_{view:03d}.png", plant_values[plants])
+            by_class.append(np.r_[plant_set.instances, -1][plant_maps(camera, meta).instance])
             return outputs.to_uint8(picture), meta
 
         records = [{**r, "plant_path": f"{PLANT_MAPS}/view_{i:03d}.png"}
                    for i, r in enumerate(plan.records)]  # fmt: skip
         frames = render_views(model, writer, plan.cameras, render, records)
+    assert writer.instance_values is not None and writer.label_set is not None
+    ids = np.zeros(int(writer.instance_values.max(initial=0)) + 1, dtype=np.int64)
+    ids[writer.instance_values] = writer.label_set.instances
+    offsets = np.asarray(composed.instance_offsets)
+    (out / PLANT_MAPS).mkdir(parents=True, exist_ok=True)
+    for view, plants in enumerate(by_class):
+        instance = read_png(out / "instances" / f"view_{view:03d}.png").astype(np.int64)
+        own = np.searchsorted(offsets, ids[instance], side="right") - 1
+        plants = np.where(instance > 0, own, plants)
+        write_image(out / PLANT_MAPS / f"view_{view:03d}.png", (plants + 1).astype(np.uint8))
     outputs.write_renders(out / "renders", frames)
     oc = cfg.outputs
     outputs.write_turntables(out, frames, oc.turntable_frames if plan.turns else 0, oc.turntable)

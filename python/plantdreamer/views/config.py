@@ -40,5 +40,10 @@ class ViewsConfig:
         return self.rig.rig == ORBIT and self.background.plain and self.jitter.off
 
     def validate(self) -> None:
+        """Each section's settings, and a real rig's file read (before anything runs)."""
         self.rig.validate()
         self.background.validate()
+        if self.rig.rig_transforms is not None:
+            from plantdreamer.views.real_rig import rig_cameras
+
+            rig_cameras(self.rig.rig_transforms)
