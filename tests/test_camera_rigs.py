@@ -93,7 +93,9 @@ def test_straight_down_views_are_proper_cameras_at_any_azimuth_and_roll():
             # The azimuth and the roll turn the picture: image right is the horizontal
             # direction of increasing azimuth, turned by the roll.
             turn = math.radians(azimuth - roll)
-            np.testing.assert_allclose(rotation[0], [-math.sin(turn), math.cos(turn), 0], atol=1e-12)
+            np.testing.assert_allclose(
+                rotation[0], [-math.sin(turn), math.cos(turn), 0], atol=1e-12
+            )
 
 
 def test_rig_cameras_match_look_at_orbits_where_those_are_defined():

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from labelled_plant import make_plant
 
+from labelled_plant import make_plant
 from plantdreamer.errors import InputError
 
 PLANT_SEEDS = (1, 2, 3, 4)
@@ -238,7 +238,8 @@ def test_a_datasets_scenes_take_one_splits_plants_and_join_its_files(plants, tmp
     ratios = (0.5, 0.5, 0.0)
     plant_ids = [p.name for p in plants]
     seed = next(  # a seed that gives both splits plants and scenes
-        s for s in range(500)
+        s
+        for s in range(500)
         if {split_of(i, ratios, s) for i in plant_ids} == {"train", "val"}
         and {split_of(x.id, ratios, s) for x in scenes} == {"train", "val"}
     )

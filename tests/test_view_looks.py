@@ -11,8 +11,8 @@ import zlib
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from labelled_plant import SETTINGS, make_plant
 
+from labelled_plant import SETTINGS, make_plant
 from plantdreamer.cli import main
 
 MAPS = ("labels", "instances", "depth")

@@ -212,9 +212,9 @@ def make_dataset(
     """
     from plantdreamer.cli.dataset import with_scene_options
     from plantdreamer.dataset import RunOptions, expand, run_dataset
-    from plantdreamer.dataset.scenes import expand_scenes
     from plantdreamer.dataset.engine import custom_resources
     from plantdreamer.dataset.packing import packing_from
+    from plantdreamer.dataset.scenes import expand_scenes
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.exports.dataset import LabelOptions
     from plantdreamer.exports.listing import finished_plants, finished_scenes

@@ -75,24 +75,24 @@ class RigConfig:
         "the seed), or transforms (the cameras of rig-transforms, framed on the plant).",
         choices=RIG_NAMES,
     )
-    rig_elevation_deg: Range | None = setting(
+    rig_elevation_deg: tuple[float, float] | None = setting(
         None, "Elevation range LOW HIGH of the rig's views (degrees; 90: straight down).",
         default_text="the rig's",
     )  # fmt: skip
-    rig_azimuth_deg: Range | None = setting(
+    rig_azimuth_deg: tuple[float, float] | None = setting(
         None, "Azimuth range LOW HIGH of the rig's views (degrees).", default_text="the rig's"
     )
-    rig_distance: Range | None = setting(
+    rig_distance: tuple[float, float] | None = setting(
         None,
         "Distance range LOW HIGH of the rig's views, in framed distances (1: the closest at "
         "which the whole plant is in view).",
         default_text="the rig's",
     )
-    rig_roll_deg: Range | None = setting(
+    rig_roll_deg: tuple[float, float] | None = setting(
         None, "Roll range LOW HIGH of the rig's views about their optical axis (degrees).",
         default_text="the rig's",
     )  # fmt: skip
-    rig_fovy_deg: Range | None = setting(
+    rig_fovy_deg: tuple[float, float] | None = setting(
         None, "Vertical field of view range LOW HIGH of the rig's views (degrees).",
         default_text="eval-fovy-deg, or the rig's",
     )  # fmt: skip

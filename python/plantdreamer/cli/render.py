@@ -256,7 +256,7 @@ def _render_views(scene, transform, plan, out, ground_truth, ply):
 
         if not ground_truth:
             frames = [render_view(camera)[0] for camera in cameras]
-            outputs.write_renders(out, frames)
+            outputs.write_renders(out, frames, **plan.png)
             return frames
         from plantdreamer.exports.plant import write_plant_exports
         from plantdreamer.exports.points import read_class_names
@@ -264,7 +264,7 @@ def _render_views(scene, transform, plan, out, ground_truth, ply):
 
         writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
         frames = render_views(model, writer, cameras, render_view, plan.records)
-        outputs.write_renders(out / "renders", frames)
+        outputs.write_renders(out / "renders", frames, **plan.png)
     write_plant_exports(out)
     return frames
 

@@ -25,6 +25,7 @@ from typing import Any
 
 from plantdreamer import atomic
 from plantdreamer.digests import file_digest
+from plantdreamer.exports.distributions import distributions, distributions_markdown
 from plantdreamer.exports.listing import PlantEntry
 
 README_FILE = "README.md"
@@ -79,9 +80,11 @@ def dataset_card(
     species: dict[str, dict[str, int]],
     min_area: int,
     images: dict[str, int],
+    scenes: list[PlantEntry] | None = None,
 ) -> dict[str, Any]:
-    """The card of a dataset's finished ``plants`` (``classes``: category id ->
-    name; ``species``: split -> species -> plants; ``images``: split -> labelled views)."""
+    """The card of a dataset's finished ``plants`` and ``scenes`` (``classes``: category
+    id -> name; ``species``: split -> species -> plants; ``images``: split -> labelled
+    views)."""
     configs = {p.id: _config(p.folder / "run.json") for p in plants}
     guided = sorted(i for i, c in configs.items() if _setting(c, "guidance", "sds") != "none")
     return {
@@ -119,6 +122,7 @@ def dataset_card(
         },
         "citation": CITATION,
         "paper": PAPER_URL,
+        "distributions": distributions(configs, scenes or []),  # the views, the scenes
     }
 
 
@@ -209,7 +213,8 @@ def card_markdown(card: dict[str, Any]) -> str:
         species = ", ".join(f"{n} {name}" for name, n in row["species"].items()) or "-"
         lines.append(f"| {split} | {row['plants']} | {row['images']} | {species} |")
     total = ", ".join(f"{n} {name}" for name, n in card["species"].items())
-    lines += ["", f"All: {total}. Presets: {', '.join(card['presets'])}.", "", "## Models", ""]
+    lines += ["", f"All: {total}. Presets: {', '.join(card['presets'])}.", ""]
+    lines += [*distributions_markdown(card), "## Models", ""]
     if card["models"]:
         for m in card["models"]:
             lines.append(f"- {m['role']}: `{m['id']}` ({m['hash'] or 'hash unknown here'})")

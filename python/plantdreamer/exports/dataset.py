@@ -219,7 +219,8 @@ def _write_exports(
     split_of |= {scene_id: split for split in SPLITS for scene_id in scene_splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
-    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
+    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images,
+                        scenes)  # fmt: skip
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
     guidance |= {s.id: str(scene_record(s).get("guidance", "sds")) for s in scenes}

@@ -96,11 +96,13 @@ def export_run(
             def render(camera):
                 image, alpha, meta = view_model.render([camera], plan.render_background)
                 counter.advance()
-                picture = plan.finish(plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy())
+                picture = plan.finish(
+                    plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy()
+                )
                 return outputs.to_uint8(picture), meta
 
             frames = render_views(view_model, writer, cameras, render, plan.records)
-        outputs.write_renders(out / "renders", frames)
+        outputs.write_renders(out / "renders", frames, **plan.png)
         turntable_frames = oc.turntable_frames if plan.turns else 0  # no turntable of a rig
         outputs.write_turntables(out, frames, turntable_frames, oc.turntable)
     outputs.write_log_csv(out / "log.csv", state.log_rows)

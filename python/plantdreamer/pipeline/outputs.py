@@ -138,10 +138,11 @@ def to_uint8(image) -> np.ndarray:
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
+def write_renders(out_dir: Path, frames: list[np.ndarray], **png: Any) -> None:
+    """``view_NNN.png`` per frame (``png``: Pillow's PNG options, as ``compress_level``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(frames):
-        atomic.write_image(out_dir / f"view_{i:03d}.png", frame)
+        atomic.write_image(out_dir / f"view_{i:03d}.png", frame, **png)
 
 
 def write_turntables(

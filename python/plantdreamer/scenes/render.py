@@ -66,7 +66,9 @@ def render_scene(composed: ComposedScene, out: Path, cfg: GenerateConfig) -> int
     writer = ground_truth_writer(out, model, transform, True, composed.class_names)
     # Which plant each pixel shows: the plant of its instance where it has one, else the
     # plant of largest weight among those of its class (the instance rule, plants as units).
-    plant_labels = np.stack([composed.gaussians.labels[:, 0], composed.plant_of], axis=1)
+    labels = composed.gaussians.labels
+    assert labels is not None  # compose makes a scene of labelled plants only
+    plant_labels = np.stack([labels[:, 0], composed.plant_of], axis=1)
     plant_set = LabelSet.of(plant_labels)
     plant_maps = GroundTruthRenderer(model, plant_set)
     by_class: list[np.ndarray] = []
@@ -92,7 +94,7 @@ def render_scene(composed: ComposedScene, out: Path, cfg: GenerateConfig) -> int
         own = np.searchsorted(offsets, ids[instance], side="right") - 1
         plants = np.where(instance > 0, own, plants)
         write_image(out / PLANT_MAPS / f"view_{view:03d}.png", (plants + 1).astype(np.uint8))
-    outputs.write_renders(out / "renders", frames)
+    outputs.write_renders(out / "renders", frames, **plan.png)
     oc = cfg.outputs
     outputs.write_turntables(out, frames, oc.turntable_frames if plan.turns else 0, oc.turntable)
     write_plant_exports(out)

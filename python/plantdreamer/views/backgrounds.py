@@ -24,14 +24,12 @@ from plantdreamer.errors import InputError
 from plantdreamer.eval.images import MAX_IMAGE_PIXELS, check_image_size
 from plantdreamer.settings import setting
 
-Colour = tuple[float, float, float]
-
 
 @dataclass
 class BackgroundConfig:
     """The background section: a colour or a folder of images behind the exported views."""
 
-    background_colour: Colour | None = setting(
+    background_colour: tuple[float, float, float] | None = setting(
         None,
         "A colour R G B in [0, 1] behind the exported views.",
         default_text="the grey of --background",

@@ -23,6 +23,9 @@ from plantdreamer.views.config import ViewsConfig
 from plantdreamer.views.jitter import Jitter, draw_jitter
 
 LOOK_STREAM = 0x6C6F6F6B  # "look": each view's background and jitter, apart from the rig's
+# Renders over photos are written at zlib's fastest level: at Pillow's default (6) a 512 px
+# view over a photo took 4x as long to encode as at 1, for files 20% smaller.
+PHOTO_PNG = {"compress_level": 1}
 
 
 @dataclass
@@ -36,6 +39,7 @@ class ViewPlan:
     jitters: list[Jitter | None] = field(default_factory=list)
     orbit_distance: float | None = None  # the orbit's distance (framed or given); None else
     turns: bool = True  # the views go round the plant at one distance (a turntable of them)
+    png: dict[str, Any] = field(default_factory=dict)  # Pillow's options for the renders
     _index: dict[int, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -98,6 +102,7 @@ def plan_views(
         backgrounds.append(background)
         jitters.append(jitter)
     render_background = grey if config.background.plain else 0.0
+    png = PHOTO_PNG if config.background.background_images is not None else {}
     return ViewPlan(
-        cameras, records, render_background, backgrounds, jitters, distance, turns=turns
+        cameras, records, render_background, backgrounds, jitters, distance, turns, dict(png)
     )

@@ -1,0 +1,122 @@
+"""What randomised cameras and backgrounds cost a dataset: the same plants made with the
+orbit on grey (the default) and with the random rig over a folder of background photos,
+interleaved (the variants alternate which runs first), each run a fresh process on a fresh
+folder: `plantdreamer generate --seeds` (the plants' runs in one process, as a dataset's
+worker runs them) or, with ``--via dataset``, `plantdreamer dataset` (Ray's start
+included; on a loaded 2-core machine Ray may time out starting).
+
+Reported per variant: the whole command's wall time and the plants' export (run.json's
+``renders`` + ``label files`` + ``export``, summed over the plants: the part the views
+change), min and median over the repeats, and the ratio random / orbit.
+
+    python benches/bench_views.py [--plants 8] [--repeats 3] [--views 24] [--points 30000]
+        [--via generate|dataset]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from host import host_line
+from view_photos import TRAINING, write_photos
+
+RESULTS = Path(__file__).resolve().parent / "results"
+EXPORT_PHASES = ("export", "renders", "label files")
+
+
+def run(out: Path, args: argparse.Namespace, extra: list[str]) -> dict[str, float]:
+    command = [
+        sys.executable, "-m", "plantdreamer", args.via, "--species", "bean",
+        "--seeds", f"0-{args.plants - 1}", "--guidance", "none", "--steps", "0",
+        "--eval-views", str(args.views), "--points", str(args.points), "--out", str(out),
+        "--quiet",
+    ]  # fmt: skip
+    if args.via == "dataset":
+        command += ["--allow-empty-split", *extra]
+    else:  # generate takes the settings as options
+        command += [x for x in extra if x != "--set"]
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"{' '.join(command)} failed:\n{done.stdout[-2000:]}{done.stderr[-3000:]}")
+    wall = time.perf_counter() - started
+    export = 0.0
+    for record in sorted(out.glob("plants/*/run.json")) + sorted(out.glob("*/run.json")):
+        timings = json.loads(record.read_text())["timings_s"]
+        export += sum(timings.get(k, 0.0) for k in EXPORT_PHASES)
+    return {"wall": wall, "export": export}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plants", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--views", type=int, default=24)
+    parser.add_argument("--points", type=int, default=30000)
+    parser.add_argument("--via", choices=("generate", "dataset"), default="generate")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        photos = write_photos(Path(tmp) / "photos", TRAINING)
+        variants = {
+            "orbit on grey": [],
+            "random rig, photos": ["--set", "rig=random", "--set", f"background-images={photos}"]
+            if args.via == "dataset"
+            else ["--rig", "random", "--background-images", str(photos)],
+        }
+        times: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
+        for repeat in range(args.repeats):
+            order = list(variants) if repeat % 2 == 0 else list(reversed(variants))
+            for name in order:
+                out = Path(tmp) / f"{name[:5]}-{repeat}"
+                times[name].append(run(out, args, variants[name]))
+                print(name, repeat, times[name][-1], flush=True)
+    rows = []
+    for name, runs in times.items():
+        walls, exports = [r["wall"] for r in runs], [r["export"] for r in runs]
+        rows.append((name, min(walls), statistics.median(walls), min(exports),
+                     statistics.median(exports)))  # fmt: skip
+    base = rows[0]
+    command = " ".join(["python benches/bench_views.py", *sys.argv[1:]])
+    lines = [
+        "## Randomised cameras and backgrounds: their cost (`benches/bench_views.py`)",
+        "",
+        f"Command: `{command}`. `plantdreamer {args.via} --species bean --seeds "
+        f"0-{args.plants - 1} --guidance none --steps 0 --eval-views {args.views} --points "
+        f"{args.points}` (render size 512 px), once as it is (the orbit on grey) and once "
+        "with the random rig over 4 photos (`rig=random`, `background-images=DIR`, "
+        "`benches/view_photos.py`), "
+        f"{args.repeats} times each, interleaved (the first variant alternates), each in a "
+        "fresh process and folder. Wall: the whole command; export: the plants' "
+        "`renders` + `label files` + `export` phases (run.json), summed over the plants.",
+        "",
+        f"Host: {host_line()}.",
+        "",
+        "| variant | wall min (s) | wall median (s) | export min (s) | export median (s) |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [f"| {r[0]} | {r[1]:.1f} | {r[2]:.1f} | {r[3]:.1f} | {r[4]:.1f} |" for r in rows]
+    other = rows[1]
+    lines += [
+        "",
+        f"Random / orbit: wall {other[1] / base[1]:.3f} (min) and {other[2] / base[2]:.3f} "
+        f"(median); export {other[3] / base[3]:.3f} (min) and {other[4] / base[4]:.3f} "
+        "(median). With no training (`--steps 0`) the export is nearly all of each plant's "
+        "run, so the ratio is as large here as it gets.",
+        "",
+    ]
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "views_cost.md").write_text("\n".join(lines))
+    (RESULTS / "views_cost.json").write_text(json.dumps(times, indent=2) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
