@@ -264,6 +264,13 @@ def test_a_datasets_scenes_take_one_splits_plants_and_join_its_files(plants, tmp
         assert sorted(int(views[i][1]["image_id"]) for i in range(len(views))) == sorted(names)
         yolo = sorted(p.stem for p in (root / "yolo" / "images" / split).glob("tray-*"))
         assert yolo == [f"{s}__view_000" for s in recorded[split]]
+    # The card says how the views and scenes were made.
+    card = json.loads((root / "dataset.json").read_text())["card"]["distributions"]
+    assert card["cameras"] == {"orbit: 1 views at elevation 15 deg, field of view 70 deg": 4}
+    assert card["backgrounds"] == {"grey 0.75": 4} and card["jitter"] == {"off": 4}
+    assert card["scenes"]["count"] == 4 and card["scenes"]["layouts"] == {"2 plants, grid": 4}
+    readme = (root / "README.md").read_text()
+    assert "## Distributions" in readme and "- scenes: 4 (" in readme and "Limits:" in readme
     # Made again with the same settings and plants: kept as they are.
     stamp = {s.id: (root / "scenes" / s.id / "scene.json").stat().st_mtime_ns for s in scenes}
     make_dataset_scenes(root, scenes, options)
@@ -298,3 +305,20 @@ def test_dataset_scenes_options_are_checked_and_planned_before_ray(tmp_path):
     assert "then 2 scenes of the finished plants" in result.output
     result = CliRunner().invoke(main, [*args, "--scene-plants", "2"])
     assert result.exit_code == 1 and "error: --scene-plants describes the scenes" in result.output
+
+
+def test_the_cards_camera_line_gives_the_ranges_a_plant_was_drawn_from():
+    from plantdreamer.exports.distributions import background_text, camera_text, jitter_text
+
+    drawn = {"rig": "top-down", "rig-distance": [1.0, 2.0], "eval-views": 8, "eval-fovy-deg": 50}
+    assert camera_text(drawn) == (
+        "top-down: 8 views, elevation 90 deg, azimuth -180 to 180 deg, distance 1 to 2 "
+        "framed, roll 0 deg, field of view 50 deg"
+    )
+    assert camera_text({}) == "orbit: 120 views at elevation 15 deg, field of view 70 deg"
+    assert background_text({"background-images": "/data/photos/bench"}) == (
+        "photos from bench/, one per view"
+    )
+    assert jitter_text({"jitter-brightness": 0.2, "jitter-white-balance": 0.05}) == (
+        "brightness +-0.2, white balance +-0.05"
+    )
