@@ -92,6 +92,8 @@ def make_dataset_scenes(
     """Makes (or keeps) the dataset's scenes; returns warnings (a split with no plant)."""
     from plantdreamer.exports.card import plant_guidance
 
+    if not scenes:
+        return []
     plants, _ = labelled_plants(finished_plants(dataset_dir))
     warnings = []
     for scene in scenes:
