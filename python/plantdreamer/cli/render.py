@@ -151,6 +151,11 @@ def render(
     from plantdreamer.views import ViewsConfig
 
     looks = ViewsConfig.from_settings(orbit)  # the rig, background and jitter, as generate's
+    if transforms is not None:  # its own cameras, on the grey
+        typed = [f"--{n}" for n in VIEWS if n != "seed" and n.replace("-", "_") in given]
+        if typed:
+            raise InputError(f"--transforms renders at its own cameras: not with {typed[0]}")
+        looks = ViewsConfig()
     looks.validate()
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
