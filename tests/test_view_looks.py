@@ -246,6 +246,15 @@ def test_render_remakes_a_rigs_views_bit_for_bit(plants, tmp_path):
     mine = json.loads((plant / "transforms.json").read_text())
     again = json.loads((out / "transforms.json").read_text())
     assert mine["frames"] == again["frames"] and "rig" in mine["frames"][0]
+    # The cameras written lie in the random rig's ranges (seen from the plant's centre).
+    centre = np.asarray(json.loads((plant / "run.json").read_text())["transform"]["center"])
+    for frame in mine["frames"]:
+        offset = np.asarray(frame["transform_matrix"])[:3, 3] - centre
+        elevation = np.degrees(np.arcsin(offset[2] / np.linalg.norm(offset)))
+        fovy = np.degrees(
+            2 * np.arctan(frame.get("h", mine["h"]) / 2 / frame.get("fl_y", mine["fl_y"]))
+        )
+        assert -1e-6 <= elevation <= 90 + 1e-6 and 30 - 1e-6 <= fovy <= 70 + 1e-6
     # Its views at a transforms.json's cameras are on the grey; a look typed there is refused.
     typed = CliRunner().invoke(main, ["render", str(plant), "--transforms", str(plant),
                                       "--out", str(tmp_path / "t"), "--rig", "side"])  # fmt: skip
