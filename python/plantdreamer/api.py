@@ -210,11 +210,10 @@ def make_dataset(
     Returns the folder, splits and files; raises ``PlantDreamerError`` naming the plants
     that failed (after the others are written).
     """
-    from plantdreamer.cli.dataset import with_scene_options
     from plantdreamer.dataset import RunOptions, expand, run_dataset
     from plantdreamer.dataset.engine import custom_resources
     from plantdreamer.dataset.packing import packing_from
-    from plantdreamer.dataset.scenes import expand_scenes
+    from plantdreamer.dataset.scenes import expand_scenes, with_scene_table
     from plantdreamer.dataset.spec import with_settings
     from plantdreamer.exports.dataset import LabelOptions
     from plantdreamer.exports.listing import finished_plants, finished_scenes
@@ -225,7 +224,7 @@ def make_dataset(
     scene_values = {"scene-plants": scene_plants, "scene-layout": scene_layout,
                     "scene-spacing": scene_spacing}  # fmt: skip
     scene_text = scenes if scenes is None or isinstance(scenes, str) else ",".join(map(str, scenes))
-    table = with_scene_options(table, scene_text, scene_values)
+    table = with_scene_table(table, scene_text, scene_values)
     table = with_settings(table, {settings_of.canonical(k): v for k, v in settings.items()})
     plants = expand(table)
     scene_plans = expand_scenes(table)

@@ -177,7 +177,9 @@ def dataset(
         import_ray()  # fail first, with what to install, when Ray is missing
     spec = spec_of_options(spec_file, species, pointcloud, seeds, count, seed_start)
     packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
-    spec = with_scene_options(spec, scene_seeds, options_to_settings(SceneConfig, quick_settings))
+    from plantdreamer.dataset.scenes import with_scene_table
+
+    spec = with_scene_table(spec, scene_seeds, options_to_settings(SceneConfig, quick_settings))
     quick = options_to_settings(GenerateConfig, dict(quick_settings))
     overrides = {k: v for k, v in quick.items() if v is not None}
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
@@ -249,18 +251,6 @@ def dataset(
     )
     if report.labels is not None:
         click.echo(describe(report.labels, out_dir))
-
-
-def with_scene_options(spec: dict, seeds: str | None, options: dict) -> dict:
-    """The spec with the scenes ``--scenes`` asks for (one more [[scene]] table)."""
-    from plantdreamer.errors import InputError
-
-    given = {k: v for k, v in options.items() if v is not None}
-    if seeds is None:
-        if given:
-            raise InputError(f"--{next(iter(given))} describes the scenes of --scenes SEEDS")
-        return spec
-    return {**spec, "scene": [*spec.get("scene", []), {"seeds": seeds, **given}]}
 
 
 def spec_of_options(

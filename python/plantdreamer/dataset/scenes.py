@@ -86,6 +86,16 @@ def expand_scenes(spec: dict[str, Any]) -> list[ScenePlan]:
     return scenes
 
 
+def with_scene_table(spec: dict, seeds: str | None, options: dict) -> dict:
+    """The spec with the scenes ``--scenes`` asks for (one more [[scene]] table)."""
+    given = {k: v for k, v in options.items() if v is not None}
+    if seeds is None:
+        if given:
+            raise InputError(f"--{next(iter(given))} describes the scenes of --scenes SEEDS")
+        return spec
+    return {**spec, "scene": [*spec.get("scene", []), {"seeds": seeds, **given}]}
+
+
 def make_dataset_scenes(
     dataset_dir: Path, scenes: list[ScenePlan], labels: LabelOptions
 ) -> list[str]:
