@@ -18,7 +18,9 @@ a failed export (an unreadable view) leaves the previous one whole; a ``yolo/`` 
 ``coco/`` that holds anything else, or is a link, is refused before anything is written.
 The caller holds the folder's lock (``dataset``, ``labels``).
 
-The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
+The plants are those ``exports.listing`` finds finished; its finished scenes
+(``DIR/scenes/<id>/``) join the split they were made for (``splits.json``'s ``scenes``),
+their views numbered after every plant's. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
 its own label files left as they are.
 """
@@ -219,8 +221,8 @@ def _write_exports(
     split_of |= {scene_id: split for split in SPLITS for scene_id in scene_splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
-    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images,
-                        scenes)  # fmt: skip
+    names = classes.names
+    card = dataset_card(plants, names, options.stuff, splits, species, min_area, images, scenes)
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
     guidance |= {s.id: str(scene_record(s).get("guidance", "sds")) for s in scenes}
