@@ -14,7 +14,7 @@ process, as ``tests/ultralytics_train.py`` runs it), on the CPU; scored by its o
 mask mAP50-95 of the leaf class and of all four classes.
 
     python benches/bench_detector_gain.py [--plants 40] [--held-out 8] [--views 8]
-        [--size 160] [--epochs 20] [--batch 16] [--points 20000] [--work DIR]
+        [--size 160] [--epochs 20] [--batch 16] [--points 20000] [--work DIR] [--device cpu]
 """
 
 from __future__ import annotations
@@ -115,12 +115,13 @@ job = json.loads(sys.argv[1])
 model = YOLO("yolo11n-seg.yaml")
 model.train(data=job["train"], epochs=job["epochs"], imgsz=job["size"], batch=job["batch"],
             pretrained=False, amp=False, plots=False, val=False, seed=0, deterministic=True,
-            workers=0, device="cpu", project=job["project"], name="run", exist_ok=True,
+            workers=0, device=job["device"], project=job["project"], name="run", exist_ok=True,
             verbose=False)
 scores = {}
 for name, yaml in job["tests"].items():
     m = model.val(data=yaml, imgsz=job["size"], batch=job["batch"], plots=False,
-                  device="cpu", workers=0, verbose=False, project=job["project"], name=name)
+                  device=job["device"], workers=0, verbose=False, project=job["project"],
+                  name=name)
     leaf = list(m.seg.ap_class_index).index(0) if 0 in list(m.seg.ap_class_index) else None
     scores[name] = {"leaf": float(m.seg.maps[0]) if leaf is not None else 0.0,
                     "all": float(m.seg.map), "leaf_box": float(m.box.maps[0])}
@@ -149,6 +150,7 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--points", type=int, default=20000)
     parser.add_argument("--work", help="keep the plants, views and runs here")
+    parser.add_argument("--device", default="cpu", help="where YOLO trains (cpu, 0, ...)")
     args = parser.parse_args()
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="detector_gain_"))
     size, views = args.size, args.views
@@ -182,6 +184,7 @@ def main() -> None:
         job = {
             "train": str(data_yaml(data, variant, "top-down")), "epochs": args.epochs,
             "size": size, "batch": args.batch, "project": str(work / "runs" / variant),
+            "device": args.device,
             "tests": {n: str(data_yaml(data, variant, n)) for n in tests},
         }  # fmt: skip
         results[variant] = train_and_score(job, work / "ultralytics")
@@ -200,7 +203,8 @@ def write_report(args, counts, results, prepared, plant_views, tray_count, tray_
         f"on grey, {args.views} views each ({counts['a']} images), and (b) with `--rig "
         f"random` over 4 training photos, {plant_views} views each, plus {tray_count} trays "
         f"of {TRAY} of them, {tray_views} views each ({counts['b']} images); "
-        f"{args.size} px. YOLO11n-seg from scratch (`yolo11n-seg.yaml`, offline, CPU), "
+        f"{args.size} px. YOLO11n-seg from scratch (`yolo11n-seg.yaml`, offline, on "
+        f"{'the CPU' if args.device == 'cpu' else 'device ' + args.device}), "
         f"{args.epochs} epochs at batch {args.batch} on each: the same steps. Scored by "
         f"Ultralytics' `val` on {args.held_out} held-out plants: top-down views over 3 "
         f"held-out photos ({counts['top-down']} images) and 4 trays of them seen from the "
@@ -214,13 +218,17 @@ def write_report(args, counts, results, prepared, plant_views, tray_count, tray_
     ]
     for variant, label in rows.items():
         s = results[variant]["scores"]
-        cells = [f"{s[t]['leaf']:.3f} ({s[t]['all']:.3f})" for t in ("top-down", "trays")]
+        cells = [f"{s[t]['leaf']:.4f} ({s[t]['all']:.4f})" for t in ("top-down", "trays")]
         lines.append(f"| {label} | {' | '.join(cells)} | {results[variant]['seconds'] / 60:.1f} |")
     lines.append("")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "detector_gain.md").write_text("\n".join(lines))
     (RESULTS / "detector_gain.json").write_text(
-        json.dumps({"args": vars(args), "counts": counts, "results": results}, indent=2) + "\n"
+        json.dumps(
+            {"args": vars(args), "counts": counts, "results": results, "prepared_s": prepared},
+            indent=2,
+        )
+        + "\n"
     )
     print("\n".join(lines))
 
