@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import statistics
 import subprocess
 import sys
@@ -43,16 +44,18 @@ def run(out: Path, args: argparse.Namespace, extra: list[str]) -> dict[str, floa
         command += ["--allow-empty-split", *extra]
     else:  # generate takes the settings as options
         command += [x for x in extra if x != "--set"]
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
     done = subprocess.run(command, capture_output=True, text=True)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode:
         raise SystemExit(f"{' '.join(command)} failed:\n{done.stdout[-2000:]}{done.stderr[-3000:]}")
     wall = time.perf_counter() - started
+    cpu_s = (after.ru_utime + after.ru_stime) - (cpu.ru_utime + cpu.ru_stime)
     export = 0.0
     for record in sorted(out.glob("plants/*/run.json")) + sorted(out.glob("*/run.json")):
         timings = json.loads(record.read_text())["timings_s"]
         export += sum(timings.get(k, 0.0) for k in EXPORT_PHASES)
-    return {"wall": wall, "export": export}
+    return {"wall": wall, "cpu": cpu_s, "export": export}
 
 
 def main() -> None:
@@ -78,46 +81,48 @@ def main() -> None:
                 out = Path(tmp) / f"{name[:5]}-{repeat}"
                 times[name].append(run(out, args, variants[name]))
                 print(name, repeat, times[name][-1], flush=True)
-    rows = []
-    for name, runs in times.items():
-        walls, exports = [r["wall"] for r in runs], [r["export"] for r in runs]
-        rows.append((name, min(walls), statistics.median(walls), min(exports),
-                     statistics.median(exports)))  # fmt: skip
-    base = rows[0]
-    command = " ".join(["python benches/bench_views.py", *sys.argv[1:]])
+    orbit, rand = (times[name] for name in variants)
     lines = [
         "## Randomised cameras and backgrounds: their cost (`benches/bench_views.py`)",
         "",
-        f"Command: `{command}`. `plantdreamer {args.via} --species bean --seeds "
-        f"0-{args.plants - 1} --guidance none --steps 0 --eval-views {args.views} --points "
-        f"{args.points}` (render size 512 px), once as it is (the orbit on grey) and once "
-        "with the random rig over 4 photos (`rig=random`, `background-images=DIR`, "
-        "`benches/view_photos.py`), "
-        f"{args.repeats} times each, interleaved (the first variant alternates), each in a "
-        "fresh process and folder. Wall: the whole command; export: the plants' "
-        "`renders` + `label files` + `export` phases (run.json), summed over the plants.",
+        f"Command: `{' '.join(['python benches/bench_views.py', *sys.argv[1:]])}`. "
+        f"`plantdreamer {args.via} --species bean --seeds 0-{args.plants - 1} --guidance none "
+        f"--steps 0 --eval-views {args.views} --points {args.points}` (render size 512 px), "
+        "once as it is (the orbit on grey, with its turntable.gif) and once with the random "
+        "rig over 4 photos (`rig=random`, `background-images=DIR`, `benches/view_photos.py`; "
+        f"no turntable), {args.repeats} times each, interleaved (the first variant "
+        "alternates), each in a fresh process and folder. Wall: the whole command; CPU: its "
+        "user + system time (what other work on the machine moves least); export: the "
+        "plants' `renders` + `label files` + `export` phases (run.json, wall), summed.",
         "",
         f"Host: {host_line()}.",
         "",
-        "| variant | wall min (s) | wall median (s) | export min (s) | export median (s) |",
-        "|---|---|---|---|---|",
+        "| variant | wall min / median (s) | CPU min / median (s) | export min / median (s) |",
+        "|---|---|---|---|",
     ]
-    lines += [f"| {r[0]} | {r[1]:.1f} | {r[2]:.1f} | {r[3]:.1f} | {r[4]:.1f} |" for r in rows]
-    other = rows[1]
-    orbit, rand = (times[name] for name in variants)
-    pairs = [  # each repeat's two runs, one right after the other
-        (r["wall"] / o["wall"], r["export"] / o["export"]) for o, r in zip(orbit, rand, strict=True)
-    ]
+    for name, runs in times.items():
+        cells = []
+        for key in ("wall", "cpu", "export"):
+            values = [r[key] for r in runs]
+            cells.append(f"{min(values):.1f} / {statistics.median(values):.1f}")
+        lines.append(f"| {name} | {' | '.join(cells)} |")
+
+    def ratios(key: str) -> list[float]:  # each repeat's two runs, back to back
+        return [r[key] / o[key] for o, r in zip(orbit, rand, strict=True)]
+
+    def summary(key: str) -> str:
+        each = ratios(key)
+        mins = min(r[key] for r in rand) / min(o[key] for o in orbit)
+        return (
+            f"{key}: per repeat {', '.join(f'{x:.3f}' for x in each)} (median "
+            f"{statistics.median(each):.3f}); min / min {mins:.3f}"
+        )
+
     lines += [
         "",
-        f"Random / orbit: wall {other[1] / base[1]:.3f} (min) and {other[2] / base[2]:.3f} "
-        f"(median); export {other[3] / base[3]:.3f} (min) and {other[4] / base[4]:.3f} "
-        "(median). Per repeat (its two runs back to back), export: "
-        + ", ".join(f"{e:.3f}" for _, e in pairs)
-        + f" (median {statistics.median(e for _, e in pairs):.3f}); wall: "
-        + ", ".join(f"{w:.3f}" for w, _ in pairs)
-        + ". With no training (`--steps 0`) the export is nearly all of each plant's run, so "
-        "the ratio is as large here as it gets.",
+        "Random / orbit, " + "; ".join(summary(k) for k in ("cpu", "wall", "export")) + ". "
+        "With no training (`--steps 0`) the export is nearly all of each plant's run, so the "
+        "ratio is as large here as it gets.",
         "",
     ]
     RESULTS.mkdir(exist_ok=True)
