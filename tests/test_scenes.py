@@ -247,6 +247,7 @@ def test_a_datasets_scenes_take_one_splits_plants_and_join_its_files(plants, tmp
     assert make_dataset_scenes(root, scenes, options) == []
     labels = write_dataset_exports(root, options)
     recorded = json.loads((root / "splits.json").read_text())["scenes"]
+    assert labels.scenes == recorded
     for scene in scenes:
         record = json.loads((root / "scenes" / scene.id / "scene.json").read_text())
         split = record["split"]

@@ -152,9 +152,9 @@ def render(
 
     looks = ViewsConfig.from_settings(orbit)  # the rig, background and jitter, as generate's
     if transforms is not None:  # its own cameras, on the grey
-        typed = [f"--{n}" for n in VIEWS if n != "seed" and n.replace("-", "_") in given]
-        if typed:
-            raise InputError(f"--transforms renders at its own cameras: not with {typed[0]}")
+        looks_typed = [f"--{n}" for n in VIEWS if n != "seed" and n.replace("-", "_") in given]
+        if looks_typed:
+            raise InputError(f"--transforms renders at its own cameras: not with {looks_typed[0]}")
         looks = ViewsConfig()
     looks.validate()
     if ground_truth and up != "z":

@@ -106,6 +106,7 @@ class DatasetLabels:
     min_area: int = MIN_INSTANCE_AREA
     species: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> species -> n
     warnings: list[str] = field(default_factory=list)
+    scenes: dict[str, list[str]] = field(default_factory=dict)  # split -> scene ids
 
 
 @dataclass(frozen=True)
@@ -261,7 +262,8 @@ def _write_exports(
         )
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
-    return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
+    labels = DatasetLabels(splits, total, gallery, min_area, species, warnings, scene_splits)
+    return labels, card
 
 
 def _scene_splits(scenes: list[PlantEntry], splits: dict[str, list[str]]) -> dict[str, list[str]]:
