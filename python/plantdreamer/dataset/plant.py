@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass
 
 from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.views import ViewsConfig
 
 
 @dataclass(frozen=True)
@@ -33,8 +34,12 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     """A stable hash of every setting (sorted JSON) and of the input file's contents
     (``source_digest``), to tell whether a plant is up to date. It hashes the config's
     sections (the saved form of 689da5e), so the manifests of datasets made before records
-    used setting names still match their plants."""
-    text = json.dumps(dataclasses.asdict(cfg), sort_keys=True, separators=(",", ":"))
+    used setting names still match their plants; the exported views' section is left out
+    at its defaults (the orbit on grey), so plants made before it still match too."""
+    data = dataclasses.asdict(cfg)
+    if cfg.outputs.views == ViewsConfig():  # the views of before they were settings: as then
+        del data["outputs"]["views"]
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"))
     if source_digest is not None:
         text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
