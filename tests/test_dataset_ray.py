@@ -14,6 +14,7 @@ fixtures their nodes.
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -183,6 +184,32 @@ def test_rerun_skips_complete_plants(six_plants, monkeypatch):
     assert result.exit_code == 0, result.output
     assert "0 plants done, 6 skipped" in result.output
     assert (out / "manifest.jsonl").read_text() == before  # no timestamp moved
+
+
+def test_scenes_of_the_finished_plants_join_a_rerun_without_training(six_plants, tmp_path):
+    """`dataset --scenes` over complete plants: nothing trains (Ray is not started), the
+    scenes are made from one split's plants each and join the split's label files."""
+    out, args, _ = six_plants
+    copy = shutil.copytree(out, tmp_path / "ds")
+    scenes = ["--scenes", "0-3", "--scene-plants", "2", "--scene-layout", "random"]
+    result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, *scenes, "--out", str(copy)])
+    assert result.exit_code == 0, result.output
+    assert "0 plants done, 6 skipped" in result.output and "; scenes " in result.output
+    splits = json.loads((copy / "splits.json").read_text())
+    made = sorted(p.name for p in (copy / "scenes").iterdir())
+    assert made == [f"scene-s{i:04d}" for i in range(4)]
+    assert sorted(i for ids in splits["scenes"].values() for i in ids) == made
+    for split, ids in splits["scenes"].items():
+        coco = json.loads((copy / "coco" / f"{split}.json").read_text())
+        shown = {
+            i["file_name"].split("/")[1]
+            for i in coco["images"]
+            if i["file_name"].startswith("scenes/")
+        }
+        assert shown == set(ids)
+        for scene in ids:
+            record = json.loads((copy / "scenes" / scene / "scene.json").read_text())
+            assert set(record["plant_ids"]) <= set(splits[split])
 
 
 def test_bad_point_cloud_fails_alone(tmp_path):

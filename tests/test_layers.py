@@ -37,16 +37,17 @@ LAYERS: list[tuple[str, set[str]]] = [
     (
         "the model and its I/O: clouds, Gaussians, cameras, PLY, the rasterizer, plants",
         {"plantdreamer", "cloud", "gaussians", "cameras", "labels", "io", "pointcloud"}
-        | {"prepare", "framing", "rasterizer", "turntable", "lsystem"},
+        | {"prepare", "framing", "rasterizer", "turntable", "lsystem", "camera_rigs"},
     ),
     (
-        "what reads or writes the model: guidance, scoring, label files, viewer",
-        {"guidance", "eval", "exports", "viewer"},
+        "what reads or writes the model: guidance, scoring, label files, viewer, views",
+        {"guidance", "eval", "exports", "viewer", "views"},
     ),
     (
         "generation and training: the pipeline, LoRA, the torch Dataset",
         {"pipeline", "lora", "data"},
     ),
+    ("scenes of finished plants, rendered together", {"scenes"}),
     ("drivers of many runs: datasets on Ray, the known answer", {"dataset", "known_answer"}),
     ("the Python API and the command line", {"api", "install_check", "cli", "__main__"}),
 ]

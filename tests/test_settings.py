@@ -5,6 +5,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
@@ -95,6 +96,8 @@ def _other_value(name, value, cfg):
         return next(v for v in inside if v != value)
     if value is None:
         kinds = [a for a in typing.get_args(s.type) if a is not type(None)]
+        if typing.get_origin(kinds[0]) is tuple:  # a range or a colour left open
+            return (0.25, 0.5, 0.75)[: len(typing.get_args(kinds[0]))]
         return {int: 16, float: 0.5, str: "{species} leaves"}[kinds[0]]
     if isinstance(value, int):
         return value + 1
@@ -106,6 +109,24 @@ def _other_value(name, value, cfg):
 EXEMPT = {"pointcloud", "seed", "species"}  # chosen per plant in a spec
 
 
+def _views_inputs(tmp_path):
+    """Files the views' settings name (a real rig, a folder of backgrounds), and the other
+    settings some need beside them (a range is a drawn rig's)."""
+    import imageio.v3 as iio
+
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"fl_x": 20, "fl_y": 20, "cx": 16, "cy": 16, "w": 32, "h": 32,
+                               "frames": [{"file_path": "a.png", "transform_matrix": [
+                                   [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]]}]}))  # fmt: skip
+    (tmp_path / "photos").mkdir()
+    iio.imwrite(tmp_path / "photos" / "bench.png", np.zeros((8, 8, 3), np.uint8))
+    values = {"rig-transforms": str(rig), "background-images": str(tmp_path / "photos")}
+    drawn = ("elevation-deg", "azimuth-deg", "distance", "roll-deg", "fovy-deg", "width", "height")
+    companions = {f"rig-{n}": {"rig": "random"} for n in drawn}
+    companions["rig-transforms"] = {"rig": "transforms"}
+    return values, companions
+
+
 def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tmp_path):
     """Each setting's CLI option name is its key in a spec, in `dataset --set` and in the
     changes `--resume` checks: the same name reaches the same field everywhere."""
@@ -115,8 +136,9 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
 
     base = GenerateConfig.of(species="bean")
     command = generate_cli.build_command()
+    inputs, companions = _views_inputs(tmp_path)
     for name, value in base.settings().items():
-        new = _other_value(name, value, base)
+        new = inputs.get(name, _other_value(name, value, base))
         if name in ("prompt-template", "negative-prompt", "schedule", "device"):
             new = {"prompt-template": "{species} leaves", "negative-prompt": "blurry",
                    "schedule": "released", "device": "cpu"}[name]  # fmt: skip
@@ -131,7 +153,8 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
         if name in EXEMPT:
             continue
         # A spec and `dataset --set NAME=VALUE` (its values are TOML).
-        spec = {"defaults": {name: _toml_value(text)}, "group": [{"species": "bean"}]}
+        defaults = {**companions.get(name, {}), name: _toml_value(text)}
+        spec = {"defaults": defaults, "group": [{"species": "bean"}]}
         (plant,) = expand(spec)
         assert plant.config.get(name) == new, name
         # A resume given the setting again: refused by name (only steps may change).

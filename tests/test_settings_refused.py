@@ -42,6 +42,11 @@ IMPOSSIBLE = [
     (["--opacity-init", "0"], "opacity-init=0", "opacity-init must be in (0, 1)"),
     (["--opacity-init", "1"], "opacity-init=1", "opacity-init must be in (0, 1)"),
     (["--lr-means", "1e39"], "lr-means=1e39", "lr-means must be in [0, 1e+06]"),
+    (["--rig-distance", "1", "2"], "rig-distance=[1, 2]", "apply to the drawn rigs, not --rig orbit"),
+    (["--jitter-brightness", "2"], "jitter-brightness=2", "jitter-brightness must be in [0, 1]"),
+    (["--background-colour", "2", "0", "0"], "background-colour=[2, 0, 0]",
+     "background-colour must be R G B in [0, 1]"),
+    (["--rig", "transforms"], "rig=transforms", "--rig transforms and --rig-transforms FILE"),
 ]  # fmt: skip
 
 

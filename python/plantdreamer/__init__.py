@@ -37,9 +37,11 @@ __all__ = [
     "PlyError",
     "PlyWarning",
     "RunInterrupted",
+    "SceneResult",
     "__version__",
     "generate",
     "make_dataset",
+    "make_scene",
     "rasterization",
 ]
 
@@ -52,6 +54,8 @@ _LAZY = {
     "GeneratedPlant": "plantdreamer.api",
     "generate": "plantdreamer.api",
     "make_dataset": "plantdreamer.api",
+    "make_scene": "plantdreamer.scenes",
+    "SceneResult": "plantdreamer.scenes",
     "rasterization": "plantdreamer.rasterizer",
 }
 

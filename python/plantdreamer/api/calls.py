@@ -102,6 +102,10 @@ def make_dataset(
     min_instance_area: int | None = None,
     redo_changed: bool = False,
     quiet: bool = False,
+    scenes: str | Iterable[int] | None = None,
+    scene_plants: int | None = None,
+    scene_layout: str | None = None,
+    scene_spacing: float | None = None,
     **settings: Any,
 ) -> DatasetResult:
     """Makes a dataset of plants in the folder ``out``, as ``plantdreamer dataset --out OUT``.
@@ -117,6 +121,10 @@ def make_dataset(
     processes of this machine, or on Ray with ``address`` (``"auto"`` or ``HOST:PORT``: a
     cluster; ``"local"``: a private Ray started here).
 
+    ``scenes`` (seeds, as ``seeds``) adds scenes of the finished plants (``dataset
+    --scenes``: ``scene_plants`` of one split together, at ``scene_layout``,
+    ``scene_spacing`` apart), in ``out/scenes/``; a spec's ``[[scene]]`` tables do the same.
+
     Plants already complete in ``out`` are skipped. At the end the finished plants are split
     into train/val/test and written as COCO, YOLO, a gallery and the dataset's card
     (README.md). Returns the folder, splits and files (absolute paths); raises
@@ -126,7 +134,7 @@ def make_dataset(
     """
     from plantdreamer.dataset import run_dataset
     from plantdreamer.dataset.request import check_flag, dataset_request
-    from plantdreamer.exports.listing import finished_plants
+    from plantdreamer.exports.listing import finished_plants, finished_scenes
 
     with python_words():
         check_flag("quiet", quiet)
@@ -138,7 +146,9 @@ def make_dataset(
             max_retries=max_retries, split=split, split_seed=split_seed,
             split_mode=split_mode, stuff=stuff,
             allow_empty_split=allow_empty_split, min_instance_area=min_instance_area,
-            redo_changed=redo_changed, show_progress=not quiet,
+            redo_changed=redo_changed, show_progress=not quiet, scenes=scenes,
+            scene_settings={"scene-plants": scene_plants, "scene-layout": scene_layout,
+                            "scene-spacing": scene_spacing},
         )  # fmt: skip
         report = run_dataset(request.spec, request.plants, folder, request.options)
         if report.failed:
@@ -154,6 +164,7 @@ def make_dataset(
         report.seconds,
         report.labels.splits if report.labels is not None else {},
         [p.folder.resolve() for p in finished_plants(report.out_dir)],
+        [s.folder.resolve() for s in finished_scenes(report.out_dir)],
     )
 
 

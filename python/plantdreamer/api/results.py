@@ -74,6 +74,7 @@ class DatasetResult:
     seconds: float
     splits: dict[str, list[str]]  # split -> plant ids
     plants: list[Path]  # every finished plant folder
+    scenes: list[Path] = field(default_factory=list)  # every finished scene folder
 
     @property
     def coco(self) -> dict[str, Path]:

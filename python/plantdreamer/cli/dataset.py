@@ -13,6 +13,7 @@ from plantdreamer.dataset.demand import DEFAULT_CPUS, DEFAULT_GPUS
 from plantdreamer.dataset.packing import PackingConfig
 from plantdreamer.dataset.request import DEFAULT_MAX_RETRIES, OPTION_LIMITS
 from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.scenes.config import SceneConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
 # Generate settings with an option of their own here (any other: --set NAME=VALUE).
@@ -80,6 +81,14 @@ def _toml_value(text: str) -> object:
     metavar="NAME=VALUE",
     help="Any generate setting for every plant, by its option name: --set points=5000.",
 )
+@click.option(
+    "--scenes",
+    "scene_seeds",
+    metavar="SEEDS",
+    help="Also scenes of the finished plants (trays: scene-plants of one split together), "
+    "one per seed (0-9: ten), into OUT/scenes/; their views take the views' settings.",
+)
+@config_options(SceneConfig, with_defaults=False, note=" With --scenes [default: 4, grid].")
 @click.option(
     "--address",
     help="Run on Ray: a cluster's HOST:PORT, auto (the cluster this machine belongs to) or "
@@ -152,6 +161,7 @@ def dataset(
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
+    scene_seeds: str | None,
     **quick_settings: object,
 ) -> None:
     """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
@@ -171,6 +181,7 @@ def dataset(
     from plantdreamer.exports.dataset import check_exports_owned, check_planned_splits
 
     packing = options_to_settings(PackingConfig, quick_settings)
+    scene_settings = options_to_settings(SceneConfig, quick_settings)
     overrides = {
         k: v
         for k, v in options_to_settings(GenerateConfig, quick_settings).items()
@@ -186,6 +197,8 @@ def dataset(
         seed_start=seed_start,
         settings=overrides,
         plants_per_gpu=packing["plants-per-gpu"],
+        scenes=scene_seeds,
+        scene_settings=scene_settings,
         address=address,
         local_cpus=local_cpus,
         cpus_per_plant=cpus_per_plant,
@@ -208,6 +221,10 @@ def dataset(
         species_of = {p.id: p.species_name for p in plants}
         check_planned_splits(Path(out_dir), species_of, options.labels, planned)
         _print_plan(plants, out_dir, options.plants_per_gpu)
+        if options.scenes:
+            click.echo(
+                f"then {len(options.scenes)} scenes of the finished plants into {out_dir}/scenes/"
+            )
         return
     try:
         report, stopped = run_dataset(request.spec, plants, out_dir, options), False

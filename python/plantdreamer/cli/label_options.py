@@ -100,8 +100,10 @@ def describe(labels, folder: str) -> str:
     for split, ids in labels.splits.items():
         species = ", ".join(f"{n} {name}" for name, n in labels.species.get(split, {}).items())
         parts.append(f"{len(ids)} {split}" + (f" ({species})" if species else ""))
-    lines = [
-        f"splits: {'; '.join(parts)} plants",
+    lines = [f"splits: {'; '.join(parts)} plants"]
+    if any(labels.scenes.values()):
+        lines[0] += "; scenes " + ", ".join(f"{len(i)} {s}" for s, i in labels.scenes.items())
+    lines += [
         labels.report.describe(labels.min_area),
         f"gallery: {Path(folder) / labels.gallery.name}",
         f"card: {Path(folder) / CARD_FILE} (classes, splits, models, licences, citation)",

@@ -17,14 +17,14 @@ from plantdreamer.cli.options import (
     options_to_settings,
     typed_options,
 )
-from plantdreamer.pipeline.rerender import ORBIT
+from plantdreamer.pipeline.rerender import ORBIT, VIEWS
 from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 from plantdreamer.turntable import TURNTABLE_FRAMES
 
 # The orbit, render size, background and turntable are generate's settings, under generate's
 # names and defaults (a size left open is generate's on the CPU, where render renders).
-ORBIT_SETTINGS = (*ORBIT, "turntable")
+ORBIT_SETTINGS = (*ORBIT, "turntable", *VIEWS)
 # The names render gave them before (hidden, still accepted).
 OLD_NAMES = {
     "--views": "eval-views", "--distance": "eval-distance", "--elevation": "eval-elevation-deg",
@@ -148,6 +148,15 @@ def render(
     # No distance: the orbit is framed on the model (framing.framed_distance), as generate's.
     if not ((distance is None or (math.isfinite(distance) and distance > 0)) and 0 < fovy < 180):
         raise InputError("--eval-distance must be positive and --eval-fovy-deg in (0, 180) degrees")
+    from plantdreamer.views import ViewsConfig
+
+    looks = ViewsConfig.from_settings(orbit)  # the rig, background and jitter, as generate's
+    if transforms is not None:  # its own cameras, on the grey
+        looks_typed = [f"--{n}" for n in VIEWS if n != "seed" and n.replace("-", "_") in given]
+        if looks_typed:
+            raise InputError(f"--transforms renders at its own cameras: not with {looks_typed[0]}")
+        looks = ViewsConfig()
+    looks.validate()
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
         raise InputError("--labels writes poses in the PLY's own frame; use it with --up z")
@@ -167,22 +176,33 @@ def render(
             files = render_transforms.view_files(views_at, transforms)
             inputs += [Path(p) for v in views_at for p in (v.image_path, v.mask_path) if p]
     # The cameras, checked before anything is written: a refused command writes nothing.
-    scene = transform = None
+    scene = transform = plan = None
     if views_at:
         cameras = [v.camera for v in views_at]
     else:
         scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
+        from plantdreamer.views import ViewPlan, plan_views
+
         if transforms is not None:
             from plantdreamer.pipeline.rerender import scene_cameras
 
             cameras = scene_cameras(transforms, transform)
+            plan = ViewPlan(cameras, [{} for _ in cameras], background)
         else:
-            from plantdreamer.cameras import orbit_ring
-            from plantdreamer.framing import framed_distance
 
-            if distance is None:  # generate's framing (a plant generated without views too)
-                distance = framed_distance(scene, views, elevation, fovy, resolution, resolution)
-            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
+            def orbit_views():
+                from plantdreamer.cameras import orbit_ring
+                from plantdreamer.framing import framed_distance
+
+                framed = distance  # else generate's framing (of a plant without views too)
+                if framed is None:
+                    framed = framed_distance(scene, views, elevation, fovy, resolution, resolution)
+                ring = orbit_ring(views, framed, elevation, fovy, resolution, resolution)
+                return ring, framed
+
+            seed = int(orbit["seed"])
+            plan = plan_views(looks, scene, seed, views, fovy, resolution, background, orbit_views)
+            cameras = plan.cameras
     for i, camera in enumerate(cameras):
         camera.check_renderable(f"camera {i}")
     earlier = render_transforms.proven_views(out) if overwrite else []
@@ -194,9 +214,7 @@ def render(
             render_transforms.render_dataset_views(gaussians, views_at, files, out, background)
             return
         turntables = "none" if transforms is not None else turntable
-        written = _render_views(
-            scene, transform, cameras, out, background, ground_truth, path, turntables
-        )
+        written = _render_views(scene, transform, plan, out, ground_truth, path, turntables)
     click.echo(f"wrote {written} views of {len(gaussians)} Gaussians to {out}")
 
 
@@ -226,10 +244,11 @@ def _scene(gaussians, frame, own_frame: bool, up: str, center):
     return to_scene_frame(gaussians, up=up, center=center)
 
 
-def _render_views(scene, transform, cameras, out, background, ground_truth, ply, turntable):
-    """Renders ``cameras`` into ``out`` (with ``ground_truth``, in generate's dataset layout,
-    with the label files), each view written as it is made (``outputs.StreamedViews``: the
-    turntable's frames are all it keeps); returns the number of views."""
+def _render_views(scene, transform, plan, out, ground_truth, ply, turntable):
+    """Renders the views of ``plan`` into ``out`` (with ``ground_truth``, in generate's
+    dataset layout, with the label files), each view written as it is made
+    (``outputs.StreamedViews``: the turntable's frames are all it keeps); returns the
+    number of views."""
     import torch
 
     from plantdreamer.pipeline import outputs
@@ -237,14 +256,17 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply,
     from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
+    cameras = plan.cameras
     folder = out / "renders" if ground_truth else out
-    views = outputs.StreamedViews(folder, len(cameras), TURNTABLE_FRAMES, turntable)
+    frames_shown = TURNTABLE_FRAMES if plan.turns else 0  # no turntable of a rig
+    views = outputs.StreamedViews(folder, len(cameras), frames_shown, turntable, plan.png)
     with torch.no_grad(), Counter("render: views", len(cameras)) as counter:
 
         def render_view(camera):
-            image, _, meta = model.render([camera], background)
+            image, alpha, meta = model.render([camera], plan.render_background)
             counter.advance()
-            return outputs.to_uint8(image[0].numpy()), meta
+            picture = plan.finish(plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy())
+            return outputs.to_uint8(picture), meta
 
         if not ground_truth:
             for i, camera in enumerate(cameras):
@@ -255,7 +277,7 @@ def _render_views(scene, transform, cameras, out, background, ground_truth, ply,
 
             names = read_class_names(ply)
             writer = ground_truth_writer(out, model, transform, class_names=names)
-            render_views(model, writer, cameras, render_view, views.add)
+            render_views(model, writer, cameras, render_view, views.add, plan.records)
     views.write_turntables(out)
     if ground_truth:
         from plantdreamer.exports.plant import write_plant_exports

@@ -60,7 +60,7 @@ from plantdreamer.exports.instances import (
     read_transforms,
     view_objects,
 )
-from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
+from plantdreamer.exports.listing import PLANTS_DIR, finished_plants, finished_scenes
 from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
 
@@ -242,7 +242,8 @@ def _dataset_plants(root: Path):
     if not (root / PLANTS_DIR).is_dir():
         raise InputError(f"{root} is neither a plant folder nor a dataset folder")
     check_incomplete(root)  # a stopped swap's mix of two exports
-    plants = [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
+    entries = finished_plants(root) + finished_scenes(root)  # scenes' views after the plants'
+    plants = [p for p in entries if (p.folder / "transforms.json").is_file()]
     for p in plants:
         read_transforms(p.folder)  # a damaged one is refused, not left out
     return plants
@@ -255,7 +256,8 @@ def _split_plants(root: Path, split: str | None) -> set[str] | None:
         raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
     if not (root / SPLITS_FILE).is_file():
         raise InputError(f"{root} has no {SPLITS_FILE}: run `plantdreamer labels` first")
-    return set(json.loads((root / SPLITS_FILE).read_text())[split])
+    recorded = json.loads((root / SPLITS_FILE).read_text())
+    return set(recorded[split]) | set(recorded.get("scenes", {}).get(split, []))
 
 
 def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int, int]):

@@ -12,6 +12,7 @@ from plantdreamer import settings
 from plantdreamer.exports.listing import species_name
 from plantdreamer.pipeline.outputs import WATCHING
 from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.views import ViewsConfig
 
 
 @dataclass(frozen=True)
@@ -42,8 +43,9 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     (``source_digest``), to tell whether a plant is up to date. It hashes the config's
     sections (the saved form of 689da5e), so the manifests of datasets made before records
     used setting names still match their plants, and leaves out the settings that only
-    watch a run (``outputs.WATCHING``: progress pictures, TensorBoard), so the manifests
-    of datasets made before them match too."""
+    watch a run (``outputs.WATCHING``: progress pictures, TensorBoard) and the exported
+    views' section at its defaults (the orbit on grey), so the manifests of datasets made
+    before them match too."""
     data = dataclasses.asdict(cfg)
     for s in settings.walk(GenerateConfig):  # watching a run changes none of its plant
         if s.name in WATCHING:
@@ -52,6 +54,8 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
             for section in sections:
                 held = held[section]
             del held[name]
+    if cfg.outputs.views == ViewsConfig():  # the views of before they were settings: as then
+        del data["outputs"]["views"]
     text = json.dumps(data, sort_keys=True, separators=(",", ":"))
     if source_digest is not None:
         text += f"|source:{source_digest}"

@@ -21,6 +21,7 @@ from plantdreamer.dataset.demand import custom_resources
 from plantdreamer.dataset.packing import packing_from
 from plantdreamer.dataset.plant import Plant
 from plantdreamer.dataset.runner import RunOptions
+from plantdreamer.dataset.scenes import expand_scenes, with_scene_table
 from plantdreamer.dataset.spec import expand, load_spec, with_settings
 from plantdreamer.errors import InputError
 from plantdreamer.settings import canonical
@@ -55,6 +56,8 @@ def dataset_request(
     seed_start: int | None = None,
     settings: Mapping[str, Any] | None = None,
     plants_per_gpu: int | None = None,
+    scenes: str | Iterable[int] | None = None,
+    scene_settings: Mapping[str, Any] | None = None,
     address: str | None = None,
     local_cpus: int | None = None,
     cpus_per_plant: float | None = None,
@@ -70,7 +73,10 @@ def dataset_request(
     redo_changed: bool = False,
     show_progress: bool = True,
 ) -> DatasetRequest:
-    """The request's spec, plants and options, checked (see the module docstring).
+    """The request's spec, plants, scenes and options, checked (see the module docstring).
+    ``scenes``: seeds of scenes of the finished plants (``dataset --scenes``), with
+    ``scene_settings`` (scene-plants, scene-layout, scene-spacing; None: each default); a
+    spec's ``[[scene]]`` tables make them too.
     ``spec``: a TOML file, or the same as a table (paths in it relative to the working
     folder); ``count`` / ``seed_start``: the earlier spelling of ``seeds`` (the command
     line's hidden ``--count`` / ``--seed-start``). None leaves an option at its default."""
@@ -90,6 +96,9 @@ def dataset_request(
     _one_species(table, overrides)
     table = with_settings(table, overrides)
     plants = expand(table)  # every plant's settings and species checked here
+    scene_text = scenes if scenes is None or isinstance(scenes, str) else ",".join(map(str, scenes))
+    table = with_scene_table(table, scene_text, dict(scene_settings or {}))
+    scene_plans = expand_scenes(table)  # and every scene's settings
     check_plants(plants, device_here=address is None or address == "local")
     labels = label_options(
         split, split_seed, min_instance_area, allow_empty_split, stuff, split_mode
@@ -105,6 +114,7 @@ def dataset_request(
         show_progress=show_progress,
         labels=labels,
         redo_changed=redo_changed,
+        scenes=scene_plans,
     )
     return DatasetRequest(table, plants, options)
 

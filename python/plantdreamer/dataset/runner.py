@@ -29,6 +29,7 @@ from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
 from plantdreamer.dataset.plan import base_record, check_models, plan, work_units
 from plantdreamer.dataset.plant import Plant
+from plantdreamer.dataset.scenes import ScenePlan, make_dataset_scenes
 from plantdreamer.dataset.scheduler import Dispatcher, Unit
 from plantdreamer.dataset.tasks import HOLD_ENV
 from plantdreamer.dataset.workers import Workers, check_before_start, open_workers
@@ -63,6 +64,7 @@ class RunOptions:
     show_progress: bool = True
     labels: LabelOptions = field(default_factory=LabelOptions)  # splits, COCO, YOLO, gallery
     redo_changed: bool = False  # delete and remake finished plants of other settings
+    scenes: list[ScenePlan] = field(default_factory=list)  # made once the plants are done
 
 
 @dataclass
@@ -173,7 +175,9 @@ class _DatasetRun:
         if stopped:  # no label files: a stop is quick, and the next run writes them
             raise DatasetStopped(report)
         if counts["done"] or skipped:
+            notes = make_dataset_scenes(self.out_dir, self.options.scenes, self.options.labels)
             report.labels = write_dataset_exports(self.out_dir, self.options.labels)
+            report.labels.warnings.extend(notes)
         return report
 
     def _status(self, plant_id: str) -> str | None:

@@ -85,11 +85,11 @@ def with_settings(spec: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
 
 def expand(spec: dict[str, Any]) -> list[Plant]:
     """The plants of a spec, in spec order; ids are unique or this fails."""
-    unknown = set(spec) - {"defaults", "group", "base_dir", *packing.spec_keys()}
+    unknown = set(spec) - {"defaults", "group", "scene", "base_dir", *packing.spec_keys()}
     if unknown:
         raise InputError(
-            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults] and [[group]]"
-            f", and {', '.join(sorted(by_name(packing.PackingConfig)))} at the top)"
+            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults], [[group]] "
+            f"and [[scene]], and {', '.join(sorted(by_name(packing.PackingConfig)))} at the top)"
         )
     defaults = _settings(spec.get("defaults", {}), "[defaults]")
     groups = spec.get("group", [])

@@ -41,6 +41,7 @@ from plantdreamer.exports.card_text import (
     model_lines,
     plant_views,
 )
+from plantdreamer.exports.distributions import distributions, distributions_markdown
 from plantdreamer.exports.listing import PlantEntry
 from plantdreamer.source_date import source_date_epoch
 from plantdreamer.text_escape import markdown_text as md
@@ -67,11 +68,12 @@ def dataset_card(
     species: dict[str, dict[str, int]],
     min_area: int,
     images: dict[str, int],
+    scenes: list[PlantEntry] | None = None,
     split_rule: str = "",
 ) -> dict[str, Any]:
-    """The card of a dataset's finished ``plants`` (``classes``: category id ->
-    name; ``species``: split -> species -> plants; ``images``: split -> labelled views;
-    ``split_rule``: how the splits were made, a sentence)."""
+    """The card of a dataset's finished ``plants`` and ``scenes`` (``classes``: category
+    id -> name; ``species``: split -> species -> plants; ``images``: split -> labelled
+    views; ``split_rule``: how the splits were made, a sentence)."""
     records = {p.id: _record(p.folder / "run.json") for p in plants}
     configs = {i: _config_of(r) for i, r in records.items()}
     guided = sorted(
@@ -120,6 +122,7 @@ def dataset_card(
         },
         "citation": CITATION,
         "paper": PAPER_URL,
+        "distributions": distributions(configs, scenes or []),  # the views, the scenes
     }
 
 
@@ -227,7 +230,7 @@ def card_markdown(card: dict[str, Any]) -> str:
     lines += ["", f"All: {total}. Presets: {presets}."]
     if card.get("split_rule"):
         lines += ["", card["split_rule"]]
-    lines += ["", "## Models", ""]
+    lines += ["", *distributions_markdown(card), "## Models", ""]
     lines += model_lines(card["models"])
     lines += [
         "",

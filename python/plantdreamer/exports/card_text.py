@@ -56,19 +56,41 @@ def model_lines(models: list[dict[str, Any]]) -> list[str]:
 
 
 def limitations(card: dict[str, Any]) -> list[str]:
-    """What the data does not show: it is synthetic, seen from fixed orbits on one
-    background, labelled from the 3D model."""
-    v = card["views"]
+    """What the data does not show: it is synthetic, seen from the cameras and on the
+    backgrounds its distributions list (one orbit on grey unless rigs, photos or scenes
+    were asked for), labelled from the 3D model."""
+    v, d = card["views"], card.get("distributions") or {}
+    orbits = all(text.startswith("orbit") for text in d.get("cameras", {"orbit": 1}))
+    grey = all(text.startswith("grey") for text in d.get("backgrounds", {"grey": 1}))
+    scenes = bool(d.get("scenes", {}).get("count"))
+    if orbits:
+        cameras = (
+            f"- Cameras: each plant is seen from one orbit of {md(v['per_plant'])} views at "
+            f"{md(v['elevation_deg'])} degrees of elevation, a vertical field of view of "
+            f"{md(v['fovy_deg'])} degrees and {md(v['pixels'])} pixels square; no other "
+            "viewpoints, lenses or motion."
+        )
+    else:
+        cameras = (
+            "- Cameras: the rigs the distributions above list, each a pinhole camera: no "
+            "lens distortion, sensor noise or motion."
+        )
+    if grey and not scenes:
+        background = (
+            f"- Background: flat grey of level {md(v['background'])} (0 black, 1 white) behind "
+            "every plant; no scenes, clutter, other plants or lighting changes."
+        )
+    else:
+        background = (
+            "- Backgrounds: as the distributions above list, composited behind the plants with "
+            "their alpha: plant and background never share light, shadow or perspective."
+        )
     return [
         "- Synthetic plants: L-System plants and any point clouds given, textured by the "
         "diffusion models above or left in their initial colours; no plant was photographed, "
         "and their realism was not measured here.",
-        f"- Cameras: each plant is seen from one orbit of {md(v['per_plant'])} views at "
-        f"{md(v['elevation_deg'])} degrees of elevation, a vertical field of view of "
-        f"{md(v['fovy_deg'])} degrees and {md(v['pixels'])} pixels square; no other "
-        "viewpoints, lenses or motion.",
-        f"- Background: flat grey of level {md(v['background'])} (0 black, 1 white) behind "
-        "every plant; no scenes, clutter, other plants or lighting changes.",
+        cameras,
+        background,
         "- Labels come from the 3D model's Gaussians (each with its organ and leaf), not from "
         "annotators: they are exact for the model, which is itself an approximation of a plant.",
     ]

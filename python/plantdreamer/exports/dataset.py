@@ -20,7 +20,9 @@ while they move in leaves ``export.incomplete``, which ``PlantViews`` refuses
 any of these files in a folder that holds no dataset's record, are refused before
 anything is written. The caller holds the folder's lock (``dataset``, ``labels``).
 
-The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
+The plants are those ``exports.listing`` finds finished; its finished scenes
+(``DIR/scenes/<id>/``) join the split they were made for (``splits.json``'s ``scenes``),
+their views numbered after every plant's. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
 its own label files left as they are.
 """
@@ -59,7 +61,13 @@ from plantdreamer.exports.instances import (
     labelled_frames,
     read_view_objects,
 )
-from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
+from plantdreamer.exports.listing import (
+    PLANTS_DIR,
+    PlantEntry,
+    finished_plants,
+    finished_scenes,
+    scene_record,
+)
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
 from plantdreamer.exports.splits import (
     DEFAULT_MODE,
@@ -122,6 +130,7 @@ class DatasetLabels:
     min_area: int = MIN_INSTANCE_AREA
     species: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> species -> n
     warnings: list[str] = field(default_factory=list)
+    scenes: dict[str, list[str]] = field(default_factory=dict)  # split -> scene ids
 
 
 @dataclass(frozen=True)
@@ -209,11 +218,13 @@ def _write_exports(
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
-    labelled, classes = labelled_plants(plants)
+    scenes = finished_scenes(dataset_dir)
+    labelled, classes = labelled_plants(plants + scenes)
     stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
     species_of = {p.id: p.species for p in plants}
     splits = make_splits(species_of, ratios, seed, options.mode)
     warnings = check_splits(splits, ratios, options.allow_empty_split)
+    scene_splits = _scene_splits(scenes, splits)
     for p in labelled:
         if _plant_options(p.folder) == (min_area, list(options.stuff)):
             continue
@@ -234,15 +245,18 @@ def _write_exports(
             "mode": options.mode,
             **splits,
             "species": species,
+            **({"scenes": scene_splits} if scenes else {}),
         },
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
+    split_of |= {scene_id: split for split in SPLITS for scene_id in scene_splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
     card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images,
-                        split_rule=split_rule(ratios, seed, options.mode))  # fmt: skip
+                        scenes, split_rule=split_rule(ratios, seed, options.mode))  # fmt: skip
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
+    guidance |= {s.id: str(scene_record(s).get("guidance", "sds")) for s in scenes}
     index = yolo.class_index(things)
     yolo_dir = stage / "yolo"
     total = LabelReport()
@@ -257,7 +271,7 @@ def _write_exports(
             objects = read_view_objects(plant.folder, view.frame, min_area, classes.luts[plant.id])
             objects = objects.without(stuff_ids)
             image = Path(view.frame["file_path"])
-            relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
+            relative = f"{plant.folder.parent.name}/{plant.id}/{image.as_posix()}"
             coco.add(view.image_id, relative, objects, plant_id=plant.id,
                      license=licence_of[guidance[plant.id]])  # fmt: skip
             flat = f"{plant.id}__{image.stem}"
@@ -278,7 +292,23 @@ def _write_exports(
         )
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
-    return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
+    labels = DatasetLabels(splits, total, gallery, min_area, species, warnings, scene_splits)
+    return labels, card
+
+
+def _scene_splits(scenes: list[PlantEntry], splits: dict[str, list[str]]) -> dict[str, list[str]]:
+    """The scene ids of each split: the split each scene was made for (``scene.json``; all
+    its plants are of it). A scene whose record names no split, or whose id is a plant's,
+    is refused."""
+    plant_ids = {i for ids in splits.values() for i in ids}
+    cut: dict[str, list[str]] = {split: [] for split in SPLITS}
+    for scene in scenes:
+        split = scene_record(scene).get("split")
+        if split not in cut or scene.id in plant_ids:
+            why = "names no split" if split not in cut else "has a plant's id"
+            raise InputError(f"scene {scene.folder} {why}: remake it (plantdreamer dataset)")
+        cut[split].append(scene.id)
+    return cut
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:

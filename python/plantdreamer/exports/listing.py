@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PLANTS_DIR = "plants"  # a dataset's plant folders (dataset/runner.py writes them)
+SCENES_DIR = "scenes"  # a dataset's scenes (dataset/scenes.py writes them)
+SCENE_RECORD = "scene.json"  # a scene's last file: written, the scene is finished
 
 
 @dataclass(frozen=True)
@@ -26,6 +28,22 @@ def finished_plants(dataset_dir: Path) -> list[PlantEntry]:
     for run_json in sorted((Path(dataset_dir) / PLANTS_DIR).glob("*/run.json")):
         plants.append(PlantEntry(run_json.parent.name, run_json.parent, plant_species(run_json)))
     return plants
+
+
+def finished_scenes(dataset_dir: Path) -> list[PlantEntry]:
+    """The scenes of a dataset folder that were finished (their ``scene.json`` written),
+    sorted by id; their species is ``scene``."""
+    records = sorted((Path(dataset_dir) / SCENES_DIR).glob(f"*/{SCENE_RECORD}"))
+    return [PlantEntry(r.parent.name, r.parent, "scene") for r in records]
+
+
+def scene_record(scene: PlantEntry) -> dict:
+    """A scene's ``scene.json`` ({} when unreadable)."""
+    try:
+        record = json.loads((scene.folder / SCENE_RECORD).read_text())
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
 
 
 def plant_species(run_json: Path) -> str:

@@ -28,6 +28,7 @@ from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.state.run_state import RunState
 from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
 from plantdreamer.versions import package_versions
+from plantdreamer.views import ViewPlan, plan_views
 
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native
 # render of the plants, the depth maps taken, the guidance's launch (networks queued, or
@@ -92,22 +93,27 @@ def export_run(
     with timer("renders"), torch.no_grad():
         # Each view's render, then its ground truth (which reuses the render's footprints),
         # on the orbit framed on what plant.ply holds unless the distance is given.
-        cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
+        plan = export_plan(cfg, scene)  # the orbit, or the rig; backgrounds, jitter
+        cameras, eval_distance = plan.cameras, plan.orbit_distance
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
 
+        turntable_frames = oc.turntable_frames if plan.turns else 0  # no turntable of a rig
         views = outputs.StreamedViews(
-            out / "renders", len(cameras), oc.turntable_frames, oc.turntable
+            out / "renders", len(cameras), turntable_frames, oc.turntable, plan.png
         )  # each view written as it is made
         with Counter("export: views", len(cameras), show_progress) as counter:
 
             def render(camera):
                 if stop_point is not None:  # a stop asked for: within one view
                     stop_point()
-                image, _, meta = view_model.render([camera], cfg.train.background)
+                image, alpha, meta = view_model.render([camera], plan.render_background)
                 counter.advance()
-                return outputs.to_uint8(image[0].numpy()), meta
+                picture = plan.finish(
+                    plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy()
+                )
+                return outputs.to_uint8(picture), meta
 
-            render_views(view_model, writer, cameras, render, views.add)
+            render_views(view_model, writer, cameras, render, views.add, plan.records)
         views.write_turntables(out)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
     if stop_point is not None:
@@ -122,6 +128,16 @@ def export_run(
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
+
+
+def export_plan(cfg: GenerateConfig, scene: Gaussians) -> ViewPlan:
+    """The exported views of ``scene`` (the scene frame): ``views.plan_views`` with the
+    run's orbit, seed, render size and grey."""
+    oc, size = cfg.outputs, cfg.train.render_size
+    return plan_views(
+        oc.views, scene, cfg.seed, oc.eval_views, oc.eval_fovy_deg, size, cfg.train.background,
+        orbit=lambda: outputs.eval_orbit(oc, scene, size),
+    )  # fmt: skip
 
 
 def _class_names(cfg: GenerateConfig) -> dict[int, str] | None:

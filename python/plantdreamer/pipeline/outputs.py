@@ -7,7 +7,7 @@ import functools
 import importlib.util
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +19,9 @@ from plantdreamer.cameras import orbit_ring
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
-from plantdreamer.settings import setting
+from plantdreamer.settings import option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+from plantdreamer.views.config import ViewsConfig
 
 # float32 positions must resolve the plant at least this finely (relative to its size);
 # georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
@@ -76,6 +77,8 @@ class OutputsConfig:
         "Write TensorBoard events in each plant's tensorboard/ folder: log.csv's figures at "
         "every step and the progress pictures (the tensorboard extra).",
     )
+    # The exported views' rig, background and jitter (the orbit on grey by default).
+    views: ViewsConfig = field(default_factory=ViewsConfig, metadata=option_prefix(""))
 
     def validate(self) -> None:
         """The evaluation orbit is a camera and the turntable a count, checked before a run
@@ -95,6 +98,7 @@ class OutputsConfig:
                 f"turntable-frames must be >= 0, got {self.turntable_frames} "
                 "(--turntable none makes no turntable)"
             )
+        self.views.validate()
 
 
 def check_tensorboard() -> None:
@@ -164,10 +168,11 @@ def to_uint8(image) -> np.ndarray:
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
+def write_renders(out_dir: Path, frames: list[np.ndarray], **png: Any) -> None:
+    """``view_NNN.png`` per frame (``png``: Pillow's PNG options, as ``compress_level``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(frames):
-        atomic.write_image(out_dir / f"view_{i:03d}.png", frame)
+        atomic.write_image(out_dir / f"view_{i:03d}.png", frame, **png)
 
 
 def write_turntables(
@@ -188,16 +193,24 @@ def turntable_picks(views: int, count: int) -> list[int]:
 
 
 class StreamedViews:
-    """The orbit's views written as they are made (``view_NNN.png`` in ``out_dir``), with
-    only the frames its turntable shows kept: the memory a render holds is the turntable's
-    frames (``turntable_frames`` at most), whatever the number of views."""
+    """The views written as they are made (``view_NNN.png`` in ``out_dir``; ``png``:
+    Pillow's PNG options, as ``compress_level``), with only the frames its turntable shows
+    kept: the memory a render holds is the turntable's frames (``turntable_frames`` at
+    most), whatever the number of views."""
 
-    def __init__(self, out_dir: Path, views: int, turntable_frames: int, fmt: str) -> None:
+    def __init__(
+        self,
+        out_dir: Path,
+        views: int,
+        turntable_frames: int,
+        fmt: str,
+        png: dict[str, Any] | None = None,
+    ) -> None:
         if fmt not in TURNTABLE_FORMATS:
             raise InputError(
                 f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}"
             )
-        self.out_dir, self.fmt = out_dir, fmt
+        self.out_dir, self.fmt, self.png = out_dir, fmt, dict(png or {})
         count = turntable_frames if fmt != "none" else 0
         self.picks = set(turntable_picks(views, count))
         self.kept: list[np.ndarray] = []
@@ -205,7 +218,7 @@ class StreamedViews:
         out_dir.mkdir(parents=True, exist_ok=True)
 
     def add(self, index: int, frame: np.ndarray) -> None:
-        atomic.write_image(self.out_dir / f"view_{index:03d}.png", frame)
+        atomic.write_image(self.out_dir / f"view_{index:03d}.png", frame, **self.png)
         self.written += 1
         if index in self.picks:
             self.kept.append(frame)

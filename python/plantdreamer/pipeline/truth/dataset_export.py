@@ -81,11 +81,20 @@ class GroundTruthWriter:
             scale *= 10
         self.depth_unit_scale = float(f"{scale:.0e}")  # 0.01, not 0.010000000000000002
 
-    def add(self, name: str, image_path: str, camera: Camera, gt: GroundTruth) -> None:
-        """Writes one view's maps; ``image_path`` is the render, relative to ``out_dir``."""
+    def add(
+        self,
+        name: str,
+        image_path: str,
+        camera: Camera,
+        gt: GroundTruth,
+        record: dict[str, object] | None = None,
+    ) -> None:
+        """Writes one view's maps; ``image_path`` is the render, relative to ``out_dir``;
+        ``record``: more keys of its frame (what its rig, background and jitter drew)."""
         frame: dict[str, object] = {
             "file_path": image_path,
             "transform_matrix": self._c2w(camera).tolist(),
+            **(record or {}),
         }
         depth = gt.depth.astype(np.float64) / self.transform.scale / self.depth_unit_scale
         _write_png(self.out_dir / "depth" / f"{name}.png", _to_uint16(depth))
@@ -215,11 +224,18 @@ def ground_truth_writer(
     return GroundTruthWriter(out_dir, label_set, transform, class_names)
 
 
-def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render, keep) -> None:
+def render_views(
+    model,
+    writer: GroundTruthWriter,
+    cameras: list[Camera],
+    render,
+    keep,
+    records: list[dict[str, object]] | None = None,
+) -> None:
     """Renders each view (``render(camera) -> (image, meta)``), hands the image to
     ``keep(index, image)`` (which writes it: ``outputs.StreamedViews.add``) and writes its
-    ground truth, whose instance channels reuse the render's footprints: one view is held
-    at a time."""
+    ground truth, whose instance channels reuse the render's footprints (``records``: each
+    view's more keys of transforms.json): one view is held at a time."""
     from plantdreamer.pipeline.truth.ground_truth import GroundTruthRenderer
 
     ground_truth = GroundTruthRenderer(model, writer.label_set)
@@ -229,6 +245,6 @@ def render_views(model, writer: GroundTruthWriter, cameras: list[Camera], render
         name = f"view_{i:03d}"
         keep(i, image)
         gt = ground_truth(camera, meta)
-        writer.add(name, f"renders/{name}.png", camera, gt)
+        writer.add(name, f"renders/{name}.png", camera, gt, records[i] if records else None)
     if cameras:
         writer.finish(cameras[0])
