@@ -111,8 +111,10 @@ def test_make_dataset_takes_the_options_of_the_dataset_command():
 
     params = set(inspect.signature(plantdreamer.make_dataset).parameters)
     # The command's own names for what the API names plainly: --out, SPEC_FILE, --split,
-    # --resource; --set NAME=VALUE is any keyword; --dry-run prints a plan (command only).
-    renamed = {"out_dir": "out", "spec_file": "spec", "split_ratios": "split"}
+    # --resource, --scenes; --set NAME=VALUE is any keyword; --dry-run prints a plan (command
+    # only).
+    renamed = {"out_dir": "out", "spec_file": "spec", "split_ratios": "split",
+               "scene_seeds": "scenes"}  # fmt: skip
     for option in dataset.params:
         if option.name in ("settings", "dry_run", "help"):
             continue

@@ -292,7 +292,9 @@ def _as_format_3(state):
     source = config.pop("source")
     source["n_points"] = source.pop("points")
     flat.update(lr=train.pop("lr"), cameras=train.pop("cameras"), **train, **density)
-    for section in (sds, source, config.pop("init"), config.pop("outputs")):
+    outputs = config.pop("outputs")
+    del outputs["views"]  # no rigs, scenes or looks then
+    for section in (sds, source, config.pop("init"), outputs):
         flat.update(section)
     assert not config
     old = {k: v for k, v in state.items() if k != "density"}

@@ -572,7 +572,7 @@ def test_every_user_given_name_is_escaped_where_the_card_writes_it(bean, tmp_pat
     # No heading, licence line or HTML that the names brought in.
     headings = [line for line in body.splitlines() if line.startswith("#")]
     assert headings == ["# A plantdreamer dataset", "## Files", "## Classes", "## Plants",
-                        "## Models", "## Limitations", "## Licences", "## Citation"]  # fmt: skip
+                        "## Distributions", "## Models", "## Limitations", "## Licences", "## Citation"]  # fmt: skip
     assert "<img" not in body and "](https://e.example)" not in body
     assert "&lt;img" in body
     # Each table row keeps its columns: a | in a name is escaped.

@@ -86,8 +86,9 @@ def test_the_default_orbit_writes_what_the_export_wrote_before_rigs(plants, tmp_
         image, _, meta = view_model.render([camera], cfg.train.background)
         return outputs.to_uint8(image[0].numpy()), meta
 
+    frames = []
     with torch.no_grad():
-        frames = render_views(view_model, writer, cameras, render)
+        render_views(view_model, writer, cameras, render, lambda _, image: frames.append(image))
     outputs.write_renders(out / "renders", frames)
     shutil.copy(plant / "plant.ply", out / "plant.ply")
     write_plant_exports(out)
