@@ -147,6 +147,9 @@ test-wheel: CORE_PROFILE := ci
 test-wheel: wheel ## Install the wheel (ci profile) in a fresh venv without Rust on PATH and run it
 	scripts/check_wheel.sh dist/plantdreamer-*.whl $(PY)
 	$(PY) scripts/check_sdist.py dist/plantdreamer-*.tar.gz
+	@# Every address in the built wheel and sdist is a reviewed one (tests/test_urls.py).
+	PLANTDREAMER_BUILT="$$(echo dist/plantdreamer-*.whl dist/plantdreamer-*.tar.gz)" \
+		$(PY) -m pytest -q tests/test_urls.py -k built
 
 # Three jobs at once: the Rust tests and the native module compile (cargo, both cores)
 # while pip unpacks the dependencies (one core); then the three test sets run in turn.
@@ -160,6 +163,8 @@ test: ## Set up everything, then run the Rust tests, the Python tests but the sl
 # DEMO_OUT (generate's outputs, demo.json, demo.png); anything else there is left alone.
 DEMO_OUT ?= out/demo
 DEMO_STEPS ?= 200
+# Steps between the demo's progress pictures: progress.png shows its 200 steps in 8.
+DEMO_PROGRESS ?= 25
 DEMO_MODELS := tests/data/known_answer/bean_s0_r64
 
 demo: build ## Run the main job (SDS, tiny committed models) and score it against the truth
@@ -167,7 +172,8 @@ demo: build ## Run the main job (SDS, tiny committed models) and score it agains
 		$(VENV)/bin/plantdreamer generate --species bean --seed 0 --points 100000 \
 		--resolution 64 --sds-resolution 64 --color-init noise --guidance sds \
 		--base-model $(DEMO_MODELS)/base --controlnet $(DEMO_MODELS)/controlnet \
-		--steps $(DEMO_STEPS) --eval-views 36 --out $(DEMO_OUT) --overwrite
+		--steps $(DEMO_STEPS) --progress-every $(DEMO_PROGRESS) --eval-views 36 \
+		--out $(DEMO_OUT) --overwrite
 
 # The bench extra's packages alone (`pip install -e '.[bench]'` would build the core again).
 $(BENCH_STAMP): $(STAMP) | system-libs
@@ -185,8 +191,9 @@ $(DOCS_STAMP): $(STAMP)
 	$(PY) -m pip install --quiet -r $(VENV)/docs-requirements.txt
 	touch $@
 
-# mkdocs (strict: a broken link or anchor is an error); the CLI reference is generated from
-# the click commands, so the package must import.
+# mkdocs (strict: a broken link or anchor is an error); the CLI reference is written from
+# the click commands (scripts/docs_cli_reference.py) and the API reference from the
+# docstrings (mkdocstrings), so the package must import.
 docs: $(DOCS_STAMP) ## Build the documentation site into site/, warnings as errors
 	$(VENV)/bin/mkdocs build --strict
 

@@ -3,8 +3,9 @@
 12 L-System plants (bean, mint, kale x 4 seeds) with `--guidance none`, 20k points,
 20 steps, 4 evaluation views at 128 px. Three runs, each a fresh process:
 - one process calling `generate` 12 times in a row, on 1 thread (the baseline: no Ray);
-- `plantdreamer dataset --local-cpus 1`: Ray with one worker (1 CPU per plant);
-- `plantdreamer dataset --local-cpus 2`: two workers.
+- `plantdreamer dataset --address local --local-cpus 1`: Ray with one worker (1 CPU per
+  plant; without `--address` a dataset runs on the local pool: bench_dataset_start.py);
+- `plantdreamer dataset --address local --local-cpus 2`: two workers.
 Wall times include everything a user waits for (Ray start and stop, worker start-up,
 torch imports). Ray's overhead is the one-worker wall time minus the baseline's.
 
@@ -31,13 +32,13 @@ FLAGS = ["--guidance", "none", "--points", "20000", "--steps", "20", "--eval-vie
          "--resolution", "128"]  # fmt: skip
 BASELINE = """
 import sys, time
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 settings, out = {settings!r}, sys.argv[1]
 t0 = time.perf_counter()
 for species in {species!r}:
     for seed in {seeds!r}:
         cfg = GenerateConfig.of(species=species, seed=seed, **settings)
-        generate(cfg, f"{{out}}/{{species}}-{{seed}}", show_progress=False)
+        generate_plants([cfg], f"{{out}}/{{species}}-{{seed}}", show_progress=False)
 print(time.perf_counter() - t0)
 """
 
@@ -67,8 +68,8 @@ def dataset(tmp: Path, cpus: int) -> dict[str, float]:
     out = tmp / f"ray{cpus}"
     species = [arg for name in SPECIES for arg in ("--species", name)]
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", *species, "--seeds",
-           f"{SEEDS[0]}-{SEEDS[-1]}", "--local-cpus", str(cpus), *FLAGS, "--quiet",
-           "--out", str(out)]  # fmt: skip
+           f"{SEEDS[0]}-{SEEDS[-1]}", "--address", "local", "--local-cpus", str(cpus), *FLAGS,
+           "--quiet", "--out", str(out)]  # fmt: skip
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, capture_output=True)
     wall = time.perf_counter() - t0
@@ -111,7 +112,7 @@ def main() -> int:
     ]
     for cpus, r in runs.items():
         lines.append(
-            f"| `dataset --local-cpus {cpus}` ({r['workers']} worker "
+            f"| `dataset --address local --local-cpus {cpus}` ({r['workers']} worker "
             f"process{'es' if r['workers'] > 1 else ''}) "
             f"| {r['wall']:.1f} | {n / r['wall'] * 60:.1f} | {r['first_start']:.1f} "
             f"| {r['warm_plant']:.2f} | {r['gap']:.2f} |"

@@ -32,10 +32,11 @@ from typing import Any
 
 import torch
 
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.model import FrozenScene, GaussianModel, camera_args
-from plantdreamer.pipeline.run_state import RunState
-from plantdreamer.pipeline.runtime import resolve_runtime
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel, camera_args
+from plantdreamer.pipeline.model.render import FrozenScene
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.runtime import resolve_plants
+from plantdreamer.pipeline.state.run_state import RunState
 from plantdreamer.rasterizer import RASTER_DEFAULTS, rasterization
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -91,7 +92,7 @@ def measure(species: str, args: argparse.Namespace) -> dict[str, Any]:
         species=species, seed=0, steps=args.views, points=args.points,
         resolution=args.render, sds_resolution=args.sds, device="cpu",
     )  # fmt: skip
-    resolve_runtime(cfg)
+    resolve_plants([cfg])
     state = RunState.fresh(cfg, show_progress=False)
     scene = FrozenScene(GaussianModel(state.initial), "ED")  # as the trainer renders maps
     routes = conditioners(cfg, scene)

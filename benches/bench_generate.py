@@ -22,11 +22,11 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def run(cfg, guidance=None):
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        generate(cfg, tmp, guidance=guidance, show_progress=False)
+        generate_plants([cfg], tmp, guidance=guidance, show_progress=False)
         wall = time.perf_counter() - t0
         summary = json.loads((Path(tmp) / "run.json").read_text())
     return wall, summary

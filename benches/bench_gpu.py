@@ -177,7 +177,7 @@ def run_once(
     depth_ahead: bool,
     profile: int = 0,
 ) -> dict[str, Any]:
-    from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
+    from plantdreamer.pipeline import GenerateConfig, StepOptions, generate_plants
 
     cuda = guidance.device.type == "cuda"
     clock.totals.clear()
@@ -201,8 +201,8 @@ def run_once(
         t0 = time.perf_counter()
         if profiler is not None:
             profiler.enable()
-        generate(
-            cfg,
+        generate_plants(
+            [cfg],
             tmp,
             guidance=guidance,
             show_progress=False,

@@ -214,8 +214,8 @@ def markdown(r: dict) -> str:
             "",
             "What this means: at this CPU cost the paper's 3600 steps take about "
             f"{3600 * min(real['step_s']) / 3600.0:.1f} hours here, against the "
-            "paper's ~30 minutes on an RTX 4090. Generation with the real models needs a CUDA "
-            "GPU in practice (UNet and ControlNet in fp16 there by default, the VAE in float32); "
+            "paper's ~30 minutes on an RTX 4090 Ti (its Table 1 and Section 4.3). Generation "
+            "with the real models needs a CUDA GPU in practice (UNet and ControlNet in fp16 there by default, the VAE in float32); "
             "the CPU path exists for correctness, tests and short runs. The tiny models' time "
             "is the floor set by the guidance code and the diffusers call overhead; its spread "
             "(min vs median) is the load of the shared machine.",

@@ -51,15 +51,15 @@ def measure(species: str, baseline=None) -> dict[str, float | tuple[float, float
 
     from plantdreamer.cameras import orbit_ring
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.ground_truth import (
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+    from plantdreamer.pipeline.model.source import initial_gaussians, load_source
+    from plantdreamer.pipeline.truth.ground_truth import (
         GroundTruthRenderer,
         LabelSet,
         Splats,
         _blend,
     )
-    from plantdreamer.pipeline.label_channels import one_hot, share_channels
-    from plantdreamer.pipeline.model import GaussianModel
-    from plantdreamer.pipeline.source import initial_gaussians, load_source
+    from plantdreamer.pipeline.truth.label_channels import one_hot, share_channels
 
     cfg = GenerateConfig.of(species=species, seed=0, points=100_000)
     source = load_source(cfg.source, cfg.seed, surface=cfg.init.init_shape == "surface")

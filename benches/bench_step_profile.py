@@ -111,31 +111,33 @@ class TimedCore:
             return self._core.rasterize_backward_many(*args, **kwargs)
 
 
+def phase_clock(clock: Clock) -> Any:
+    """A trainer observer that puts the loop's phases on ``clock`` (``loop:<phase>``) and
+    keeps the plant's model and sampler, for ``alone`` after the loop."""
+    from plantdreamer.pipeline.observer import TrainerObserver
+
+    class PhaseClock(TrainerObserver):
+        def __init__(self) -> None:
+            self.held: dict[str, Any] = {}
+
+        def phase_end(self, phase: str, seconds: float) -> None:
+            clock.events.append((time.perf_counter() - seconds, "loop:" + phase, seconds))
+
+        def step_end(self, step: int, plants: Any, loss: float | None) -> None:
+            self.held = {"model": plants[0].state.model, "sampler": plants[0].state.sampler}
+
+    return PhaseClock()
+
+
 def instrument(guidance: Any, clock: Clock) -> TimedCore:
-    """Times every phase the loop times itself and the parts inside them (bench only)."""
+    """Times the parts inside the loop's phases (bench only; the phases themselves come
+    from the trainer's observer, ``phase_clock``)."""
     import torch
 
     from plantdreamer import rasterizer
-    from plantdreamer.pipeline import density
-    from plantdreamer.pipeline import progress as loop
-    from plantdreamer.pipeline.step import schedule, update
+    from plantdreamer.pipeline.model import density
+    from plantdreamer.pipeline.step import update
 
-    timed_phase = loop.PhaseTimer.__call__
-
-    @contextmanager
-    def recorded(self: Any, name: str) -> Iterator[None]:
-        with clock("loop:" + name), timed_phase(self, name):
-            yield
-
-    loop.PhaseTimer.__call__ = recorded  # type: ignore[method-assign]
-    timed_step_phase = schedule.StepSchedule._timed
-
-    @contextmanager
-    def recorded_step_phase(self: Any, name: str, plants: Any) -> Iterator[None]:
-        with clock("loop:" + name), timed_step_phase(self, name, plants):
-            yield
-
-    schedule.StepSchedule._timed = recorded_step_phase  # type: ignore[method-assign]
     for part in ("text_embedding", "noise_prediction", "encode"):
         setattr(guidance, part, clock.wrap("networks", getattr(guidance, part)))
     core = TimedCore(rasterizer._core, clock)
@@ -205,8 +207,7 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     sys.path.insert(0, str(BENCHES))
     from bench_gpu import build_guidance
 
-    from plantdreamer.pipeline import GenerateConfig, generate
-    from plantdreamer.pipeline.step import schedule
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     guidance = build_guidance(True, "cpu", args.sds)
     clock = Clock()
@@ -223,21 +224,14 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
         checkpoint_every=10**9,
     )
     stamps: list[float] = []
-    held: dict[str, Any] = {}
-    train_step = schedule.StepSchedule.train_step
-
-    def keep(self: Any, step: int) -> float:  # the model and its sampler, for `alone`
-        held["model"] = self.plants[0].state.model
-        held["sampler"] = self.plants[0].state.sampler
-        return train_step(self, step)
-
-    schedule.StepSchedule.train_step = keep  # type: ignore[method-assign]
+    phases = phase_clock(clock)
     with tempfile.TemporaryDirectory() as tmp:
-        generate(
-            cfg,
+        generate_plants(
+            [cfg],
             tmp,
             guidance=guidance,
             show_progress=False,
+            observers=[phases],
             on_step=lambda step: stamps.append(time.perf_counter()),
         )
         stamps = stamps[args.warmup :]
@@ -245,8 +239,8 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
         # Phases of the steps between the first and the last timed stamp (not the
         # evaluation renders and export after the loop).
         totals = clock.between(stamps[0], stamps[-1])
-        camera = held["sampler"].peek()  # the next camera: the same scene and size
-        reps = alone(core, held["model"], camera, cfg.train.background, args.alone)
+        camera = phases.held["sampler"].peek()  # the next camera: the same scene and size
+        reps = alone(core, phases.held["model"], camera, cfg.train.background, args.alone)
     return {
         "per_step_ms": per_step(totals, len(step_s), statistics.fmean(step_s)),
         "step_ms_median": 1000 * statistics.median(step_s),

@@ -1,6 +1,6 @@
 """Plants per hour in the steady state: B plants in one trainer (`generate --seeds`).
 
-Each run trains one group of B L-System beans (seeds 0..B-1) through ``generate_group``
+Each run trains one group of B L-System beans (seeds 0..B-1) through the pipeline's one entry (``generate_plants``)
 and records, through its ``on_step`` hook, the wall clock and the process's CPU time at
 every step end. The figures are the **steady state**, after ``--warmup`` steps (7: the
 CUDA-graph captures and first prompt encodes fall in them):
@@ -53,7 +53,8 @@ measured apart from the networks that a GPU would run.
 DIR`` makes every run with an earlier package too (``DIR/plantdreamer``: a checkout's
 ``python/`` with its native module, or an unpacked wheel), before this tree's in each
 repeat, each run in a process of its own: a before/after in one bench, under the same load.
-The baseline must have the calls this bench makes (``generate_group`` with ``options``).
+The baseline must have the calls this bench makes (``generate_plants``, or before it
+``generate_group``, with ``options``).
 
 ``--loading N`` measures what a dataset worker pays to get each plant's guidance, for N
 plants: with the models loaded for every plant (a new ``dataset.worker.ModelCache`` per
@@ -301,13 +302,41 @@ def build_parts(args: argparse.Namespace) -> Callable[[], Any]:
     return lambda: full_size_models(device=args.device)
 
 
+def resolved(cfgs: list) -> None:
+    """Decides the configs' open settings as a run does (a baseline package from before
+    ``resolve_plants``: its ``resolve_runtime``, plant by plant)."""
+    try:
+        from plantdreamer.pipeline.settings.runtime import resolve_plants
+    except ImportError:
+        from plantdreamer.pipeline.settings.runtime import resolve_runtime
+
+        for cfg in cfgs:
+            resolve_runtime(cfg)
+        return
+    resolve_plants(cfgs)
+
+
+def train_group(cfgs: list, out: str, **kw: Any) -> dict[str, str]:
+    """Trains ``cfgs`` as a group (a folder each under ``out``); the failed plants' errors.
+    A ``--baseline`` package from before the one entry (d0ac9b2 and earlier) trains it
+    through its own ``generate_group``."""
+    try:
+        from plantdreamer.pipeline import FolderPerPlant, generate_plants
+    except ImportError:
+        from plantdreamer.pipeline.group import generate_group
+
+        return dict(generate_group(cfgs, out, show_progress=False, **kw).failed)
+    results = generate_plants(cfgs, out, layout=FolderPerPlant(), failures="record",
+                              show_progress=False, **kw)  # fmt: skip
+    return {r.name: r.error or "" for r in results if not r.done}
+
+
 def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None = None):
     """Trains one group of ``v.b`` plants; returns the run's figures."""
     import torch
 
     from plantdreamer.guidance.sds import StableDiffusionDepthGuidance
     from plantdreamer.pipeline import GenerateConfig, StepOptions
-    from plantdreamer.pipeline.group import generate_group
 
     cuda = args.device.startswith("cuda")
     cfgs = [
@@ -337,14 +366,13 @@ def one_run(v: Variant, args: argparse.Namespace, parts: Any, trace: Path | None
     options = StepOptions(sleeping_wait=v.cuda_wait == "sleep")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = generate_group(cfgs, tmp, guidance=guidance, show_progress=False,
-                                on_step=hook, options=options)  # fmt: skip
+        failed = train_group(cfgs, tmp, guidance=guidance, on_step=hook, options=options)
         wall = time.perf_counter() - t0
         busy.finish()
         if isinstance(hook, OneStepTrace):
             hook.stop()
-        if result.failed:
-            raise SystemExit(f"error: plants failed: {result.failed}")
+        if failed:
+            raise SystemExit(f"error: plants failed: {failed}")
         runs = [json.loads(p.read_text()) for p in sorted(Path(tmp).glob("*/run.json"))]
     timings = {k: sum(r["timings_s"].get(k, 0.0) for r in runs) for k in PHASES}
     out: dict[str, Any] = {"B": v.b, "overlap": v.overlap, "vae": v.vae,
@@ -405,14 +433,12 @@ def raster_alone_core_ms(cfgs: list[Any], first: int, last: int) -> dict[str, An
     plant-step over this is what the step adds to the rasterizer."""
     import copy
 
-    from plantdreamer.pipeline.run_state import RunState
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.state.run_state import RunState
 
-    plants = cfgs[:REFERENCE_PLANTS]
+    plants = [copy.deepcopy(cfg) for cfg in cfgs[:REFERENCE_PLANTS]]
+    resolved(plants)
     times = []
     for k, cfg in enumerate(plants):
-        cfg = copy.deepcopy(cfg)
-        resolve_runtime(cfg)
         share = REFERENCE_RENDERS // len(plants) + (k < REFERENCE_RENDERS % len(plants))
         state = RunState.fresh(cfg, show_progress=False)
         cameras = window_cameras(state.sampler, first, last, share)
@@ -565,7 +591,8 @@ def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
     """Seconds to build each of ``n`` plants' guidance (tiny models from ``folder``)."""
     from plantdreamer.dataset.worker import ModelCache
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
 
     cache, times = ModelCache(), []
     for seed in range(n):
@@ -573,11 +600,11 @@ def guidance_times(n: int, folder: Path, shared: bool) -> list[float]:
             species="bean", seed=seed, base_model=str(folder / "base"),
             controlnet=str(folder / "controlnet"), device="cpu", sds_resolution=64,
         )  # fmt: skip
-        resolve_runtime(cfg)
+        resolve_plants([cfg])
         if not shared:
             cache = ModelCache()
         t0 = time.perf_counter()
-        cache.guidance_for(cfg)
+        cache.guidance_for(GroupSettings.of([cfg]))
         times.append(time.perf_counter() - t0)
     return times
 

@@ -61,6 +61,9 @@ class NullRecorder:
     def add(self, *args) -> None:
         return None
 
+    def close(self) -> None:
+        return None
+
 
 @contextlib.contextmanager
 def patched(targets: list[tuple[object, str, object]]):
@@ -108,11 +111,11 @@ def hooks(clock: Clock | None):
 
 def run_once(cfg, out: Path, clock: Clock | None) -> tuple[float, float]:
     """The run's wall-clock and CPU seconds."""
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     with patched(hooks(clock)):
         t0, c0 = time.perf_counter(), time.process_time()
-        generate(cfg, out, overwrite=True, show_progress=False)
+        generate_plants([cfg], out, overwrite=True, show_progress=False)
         return time.perf_counter() - t0, time.process_time() - c0
 
 

@@ -3,9 +3,9 @@ iterations: torchvision's Mask R-CNN on ``PlantViews``, the dataset as a torch D
 
     python examples/dataset_and_detector.py [OUT] [RAY_ADDRESS]
 
-Plants run on Ray: a local instance, or the cluster at RAY_ADDRESS. The settings here run in
-seconds on a CPU with no weights and no download (the detector starts from random weights);
-the comments give what a real dataset uses.
+Plants run on worker processes of this machine, or on the Ray cluster at RAY_ADDRESS. The
+settings here run in seconds on a CPU with no weights and no download (the detector starts
+from random weights); the comments give what a real dataset uses.
 """
 
 import sys
@@ -28,7 +28,7 @@ dataset = plantdreamer.make_dataset(
     seeds="0-1",  # real: hundreds of plants per species, "0-499"
     plants_per_gpu=2,  # trained together in one worker; real: 8 to 16 on one GPU
     split="1,0,0",  # real: "0.8,0.1,0.1" (the default), whole plants per split
-    address=address,  # None: a local Ray; "auto" or HOST:PORT: a cluster
+    address=address,  # None: this machine's cores and GPUs; "auto" or HOST:PORT: a Ray cluster
     guidance="none",  # real: "sds" (the default), with the weights and a LoRA per species
     points=2000,  # real: 100_000
     steps=2,  # real: 3600

@@ -13,7 +13,7 @@ import plantdreamer
 
 out = sys.argv[1] if len(sys.argv) > 1 else "example-plant"
 
-plant = plantdreamer.generate(
+[plant] = plantdreamer.generate(  # a list: one plant here, one per seed given seeds="0-3"
     out,
     species="bean",  # bean, mint or kale; or pointcloud="scan.ply" for a real plant
     seed=0,

@@ -20,7 +20,7 @@ import plantdreamer
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "leaf-counting")
 
 for stage in (0.5, 1.0):  # real: a series, e.g. 0.25, 0.5, 0.75, 1 of hundreds of seeds
-    plant = plantdreamer.generate(
+    [plant] = plantdreamer.generate(
         out / f"kale-g{stage:g}",
         species="kale",
         seed=0,

@@ -3,7 +3,7 @@
 Usage: python scripts/check_sdist.py dist/plantdreamer-X.tar.gz
 Every tracked file of the Rust workspace (Cargo.toml, Cargo.lock, crates/) and of the
 Python package (pyproject.toml, python/) must be in it, with the licence, the citation and
-the documentation's sources, and no compiled module. Building
+the documentation's sources and the examples, and no compiled module. Building
 from it (`pip install plantdreamer-X.tar.gz`) needs a Rust toolchain: see the README.
 """
 
@@ -16,9 +16,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 BUILD_INPUTS = ["Cargo.toml", "Cargo.lock", "pyproject.toml", "README.md", "crates", "python"]
-# Shipped beside the build inputs: what a user of the sdist may redistribute and cite, and
-# the documentation (`make docs` builds it).
-SHIPPED = ["LICENSE", "CITATION.cff", "mkdocs.yml", "docs"]
+# Shipped beside the build inputs: what a user of the sdist may redistribute and cite, the
+# documentation (`make docs` builds it, its CLI reference through the hook) and the examples.
+SHIPPED = ["LICENSE", "CITATION.cff", "mkdocs.yml", "docs", "scripts/docs_cli_reference.py",
+           "examples"]  # fmt: skip
 
 
 def main(sdist: str) -> None:

@@ -39,11 +39,11 @@ from plantdreamer.guidance.depth import DEPTH_RULES, DepthCleaning, normalise_de
 from plantdreamer.io import write_ply
 from plantdreamer.lsystem import generate_plant, sample_points
 from plantdreamer.pipeline import GenerateConfig
-from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.presets import PRESETS
-from plantdreamer.pipeline.sampler import CameraSampler
-from plantdreamer.pipeline.source import initial_gaussians, load_source
+from plantdreamer.pipeline.model.culling import large_gaussian_mask
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.sampler import CameraSampler
+from plantdreamer.pipeline.model.source import initial_gaussians, load_source
+from plantdreamer.pipeline.settings.presets import PRESETS
 
 SPECIES = ("bean", "mint", "kale")
 REAL_STYLE = (("bean", 7), ("mint", 5))

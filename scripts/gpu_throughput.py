@@ -40,8 +40,8 @@ def _hashes(folder: Path) -> dict[str, str]:
 def resume_check(args: argparse.Namespace, work: Path) -> dict[str, Any]:
     """A group of 4 (overlap on) straight, and stopped by SIGINT halfway and resumed."""
     from plantdreamer.guidance import StableDiffusionDepthGuidance
-    from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-    from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline import FolderPerPlant, GenerateConfig, RunInterrupted
+    from plantdreamer.pipeline import generate_plants as train
 
     make = bench().build_parts(args)
     cfgs = [
@@ -59,8 +59,8 @@ def resume_check(args: argparse.Namespace, work: Path) -> dict[str, Any]:
             species="bean", components=make(), resolution=args.sds, device=args.device, seed=0
         )
 
-    generate_group(cfgs, work / "straight", guidance=guidance(), overwrite=True,
-                   show_progress=False)  # fmt: skip
+    group = {"layout": FolderPerPlant(), "failures": "record", "show_progress": False}
+    train(cfgs, work / "straight", guidance=guidance(), overwrite=True, **group)
 
     def ctrl_c(step: int) -> None:
         if step == args.steps // 2:
@@ -68,11 +68,10 @@ def resume_check(args: argparse.Namespace, work: Path) -> dict[str, Any]:
 
     stopped = None
     try:
-        generate_group(cfgs, work / "cut", guidance=guidance(), overwrite=True,
-                       show_progress=False, on_step=ctrl_c)  # fmt: skip
+        train(cfgs, work / "cut", guidance=guidance(), overwrite=True, on_step=ctrl_c, **group)
     except RunInterrupted as stop:
         stopped = stop.step
-    generate_group(None, work / "cut", guidance=guidance(), resume=True, show_progress=False)
+    train(None, work / "cut", guidance=guidance(), resume=True, **group)
     names = [f"bean-s{s:04d}" for s in range(4)]
     same = {n: _hashes(work / "straight" / n) == _hashes(work / "cut" / n) for n in names}
     return {"stopped_at": stopped, "identical": same}

@@ -22,7 +22,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 
 SPECIES = ("bean", "mint", "kale")
 SPECK = 16  # pixels: the speck size measured (label_pieces.MIN_PIECE)
@@ -114,7 +114,7 @@ def main() -> int:
             eval_views=args.views, turntable="none", steps=0, guidance="none",
         )  # fmt: skip
         with tempfile.TemporaryDirectory() as tmp:
-            generate(cfg, tmp, show_progress=False)
+            generate_plants([cfg], tmp, show_progress=False)
             touching, views, share = border_views(Path(tmp))
             for maps in ("instances", "labels"):
                 m = measure(Path(tmp), maps)

@@ -20,7 +20,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from leaf_masks import leaf_mask_ious  # noqa: E402
 from plantdreamer.atomic import write_text  # noqa: E402
-from plantdreamer.pipeline import GenerateConfig, generate  # noqa: E402
+from plantdreamer.pipeline import GenerateConfig, generate_plants  # noqa: E402
 
 ROWS = [("bean", 0, 512), ("bean", 2, 512), ("mint", 0, 512)]
 ROWS += [("bean", 0, 1024), ("bean", 1, 1024), ("bean", 2, 1024)]
@@ -36,7 +36,7 @@ def ious(
         turntable_frames=2, steps=0, guidance="none", init_shape=shape,
     )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        generate(cfg, tmp, show_progress=False)
+        generate_plants([cfg], tmp, show_progress=False)
         out = Path(tmp)
         bound = leaf_mask_ious(out, species, seed, True) if shape == SHAPES[-1] else []
         return leaf_mask_ious(out, species, seed), bound

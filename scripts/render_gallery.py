@@ -20,7 +20,7 @@ OUT = Path(__file__).resolve().parent.parent / "docs" / "images" / "gallery.png"
 
 def main() -> int:
     from plantdreamer.exports import LabelOptions, write_dataset_exports
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -30,7 +30,9 @@ def main() -> int:
                     species=species, seed=seed, guidance="none", steps=0, resolution=192,
                     eval_views=4, turntable="none",
                 )  # fmt: skip
-                generate(cfg, root / "plants" / f"{species}-s{seed:04d}", show_progress=False)
+                generate_plants(
+                    [cfg], root / "plants" / f"{species}-s{seed:04d}", show_progress=False
+                )
         # Six plants at 0.8/0.1/0.1: a split may draw none, which the picture does not mind.
         labels = write_dataset_exports(root, LabelOptions(allow_empty_split=True))
         OUT.parent.mkdir(parents=True, exist_ok=True)

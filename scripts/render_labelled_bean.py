@@ -30,11 +30,11 @@ def instance_colours(n: int) -> np.ndarray:
 def main() -> int:
     import imageio.v3 as iio
 
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = GenerateConfig.of(species="bean", seed=1, guidance="none", eval_views=8)
-        generate(cfg, tmp, show_progress=False)
+        generate_plants([cfg], tmp, show_progress=False)
         out = Path(tmp)
         rgb = iio.imread(out / "renders" / "view_001.png")
         semantic = iio.imread(out / "labels" / "preview" / "view_001.png")[..., :3]

@@ -1,5 +1,5 @@
 """A slow reference for the label maps' pieces: breadth-first 8-connected pieces, the specks
-that ``plantdreamer.pipeline.label_pieces`` moves, and its rule applied pass by pass."""
+that ``plantdreamer.pipeline.truth.label_pieces`` moves, and its rule applied pass by pass."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from collections import Counter, deque
 
 import numpy as np
 
-from plantdreamer.pipeline.label_pieces import BACKGROUND, MIN_PIECE, PASSES
+from plantdreamer.pipeline.truth.label_pieces import BACKGROUND, MIN_PIECE, PASSES
 
 STEPS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 
 SETTINGS = dict(
     species="bean",
@@ -20,5 +20,5 @@ SETTINGS = dict(
 
 
 def make_plant(out: Path, **settings) -> Path:
-    generate(GenerateConfig.of(**{**SETTINGS, **settings}), out, show_progress=False)
+    generate_plants([GenerateConfig.of(**{**SETTINGS, **settings})], out, show_progress=False)
     return out

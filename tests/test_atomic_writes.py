@@ -56,12 +56,12 @@ WRITERS = {
     "splat_ply": (
         "plant.ply",
         "from plantdreamer.io import write_splat_ply\n"
-        "from plantdreamer.pipeline.init import init_gaussians\n"
+        "from plantdreamer.pipeline.model.init import init_gaussians\n"
         "write_splat_ply(path, init_gaussians(rng.random((5000, 3), dtype=np.float32), None, 0.5))",
     ),
     "checkpoint": (
         "checkpoint.pt",
-        "import torch\nfrom plantdreamer.pipeline.checkpoint import save_checkpoint\n"
+        "import torch\nfrom plantdreamer.pipeline.state.checkpoint import save_checkpoint\n"
         "save_checkpoint(path.parent, {'x': torch.zeros(100_000)})",
     ),
     "eval_json": (

@@ -206,10 +206,10 @@ def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
     window's steps (recorded by a stub guidance during a real group run)."""
     from stub_guidance import StubGuidance
 
+    from plant_runs import failed, group
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.group import generate_group
-    from plantdreamer.pipeline.run_state import RunState
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
+    from plantdreamer.pipeline.state.run_state import RunState
 
     seen: dict[int, list] = {}
 
@@ -226,10 +226,10 @@ def test_the_raster_reference_renders_cameras_the_window_trained_on(tmp_path):
         )
         for s in range(2)
     ]  # fmt: skip
-    result = generate_group(cfgs, tmp_path, guidance=Recording(resolution=16), show_progress=False)
-    assert not result.failed and sorted(seen) == list(range(6))
+    result = group(cfgs, tmp_path, guidance=Recording(resolution=16), show_progress=False)
+    assert not failed(result) and sorted(seen) == list(range(6))
+    resolve_plants(cfgs)
     for k, cfg in enumerate(cfgs):
-        resolve_runtime(cfg)
         sampler = RunState.fresh(cfg, show_progress=False).sampler
         picked = bench_throughput.window_cameras(sampler, 2, 5, 3)
         assert [c.viewmat.tobytes() for c in picked] == [seen[s][k] for s in (2, 4, 5)]

@@ -18,7 +18,7 @@ from PIL import Image
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
 
 GEN = ["generate", "--species", "bean", "--guidance", "none", "--steps", "0", "--points", "500",
        "--resolution", "32", "--eval-views", "1"]  # fmt: skip
@@ -283,8 +283,8 @@ def test_malformed_checkpoint_is_one_line(interrupted_run, tmp_path, damage):
 @pytest.fixture(scope="module")
 def interrupted_run(tmp_path_factory):
     """A run folder with a checkpoint at step 2 of 4 and no final outputs."""
-    from plantdreamer.pipeline import GenerateConfig, generate
-    from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
+    from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
 
     out = tmp_path_factory.mktemp("interrupted") / "run"
     cfg = GenerateConfig.of(species="bean", guidance="none", steps=4, checkpoint_every=2,
@@ -299,7 +299,7 @@ def interrupted_run(tmp_path_factory):
             os.kill(os.getpid(), signal.SIGINT)
 
     with pytest.raises(RunInterrupted):
-        generate(cfg, out, show_progress=False, on_step=ctrl_c)
+        generate_plants([cfg], out, show_progress=False, on_step=ctrl_c)
     assert not (out / "run.json").exists() and (out / CHECKPOINT_NAME).is_file()
     return out
 
@@ -345,7 +345,7 @@ def test_generate_refuses_a_finished_run_folder_without_overwrite(tmp_path):
     assert (out / "plant.ply").read_bytes() == before
     again = run(*GEN, "--out", out, "--quiet", "--seed", 1, "--overwrite")
     assert again.exit_code == 0, again.output
-    assert json.loads((out / "run.json").read_text())["seed"] == 1
+    assert json.loads((out / "run.json").read_text())["config"]["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == [
         "coco.json", "counts.csv", "depth", "instances", "labels", "log.csv", "plant.ply",
         "points.ply", "progress", "progress.png", "renders", "run.json", "traits.json",
@@ -430,12 +430,15 @@ def test_existing_outputs_are_refused_without_overwrite(files, tmp_path, command
 
 
 def fake_base(folder):
-    """A folder laid out as a Stable Diffusion model (found by the checks, never loaded)."""
+    """A folder laid out as a Stable Diffusion model, its weight files whole safetensors
+    files (found by the checks, never loaded)."""
+    from safetensors.numpy import save_file
+
     base = folder / "base"
     for part in ("unet", "vae", "text_encoder"):
         (base / part).mkdir(parents=True)
         (base / part / "config.json").write_text("{}")
-        (base / part / "model.safetensors").write_bytes(b"")
+        save_file({"weight": np.zeros(4, np.float32)}, str(base / part / "model.safetensors"))
     (base / "tokenizer").mkdir()
     (base / "tokenizer" / "vocab.json").write_text("{}")
     (base / "scheduler").mkdir()

@@ -138,6 +138,29 @@ def test_a_split_that_draws_no_plant_is_an_error_unless_allowed(dataset):
     assert "warning: split val" in allowed.output
 
 
+def test_exact_splits_give_the_shares_counts_and_the_card_says_which_mode(dataset):
+    """At 2,1,0 the three plants (two beans, a mint) are 2 train, 1 val, a bean in each,
+    whatever the seed; the draw's counts vary by seed. The card says which rule it was."""
+    ratios = parse_ratios("2,1,0")
+    drawn = {len(split_plants(PLANTS, ratios, s)["train"]) for s in range(20)}
+    assert drawn != {2}  # the draw: expected shares only
+    seed = next(s for s in range(20) if len(split_plants(PLANTS, ratios, s)["train"]) != 2)
+    result = cli("labels", dataset, "--split", "2,1,0", "--split-seed", seed,
+                 "--split-mode", "exact")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    splits = json.loads((dataset / "splits.json").read_text())
+    assert splits["mode"] == "exact" and [len(splits[s]) for s in SPLITS] == [2, 1, 0]
+    assert splits["species"]["train"] == {"bean": 1, "mint": 1}
+    card = (dataset / "README.md").read_text()
+    assert "train 0.6667 / val 0.3333 / test 0 exactly (`--split-mode exact`)" in card
+    assert cli("labels", dataset, "--split", "2,1,0", "--split-seed", seed,
+               "--allow-empty-split").exit_code == 0  # fmt: skip
+    assert json.loads((dataset / "splits.json").read_text())["mode"] == "draw"
+    assert "at expected shares of train 0.6667" in (dataset / "README.md").read_text()
+    wrong = cli("labels", dataset, "--split-mode", "quota")
+    assert wrong.exit_code == 2 and "'quota' is not one of 'draw', 'exact'" in wrong.output
+
+
 def test_a_split_is_a_torch_dataset_of_its_plants(dataset):
     pytest.importorskip("torchvision")
     from plantdreamer.data import PlantViews
@@ -205,6 +228,23 @@ def test_each_splits_counts_are_its_coco_images_and_the_torch_targets(dataset):
     assert counted[1].keys() == counted[16].keys()
     assert all(counted[1][k] >= n for k, n in counted[16].items())
     assert sum(counted[1].values()) > sum(counted[16].values())
+
+
+def test_plants_without_traits_are_named_not_left_out_silently(dataset, tmp_path):
+    import csv
+
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    old = sorted((copy / "plants").iterdir())[0]
+    (old / "traits.json").unlink()  # a plant made before traits.json was written
+    result = cli("labels", copy, "--split", "2,1,0", "--allow-empty-split")
+    assert result.exit_code == 0, result.output
+    assert f"1 plant(s) have no traits.json ({old.name})" in result.output
+    rows = []
+    for split in SPLITS:
+        with open(copy / "traits" / f"{split}.csv", newline="") as f:
+            rows += [r["plant_id"] for r in csv.DictReader(f)]
+    assert old.name not in rows and len(rows) == len(list((copy / "plants").iterdir())) - 1
 
 
 def test_another_area_limit_remakes_each_plants_files(dataset):
@@ -308,7 +348,8 @@ def test_the_summary_names_the_gallery_as_the_folder_was_typed(dataset, monkeypa
     assert result.exit_code == 0, result.output
     assert f"gallery: {dataset.name}/gallery.png" in result.output.splitlines()
     assert f"card: {dataset.name}/README.md (" in result.output
-    assert (dataset / "README.md").read_text().startswith("# A plantdreamer dataset")
+    readme = (dataset / "README.md").read_text()
+    assert readme.startswith("---\n") and "\n---\n# A plantdreamer dataset\n" in readme
 
 
 def test_label_maps_of_another_size_than_their_render_are_refused(dataset, tmp_path):

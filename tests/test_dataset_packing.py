@@ -19,23 +19,23 @@ from plantdreamer.dataset.tasks import run_unit
 from plantdreamer.dataset.worker import ModelCache
 from plantdreamer.errors import InputError
 from plantdreamer.output_folder import LOCK_NAME
-from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.runtime import build_guidance
+from plantdreamer.pipeline import GenerateConfig, generate_plants
+from plantdreamer.pipeline.settings.runtime import build_guidance
 
 SMALL = {"steps": 3, "points": 1500, "resolution": 32, "eval-views": 1, "turntable-frames": 2}
 
 
-class _Call:
-    def __init__(self, fn):
-        self.remote = fn
-
-
 class FakeBoard:
-    """The status board's methods as a worker calls them, without Ray."""
+    """The driver's board as a worker sees it (``tasks.Board``), in this process."""
 
     def __init__(self):
         self.starts = []
-        self.started = _Call(lambda plant_id, info: self.starts.append(plant_id))
+
+    def started(self, plant_id, info):
+        self.starts.append(plant_id)
+
+    def stopping(self):
+        return False
 
 
 def test_plants_are_packed_in_spec_order_by_shared_settings():
@@ -79,7 +79,6 @@ def _request(out, plants, threads=1):
             for p in plants
         ],
         "threads": threads,
-        "group_dir": str(out / "groups" / plants[0].id),
     }
 
 
@@ -114,15 +113,17 @@ def test_a_packed_group_writes_each_plant_folder_and_a_bad_plant_fails_alone(tmp
         "a-s0000": "done", "b-s0000": "failed", "c-s0000": "done"
     }  # fmt: skip
     assert "PlyError" in results["b-s0000"]["error"] and "\n" not in results["b-s0000"]["error"]
-    assert results["a-s0000"]["trained_with"] == ["a-s0000", "b-s0000", "c-s0000"]
-    assert not (out / "groups" / "a-s0000").exists()  # the group's record goes when it ends
+    # b failed its input check before training: a and c trained together, without it.
+    assert results["a-s0000"]["trained_with"] == ["a-s0000", "c-s0000"]
+    assert sorted(p.name for p in out.iterdir()) == [LOCK_NAME, "plants"]  # nothing beside
     for plant_id in ("a-s0000", "c-s0000"):
         folder = out / "plants" / plant_id
         for name in ("plant.ply", "run.json", "transforms.json", "generate.log"):
             assert (folder / name).is_file(), (plant_id, name)
         assert not (folder / "checkpoint.pt").exists()
         # Without guidance a plant trained in a group is the plant trained alone.
-        alone = generate(plant_config(group, plant_id), tmp_path / plant_id, show_progress=False)
+        alone = generate_plants([plant_config(group, plant_id)], tmp_path / plant_id,
+                                show_progress=False)[0]  # fmt: skip
         assert (folder / "plant.ply").read_bytes() == alone.ply_path.read_bytes()
     assert "group of 3" in (out / "plants" / "c-s0000" / "generate.log").read_text()
 
@@ -151,7 +152,8 @@ def _sds_config(models, seed):
 def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_load(
     tiny_model_folders, tmp_path
 ):
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
 
     cache = ModelCache()
     out = tmp_path / "out"
@@ -162,16 +164,17 @@ def test_a_worker_loads_the_models_once_and_each_plant_is_the_plant_of_a_fresh_l
         cfg = _sds_config(tiny_model_folders, seed)
         request = {"plants": [{"id": f"p{seed}", "config": cfg.to_dict(),
                                "plant_dir": str(out / "plants" / f"p{seed}")}],
-                   "threads": 1, "group_dir": str(out / "groups" / f"p{seed}")}  # fmt: skip
+                   "threads": 1}  # fmt: skip
         result = run_unit(request, board, cache.guidance_for, None)[f"p{seed}"]
         assert result["status"] == "done" and result["trained_with"] == [f"p{seed}"], result
     assert cache.loads == 1  # the second plant used the first one's networks
     for seed in (0, 1):  # ... and got the bytes of a guidance loaded from disk for it
         cfg = _sds_config(tiny_model_folders, seed)
         resolved = GenerateConfig.from_dict(cfg.to_dict())
-        resolve_runtime(resolved)
-        fresh = generate(cfg, tmp_path / f"fresh{seed}", guidance=build_guidance(resolved),
-                         show_progress=False)  # fmt: skip
+        resolve_plants([resolved])
+        guidance = build_guidance(GroupSettings.of([resolved]))
+        fresh = generate_plants([cfg], tmp_path / f"fresh{seed}", guidance=guidance,
+                                show_progress=False)[0]  # fmt: skip
         ours = Path(out / "plants" / f"p{seed}" / "plant.ply").read_bytes()
         assert ours == fresh.ply_path.read_bytes(), seed
     run = json.loads((out / "plants" / "p1" / "run.json").read_text())
@@ -220,7 +223,10 @@ def test_a_stopped_sds_group_resumes_in_a_later_run_byte_identical(tiny_model_fo
     stopped = run_unit(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
                         _interrupt_at(2))  # fmt: skip
     assert {r["error"] for r in stopped.values()} == {"interrupted at step 3"}
-    assert (outs["stopped"] / "groups" / ids[0] / "group.json").is_file()  # kept for the rerun
+    # The unit's noise state, saved once, in its first plant's folder for the rerun.
+    assert (outs["stopped"] / "plants" / ids[0] / "noise.pt").is_file()
+    assert not (outs["stopped"] / "plants" / ids[1] / "noise.pt").exists()
+    assert sorted(p.name for p in outs["stopped"].iterdir()) == [LOCK_NAME, "plants"]
     resumed = run_unit(_request(outs["stopped"], group), FakeBoard(), ModelCache().guidance_for,
                         None)  # fmt: skip
     assert [resumed[i]["resumed_from_step"] for i in ids] == [3, 3]

@@ -1,16 +1,20 @@
-"""`plantdreamer dataset` on real Ray instances: local (2 CPUs), a two-node loopback cluster,
-a SIGKILLed worker, a bad input among good ones, and a rerun that skips finished plants.
+"""`plantdreamer dataset` on its workers: the local pool (no address: worker processes of
+this machine), a private local Ray (``--address local``, 2 CPUs), a two-node loopback
+cluster, a SIGKILLed worker, a bad input among good ones, and a rerun that skips finished
+plants.
 
-The runs in this process (CliRunner) start and stop their own local Ray, as a user's do;
-the drivers run as subprocesses join one 2-CPU instance shared by the session (conftest's
-``shared_ray``: a Ray start-up costs 26-35 s on 2 cores), the two-node test with two nodes
-added to it. (Joined from this process after a local instance had stopped, the shared one
-left the driver waiting.) Every Ray process a test starts is stopped: the command stops the
-local instance it starts, and the fixtures their nodes.
+The runs in this process (CliRunner) start and stop their own workers or local Ray, as a
+user's do; the drivers run as subprocesses join one 2-CPU instance shared by the session
+(conftest's ``shared_ray``: a Ray start-up costs 26-35 s on 2 cores), the two-node test
+with two nodes added to it, or run on the pool. (Joined from this process after a local
+instance had stopped, the shared one left the driver waiting.) Every process a test starts
+is stopped: the command stops the workers and the local instance it starts, and the
+fixtures their nodes.
 """
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -21,7 +25,7 @@ import pytest
 from click.testing import CliRunner
 
 from plantdreamer.cli import main
-from plantdreamer.pipeline import GenerateConfig, generate
+from plantdreamer.pipeline import GenerateConfig, generate_plants
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.slow
@@ -34,6 +38,15 @@ SMALL_FLAGS = ["--guidance", "none", "--steps", "20", "--points", "2000", "--eva
 def on_shared(cluster):
     """The options that run a command on the shared instance instead of a local one."""
     return ["--address", cluster.address]
+
+
+@pytest.fixture(params=["pool", "ray"])
+def place(request):
+    """Where a driver subprocess runs its plants, as options: the local pool (none), or the
+    shared Ray instance."""
+    if request.param == "pool":
+        return []
+    return on_shared(request.getfixturevalue("shared_ray"))
 
 
 def loopback_env(**extra):
@@ -51,7 +64,7 @@ def manifest(out_dir):
 
 def direct_ply(tmp_path, **settings):
     out = tmp_path / "direct" / f"{settings.get('species')}-{settings['seed']}"
-    generate(GenerateConfig.of(**{**SMALL, **settings}), out, show_progress=False)
+    generate_plants([GenerateConfig.of(**{**SMALL, **settings})], out, show_progress=False)
     return (out / "plant.ply").read_bytes()
 
 
@@ -70,41 +83,66 @@ def listening_sockets():
 
 
 @pytest.fixture(scope="module")
-def local_ray_sockets():
-    """Filled by ``six_plants`` with the listening sockets of its local Ray, taken as the
-    command stops it (its workers still up)."""
-    return []
+def six_plants(tmp_path_factory):
+    """Six plants on the local pool; with the sockets its driver and workers listened on,
+    taken as the pool closes (its workers still up)."""
+    from plantdreamer.dataset.local_pool import LocalPool
 
-
-@pytest.fixture(scope="module")
-def six_plants(tmp_path_factory, local_ray_sockets):
     out = tmp_path_factory.mktemp("six")
     args = ["dataset", "--species", "bean,mint,kale", "--count", "2", "--local-cpus", "2"]
-    shutdown = ray.shutdown
+    close, seen = LocalPool.close, {}
 
-    def shutdown_after_a_look(*a, **kw):
-        local_ray_sockets.extend(listening_sockets())
-        return shutdown(*a, **kw)
+    def close_after_a_look(pool):
+        seen["workers"] = [w.proc.pid for w in pool.workers if w.proc is not None]
+        seen["sockets"] = listening_sockets()
+        return close(pool)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ray, "shutdown", shutdown_after_a_look)
+        mp.setattr(LocalPool, "close", close_after_a_look)
         result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
-    assert not ray.is_initialized()  # the command stopped the Ray it started
-    return out, args, result
+    assert not ray.is_initialized()  # no Ray on one machine
+    return out, args, result, seen
 
 
-def test_the_local_ray_listens_on_loopback_only(six_plants, local_ray_sockets):
+def test_the_local_pool_starts_no_ray_and_listens_on_nothing(six_plants):
+    out, _, result, seen = six_plants
+    assert result.exit_code == 0, result.output
+    assert seen["sockets"] == []
+    pids = {r["pid"] for r in manifest(out).values()}
+    assert os.getpid() not in pids and len(pids) == 2  # two worker processes on 2 CPUs
+    summary = json.loads((out / "dataset.json").read_text())
+    assert summary["workers"] == {"on": "local pool", "address": None, "nodes": 1}
+    import psutil
+
+    assert not [p for p in seen["workers"] if psutil.pid_exists(p)]  # none left running
+
+
+def test_a_local_ray_listens_on_loopback_only(tmp_path):
+    """``--address local``: a private Ray on this machine, every socket on loopback."""
     from plantdreamer.dataset.engine import is_loopback
 
-    assert six_plants[2].exit_code == 0, six_plants[2].output
-    names = {name for name, _, _ in local_ray_sockets}
-    assert {"gcs_server", "raylet", "driver"} <= names, local_ray_sockets
+    shutdown, sockets = ray.shutdown, []
+
+    def shutdown_after_a_look(*a, **kw):
+        sockets.extend(listening_sockets())
+        return shutdown(*a, **kw)
+
+    args = ["dataset", "--species", "bean", "--address", "local", "--local-cpus", "2"]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ray, "shutdown", shutdown_after_a_look)
+        result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert not ray.is_initialized()  # the command stopped the Ray it started
+    names = {name for name, _, _ in sockets}
+    assert {"gcs_server", "raylet", "driver"} <= names, sockets
     assert any(name.startswith("ray::") for name in names)  # a worker, an agent
-    assert [s for s in local_ray_sockets if not is_loopback(s[1])] == []
+    assert [s for s in sockets if not is_loopback(s[1])] == []
+    summary = json.loads((tmp_path / "dataset.json").read_text())
+    assert summary["workers"]["on"] == "ray" and summary["workers"]["address"] == "local"
 
 
-def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):
-    out, _, result = six_plants
+def test_six_plants_on_the_local_pool_match_direct_generate(six_plants, tmp_path):
+    out, _, result, _ = six_plants
     assert result.exit_code == 0, result.output
     records = manifest(out)
     assert sorted(records) == sorted(
@@ -123,7 +161,7 @@ def test_six_plants_on_local_ray_match_direct_generate(six_plants, tmp_path):
 
 
 def test_a_dataset_run_ends_with_splits_label_files_and_a_gallery(six_plants):
-    out, _, result = six_plants
+    out, _, result, _ = six_plants
     assert f"gallery: {out / 'gallery.png'}" in result.output
     splits = json.loads((out / "splits.json").read_text())
     assert sorted(splits["train"] + splits["val"] + splits["test"]) == sorted(manifest(out))
@@ -136,13 +174,42 @@ def test_a_dataset_run_ends_with_splits_label_files_and_a_gallery(six_plants):
     assert (out / "yolo" / "data.yaml").is_file() and (out / "gallery.png").stat().st_size > 0
 
 
-def test_rerun_skips_complete_plants(six_plants):
-    out, args, _ = six_plants
+def test_rerun_skips_complete_plants(six_plants, monkeypatch):
+    from plantdreamer.dataset import runner
+
+    out, args, _, _ = six_plants
+    monkeypatch.setattr(runner, "open_workers", lambda *a: pytest.fail("workers started"))
     before = (out / "manifest.jsonl").read_text()
     result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "0 plants done, 6 skipped" in result.output
     assert (out / "manifest.jsonl").read_text() == before  # no timestamp moved
+
+
+def test_scenes_of_the_finished_plants_join_a_rerun_without_training(six_plants, tmp_path):
+    """`dataset --scenes` over complete plants: nothing trains (Ray is not started), the
+    scenes are made from one split's plants each and join the split's label files."""
+    out, args, _ = six_plants
+    copy = shutil.copytree(out, tmp_path / "ds")
+    scenes = ["--scenes", "0-3", "--scene-plants", "2", "--scene-layout", "random"]
+    result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, *scenes, "--out", str(copy)])
+    assert result.exit_code == 0, result.output
+    assert "0 plants done, 6 skipped" in result.output and "; scenes " in result.output
+    splits = json.loads((copy / "splits.json").read_text())
+    made = sorted(p.name for p in (copy / "scenes").iterdir())
+    assert made == [f"scene-s{i:04d}" for i in range(4)]
+    assert sorted(i for ids in splits["scenes"].values() for i in ids) == made
+    for split, ids in splits["scenes"].items():
+        coco = json.loads((copy / "coco" / f"{split}.json").read_text())
+        shown = {
+            i["file_name"].split("/")[1]
+            for i in coco["images"]
+            if i["file_name"].startswith("scenes/")
+        }
+        assert shown == set(ids)
+        for scene in ids:
+            record = json.loads((copy / "scenes" / scene / "scene.json").read_text())
+            assert set(record["plant_ids"]) <= set(splits[split])
 
 
 def test_bad_point_cloud_fails_alone(tmp_path):
@@ -177,11 +244,11 @@ def test_bad_point_cloud_fails_alone(tmp_path):
     assert error and "\n" not in error and "ply" in error.lower()
 
 
-def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path, shared_ray):
+def test_killed_worker_is_retried_and_resumes_byte_identical(tmp_path, place):
     out = tmp_path / "out"
     env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count", "2",
-           *on_shared(shared_ray), "--set", "checkpoint-every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
+           *place, "--set", "checkpoint-every=5", *SMALL_FLAGS, "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
@@ -238,11 +305,11 @@ def test_plants_spread_over_a_two_node_cluster(shared_ray, two_nodes, tmp_path):
     assert {r["node"] for r in records.values()} == nodes  # both nodes ran plants
 
 
-def _stopped_by(signum, out, cluster):
-    """Runs two long plants on ``cluster``, sends ``signum`` to the driver once both have
+def _stopped_by(signum, out, place):
+    """Runs two long plants at ``place``, sends ``signum`` to the driver once both have
     checkpointed, and returns its exit status, output and manifest."""
     cmd = [sys.executable, "-m", "plantdreamer.cli", "dataset", "--species", "bean", "--count",
-           "2", *on_shared(cluster), "--set", "checkpoint_every=5", *SMALL_FLAGS,
+           "2", *place, "--set", "checkpoint_every=5", *SMALL_FLAGS,
            "--steps", "100000", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=loopback_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -262,10 +329,8 @@ def _stopped_by(signum, out, cluster):
     return proc.returncode, output, manifest(out)
 
 
-def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path, shared_ray):
-    runs = {
-        s: _stopped_by(s, tmp_path / s.name, shared_ray) for s in (signal.SIGINT, signal.SIGTERM)
-    }
+def test_sigterm_stops_the_driver_as_ctrl_c_does(tmp_path, place):
+    runs = {s: _stopped_by(s, tmp_path / s.name, place) for s in (signal.SIGINT, signal.SIGTERM)}
     shapes = {}
     for signum, (code, output, records) in runs.items():
         assert code == 130, output
@@ -330,12 +395,10 @@ def test_packed_plants_get_every_folder_record_and_export_and_the_same_bytes_twi
         assert files[ply] == direct_ply(tmp_path, species="bean", seed=seed), seed
 
 
-def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical(
-    tmp_path, shared_ray
-):
+def test_a_killed_group_worker_is_restarted_and_the_group_resumes_byte_identical(tmp_path, place):
     out = tmp_path / "out"
     env = loopback_env(PLANTDREAMER_DATASET_HOLD="bean-s0001:12")
-    cmd = [sys.executable, "-m", "plantdreamer.cli", *PACKED, *on_shared(shared_ray),
+    cmd = [sys.executable, "-m", "plantdreamer.cli", *PACKED, *place,
            "--set", "checkpoint-every=5", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -393,10 +456,10 @@ def test_the_dataset_example_makes_a_dataset_with_its_card_and_trains_a_detector
     ]  # fmt: skip
     assert card["species"] == {"bean": 2} and card["splits"]["train"]["plants"] == 2
     assert card["splits"]["train"]["images"] == 4  # two views per plant
-    assert card["models"] == [] and card["licences"]["weights"] is None  # no guidance
+    assert card["models"] == [] and card["licences"]["data"] == "unknown"  # no guidance
     assert card["licences"]["code"] == "Apache-2.0" and "2505.15528" in card["citation"]
     readme = (out / "README.md").read_text()
-    assert readme.startswith("# A plantdreamer dataset")
+    assert readme.startswith("---\n") and "\n---\n# A plantdreamer dataset\n" in readme
     assert "| 1 | leaf | #1f77b4 | yes |" in readme and "| train | 2 | 4 | 2 bean |" in readme
     coco = json.loads((out / "coco" / "train.json").read_text())
     assert coco["info"]["version"] == plantdreamer.__version__

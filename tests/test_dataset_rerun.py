@@ -1,6 +1,6 @@
 """A ``dataset`` rerun with other settings never silently remakes finished plants, a dry run
-shows the plan without starting Ray, ``species`` given as a setting is honoured or refused,
-and a stopped run still prints its summary line. No Ray starts here."""
+shows the plan without starting any worker, ``species`` given as a setting is honoured or
+refused, and a stopped run still prints its summary line. No worker or Ray starts here."""
 
 import pytest
 from click.testing import CliRunner
@@ -45,9 +45,9 @@ def files(out):
 @pytest.fixture
 def no_ray(monkeypatch):
     def refuse(*_args):
-        raise AssertionError("Ray was started")
+        raise AssertionError("workers were started")
 
-    monkeypatch.setattr(runner.engine, "connect", refuse)
+    monkeypatch.setattr(runner, "open_workers", refuse)
 
 
 def spec_of(count, **defaults):
@@ -70,17 +70,18 @@ def test_a_rerun_with_one_setting_changed_stops_with_a_count_and_deletes_nothing
 
 
 def test_redo_changed_on_the_command_line_lifts_the_refusal(tmp_path, monkeypatch):
-    """The refusal asks for --redo-changed; given, the run plans the redo and goes on to Ray."""
+    """The refusal asks for --redo-changed; given, the run plans the redo and goes on to
+    start its workers."""
     from plantdreamer.errors import PlantDreamerError
 
     def reached(*_args):
-        raise PlantDreamerError("reached Ray")
+        raise PlantDreamerError("reached the workers")
 
-    monkeypatch.setattr(runner.engine, "connect", reached)
+    monkeypatch.setattr(runner, "open_workers", reached)
     finished(tmp_path, expand(spec_of(2, steps=0)))
     args = ["--species", "bean", "--seeds", "0-1", *FAST, "--steps", 1, "--out", tmp_path]
     one_error(invoke(*args), "pass --redo-changed")
-    one_error(invoke(*args, "--redo-changed"), "reached Ray")
+    one_error(invoke(*args, "--redo-changed"), "reached the workers")
     assert not (tmp_path / "plants" / "bean-s0000" / "plant.ply").exists()  # cleared for redo
 
 
@@ -143,10 +144,10 @@ def test_species_given_twice_and_differently_is_refused(tmp_path):
 
 
 def test_a_stopped_run_prints_its_summary_line(tmp_path, monkeypatch):
-    def sigterm_while_ray_starts(*_args):
+    def sigterm_while_workers_start(*_args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner.engine, "connect", sigterm_while_ray_starts)
+    monkeypatch.setattr(runner, "open_workers", sigterm_while_workers_start)
     finished(tmp_path, expand(spec_of(1, steps=0)))
     result = invoke("--species", "bean", "--count", 2, *FAST, "--steps", 0, "--out", tmp_path)
     assert result.exit_code == 130, result.output

@@ -1,6 +1,6 @@
 """`dataset` touches only its own folder, checks every input before Ray starts, and keeps its
-manifest true to the plant folders through any stop (no Ray started here: a stop while Ray
-starts is a KeyboardInterrupt from ``engine.connect``)."""
+manifest true to the plant folders through any stop (no worker started here: a stop while
+the workers start is a KeyboardInterrupt from ``runner.open_workers``)."""
 
 import json
 import os
@@ -99,10 +99,10 @@ def test_a_rerun_stopped_while_ray_starts_leaves_no_done_record_without_files(
     _finished_dataset(tmp_path, expand(spec))
     changed = {**spec, "defaults": {"steps": 7}}
 
-    def ctrl_c_while_ray_starts(*_args):
+    def ctrl_c_while_workers_start(*_args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner.engine, "connect", ctrl_c_while_ray_starts)
+    monkeypatch.setattr(runner, "open_workers", ctrl_c_while_workers_start)
     with pytest.raises(KeyboardInterrupt):
         labels = LabelOptions(allow_empty_split=True)  # 3 plants: val may draw none
         run_dataset(
@@ -194,7 +194,8 @@ def test_bad_specs_are_one_line_errors_before_ray(tmp_path, spec_bytes, message)
         (["--resource", "disk=nan"], "the amount must be a number"),
         (["--resource", "CPU=1"], "--resource CPU: use --cpus-per-plant"),
         (["--resource", "memory=1"], "Ray manages 'memory' itself"),
-        (["--cpus-per-plant", "nan"], "at least 1 CPU"),
+        (["--cpus-per-plant", "nan"], "--cpus-per-plant must be >= 1, got nan"),
+        (["--gpus-per-plant", "-1"], "--gpus-per-plant must be >= 0, got -1.0"),
     ],
 )
 def test_bad_settings_are_one_line_errors_before_ray(tmp_path, args, message):

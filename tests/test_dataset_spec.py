@@ -7,8 +7,11 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.dataset import config_hash, expand, load_spec
-from plantdreamer.dataset.engine import RAY_MISSING, is_loopback, plant_demand, private_token
+from plantdreamer.dataset.demand import plant_demand
+from plantdreamer.dataset.engine import RAY_MISSING, is_loopback
 from plantdreamer.dataset.lock import dataset_lock
+from plantdreamer.dataset.ray_token import private_token
+from plantdreamer.dataset.ray_workers import actor_options
 from plantdreamer.errors import InputError
 from plantdreamer.pipeline import GenerateConfig
 
@@ -121,13 +124,21 @@ def test_config_hash_is_stable_and_sees_every_setting():
     assert config_hash(a) != config_hash(b)
 
 
+def test_settings_that_only_watch_a_run_leave_a_plants_hash_as_it_was():
+    """Progress pictures and TensorBoard change no output of a plant: a dataset made before
+    these settings existed (the hash below: 4de445f's of this config) keeps its plants."""
+    a = GenerateConfig.of(species="bean", seed=1)
+    watched = GenerateConfig.of(species="bean", seed=1, progress_every=5, tensorboard=True)
+    assert config_hash(a) == config_hash(watched) == "8978d80172728769"
+
+
 def test_resources_follow_guidance_and_overrides():
     sds = plant_demand(GenerateConfig.of(species="bean"), None, None, {})
     none = plant_demand(GenerateConfig.of(species="bean", guidance="none"), None, None, {})
     assert (sds.gpus, none.gpus) == (1.0, 0.0) and none.threads == 1
     custom = plant_demand(GenerateConfig.of(species="bean"), 3.5, 0.5, {"slot": 1})
     assert (custom.cpus, custom.gpus, custom.threads) == (3.5, 0.5, 3)
-    options = custom.actor_options(max_retries=2, extra_env={})
+    options = actor_options(custom, max_retries=2, extra_env={})
     assert options["resources"] == {"slot": 1} and options["max_task_retries"] == 2
     assert options["runtime_env"]["env_vars"]["RAYON_NUM_THREADS"] == "3"
     # A packed group: one plant's GPU, every plant's CPUs (its renders run in parallel).
@@ -155,10 +166,12 @@ def test_without_ray_the_command_says_what_to_install(tmp_path, monkeypatch):
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_ray)
-    result = CliRunner().invoke(main, ["dataset", "--species", "bean", "--out", str(tmp_path)])
+    args = ["dataset", "--species", "bean", "--address", "auto", "--out", str(tmp_path)]
+    result = CliRunner().invoke(main, args)
     assert result.exit_code == 1
     assert RAY_MISSING in result.output
     assert "pip install 'plantdreamer[cluster]'" in result.output
+    assert not (tmp_path / "plants").exists()
 
 
 def test_dataset_seeds_name_the_plants_generate_seeds_names(tmp_path):
@@ -246,7 +259,8 @@ def test_log_mode_numbers_each_finished_plant_and_gives_the_time_left(capsys, mo
 def test_a_local_ray_without_token_authentication_is_refused(tmp_path, monkeypatch):
     pytest.importorskip("ray")
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
-    args = ["dataset", "--species", "bean", "--guidance", "none", "--allow-empty-split"]
+    args = ["dataset", "--species", "bean", "--guidance", "none", "--allow-empty-split",
+            "--address", "local"]  # fmt: skip
     result = CliRunner().invoke(main, [*args, "--out", str(tmp_path)])
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert "error: RAY_AUTH_MODE=disabled would start the local Ray without token" in result.output

@@ -50,6 +50,7 @@ def test_make_n_demo_shows_sds_generate_on_the_committed_models(tmp_path: Path) 
     assert (ROOT / settings["--base-model"]).resolve() == models / "base"
     assert (ROOT / settings["--controlnet"]).resolve() == models / "controlnet"
     assert settings["--resolution"] == settings["--sds-resolution"] == "64"
+    assert 200 // int(settings["--progress-every"]) >= 4  # several progress pictures
 
 
 @pytest.mark.slow
@@ -73,3 +74,8 @@ def test_the_demo_command_gains_masked_psnr_and_writes_its_figures(tmp_path: Pat
         f"in {figures['seconds']:.1f} s"
     )
     assert (out / "demo.png").stat().st_size > 0 and (out / "plant.ply").is_file()
+    every = int(cmd[cmd.index("--progress-every") + 1])  # the demo's progress pictures
+    frames = sorted(p.name for p in (out / "progress").glob("step_*.png"))
+    assert frames == [f"step_{s:06d}.png" for s in range(every, STEPS + 1, every)] + (
+        [] if STEPS % every == 0 else [f"step_{STEPS:06d}.png"]
+    )

@@ -17,7 +17,7 @@ import pytest
 import plantdreamer
 from plantdreamer import settings
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
@@ -132,10 +132,15 @@ def test_make_dataset_takes_the_options_of_the_dataset_command():
 
     params = set(inspect.signature(plantdreamer.make_dataset).parameters)
     # The command's own names for what the API names plainly: --out, SPEC_FILE, --split,
-    # --resource; --set NAME=VALUE is any keyword; --dry-run prints a plan (command only).
-    renamed = {"out_dir": "out", "spec_file": "spec", "split_ratios": "split"}
+    # --resource, --scenes; --set NAME=VALUE is any keyword; --dry-run prints a plan (command
+    # only).
+    renamed = {"out_dir": "out", "spec_file": "spec", "split_ratios": "split",
+               "scene_seeds": "scenes"}  # fmt: skip
     for option in dataset.params:
         if option.name in ("settings", "dry_run", "help"):
+            continue
+        if option.name in ("count", "seed_start"):  # the command's earlier --seeds (hidden)
+            assert option.hidden and option.name not in params, option.name
             continue
         assert renamed.get(option.name, option.name) in params, option.name
 
@@ -145,6 +150,6 @@ def test_the_api_refuses_a_wrong_setting_before_any_run(tmp_path):
         plantdreamer.generate(tmp_path / "p", species="bean", pointz=10)
     with pytest.raises(InputError, match="resume continues with the settings it started with"):
         plantdreamer.generate(tmp_path / "p", resume=True, points=10)
-    with pytest.raises(InputError, match="give a spec or species"):
+    with pytest.raises(InputError, match="give a spec, species or pointcloud"):
         plantdreamer.make_dataset(tmp_path / "d", steps=2)
     assert not (tmp_path / "p").exists() and not (tmp_path / "d").exists()

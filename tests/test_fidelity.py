@@ -14,11 +14,11 @@ from plantdreamer.errors import InputError
 from plantdreamer.guidance.config import RELEASED_NEGATIVE_PROMPT
 from plantdreamer.guidance.depth import DepthCleaning, clean_depth, normalise_depth
 from plantdreamer.pipeline import GenerateConfig, resolve_config
-from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune, random_cap_mask
-from plantdreamer.pipeline.init import neighbour_spacing
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.sampler import legacy_area_uniform_elevation, mixed_elevation
+from plantdreamer.pipeline.model.culling import large_gaussian_mask
+from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune, random_cap_mask
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.init import neighbour_spacing
+from plantdreamer.pipeline.model.sampler import legacy_area_uniform_elevation, mixed_elevation
 
 # -- presets ------------------------------------------------------------------------------
 
@@ -77,8 +77,8 @@ def test_presets_resolve_to_the_documented_values():
 
 
 def test_every_preset_is_a_choice_of_the_preset_setting():
-    from plantdreamer.pipeline.config import PRESET_NAMES
-    from plantdreamer.pipeline.presets import PRESETS
+    from plantdreamer.pipeline.settings.config import PRESET_NAMES
+    from plantdreamer.pipeline.settings.presets import PRESETS
 
     assert tuple(PRESETS) == PRESET_NAMES
 
@@ -167,7 +167,7 @@ def test_rms_initial_scale_by_hand():
 
 
 def _model(n, seed=0):
-    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     rng = np.random.default_rng(seed)
     points = rng.normal(size=(n, 3)).astype(np.float32)
@@ -322,7 +322,7 @@ def test_renders_are_clamped_before_encoding():
 
 def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     from plantdreamer.guidance.lora_weights import recorded_template
-    from plantdreamer.pipeline.runtime import resolve_runtime
+    from plantdreamer.pipeline.settings.runtime import resolve_plants
 
     guidance = _guidance(prompt_template="A photo of {species} plants", species="mint")
     assert guidance.prompts_for(_inputs()[2]) == ["A photo of mint plants, front view"]
@@ -332,10 +332,10 @@ def test_prompt_template_and_a_loras_recorded_template(tmp_path):
     assert recorded_template(tmp_path) == "{species} leaves"
     assert recorded_template(tmp_path / "pytorch_lora_weights.safetensors") == "{species} leaves"
     cfg = GenerateConfig.of(species="mint", lora=str(tmp_path))
-    resolve_runtime(cfg)
+    resolve_plants([cfg])
     assert cfg.sds.prompt_template == "{species} leaves"
     cfg = GenerateConfig.of(species="mint")
-    resolve_runtime(cfg)
+    resolve_plants([cfg])
     assert cfg.sds.prompt_template == "a {species} plant in a pot"
     assert cfg.sds.network_dtype in ("float16", "float32")
 

@@ -10,19 +10,21 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.guidance.depth import DepthCleaning, kernel_size
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.resolved import steps_of
-from plantdreamer.pipeline.sampler import (
+from plantdreamer.pipeline.model.sampler import (
     area_uniform_elevation,
     legacy_area_uniform_elevation,
     mixed_elevation,
 )
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.resolved import steps_of
 
 
 def print_config(*args):
+    """The one plant's resolved settings (``--print-config`` prints a list: a plant each)."""
     result = CliRunner().invoke(main, ["generate", *args, "--print-config"])
     assert result.exit_code == 0, result.output
-    return json.loads(result.output)
+    (shown,) = json.loads(result.output)
+    return shown
 
 
 def test_released_preset_with_bean_resolves_to_the_authors_run(tmp_path):
@@ -130,9 +132,9 @@ def test_downsample_tolerance_is_the_released_band():
 def test_screen_size_prune_removes_gaussians_wider_than_the_threshold_before_densifying():
     import torch
 
-    from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
-    from plantdreamer.pipeline.init import init_gaussians
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     def model_and_stats():
         rng = np.random.default_rng(0)

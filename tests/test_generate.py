@@ -14,8 +14,9 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
+from plantdreamer.digests import file_digest
 from plantdreamer.errors import ModelNotFoundError
-from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
 from plantdreamer.pipeline.export import STEP_PHASES
 from plantdreamer.thread_policy import pinned_torch_threads
 
@@ -46,7 +47,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     plyfile = pytest.importorskip("plyfile")
     from plantdreamer.io import read_splat_ply
 
-    result = generate(small(species="bean", steps=700), tmp_path, show_progress=False)
+    result = generate_plants([small(species="bean", steps=700)], tmp_path, show_progress=False)[0]
     g = read_splat_ply(result.ply_path)
     assert len(g) == result.gaussians > 100
     props = [p.name for p in plyfile.PlyData.read(result.ply_path)["vertex"].properties]
@@ -56,7 +57,7 @@ def test_lsystem_plant_without_guidance_writes_every_output(tmp_path):
     ]
     assert (tmp_path / "turntable.gif").stat().st_size > 0
     run = json.loads((tmp_path / "run.json").read_text())
-    assert run["config"]["species"] == "bean" and run["seed"] == 0
+    assert run["config"]["species"] == "bean" and run["config"]["seed"] == 0
     # Densify/prune rounds in (300, 900) every 100 steps; culling every 100 steps after 500.
     events = [(e["step"], e["event"]) for e in run["events"]]
     assert events == [(400, "densify"), (500, "densify"), (600, "densify"), (600, "cull")]
@@ -71,7 +72,7 @@ def test_point_cloud_comes_back_in_its_original_frame(tmp_path):
     colors = rng.random((3000, 3), dtype=np.float32)
     write_ply(tmp_path / "in.ply", PointCloud(pts.astype(np.float32), colors=colors))
     cfg = small(pointcloud=str(tmp_path / "in.ply"), points=5000, sor_std=100.0)
-    result = generate(cfg, tmp_path / "out", show_progress=False)
+    result = generate_plants([cfg], tmp_path / "out", show_progress=False)[0]
     g = read_splat_ply(result.ply_path)
     np.testing.assert_allclose(g.means.min(0), pts.min(0), atol=1e-4)
     np.testing.assert_allclose(g.means.max(0), pts.max(0), atol=1e-4)
@@ -102,7 +103,7 @@ def run_stopped_by(sig, at_step: int, cfg: dict, out, guidance) -> int:
             os.kill(os.getpid(), sig)
 
     with pytest.raises(RunInterrupted) as stop:
-        generate(small(**cfg), out, guidance=guidance, show_progress=False, on_step=send)
+        generate_plants([small(**cfg)], out, guidance=guidance, show_progress=False, on_step=send)
     return stop.value.step
 
 
@@ -113,12 +114,12 @@ def test_sigterm_writes_a_checkpoint_and_stops_like_ctrl_c(tmp_path):
     stopped_at = run_stopped_by(signal.SIGTERM, 2, cfg, tmp_path / "cut", photometric_guidance())
     assert stopped_at == 3
     assert signal.getsignal(signal.SIGTERM) is previous  # the handler is put back
-    resumed = generate(
+    resumed = generate_plants(
         None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
-    )
-    full = generate(
-        small(**cfg), tmp_path / "full", guidance=photometric_guidance(), show_progress=False
-    )
+    )[0]
+    full = generate_plants(
+        [small(**cfg)], tmp_path / "full", guidance=photometric_guidance(), show_progress=False
+    )[0]
     assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
 
 
@@ -129,15 +130,15 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     run's torch-threads, not the cores, sets torch's sums (SDS's networks round by it)."""
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
     with cores(2):
-        full = generate(small(**cfg), tmp_path / "full", guidance=make_guidance(),
-                        show_progress=False)  # fmt: skip
+        full = generate_plants([small(**cfg)], tmp_path / "full", guidance=make_guidance(),
+                        show_progress=False)[0]  # fmt: skip
     with cores(1):
         assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", make_guidance()) == 8
     assert not (tmp_path / "cut" / "plant.ply").exists()
     with cores(2):
-        resumed = generate(
+        resumed = generate_plants(
             None, tmp_path / "cut", guidance=make_guidance(), resume=True, show_progress=False
-        )
+        )[0]
     assert full.ply_path.read_bytes() == resumed.ply_path.read_bytes()
     # The progress pictures of each checkpoint (5, 10, 12) and the loss plot: the same bytes.
     for name in (
@@ -158,9 +159,9 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
             png.read_bytes() == (tmp_path / "cut" / png.relative_to(tmp_path / "full")).read_bytes()
         )
     with cores(1):
-        again = generate(
-            small(**cfg), tmp_path / "again", guidance=make_guidance(), show_progress=False
-        )
+        again = generate_plants(
+            [small(**cfg)], tmp_path / "again", guidance=make_guidance(), show_progress=False
+        )[0]
     assert again.ply_path.read_bytes() == full.ply_path.read_bytes()
     for png in sorted((tmp_path / "full").glob("[lid]*/view_*.png")):  # labels, instances, depth
         assert (
@@ -170,7 +171,9 @@ def test_optimisation_is_deterministic_and_resume_is_bit_identical(tmp_path, mak
     # And the optimisation really changed the model.
     from plantdreamer.io import read_splat_ply
 
-    untrained = generate(small(species="mint", seed=3), tmp_path / "untrained", show_progress=False)
+    untrained = generate_plants(
+        [small(species="mint", seed=3)], tmp_path / "untrained", show_progress=False
+    )[0]
     assert not np.array_equal(
         read_splat_ply(untrained.ply_path).sh, read_splat_ply(full.ply_path).sh
     )
@@ -181,7 +184,7 @@ CUT_ON_ONE_CORE = """
 import json, os, signal, sys
 import torch
 from plantdreamer.guidance import StableDiffusionDepthGuidance, tiny_models
-from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
 
 settings, sds, out = json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]
 guidance = StableDiffusionDepthGuidance(components=tiny_models(), **sds)
@@ -193,8 +196,8 @@ def stop_after(step):
 
 
 try:
-    generate(GenerateConfig.of(**settings), out, guidance=guidance, show_progress=False,
-             on_step=stop_after)
+    generate_plants([GenerateConfig.of(**settings)], out, guidance=guidance, show_progress=False,
+                    on_step=stop_after)
 except RunInterrupted as stop:
     print(torch.get_num_threads(), stop.step)
 """
@@ -215,36 +218,65 @@ def test_sds_stopped_under_taskset_one_core_resumes_on_two_to_the_unbroken_run(t
     )  # fmt: skip
     assert cut.stdout.split() == ["1", "3"], cut.stderr  # torch saw one core; stopped at 3
     with cores(2):
-        resumed = generate(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
-                           show_progress=False)  # fmt: skip
-        full = generate(GenerateConfig.of(**cfg), tmp_path / "full",
-                        guidance=tiny_sds_guidance(), show_progress=False)  # fmt: skip
+        resumed = generate_plants(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
+                           show_progress=False)[0]  # fmt: skip
+        full = generate_plants([GenerateConfig.of(**cfg)], tmp_path / "full",
+                        guidance=tiny_sds_guidance(), show_progress=False)[0]  # fmt: skip
     assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
 
 
 @pytest.mark.parametrize("saved_on", ["recorded", "older checkpoint"])
 def test_noise_drawn_on_cuda_does_not_resume_on_the_cpu(tmp_path, saved_on):
-    """A checkpoint whose SDS noise came from a CUDA generator, resumed where the guidance
-    draws on the CPU, stops with one line naming both devices, not torch's state error.
-    Checkpoints from before the device was recorded are told by the state's size."""
+    """A run whose SDS noise came from a CUDA generator, resumed where the guidance draws on
+    the CPU, stops with one line naming both devices, not torch's state error. Format-4
+    checkpoints (the noise in the plant's checkpoint) from before the device was recorded
+    are told by the state's size."""
     import torch
 
     from plantdreamer.errors import CheckpointError
 
     cfg = dict(species="mint", steps=6, checkpoint_every=100, seed=3)
     assert run_stopped_by(signal.SIGINT, 2, cfg, tmp_path / "cut", tiny_sds_guidance()) == 3
-    path = tmp_path / "cut" / "checkpoint.pt"
-    state = torch.load(path, weights_only=True)
-    assert state["guidance_device"] == "cpu"
-    state["guidance"] = torch.zeros(16, dtype=torch.uint8)  # a Philox (CUDA) state's size
+    noise_file = tmp_path / "cut" / "noise.pt"
+    saved = torch.load(noise_file, weights_only=True)
+    noise = saved["trainers"][0]["steps"]["3"]
+    assert noise["guidance_device"] == "cpu"
+    cuda_state = torch.zeros(16, dtype=torch.uint8)  # a Philox (CUDA) state's size
     if saved_on == "recorded":
-        state["guidance_device"] = "cuda"
+        saved["trainers"][0]["steps"]["3"] = {"guidance": cuda_state, "guidance_device": "cuda"}
+        torch.save(saved, noise_file)
     else:
-        del state["guidance_device"]
-    torch.save(state, path)
+        path = tmp_path / "cut" / "checkpoint.pt"
+        torch.save(_as_format_4(torch.load(path, weights_only=True), {"guidance": cuda_state}),
+                   path)  # fmt: skip
+        noise_file.unlink()
     with pytest.raises(CheckpointError, match=r"drawn on cuda.*draws on cpu.*--device"):
-        generate(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
-                 show_progress=False)  # fmt: skip
+        generate_plants(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
+                        show_progress=False)  # fmt: skip
+
+
+def test_a_format_4_checkpoint_resumes_with_the_noise_it_carries(tmp_path):
+    """Checkpoints written before the group's noise was saved apart (format 4: a copy in
+    every plant's checkpoint) resume to the unbroken run's plant."""
+    import torch
+
+    cfg = dict(species="mint", steps=6, checkpoint_every=100, seed=3, turntable="none")
+    full = generate_plants([small(**cfg)], tmp_path / "full", guidance=tiny_sds_guidance(),
+                           show_progress=False)[0]  # fmt: skip
+    assert run_stopped_by(signal.SIGINT, 2, cfg, tmp_path / "cut", tiny_sds_guidance()) == 3
+    noise_file = tmp_path / "cut" / "noise.pt"
+    noise = torch.load(noise_file, weights_only=True)["trainers"][0]["steps"]["3"]
+    path = tmp_path / "cut" / "checkpoint.pt"
+    torch.save(_as_format_4(torch.load(path, weights_only=True), noise), path)
+    noise_file.unlink()
+    resumed = generate_plants(None, tmp_path / "cut", guidance=tiny_sds_guidance(), resume=True,
+                              show_progress=False)[0]  # fmt: skip
+    assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
+
+
+def _as_format_4(state, noise):
+    """A checkpoint as format 4 wrote it: the guidance's noise state in it."""
+    return {**state, "format": 4, **noise}
 
 
 def _as_format_3(state):
@@ -260,7 +292,9 @@ def _as_format_3(state):
     source = config.pop("source")
     source["n_points"] = source.pop("points")
     flat.update(lr=train.pop("lr"), cameras=train.pop("cameras"), **train, **density)
-    for section in (sds, source, config.pop("init"), config.pop("outputs")):
+    outputs = config.pop("outputs")
+    del outputs["views"]  # no rigs, scenes or looks then
+    for section in (sds, source, config.pop("init"), outputs):
         flat.update(section)
     assert not config
     old = {k: v for k, v in state.items() if k != "density"}
@@ -279,17 +313,17 @@ def test_an_earlier_checkpoint_resumes_to_the_same_plant(tmp_path, old_form):
     import torch
 
     cfg = dict(species="mint", steps=12, checkpoint_every=5, seed=3)
-    full = generate(
-        small(**cfg), tmp_path / "full", guidance=photometric_guidance(), show_progress=False
-    )
+    full = generate_plants(
+        [small(**cfg)], tmp_path / "full", guidance=photometric_guidance(), show_progress=False
+    )[0]
     assert run_stopped_by(signal.SIGINT, 7, cfg, tmp_path / "cut", photometric_guidance()) == 8
     path = tmp_path / "cut" / "checkpoint.pt"
     state = torch.load(path, weights_only=True)
     assert state["config"]["checkpoint-every"] == 5  # saved by name
     torch.save(old_form(state), path)
-    resumed = generate(
+    resumed = generate_plants(
         None, tmp_path / "cut", guidance=photometric_guidance(), resume=True, show_progress=False
-    )
+    )[0]
     assert resumed.ply_path.read_bytes() == full.ply_path.read_bytes()
 
 
@@ -321,8 +355,8 @@ def test_cli_unwritable_output(tmp_path):
 
 def test_missing_weights_name_what_to_download(tmp_path):
     with pytest.raises(ModelNotFoundError) as err:
-        generate(
-            small(guidance="sds", species="bean", base_model=str(tmp_path / "no-model")),
+        generate_plants(
+            [small(guidance="sds", species="bean", base_model=str(tmp_path / "no-model"))],
             tmp_path / "o",
             show_progress=False,
         )
@@ -337,8 +371,8 @@ def test_ablate_scores_each_colour_init(tmp_path):
 
     from plantdreamer.cameras import orbit_ring
     from plantdreamer.io import write_ply
-    from plantdreamer.pipeline.init import init_gaussians
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     rng = np.random.default_rng(1)
     pts = (rng.normal(size=(2000, 3)) * [0.3, 0.3, 1.0]).astype(np.float32)
@@ -405,6 +439,13 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
     assert all(np.isfinite(losses)) and any(v > 0 for v in losses)
     run = json.loads((out / "run.json").read_text())
     assert set(STEP_PHASES) <= set(run["per_step_s"])
+    # What the run read of its models, recorded as it finished: names, never paths.
+    models = {m["role"]: m for m in run["models"]}
+    unet = base / "unet" / "diffusion_pytorch_model.safetensors"
+    files = {f["path"]: f["sha256"] for f in models["base model"]["files"]}
+    assert files["unet/diffusion_pytorch_model.safetensors"] == file_digest(unet)
+    assert models["depth ControlNet"]["name"] == controlnet.name
+    assert str(tmp_path) not in json.dumps(run["models"])
     # The run ends saying what it wrote, how long it took and what to type next.
     assert f"wrote {out / 'plant.ply'} (" in result.output
     assert "progress.png, loss.png" in result.output and "done in " in result.output
@@ -413,7 +454,7 @@ def test_cli_sds_with_tiny_models_from_local_folders(tmp_path):
 
 
 def test_render_command_orbit_and_transforms(tmp_path):
-    result = generate(small(species="kale"), tmp_path / "g", show_progress=False)
+    result = generate_plants([small(species="kale")], tmp_path / "g", show_progress=False)[0]
     runner = CliRunner()
     orbit = runner.invoke(
         main, ["render", str(result.ply_path), "--out", str(tmp_path / "r"), "--eval-views", "3",

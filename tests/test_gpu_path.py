@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.errors import InputError, PlantDreamerError
-from plantdreamer.pipeline import GenerateConfig, StepOptions, generate
+from plantdreamer.pipeline import GenerateConfig, StepOptions, generate_plants
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,11 +68,13 @@ def test_full_size_controlnet_is_the_unets_encoder():
 
 
 def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
-    ahead = generate(small_sds(), tmp_path / "ahead", guidance=tiny_sds(), show_progress=False)
-    inline = generate(
-        small_sds(), tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
+    ahead = generate_plants(
+        [small_sds()], tmp_path / "ahead", guidance=tiny_sds(), show_progress=False
+    )[0]
+    inline = generate_plants(
+        [small_sds()], tmp_path / "inline", guidance=tiny_sds(), show_progress=False,
         options=StepOptions(depth_ahead=False),
-    )  # fmt: skip
+    )[0]  # fmt: skip
     assert ahead.ply_path.read_bytes() == inline.ply_path.read_bytes()
     # The run trained (the loss log has every step) and the depth phase was timed.
     run = json.loads((tmp_path / "ahead" / "run.json").read_text())
@@ -81,8 +83,8 @@ def test_depth_ahead_gives_the_same_plant_as_depth_in_line(tmp_path):
 
 
 def test_sampler_peek_does_not_draw():
-    from plantdreamer.pipeline.sampler import CameraSampler
-    from plantdreamer.pipeline.train_config import CameraRanges
+    from plantdreamer.pipeline.model.sampler import CameraSampler
+    from plantdreamer.pipeline.settings.train_config import CameraRanges
 
     a, b = CameraSampler(CameraRanges(), 32, 5), CameraSampler(CameraRanges(), 32, 5)
     peeked = a.peek()
@@ -174,7 +176,7 @@ class _PoisonedGuidance:
 def test_non_finite_gradients_on_the_gaussians_stop_the_run(tmp_path):
     cfg = small_sds(guidance="none", steps=3)
     with pytest.raises(PlantDreamerError, match="non-finite gradient on the Gaussians"):
-        generate(cfg, tmp_path / "o", guidance=_PoisonedGuidance(), show_progress=False)
+        generate_plants([cfg], tmp_path / "o", guidance=_PoisonedGuidance(), show_progress=False)
     assert not (tmp_path / "o" / "plant.ply").exists()
 
 
@@ -280,7 +282,8 @@ def test_half_precision_networks_give_finite_render_gradients(dtype):
 def test_vae_dtype_setting_reaches_the_guidance(monkeypatch, name):
     from plantdreamer.guidance import sds
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.runtime import build_guidance
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import build_guidance, resolve_plants
 
     # The guidance resolves the name to that dtype, and the VAE runs in it.
     guidance = _large_posterior_guidance(torch.float32, name)
@@ -289,7 +292,9 @@ def test_vae_dtype_setting_reaches_the_guidance(monkeypatch, name):
     # The config's setting is what generate builds its guidance with.
     seen = {}
     monkeypatch.setattr(sds, "StableDiffusionDepthGuidance", lambda **kw: seen.update(kw))
-    build_guidance(GenerateConfig.of(guidance="sds", vae_dtype=name))
+    cfg = GenerateConfig.of(guidance="sds", vae_dtype=name)
+    resolve_plants([cfg])
+    build_guidance(GroupSettings.of([cfg]))
     assert seen["vae_dtype"] == name
 
 
@@ -379,8 +384,8 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
     """Each half's launch (copies, networks, backward, copies back) queues its work and
     returns: under CUDA's sync debug mode "error" any host sync in it raises. The first
     launches capture the graphs and the view prompts are encoded beforehand (one-off syncs)."""
+    from plant_runs import failed, group
     from plantdreamer.guidance.prompts import VIEWS, base_prompt
-    from plantdreamer.pipeline.group import generate_group
     from plantdreamer.pipeline.step import schedule
 
     guidance = tiny_sds(device="cuda")
@@ -402,8 +407,8 @@ def test_an_overlapped_launch_never_waits_for_the_device(tmp_path, monkeypatch):
 
     monkeypatch.setattr(schedule, "launch_guidance", strict_launch)
     cfgs = [small_sds(seed=s, steps=4, overlap="on", device="cuda") for s in range(4)]
-    result = generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
-    assert not result.failed and len(launches) == 8
+    result = group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False)
+    assert not failed(result) and len(launches) == 8
 
 
 @pytest.mark.slow

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from plant_runs import done, failed, group
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
-from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate
-from plantdreamer.pipeline.group import generate_group, parse_seeds
+from plantdreamer.pipeline import GenerateConfig, RunInterrupted, generate_plants
+from plantdreamer.pipeline.settings.group_settings import parse_group_seeds as parse_seeds
 
 SMALL = dict(points=1500, resolution=48, eval_views=2, turntable_frames=2)
 
@@ -56,7 +57,7 @@ def test_a_group_of_three_writes_three_complete_plant_folders(tmp_path):
     for name in names:
         folder = out / name
         run = json.loads((folder / "run.json").read_text())
-        assert run["seed"] == int(name[-4:]) and run["labels"]["exported"]
+        assert run["config"]["seed"] == int(name[-4:]) and run["labels"]["exported"]
         for entry in ("plant.ply", "transforms.json", "turntable.gif"):
             assert (folder / entry).is_file(), (name, entry)
         for views in ("renders", "labels", "instances", "depth"):
@@ -80,30 +81,30 @@ def _stop_at(step_to_stop):
 def test_a_group_is_byte_identical_run_to_run_and_after_ctrl_c_and_resume(tmp_path):
     cfgs = [GenerateConfig.of(species="mint", seed=s, steps=6, checkpoint_every=4, **SMALL)
             for s in (0, 1, 2)]  # fmt: skip
-    first = generate_group(cfgs, tmp_path / "a", guidance=tiny_sds(), show_progress=False)
-    generate_group(cfgs, tmp_path / "b", guidance=tiny_sds(), show_progress=False)
-    assert sorted(first.done) == ["mint-s0000", "mint-s0001", "mint-s0002"] and not first.failed
+    first = group(cfgs, tmp_path / "a", guidance=tiny_sds(), show_progress=False)
+    group(cfgs, tmp_path / "b", guidance=tiny_sds(), show_progress=False)
+    assert sorted(done(first)) == ["mint-s0000", "mint-s0001", "mint-s0002"] and not failed(first)
     with pytest.raises(RunInterrupted) as stop:
-        generate_group(cfgs, tmp_path / "c", guidance=tiny_sds(), show_progress=False,
+        group(cfgs, tmp_path / "c", guidance=tiny_sds(), show_progress=False,
                        on_step=_stop_at(2))  # fmt: skip
     assert stop.value.step == 3
     assert not list((tmp_path / "c").glob("*/plant.ply"))
-    resumed = generate_group(None, tmp_path / "c", guidance=tiny_sds(), resume=True,
+    resumed = group(None, tmp_path / "c", guidance=tiny_sds(), resume=True,
                              show_progress=False)  # fmt: skip
-    assert sorted(resumed.done) == sorted(first.done)
-    for name in first.done:
+    assert sorted(done(resumed)) == sorted(done(first))
+    for name in done(first):
         a = outputs_of(tmp_path / "a" / name)
         assert a == outputs_of(tmp_path / "b" / name), name
         assert a == outputs_of(tmp_path / "c" / name), name
-    plys = {(tmp_path / "a" / n / "plant.ply").read_bytes() for n in first.done}
+    plys = {(tmp_path / "a" / n / "plant.ply").read_bytes() for n in done(first)}
     assert len(plys) == 3
 
 
 def test_a_group_of_one_is_the_plant_made_alone(tmp_path):
     cfg = GenerateConfig.of(species="mint", seed=4, steps=3, **SMALL)
-    alone = generate(cfg, tmp_path / "alone", guidance=tiny_sds(4), show_progress=False)
-    group = generate_group([cfg], tmp_path / "g", guidance=tiny_sds(4), show_progress=False)
-    assert group.done["mint-s0004"].ply_path.read_bytes() == alone.ply_path.read_bytes()
+    alone = generate_plants([cfg], tmp_path / "alone", guidance=tiny_sds(4), show_progress=False)[0]
+    together = group([cfg], tmp_path / "g", guidance=tiny_sds(4), show_progress=False)
+    assert done(together)["mint-s0004"].ply_path.read_bytes() == alone.ply_path.read_bytes()
 
 
 def test_a_bad_point_cloud_fails_alone(tmp_path):
@@ -118,9 +119,9 @@ def test_a_bad_point_cloud_fails_alone(tmp_path):
     (tmp_path / "b.ply").write_bytes(b"ply\nformat nonsense\n")
     cfgs = [GenerateConfig.of(species="mint", pointcloud=str(tmp_path / f"{n}.ply"), steps=2,
                               guidance="none", **SMALL) for n in "abc"]  # fmt: skip
-    result = generate_group(cfgs, tmp_path / "g", show_progress=False)
-    assert sorted(result.done) == ["a-s0000", "c-s0000"]
-    assert list(result.failed) == ["b-s0000"] and "PlyError" in result.failed["b-s0000"]
+    result = group(cfgs, tmp_path / "g", show_progress=False)
+    assert sorted(done(result)) == ["a-s0000", "c-s0000"]
+    assert list(failed(result)) == ["b-s0000"] and "PlyError" in failed(result)["b-s0000"]
     status = {
         p["name"]: p["status"]
         for p in json.loads((tmp_path / "g" / "group.json").read_text())["plants"]
@@ -137,7 +138,7 @@ def test_plants_of_a_group_must_share_their_settings(tmp_path):
         GenerateConfig.of(species="mint", seed=1, steps=5),
     ]
     with pytest.raises(InputError, match="these differ: steps"):
-        generate_group(cfgs, tmp_path / "g", show_progress=False)
+        group(cfgs, tmp_path / "g", show_progress=False)
 
 
 def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
@@ -148,11 +149,12 @@ def test_a_plant_whose_training_goes_non_finite_fails_alone(tmp_path):
     targets = torch.full((3, 48, 48, 3), 0.5)
     targets[1] = float("nan")  # the second plant's loss and gradients become NaN
     cfgs = [GenerateConfig.of(species="mint", seed=s, steps=1, **SMALL) for s in (0, 1, 2)]
-    result = generate_group(cfgs, tmp_path / "g", guidance=PhotometricGuidance(targets),
+    result = group(cfgs, tmp_path / "g", guidance=PhotometricGuidance(targets),
                             show_progress=False)  # fmt: skip
-    assert sorted(result.done) == ["mint-s0000", "mint-s0002"]
+    assert sorted(done(result)) == ["mint-s0000", "mint-s0002"]
     assert (
-        "non-finite" in result.failed["mint-s0001"] or "loss became" in result.failed["mint-s0001"]
+        "non-finite" in failed(result)["mint-s0001"]
+        or "loss became" in failed(result)["mint-s0001"]
     )
     assert not (tmp_path / "g" / "mint-s0001" / "plant.ply").exists()
     assert (tmp_path / "g" / "mint-s0002" / "plant.ply").is_file()
@@ -174,7 +176,7 @@ def test_a_plant_failed_before_ctrl_c_is_tried_again_on_resume(tmp_path):
             for s in (0, 1, 2)]  # fmt: skip
     guidance = SecondOfThreeFails(torch.zeros(1, 48, 48, 3))
     with pytest.raises(RunInterrupted):
-        generate_group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False,
+        group(cfgs, tmp_path / "g", guidance=guidance, show_progress=False,
                        on_step=_stop_at(2))  # fmt: skip
     record = json.loads((tmp_path / "g" / "group.json").read_text())["plants"]
     status = {p["name"]: p["status"] for p in record}
@@ -183,10 +185,10 @@ def test_a_plant_failed_before_ctrl_c_is_tried_again_on_resume(tmp_path):
     assert status["mint-s0000"] == status["mint-s0002"] == "interrupted at step 3"
     # The resume tries it again (alone, from step 0: it failed before any checkpoint, and
     # the guidance fails only the second of three).
-    resumed = generate_group(None, tmp_path / "g", guidance=guidance, resume=True,
+    resumed = group(None, tmp_path / "g", guidance=guidance, resume=True,
                              show_progress=False)  # fmt: skip
-    assert resumed.retried == ["mint-s0001"] and not resumed.failed
-    assert sorted(resumed.done) == ["mint-s0000", "mint-s0001", "mint-s0002"]
+    assert [r.name for r in resumed if r.retried] == ["mint-s0001"] and not failed(resumed)
+    assert sorted(done(resumed)) == ["mint-s0000", "mint-s0001", "mint-s0002"]
     assert (tmp_path / "g" / "mint-s0001" / "plant.ply").is_file()
 
 
@@ -260,9 +262,9 @@ def _interrupted(out, seeds=None):
                               seed=s) for s in (seeds or [5])]  # fmt: skip
     with pytest.raises(RunInterrupted):
         if seeds is None:
-            generate(cfgs[0], out, show_progress=False, on_step=_stop_at(1))
+            generate_plants([cfgs[0]], out, show_progress=False, on_step=_stop_at(1))
         else:
-            generate_group(cfgs, out, show_progress=False, on_step=_stop_at(1))
+            group(cfgs, out, show_progress=False, on_step=_stop_at(1))
 
 
 def test_a_resume_says_where_it_resumes_for_a_plant_and_a_group(tmp_path):
@@ -325,16 +327,16 @@ def test_a_group_record_never_leads_a_resume_out_of_its_folder(tmp_path, hostile
 def test_resume_tries_every_failed_plant_again_and_says_how_many(tmp_path, monkeypatch):
     """A plant failed on a full disk (recorded as the trainer reports it: its message): after
     space is freed, `generate --resume` finishes it, as a dataset rerun would."""
-    from plantdreamer.pipeline import run
+    from plantdreamer.pipeline.runs import sequence
 
-    export = run.export_run
+    export = sequence.export_run
 
     def disk_full_for_the_second(cfg, state, folder, *args):
         if folder.name == "bean-s0001":
             raise OSError(28, "No space left on device")
         return export(cfg, state, folder, *args)
 
-    monkeypatch.setattr(run, "export_run", disk_full_for_the_second)
+    monkeypatch.setattr(sequence, "export_run", disk_full_for_the_second)
     out = tmp_path / "g"
     args = ["generate", "--species", "bean", "--seeds", "0,1", "--guidance", "none", "--steps",
             "1", "--points", "300", "--resolution", "16", "--eval-views", "1", "--turntable",
@@ -345,7 +347,7 @@ def test_resume_tries_every_failed_plant_again_and_says_how_many(tmp_path, monke
     for entry in record["plants"]:  # as a failure in training is recorded: its message only
         entry.pop("retry", None)
     (out / "group.json").write_text(json.dumps(record))
-    monkeypatch.setattr(run, "export_run", export)
+    monkeypatch.setattr(sequence, "export_run", export)
     again = CliRunner().invoke(main, ["generate", "--resume", str(out)])
     assert again.exit_code == 0, again.output
     assert "retrying 1 plants that failed before: bean-s0001" in again.output
@@ -379,9 +381,9 @@ def test_each_plant_records_its_share_of_the_groups_phases(tmp_path, monkeypatch
     monkeypatch.setattr(schedule, "perf_counter", lambda: float(next(ticks)))
     cfgs = [GenerateConfig.of(species="mint", seed=s, steps=2, overlap="on", **SMALL)
             for s in (0, 1, 2)]  # fmt: skip
-    result = generate_group(cfgs, tmp_path / "g", guidance=tiny_sds(), show_progress=False)
+    result = group(cfgs, tmp_path / "g", guidance=tiny_sds(), show_progress=False)
     names = ["mint-s0000", "mint-s0001", "mint-s0002"]
     for name, share in zip(names, [1.0, 1.0, 2.0], strict=True):
-        timings = result.done[name].timings
+        timings = done(result)[name].timings
         for phase in STEP_PHASES:
             assert timings[phase] == pytest.approx(share), (name, phase)

@@ -16,8 +16,8 @@ import textwrap
 
 import pytest
 
+from plant_runs import done, failed, group, resumed_from
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-from plantdreamer.pipeline.group import generate_group
 
 SETTINGS = dict(species="mint", steps=6, checkpoint_every=2, points=1500, resolution=48,
                 eval_views=2, turntable_frames=2)  # fmt: skip
@@ -50,14 +50,14 @@ def outputs_of(folder):
 def straight(tmp_path_factory):
     """The group run never stopped."""
     out = tmp_path_factory.mktemp("straight") / "g"
-    result = generate_group(configs(), out, guidance=tiny_sds(), show_progress=False)
-    assert sorted(result.done) == NAMES
+    result = group(configs(), out, guidance=tiny_sds(), show_progress=False)
+    assert sorted(done(result)) == NAMES
     return out
 
 
 def assert_resumes_to_straight(out, straight):
-    result = generate_group(None, out, guidance=tiny_sds(), resume=True, show_progress=False)
-    assert sorted(result.done) == NAMES and not result.failed, result.failed
+    result = group(None, out, guidance=tiny_sds(), resume=True, show_progress=False)
+    assert sorted(done(result)) == NAMES and not failed(result), failed(result)
     statuses = [p["status"] for p in json.loads((out / "group.json").read_text())["plants"]]
     assert statuses == ["done"] * 3
     for name in NAMES:
@@ -77,11 +77,12 @@ def killed_in_a_subprocess(out, hook: str) -> None:
     script = "\n".join([
         "import os, signal, torch",
         f"torch.set_num_threads({torch.get_num_threads()})",
-        "from plantdreamer.pipeline import run, checkpoint",
-        "from plantdreamer.pipeline.group import generate_group",
+        "from plantdreamer.pipeline.state import checkpoint",
+        "from plantdreamer.pipeline.runs import sequence as run",
+        "from plant_runs import group",
         "from test_group_resume import configs, tiny_sds",
         hook,
-        f"generate_group(configs(), {str(out)!r}, guidance=tiny_sds(), show_progress=False,"
+        f"group(configs(), {str(out)!r}, guidance=tiny_sds(), show_progress=False,"
         "               on_step=globals().get('on_step'))",
     ])  # fmt: skip
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.path.dirname(__file__), *sys.path])}
@@ -117,13 +118,13 @@ def test_plants_killed_between_two_checkpoint_writes_resume_from_their_common_st
             write(self, record)
         checkpoint.PlantCheckpoints.write = second_plant_dies
         """))  # fmt: skip
-    from plantdreamer.pipeline.checkpoint import PlantCheckpoints
+    from plantdreamer.pipeline.state.checkpoint import PlantCheckpoints
 
     # The first plant holds step 4 (and its step 2 kept), the others step 2 only.
     assert sorted(PlantCheckpoints(out / NAMES[0]).starts()) == [2, 4]
     assert sorted(PlantCheckpoints(out / NAMES[1]).starts()) == [2]
     result = assert_resumes_to_straight(out, straight)
-    assert result.resumed_from == dict.fromkeys(NAMES, 2)
+    assert resumed_from(result) == dict.fromkeys(NAMES, 2)
 
 
 @pytest.mark.slow
@@ -141,14 +142,14 @@ def test_a_plant_finished_before_a_kill_in_the_export_is_found_finished(tmp_path
     finished = (out / NAMES[0] / "plant.ply").stat().st_mtime_ns
     result = assert_resumes_to_straight(out, straight)
     assert (out / NAMES[0] / "plant.ply").stat().st_mtime_ns == finished  # not made again
-    assert result.resumed_from == {NAMES[1]: 6, NAMES[2]: 6}  # the export only
+    assert resumed_from(result) == {NAMES[1]: 6, NAMES[2]: 6}  # the export only
 
 
 @pytest.mark.slow
 def test_sigterm_during_the_export_stops_between_plants_and_resumes(
     tmp_path, straight, monkeypatch
 ):
-    from plantdreamer.pipeline import run
+    from plantdreamer.pipeline.runs import sequence as run
 
     export = run.export_run
 
@@ -160,7 +161,7 @@ def test_sigterm_during_the_export_stops_between_plants_and_resumes(
     monkeypatch.setattr(run, "export_run", sigterm_after_the_first)
     out = tmp_path / "g"
     with pytest.raises(RunInterrupted) as stop:
-        generate_group(configs(), out, guidance=tiny_sds(), show_progress=False)
+        group(configs(), out, guidance=tiny_sds(), show_progress=False)
     assert stop.value.step == 6
     record = json.loads((out / "group.json").read_text())["plants"]
     assert [p["status"] for p in record] == ["done", *["interrupted at step 6"] * 2]
@@ -170,7 +171,7 @@ def test_sigterm_during_the_export_stops_between_plants_and_resumes(
 
 @pytest.mark.slow
 def test_a_plant_failed_on_a_full_disk_is_tried_again_on_resume(tmp_path, straight, monkeypatch):
-    from plantdreamer.pipeline import run
+    from plantdreamer.pipeline.runs import sequence as run
 
     export = run.export_run
 
@@ -181,8 +182,8 @@ def test_a_plant_failed_on_a_full_disk_is_tried_again_on_resume(tmp_path, straig
 
     monkeypatch.setattr(run, "export_run", disk_full_for_the_second)
     out = tmp_path / "g"
-    first = generate_group(configs(), out, guidance=tiny_sds(), show_progress=False)
-    assert sorted(first.done) == [NAMES[0], NAMES[2]]
-    assert "No space left" in first.failed[NAMES[1]]
+    first = group(configs(), out, guidance=tiny_sds(), show_progress=False)
+    assert sorted(done(first)) == [NAMES[0], NAMES[2]]
+    assert "No space left" in failed(first)[NAMES[1]]
     monkeypatch.setattr(run, "export_run", export)
     assert_resumes_to_straight(out, straight)

@@ -134,6 +134,19 @@ def test_a_stage_outside_its_range_is_refused(growth):
 
 def test_the_settings_full_stage_is_the_lsystems():
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.source import FULL_GROWN as SETTINGS_FULL_GROWN
+    from plantdreamer.pipeline.model.source import FULL_GROWN as SETTINGS_FULL_GROWN
 
     assert SETTINGS_FULL_GROWN == FULL_GROWN == GenerateConfig().source.growth
+
+
+def test_plants_made_before_traits_keep_their_config_hash():
+    """A dataset's plant at the full stage, with its leaves' occlusion, hashes as at
+    d0ac9b2 (its manifest still matches: no rerun); another stage is another plant."""
+    from plantdreamer.dataset.plant import config_hash
+    from plantdreamer.pipeline import GenerateConfig
+
+    settings = dict(species="bean", steps=20, points=2000)
+    # The hash d0ac9b2's config_hash gave this config (no growth or traits settings then).
+    assert config_hash(GenerateConfig.of(**settings)) == "fe63f5aaa6d5247a"
+    for other in ({"growth": 0.5}, {"leaf_occlusion": False}):
+        assert config_hash(GenerateConfig.of(**settings, **other)) != "fe63f5aaa6d5247a"

@@ -93,10 +93,10 @@ def test_a_plant_trained_in_a_group_meets_the_known_answer(plant: Plant) -> None
 
 @pytest.mark.slow
 def test_the_group_check_fails_when_the_renders_are_mixed_up(plant: Plant, monkeypatch) -> None:
-    import plantdreamer.pipeline.group as group
+    import plantdreamer.pipeline.runs.entry as entry
 
-    build = group.build_guidance
-    monkeypatch.setattr(group, "build_guidance", lambda cfg, **kw: _MixedUp(build(cfg, **kw)))
+    build = entry.build_guidance
+    monkeypatch.setattr(entry, "build_guidance", lambda group, **kw: _MixedUp(build(group, **kw)))
     _, last = _in_group(plant, "mixed_up")
     print(f"mixed up: {last:.2f} dB; alone {plant.alone_db:.2f}")
     assert abs(last - plant.alone_db) > GROUP_TOLERANCE_DB

@@ -3,13 +3,20 @@ format, Open3D (when installed) or plyfile for points.ply, nerfstudio's transfor
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 
 import numpy as np
 import pytest
 
 from plantdreamer.errors import InputError
-from plantdreamer.exports import split_plants, view_objects, write_plant_exports
+from plantdreamer.exports import (
+    split_plants,
+    view_objects,
+    write_dataset_exports,
+    write_plant_exports,
+)
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA
 from plantdreamer.exports.pieces import label_pieces
 from plantdreamer.exports.points import read_class_names
@@ -21,6 +28,8 @@ from plantdreamer.exports.splits import (
     species_gaps,
 )
 from plantdreamer.exports.yolo import label_lines, link_image, mask_polygons, object_polygon
+from plantdreamer.guidance.model_files import model_files_record
+from test_card_records import ALL_TRAIN, HOSTILE, SD, dataset_of, local_models
 
 pycocotools = pytest.importorskip("pycocotools")
 
@@ -461,51 +470,120 @@ def test_transforms_json_follows_nerfstudio_and_names_the_point_cloud(bean):
         assert (bean / frame["file_path"]).is_file()
 
 
-def test_a_dataset_card_names_the_models_their_hashes_and_the_weights_licence(
+# --- the dataset's card (its helpers and the model records: test_card_records.py) -------
+
+
+def test_the_card_reads_what_each_plant_recorded_and_the_hub_reads_the_card(
     bean, tmp_path, monkeypatch
 ):
-    """Two plants, one recorded as made with SDS from local weights and a LoRA: the card
-    hashes those files, names the weights' licence, and the COCO images carry the licence
-    of how each was made. A README.md the card did not write is kept."""
-    import hashlib
-    import shutil
+    from huggingface_hub import DatasetCard
 
-    from plantdreamer.exports import LabelOptions, write_dataset_exports
-
-    base, lora = tmp_path / "base", tmp_path / "bean.safetensors"
-    (base / "unet").mkdir(parents=True)
-    (base / "unet" / "diffusion_pytorch_model.safetensors").write_bytes(b"weights")
-    lora.write_bytes(b"lora")
+    base, control, lora = local_models(tmp_path)
+    recorded = model_files_record(str(base), str(control), str(lora))
     root = tmp_path / "ds"
-    for plant_id in ("bean-a", "bean-b"):
-        shutil.copytree(bean, root / "plants" / plant_id)
-    record = root / "plants" / "bean-b" / "run.json"
-    run = json.loads(record.read_text())
-    run["config"].update({"guidance": "sds", "base-model": str(base), "lora": str(lora)})
-    record.write_text(json.dumps(run))
+    guided = {"guidance": "sds", "base-model": str(base), "controlnet": str(control),
+              "lora": str(lora)}  # fmt: skip
+    dataset_of(bean, root, {"bean-a": {}, "bean-b": {"config": guided, "models": recorded}})
+    # The LoRA retrained in place after the plant was made: the card keeps the plant's.
+    (lora / "pytorch_lora_weights.safetensors").write_bytes(b"lora v2")
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "1750000000")  # 2025-06-15
-    write_dataset_exports(root, LabelOptions(ratios=(1.0, 0.0, 0.0), allow_empty_split=True))
+    write_dataset_exports(root, ALL_TRAIN)
 
     card = json.loads((root / "dataset.json").read_text())["card"]
     assert card["date"] == "2025-06-15" and card["guided_plants"] == 1
     models = {m["role"]: m for m in card["models"]}
-    unet = hashlib.sha256(b"weights").hexdigest()
-    expected = hashlib.sha256(b"unet/diffusion_pytorch_model.safetensors\0" + unet.encode())
-    assert models["base model"]["hash"] == "sha256:" + expected.hexdigest()
-    assert models["species LoRA"]["hash"] == "sha256:" + hashlib.sha256(b"lora").hexdigest()
-    assert models["depth ControlNet"]["id"] == "thibaud/controlnet-sd21-depth-diffusers"
-    assert card["licences"]["weights"]["name"] == "CreativeML Open RAIL++-M"
-    assert "Attachment A" in card["licences"]["images"]
+    lora_file = models["species LoRA"]["files"][0]
+    assert lora_file["sha256"] == hashlib.sha256(b"lora v1").hexdigest()
+    assert models["base model"]["sha256"] == recorded[0]["sha256"]
+    assert "url" not in card
+    readme = (root / "README.md").read_text()
+    for text in (readme, json.dumps(card)):
+        assert str(tmp_path) not in text  # names and hashes, never this machine's paths
+    assert recorded[0]["sha256"] in readme and "## Limitations" in readme
+    assert "1 of 2 plants" in readme
+    # Not Stable Diffusion from the hub: no claim of its weights or licence.
+    assert "Stable Diffusion 2.1 weights" not in readme and "RAIL" not in readme
+    assert card["licences"]["data"] == "unknown"
+
+    loaded = DatasetCard.load(root / "README.md")
+    assert loaded.data.license == "unknown"
+    assert loaded.data.task_categories == ["image-segmentation", "object-detection",
+                                           "depth-estimation"]  # fmt: skip
+    assert card["splits"]["train"]["images"] > 0 and loaded.data.size_categories == ["n<1K"]
+    assert loaded.data.pretty_name == "plantdreamer synthetic plants (bean)"
+    assert loaded.data.configs == [
+        {"config_name": "default",
+         "data_files": [{"split": "train", "path": "yolo/images/train/*.png"}]}
+    ]  # fmt: skip
+    assert loaded.text.lstrip().startswith("# A plantdreamer dataset")
     coco = json.loads((root / "coco" / "train.json").read_text())
     assert coco["info"]["date_created"] == "2025-06-15" and coco["info"]["year"] == 2025
+    assert coco["info"]["url"] == "" and all(not lic["url"] for lic in coco["licenses"])
     licence_of = {image["plant_id"]: image["license"] for image in coco["images"]}
     assert licence_of == {"bean-a": 2, "bean-b": 1}
-    readme = (root / "README.md").read_text()
-    assert "CreativeML Open RAIL++-M" in readme and "1 of 2 plants" in readme
 
-    (root / "README.md").write_text("# my notes\n")
-    labels = write_dataset_exports(
-        root, LabelOptions(ratios=(1.0, 0.0, 0.0), allow_empty_split=True)
-    )
-    assert (root / "README.md").read_text() == "# my notes\n"
+    # A rerun replaces its own card, YAML block and all; a user's README is left alone.
+    write_dataset_exports(root, ALL_TRAIN)
+    assert (root / "README.md").read_text() == readme
+    (root / "README.md").write_text("---\nlicense: mit\n---\n# my notes\n")
+    labels = write_dataset_exports(root, ALL_TRAIN)
+    assert (root / "README.md").read_text() == "---\nlicense: mit\n---\n# my notes\n"
     assert any("is not a dataset card" in w for w in labels.warnings)
+
+
+def test_stable_diffusion_from_the_hub_gives_its_licence_and_an_older_plant_no_hash(bean, tmp_path):
+    from huggingface_hub import DatasetCard
+
+    sd = [{"role": "base model", "name": SD, "source": "hub", "revision": "5ede9e4",
+           "files": [{"path": "unet/x.safetensors", "bytes": 1, "sha256": "a" * 64}],
+           "sha256": "b" * 64}]  # fmt: skip
+    root = tmp_path / "ds"
+    older = {"guidance": "sds", "base-model": "/home/someone/models/sd21",
+             "controlnet": "thibaud/controlnet-sd21-depth-diffusers"}  # fmt: skip
+    dataset_of(bean, root, {"bean-a": {"config": {"guidance": "sds"}, "models": sd},
+                            "bean-b": {"config": older}})  # fmt: skip
+    write_dataset_exports(root, ALL_TRAIN)
+    card = json.loads((root / "dataset.json").read_text())["card"]
+    assert card["licences"]["data"] == "openrail++"
+    assert DatasetCard.load(root / "README.md").data.license == "openrail++"
+    readme = (root / "README.md").read_text()
+    assert "CreativeML Open RAIL++-M" in readme and "Attachment A" in readme
+    names = {(m["role"], m["name"], m["sha256"]) for m in card["models"]}
+    assert ("base model", SD, "b" * 64) in names
+    # The plant recorded no models: named by its settings, a local path by its last part.
+    assert ("base model", "sd21", None) in names
+    assert ("depth ControlNet", "thibaud/controlnet-sd21-depth-diffusers", None) in names
+    assert "/home/someone" not in readme and "/home/someone" not in json.dumps(card)
+    coco = json.loads((root / "coco" / "train.json").read_text())
+    assert coco["licenses"][0]["name"].startswith("CreativeML Open RAIL++-M")
+
+
+def test_every_user_given_name_is_escaped_where_the_card_writes_it(bean, tmp_path):
+    from huggingface_hub import DatasetCard
+
+    root = tmp_path / "ds"
+    hostile_model = [{"role": "base model", "name": "sd|x\n# Models: none", "source": "hub",
+                      "revision": "r\nlicense: mit", "files": [], "sha256": None}]  # fmt: skip
+    dataset_of(bean, root, {"bean-a": {"config": {"species": HOSTILE}},
+                            "bean-b": {"config": {"guidance": "sds"}, "models": hostile_model}})  # fmt: skip
+    write_dataset_exports(root, ALL_TRAIN)
+    readme = (root / "README.md").read_text()
+    body = readme.split("\n---\n", 1)[1]
+    # No heading, licence line or HTML that the names brought in.
+    headings = [line for line in body.splitlines() if line.startswith("#")]
+    assert headings == ["# A plantdreamer dataset", "## Files", "## Classes", "## Plants",
+                        "## Distributions", "## Models", "## Limitations", "## Licences", "## Citation"]  # fmt: skip
+    assert "<img" not in body and "](https://e.example)" not in body
+    assert "&lt;img" in body
+    # Each table row keeps its columns: a | in a name is escaped.
+    for line in body.splitlines():
+        if line.startswith("| "):
+            assert len(re.findall(r"(?<!\\)\|", line)) == 5, line
+    assert "bean \\| x \\#\\# Licence\\: MIT" in body
+    # The YAML block holds the name as one quoted string; the licence is the card's.
+    loaded = DatasetCard.load(root / "README.md")
+    assert loaded.data.license == "unknown"
+    assert "## Licence: MIT" in loaded.data.pretty_name and "\n" not in loaded.data.pretty_name
+    # dataset.json keeps the names as they are (JSON quotes them itself).
+    card = json.loads((root / "dataset.json").read_text())["card"]
+    assert HOSTILE in card["species"]

@@ -1,4 +1,4 @@
-"""Specks out of label maps (plantdreamer.pipeline.label_pieces) against a slow reference."""
+"""Specks out of label maps (plantdreamer.pipeline.truth.label_pieces) against a slow reference."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from label_pieces_reference import reference, specks
-from plantdreamer.pipeline.label_pieces import BACKGROUND, MIN_PIECE, remove_specks
+from plantdreamer.pipeline.truth.label_pieces import BACKGROUND, MIN_PIECE, remove_specks
 
 
 def random_key(rng: np.random.Generator, h: int, w: int, noise: float) -> np.ndarray:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from label_pieces_reference import specks
-from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.label_pieces import MIN_PIECE
+from plantdreamer.pipeline import GenerateConfig, generate_plants
+from plantdreamer.pipeline.truth.label_pieces import MIN_PIECE
 
 SPECIES = ("bean", "mint", "kale")
 SIZES = {320: 4, 512: 1}  # image size: views (the cheapest that showed specks before)
@@ -31,7 +31,7 @@ def plants(tmp_path_factory):
                 species=species, seed=0, points=5000, resolution=size, eval_views=views,
                 turntable="none", steps=0, guidance="none",
             )  # fmt: skip
-            generate(cfg, folder, show_progress=False)
+            generate_plants([cfg], folder, show_progress=False)
             out[species, size] = folder
     return out
 

@@ -16,17 +16,17 @@ from plantdreamer.errors import InputError, PlyError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.io import read_ply_columns, read_splat_ply, write_ply, write_splat_ply
 from plantdreamer.labels import as_int_labels, find_label_fields, voxel_keys, voxel_majority
-from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
-from plantdreamer.pipeline.ground_truth import (
+from plantdreamer.pipeline import GenerateConfig, generate_plants
+from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.settings.train_config import LearningRates
+from plantdreamer.pipeline.truth.ground_truth import (
     LabelSet,
     Splats,
     _blend,
     render_ground_truth,
 )
-from plantdreamer.pipeline.label_channels import one_hot
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.train_config import LearningRates
+from plantdreamer.pipeline.truth.label_channels import one_hot
 from plantdreamer.pointcloud import voxel_downsample
 
 
@@ -241,7 +241,7 @@ def bean_leaf_iou(out_dir, **settings) -> list[float]:
     """Generates an L-System bean as initialised and returns, per evaluation view, the IoU
     of its leaf mask with the mesh's leaf faces (z-buffer) over the whole image."""
     cfg = small(species="bean", seed=2, points=100_000, resolution=1024, **settings)
-    generate(cfg, out_dir, show_progress=False)
+    generate_plants([cfg], out_dir, show_progress=False)
     ious = leaf_mask_ious(out_dir, "bean", 2)
     assert len(ious) == cfg.outputs.eval_views
     return ious
@@ -258,7 +258,7 @@ def test_bean_leaf_masks_match_the_mesh_leaves(tmp_path):
 def test_lsystem_run_reports_classes_and_writes_the_dataset(tmp_path):
     import imageio.v3 as iio
 
-    generate(small(species="bean", steps=700), tmp_path, show_progress=False)
+    generate_plants([small(species="bean", steps=700)], tmp_path, show_progress=False)
     run = json.loads((tmp_path / "run.json").read_text())
     labels = run["labels"]
     assert labels["fields"] == {"label": "OrganClass", "instance": "leaf"}
@@ -341,7 +341,7 @@ def test_non_integer_label_field_is_one_error_line(tmp_path):
 def test_render_labels_of_a_labelled_ply(tmp_path):
     import imageio.v3 as iio
 
-    generate(small(species="bean"), tmp_path / "run", show_progress=False)
+    generate_plants([small(species="bean")], tmp_path / "run", show_progress=False)
     result = CliRunner().invoke(
         main,
         ["render", str(tmp_path / "run" / "plant.ply"), "--labels", "--eval-views", "3",

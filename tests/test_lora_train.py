@@ -315,6 +315,9 @@ def test_photos_captions_and_templates_that_cannot_train_are_clear_errors(tmp_pa
     [
         (["--alpha", "0"], "alpha=0"),
         (["--caption-template", "a {species} in {place}"], "{place}"),
+        (["--caption-template", "a {species:d} plant"], "cannot format a species name"),
+        (["--caption-template", "a {species!z} plant"], "cannot format a species name"),
+        (["--caption-template", "a {species:d} plant", "--dry-run"], "cannot format"),
     ],
 )
 def test_cli_refuses_settings_that_cannot_train_before_any_model(tmp_path, args, message):

@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from plantdreamer.pipeline import model as model_module
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.train_config import LearningRates
+from plantdreamer.pipeline.model import gaussian_model as model_module
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.settings.train_config import LearningRates
 
 N = 20_003  # not a multiple of a vector width: chunk edges are exercised
 STEPS = 6

@@ -12,8 +12,9 @@ import torch
 
 from plantdreamer.cameras import orbit
 from plantdreamer.gaussians import activate_opacities, activate_scales
-from plantdreamer.pipeline.ground_truth import Splats
-from plantdreamer.pipeline.model import FrozenScene, GaussianModel, render_many
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.render import FrozenScene, render_many
+from plantdreamer.pipeline.truth.ground_truth import Splats
 
 # Not a multiple of torch's vector width: torch.sigmoid's bits at its chunk edges depend on
 # how many threads split the array, which is what the render must not inherit.
@@ -97,7 +98,7 @@ def test_render_manys_pool_tasks_keep_the_callers_no_grad(random_gaussians):
 def test_activation_gradients_follow_torchs_formulas(model):
     ls = model.params["log_scales"].detach().clone().requires_grad_(True)
     lo = model.params["opacity_logits"].detach().clone().requires_grad_(True)
-    from plantdreamer.pipeline.model import _Activations
+    from plantdreamer.pipeline.model.gaussian_model import _Activations
 
     scales, opacities = _Activations.apply(ls, lo)
     s_ref = activate_scales(ls.detach().numpy())
@@ -145,7 +146,7 @@ def test_renders_without_gradients_are_the_same_bits_for_every_tile_size(model, 
     """A depth map does not depend on the tile size (the bench compares their cost): a
     pixel's value depends only on the Gaussians that reach it, in depth order, not on the
     tiles that listed them (100k Gaussians, images not a multiple of any tile)."""
-    from plantdreamer.pipeline.model import camera_args
+    from plantdreamer.pipeline.model.gaussian_model import camera_args
     from plantdreamer.rasterizer import RASTER_DEFAULTS, rasterization
 
     scene = FrozenScene(model, mode).scene

@@ -20,6 +20,7 @@ from plantdreamer.errors import InputError
 
 # Every function of the native module, with its integer arguments and their minimum.
 INT_ARGS: dict[str, list[tuple[str, int]]] = {
+    "check_ply_vertex": [],
     "downsample_to_count": [("target", 1), ("threads", 1)],
     "eval_sh": [("degree", 0)],
     "info": [],
@@ -88,6 +89,7 @@ def _call(name: str, tmp_path, **override):
             "large_gaussian_mask": {"log_scales": np.zeros((4, 3), np.float32)},
             "raster_defaults": {},
             "read_ply_vertex": {"path": str(tmp_path / "ok.ply")},
+            "check_ply_vertex": {"path": str(tmp_path / "ok.ply")},
             "remove_statistical_outliers": {
                 "points": _PTS,
                 "nb_neighbors": 5,

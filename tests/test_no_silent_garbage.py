@@ -57,14 +57,14 @@ def test_georeferenced_plant_keeps_its_precision(tmp_path):
     """A plant 20 cm tall at UTM-like coordinates: float32 in the input frame would keep
     only a few distinct values; the export is relative to an offset recorded in run.json
     and in the PLY header."""
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     utm = (500_000.0, 5_000_000.0, 200.0)
     write_ply(tmp_path / "scan.ply", cloud(3000, offset=utm, dtype=np.float64))
     cfg = GenerateConfig.of(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
                          points=5000, sor_std=100.0, resolution=32, eval_views=1,
                          turntable_frames=1)  # fmt: skip
-    result = generate(cfg, tmp_path / "o", show_progress=False)
+    result = generate_plants([cfg], tmp_path / "o", show_progress=False)[0]
     run = json.loads((tmp_path / "o" / "run.json").read_text())
     offset = np.asarray(run["export_offset"])
     np.testing.assert_allclose(offset, utm, atol=1.0)
@@ -79,11 +79,11 @@ def test_georeferenced_plant_keeps_its_precision(tmp_path):
 
 
 def test_plant_near_the_origin_has_no_offset(tmp_path):
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     cfg = GenerateConfig.of(species="kale", guidance="none", steps=0, points=500, resolution=32,
                          eval_views=1, turntable_frames=1)  # fmt: skip
-    generate(cfg, tmp_path / "o", show_progress=False)
+    generate_plants([cfg], tmp_path / "o", show_progress=False)
     assert json.loads((tmp_path / "o" / "run.json").read_text())["export_offset"] is None
     assert b"offset" not in (tmp_path / "o" / "plant.ply").read_bytes()[:2000]
 
@@ -163,7 +163,7 @@ def test_render_counts_its_views(tmp_path):
 
 def _scene_with_floaters(up_axis=2):
     """A dense unit blob at (10, 10, 10) plus two far, opaque floaters."""
-    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     rng = np.random.default_rng(0)
     blob = rng.normal(size=(2000, 3)) * 0.2
@@ -234,7 +234,7 @@ def _api_calls():
     from plantdreamer import pointcloud, rasterization
     from plantdreamer.cameras import Camera
     from plantdreamer.io import write_splat_ply
-    from plantdreamer.pipeline.init import init_gaussians
+    from plantdreamer.pipeline.model.init import init_gaussians
 
     pts = np.random.default_rng(0).random((50, 3), dtype=np.float32)
     g = init_gaussians(pts, np.full((50, 3), 0.5, np.float32), 0.5)

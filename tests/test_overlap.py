@@ -7,9 +7,9 @@ import json
 import pytest
 import torch
 
+from plant_runs import done, failed, group
 from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-from plantdreamer.pipeline.group import generate_group
-from plantdreamer.pipeline.runtime import resolve_overlap
+from plantdreamer.pipeline.settings.runtime import resolve_overlap
 from plantdreamer.pipeline.step.schedule import StepSchedule
 from test_group import SMALL, _stop_at, outputs_of, tiny_sds
 
@@ -42,7 +42,7 @@ class _HalvesGuidance:
 
 
 def test_auto_overlaps_only_a_group_whose_guidance_runs_on_cuda():
-    cuda, cpu = torch.device("cuda"), torch.device("cpu")
+    cuda, cpu = True, False  # whether the group's guidance runs on CUDA
     assert resolve_overlap("auto", cuda, 4) and resolve_overlap("auto", cuda, 2)
     assert not resolve_overlap("auto", cuda, 1) and not resolve_overlap("auto", cpu, 4)
     assert resolve_overlap("on", cpu, 4) and not resolve_overlap("off", cuda, 4)
@@ -66,7 +66,7 @@ def test_one_half_is_launched_while_the_other_finishes_and_drains_at_checkpoints
     monkeypatch.setattr(StepSchedule, "_launch", spy_launch)
     monkeypatch.setattr(StepSchedule, "_finish", spy_finish)
     guidance = _HalvesGuidance(torch.full((4, 48, 48, 3), 0.5))
-    generate_group(four(4, checkpoint_every=2, turntable="none"), tmp_path / "g",
+    group(four(4, checkpoint_every=2, turntable="none"), tmp_path / "g",
                    guidance=guidance, show_progress=False)  # fmt: skip
     expected = [
         ("launch", 0, "A"), ("launch", 0, "B"), ("finish", 0, "A"),
@@ -82,9 +82,9 @@ def test_one_half_is_launched_while_the_other_finishes_and_drains_at_checkpoints
 
 @pytest.mark.slow
 def test_an_overlapped_group_of_four_writes_complete_folders_and_trains_both_halves(tmp_path):
-    untrained = generate_group(four(0), tmp_path / "u", guidance=tiny_sds(), show_progress=False)
-    result = generate_group(four(3), tmp_path / "g", guidance=tiny_sds(), show_progress=False)
-    assert sorted(result.done) == sorted(untrained.done) == NAMES and not result.failed
+    untrained = group(four(0), tmp_path / "u", guidance=tiny_sds(), show_progress=False)
+    result = group(four(3), tmp_path / "g", guidance=tiny_sds(), show_progress=False)
+    assert sorted(done(result)) == sorted(done(untrained)) == NAMES and not failed(result)
     for name in NAMES:
         folder = tmp_path / "g" / name
         run = json.loads((folder / "run.json").read_text())
@@ -118,16 +118,16 @@ def _log_rows(path):
 @pytest.mark.slow
 def test_an_overlapped_group_is_byte_identical_run_to_run_and_after_ctrl_c_and_resume(tmp_path):
     cfgs = four(6, checkpoint_every=4)
-    first = generate_group(cfgs, tmp_path / "a", guidance=tiny_sds(), show_progress=False)
-    generate_group(cfgs, tmp_path / "b", guidance=tiny_sds(), show_progress=False)
+    first = group(cfgs, tmp_path / "a", guidance=tiny_sds(), show_progress=False)
+    group(cfgs, tmp_path / "b", guidance=tiny_sds(), show_progress=False)
     # Ctrl-C after step 1, while step 2's first half is in flight: the stop waits a step.
     with pytest.raises(RunInterrupted) as stop:
-        generate_group(cfgs, tmp_path / "c", guidance=tiny_sds(), show_progress=False,
+        group(cfgs, tmp_path / "c", guidance=tiny_sds(), show_progress=False,
                        on_step=_stop_at(1))  # fmt: skip
     assert stop.value.step == 3
-    resumed = generate_group(None, tmp_path / "c", guidance=tiny_sds(), resume=True,
+    resumed = group(None, tmp_path / "c", guidance=tiny_sds(), resume=True,
                              show_progress=False)  # fmt: skip
-    assert sorted(first.done) == sorted(resumed.done) == NAMES
+    assert sorted(done(first)) == sorted(done(resumed)) == NAMES
     for name in NAMES:
         a = outputs_of(tmp_path / "a" / name)
         assert a == outputs_of(tmp_path / "b" / name), name
@@ -137,11 +137,11 @@ def test_an_overlapped_group_is_byte_identical_run_to_run_and_after_ctrl_c_and_r
 def test_a_plant_whose_training_goes_non_finite_fails_alone_in_an_overlapped_group(tmp_path):
     targets = torch.full((4, 48, 48, 3), 0.5)
     targets[1] = float("nan")  # the first half's second plant
-    result = generate_group(four(1, turntable="none"), tmp_path / "g",
+    result = group(four(1, turntable="none"), tmp_path / "g",
                             guidance=_HalvesGuidance(targets),
                             show_progress=False)  # fmt: skip
-    assert sorted(result.done) == [NAMES[0], NAMES[2], NAMES[3]]
-    assert list(result.failed) == [NAMES[1]]
+    assert sorted(done(result)) == [NAMES[0], NAMES[2], NAMES[3]]
+    assert list(failed(result)) == [NAMES[1]]
     assert not (tmp_path / "g" / NAMES[1] / "plant.ply").exists()
 
 

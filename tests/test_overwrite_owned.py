@@ -17,7 +17,8 @@ from PIL import Image
 from plantdreamer.cli import main
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
+from plantdreamer.temporaries import temporary_name
 
 
 def run(*args):
@@ -209,9 +210,9 @@ def test_generate_overwrite_deletes_its_own_files_and_keeps_the_users(tmp_path):
     out = tmp_path / "run"
     finished_run(out)
     sentinels(out)
-    stale = out / "renders" / ".view_001.png.abcd1234.tmp.png"  # a killed write's temporary
+    stale = out / "renders" / temporary_name("view_001.png")  # a killed write's temporary
     stale.write_bytes(b"partial")
-    (out / ".checkpoint.pt.k3j9x0a1.tmp.pt").write_bytes(b"partial checkpoint")
+    (out / temporary_name("checkpoint.pt")).write_bytes(b"partial checkpoint")
     result = run("generate", "--species", "bean", *TINY, "--out", out, "--overwrite")
     assert result.exit_code == 0, result.output
     assert intact(out) and not stale.exists()
@@ -220,15 +221,16 @@ def test_generate_overwrite_deletes_its_own_files_and_keeps_the_users(tmp_path):
 
 def test_resume_removes_a_killed_writes_temporary(tmp_path):
     from plantdreamer.output_folder import claim_folder
-    from plantdreamer.pipeline.run_outputs import RUN_OUTPUTS
+    from plantdreamer.pipeline.state.run_outputs import RUN_OUTPUTS
 
     out = tmp_path / "run"
     finished_run(out)
     sentinels(out)
-    (out / ".checkpoint.pt.k3j9x0a1.tmp.pt").write_bytes(b"partial checkpoint")
+    stale = out / temporary_name("checkpoint.pt")
+    stale.write_bytes(b"partial checkpoint")
     with claim_folder(out, owned=RUN_OUTPUTS, allow_existing=True):
         pass
-    assert not (out / ".checkpoint.pt.k3j9x0a1.tmp.pt").exists()
+    assert not stale.exists()
     assert intact(out) and (out / "run.json").read_bytes() == b"earlier run.json"
 
 

@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from plantdreamer.errors import CheckpointError, InputError
-from plantdreamer.pipeline.checkpoint import _umask, load_checkpoint, save_checkpoint
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.culling import large_gaussian_mask
-from plantdreamer.pipeline.density_ops import DensifyStats, densify_and_prune
-from plantdreamer.pipeline.init import SURFACE_THICKNESS, init_gaussians, initial_colors
-from plantdreamer.pipeline.model import GaussianModel
-from plantdreamer.pipeline.sampler import CameraSampler
-from plantdreamer.pipeline.train_config import LearningRates
+from plantdreamer.pipeline.model.culling import large_gaussian_mask
+from plantdreamer.pipeline.model.density_ops import DensifyStats, densify_and_prune
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.model.init import SURFACE_THICKNESS, init_gaussians, initial_colors
+from plantdreamer.pipeline.model.sampler import CameraSampler
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.train_config import LearningRates
+from plantdreamer.pipeline.state.checkpoint import _umask, load_checkpoint, save_checkpoint
 
 
 def test_config_round_trips_through_json_dict():
@@ -68,7 +68,7 @@ def test_checkpoint_of_an_older_format_is_refused_with_the_way_out(tmp_path):
     # Format 2 runs began from spheres; resuming one under the disc default would mislabel it.
     torch.save({"format": 2, "step": 3}, tmp_path / "checkpoint.pt")
     with pytest.raises(
-        CheckpointError, match=r"format 2; .* resumes formats 3 and 4 only .*--overwrite"
+        CheckpointError, match=r"format 2; .* resumes formats 3 to 5 only .*--overwrite"
     ):
         load_checkpoint(tmp_path)
 
@@ -174,7 +174,7 @@ def test_surface_init_lays_flat_discs_in_the_surface_and_stops_at_its_edge():
 
 
 def test_camera_sampler_is_seeded_and_resumable():
-    from plantdreamer.pipeline.train_config import CameraRanges
+    from plantdreamer.pipeline.settings.train_config import CameraRanges
 
     a = CameraSampler(CameraRanges(), 32, seed=1)
     first = [a.sample() for _ in range(3)]
@@ -198,7 +198,7 @@ def test_native_culling_names_a_wrong_array():
 
 
 def test_plants_resume_together_from_their_last_common_step():
-    from plantdreamer.pipeline.checkpoint import common_starts
+    from plantdreamer.pipeline.state.checkpoint import common_starts
 
     cur, prev = "checkpoint.pt", "checkpoint.prev.pt"
     # Killed between two plants' writes at step 8: all go back to 4 together.

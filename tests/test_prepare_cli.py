@@ -93,8 +93,8 @@ def test_points_0_keeps_a_point_cloud_whole_in_generate_as_in_prepare(tmp_path):
     import pytest
 
     from plantdreamer.errors import InputError
-    from plantdreamer.pipeline.config import GenerateConfig
-    from plantdreamer.pipeline.source import load_source
+    from plantdreamer.pipeline.model.source import load_source
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     write_ply(tmp_path / "in.ply", plant_like(3000))
     out = tmp_path / "out.ply"

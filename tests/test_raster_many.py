@@ -176,20 +176,20 @@ def test_the_core_returns_each_scenes_error_in_its_place():
 def test_a_plant_trains_to_the_same_bytes_alone_and_in_a_group(tmp_path):
     """A plant alone is the batch of one of the group's path: a per-sample guidance (a
     fixed target) gives each plant of a group of three the bits it gets alone."""
+    from plant_runs import done, failed, group
     from plantdreamer.guidance.base import PhotometricGuidance
-    from plantdreamer.pipeline import GenerateConfig, generate
-    from plantdreamer.pipeline.group import generate_group
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     def cfg(seed):
         return GenerateConfig.of(species="bean", seed=seed, steps=3, points=500, resolution=32,
                                  eval_views=1, turntable="none")  # fmt: skip
 
     target = torch.full((1, 32, 32, 3), 0.3)
-    group = generate_group([cfg(s) for s in range(3)], tmp_path / "g",
-                           guidance=PhotometricGuidance(target), show_progress=False)  # fmt: skip
-    assert not group.failed
+    together = group([cfg(s) for s in range(3)], tmp_path / "g",
+                     guidance=PhotometricGuidance(target), show_progress=False)  # fmt: skip
+    assert not failed(together)
     for s in range(3):
-        alone = generate(cfg(s), tmp_path / f"alone{s}", guidance=PhotometricGuidance(target),
-                         show_progress=False)  # fmt: skip
-        ply = group.done[f"bean-s{s:04d}"].ply_path.read_bytes()
+        alone = generate_plants([cfg(s)], tmp_path / f"alone{s}",
+                                guidance=PhotometricGuidance(target), show_progress=False)[0]  # fmt: skip
+        ply = done(together)[f"bean-s{s:04d}"].ply_path.read_bytes()
         assert ply == alone.ply_path.read_bytes(), s

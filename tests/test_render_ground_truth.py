@@ -66,14 +66,14 @@ def test_the_orbit_distance_is_generates_framed_or_given(bean, tmp_path):
     """generate frames its orbit on the plant and records the distance; render uses it, and
     frames a plant generated without views by the same rule (the same views, bit for bit)."""
     run = json.loads((bean / "run.json").read_text())
-    assert run["config"]["eval-distance"] is None and 1.0 < run["eval_distance"] < 8.0
+    assert run["config"]["eval-distance"] is None and 1.0 < run["outputs"]["eval_distance"] < 8.0
     plant = make_plant(tmp_path / "none", eval_views=0)
-    assert json.loads((plant / "run.json").read_text())["eval_distance"] is None
+    assert json.loads((plant / "run.json").read_text())["outputs"]["eval_distance"] is None
     render(plant, "--labels", "--eval-views", 3, "--out", tmp_path / "o")
     assert_same_views(tmp_path / "o", bean, 3)
     # A distance given to generate is kept, and render follows it.
     far = make_plant(tmp_path / "far", eval_distance=9.0)
-    assert json.loads((far / "run.json").read_text())["eval_distance"] == 9.0
+    assert json.loads((far / "run.json").read_text())["outputs"]["eval_distance"] == 9.0
     render(far, "--labels", "--out", tmp_path / "f")
     assert_same_views(tmp_path / "f", far, 3)
 
@@ -110,7 +110,7 @@ def test_a_plant_cut_to_sh_degree_0_is_reproduced_too(tmp_path):
 
     from labelled_plant import SETTINGS
     from plantdreamer.guidance.base import PhotometricGuidance
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     target = torch.full((1, 64, 64, 3), 0.3)
     target[..., 1] = 0.7
@@ -118,6 +118,6 @@ def test_a_plant_cut_to_sh_degree_0_is_reproduced_too(tmp_path):
         **{**SETTINGS, "resolution": 64, "steps": 30, "sh_degree": 3, "sh_degree_export": 0}
     )
     plant = tmp_path / "bean"
-    generate(cfg, plant, guidance=PhotometricGuidance(target), show_progress=False)
+    generate_plants([cfg], plant, guidance=PhotometricGuidance(target), show_progress=False)
     render(plant, "--labels", "--out", tmp_path / "v")
     assert_same_views(tmp_path / "v", plant, 3)

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from plantdreamer.cli import main
 from plantdreamer.io import write_splat_ply
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
 
 
 def run(*args):
@@ -94,7 +94,7 @@ def test_the_orbit_size_left_open_is_generates_on_the_cpu(model, tmp_path):
     render renders (a plant folder's run.json gives the size it was made at)."""
     from PIL import Image
 
-    from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+    from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 
     result = run("render", model, "--eval-views", 1, "--turntable", "none", "--out", tmp_path)
     assert result.exit_code == 0, result.output

@@ -25,12 +25,14 @@ def test_dependencies_expand_the_extras_the_package_names_of_itself():
     script, pyproject = _script(), _pyproject()
     optional = pyproject["project"]["optional-dependencies"]
     listed = script.dependencies(pyproject, ["dev", "viewer"])
-    # dev names plantdreamer[cluster] and plantdreamer[open3d]: their requirements come in
-    # its place, and nothing names the package itself (pip would try to install it).
+    # dev names plantdreamer[cluster], [docs], [open3d] and [tensorboard]: their requirements
+    # come in its place, and nothing names the package itself (pip would try to install it).
     expected = [
         *pyproject["project"]["dependencies"],
         *optional["cluster"],
+        *optional["docs"],
         *optional["open3d"],
+        *optional["tensorboard"],
         *optional["viewer"],
         *(r for r in optional["dev"] if not r.startswith("plantdreamer")),
     ]

@@ -5,6 +5,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
@@ -14,12 +15,12 @@ from plantdreamer.cli.options import config_from_options
 from plantdreamer.errors import CheckpointError
 from plantdreamer.guidance.config import SCHEDULES, SDS_DEFAULTS, SdsConfig
 from plantdreamer.guidance.schedules import BUILTIN_SCHEDULES
-from plantdreamer.pipeline import GenerateConfig, generate
-from plantdreamer.pipeline.checkpoint import CheckpointRecord
-from plantdreamer.pipeline.density import CullConfig
+from plantdreamer.pipeline import GenerateConfig, generate_plants
+from plantdreamer.pipeline.model.density import CullConfig
+from plantdreamer.pipeline.model.source import SourceConfig
 from plantdreamer.pipeline.outputs import OutputsConfig
-from plantdreamer.pipeline.source import SourceConfig
-from plantdreamer.pipeline.train_config import TrainConfig
+from plantdreamer.pipeline.settings.train_config import TrainConfig
+from plantdreamer.pipeline.state.checkpoint import CheckpointRecord
 
 
 def patch_default(monkeypatch, cls, name, value):
@@ -95,6 +96,8 @@ def _other_value(name, value, cfg):
         return next(v for v in inside if v != value)
     if value is None:
         kinds = [a for a in typing.get_args(s.type) if a is not type(None)]
+        if typing.get_origin(kinds[0]) is tuple:  # a range or a colour left open
+            return (0.25, 0.5, 0.75)[: len(typing.get_args(kinds[0]))]
         return {int: 16, float: 0.5, str: "{species} leaves"}[kinds[0]]
     if isinstance(value, int):
         return value + 1
@@ -106,18 +109,36 @@ def _other_value(name, value, cfg):
 EXEMPT = {"pointcloud", "seed", "species"}  # chosen per plant in a spec
 
 
+def _views_inputs(tmp_path):
+    """Files the views' settings name (a real rig, a folder of backgrounds), and the other
+    settings some need beside them (a range is a drawn rig's)."""
+    import imageio.v3 as iio
+
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"fl_x": 20, "fl_y": 20, "cx": 16, "cy": 16, "w": 32, "h": 32,
+                               "frames": [{"file_path": "a.png", "transform_matrix": [
+                                   [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]]}]}))  # fmt: skip
+    (tmp_path / "photos").mkdir()
+    iio.imwrite(tmp_path / "photos" / "bench.png", np.zeros((8, 8, 3), np.uint8))
+    values = {"rig-transforms": str(rig), "background-images": str(tmp_path / "photos")}
+    drawn = ("elevation-deg", "azimuth-deg", "distance", "roll-deg", "fovy-deg", "width", "height")
+    companions = {f"rig-{n}": {"rig": "random"} for n in drawn}
+    companions["rig-transforms"] = {"rig": "transforms"}
+    return values, companions
+
+
 def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tmp_path):
     """Each setting's CLI option name is its key in a spec, in `dataset --set` and in the
     changes `--resume` checks: the same name reaches the same field everywhere."""
     from plantdreamer.cli.dataset import _toml_value
     from plantdreamer.dataset.spec import expand
-    from plantdreamer.pipeline.run import resumed_config
+    from plantdreamer.pipeline.runs.start import resumed_config
 
     base = GenerateConfig.of(species="bean")
     command = generate_cli.build_command()
-    saved = CheckpointRecord(base, {"step": 0}, {})
+    inputs, companions = _views_inputs(tmp_path)
     for name, value in base.settings().items():
-        new = _other_value(name, value, base)
+        new = inputs.get(name, _other_value(name, value, base))
         if name in ("prompt-template", "negative-prompt", "schedule", "device"):
             new = {"prompt-template": "{species} leaves", "negative-prompt": "blurry",
                    "schedule": "released", "device": "cpu"}[name]  # fmt: skip
@@ -132,14 +153,15 @@ def test_every_setting_has_one_name_on_the_cli_in_a_spec_in_set_and_on_resume(tm
         if name in EXEMPT:
             continue
         # A spec and `dataset --set NAME=VALUE` (its values are TOML).
-        spec = {"defaults": {name: _toml_value(text)}, "group": [{"species": "bean"}]}
+        defaults = {**companions.get(name, {}), name: _toml_value(text)}
+        spec = {"defaults": defaults, "group": [{"species": "bean"}]}
         (plant,) = expand(spec)
         assert plant.config.get(name) == new, name
         # A resume given the setting again: refused by name (only steps may change).
         if name != "steps":
             with pytest.raises(CheckpointError, match=f"{name}: checkpoint"):
-                resumed_config(saved, {name: new}, tmp_path)
-        assert resumed_config(saved, {name: value}, tmp_path)[1] is None
+                resumed_config(base, 0, {name: new}, tmp_path)
+        assert resumed_config(base, 0, {name: value}, tmp_path)[1] is None
 
 
 def test_an_unknown_or_old_setting_name_says_which_one_is_meant():
@@ -169,7 +191,7 @@ def test_generate_does_not_change_the_callers_config(tmp_path):
         species="kale", points=1500, eval_views=1, turntable_frames=1, steps=0, guidance="none"
     )
     before = GenerateConfig.from_dict(cfg.to_dict())
-    generate(cfg, tmp_path, show_progress=False)
+    generate_plants([cfg], tmp_path, show_progress=False)
     assert cfg == before and cfg.train.resolution is None
 
 
@@ -209,7 +231,9 @@ def test_checkpoint_loads_without_running_code(tmp_path):
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
     with pytest.raises(_Stop):
-        generate(cfg, tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1))
+        generate_plants(
+            [cfg], tmp_path, guidance=guidance, show_progress=False, on_step=_stop_after(1)
+        )
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert state["step"] == 2
     assert GenerateConfig.from_dict(state["config"]) == dataclasses.replace(cfg)
@@ -223,7 +247,7 @@ def test_a_finished_run_leaves_no_checkpoint(tmp_path):
         steps=3, checkpoint_every=2,
     )  # fmt: skip
     guidance = PhotometricGuidance(torch.full((1, 32, 32, 3), 0.5))
-    generate(cfg, tmp_path, guidance=guidance, show_progress=False)
+    generate_plants([cfg], tmp_path, guidance=guidance, show_progress=False)
     assert (tmp_path / "run.json").is_file() and not (tmp_path / "checkpoint.pt").exists()
 
 
@@ -248,8 +272,8 @@ OLD_RUN_SETTINGS = dict(
 def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp_path):
     from plantdreamer.cli import main
     from plantdreamer.exports.listing import plant_species
-    from plantdreamer.pipeline.config import from_record
-    from plantdreamer.pipeline.run import resumed_config
+    from plantdreamer.pipeline.runs.start import resumed_config
+    from plantdreamer.pipeline.settings.config import from_record
 
     old = json.loads(OLD_RUN.read_text())
     assert old["config"]["density"]["densify"]["every"] == 2  # the sectioned form
@@ -258,13 +282,13 @@ def test_a_run_json_of_the_sectioned_version_still_reads_resumes_and_renders(tmp
     assert plant_species(OLD_RUN) == "bean"
     # --resume reads a checkpoint's config through the same function.
     record = CheckpointRecord.from_saved({"config": old["config"], "step": 2}, tmp_path)
-    resumed, note = resumed_config(record, {"steps": 6}, tmp_path)
+    resumed, note = resumed_config(record.config, record.step, {"steps": 6}, tmp_path)
     assert resumed.train.steps == 6 and note == {
         "step": 2, "event": "steps changed", "from": 4, "to": 6
     }  # fmt: skip
     # `render` of a plant folder takes the orbit of the run.json beside plant.ply.
     plant = tmp_path / "plant"
-    generate(GenerateConfig.of(**OLD_RUN_SETTINGS), plant, show_progress=False)
+    generate_plants([GenerateConfig.of(**OLD_RUN_SETTINGS)], plant, show_progress=False)
     new = json.loads((plant / "run.json").read_text())
     # Every setting as resolved by that version, but the orbit's distance: 4.0 was then the
     # default; now none is set and generate frames the orbit on the plant.
@@ -334,7 +358,7 @@ def test_lora_train_options_are_its_config(monkeypatch):
 
 
 def test_a_record_without_a_later_setting_reads_as_the_version_that_wrote_it():
-    from plantdreamer.pipeline.config import RECORDED_BEFORE, from_record
+    from plantdreamer.pipeline.settings.config import RECORDED_BEFORE, from_record
 
     cfg = GenerateConfig.of(species="bean", seed=1)
     record = cfg.to_dict()

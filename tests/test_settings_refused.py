@@ -42,6 +42,11 @@ IMPOSSIBLE = [
     (["--opacity-init", "0"], "opacity-init=0", "opacity-init must be in (0, 1)"),
     (["--opacity-init", "1"], "opacity-init=1", "opacity-init must be in (0, 1)"),
     (["--lr-means", "1e39"], "lr-means=1e39", "lr-means must be in [0, 1e+06]"),
+    (["--rig-distance", "1", "2"], "rig-distance=[1, 2]", "apply to the drawn rigs, not --rig orbit"),
+    (["--jitter-brightness", "2"], "jitter-brightness=2", "jitter-brightness must be in [0, 1]"),
+    (["--background-colour", "2", "0", "0"], "background-colour=[2, 0, 0]",
+     "background-colour must be R G B in [0, 1]"),
+    (["--rig", "transforms"], "rig=transforms", "--rig transforms and --rig-transforms FILE"),
 ]  # fmt: skip
 
 
@@ -69,7 +74,7 @@ def test_dataset_set_refuses_impossible_settings_before_ray(tmp_path, _, setting
 @pytest.mark.parametrize("seeds", ["5-2,7", "5-2", "7,5-2"])
 def test_a_reversed_seed_range_is_refused_not_dropped(tmp_path, seeds):
     from plantdreamer.errors import InputError
-    from plantdreamer.pipeline.group import parse_seeds
+    from plantdreamer.pipeline.settings.group_settings import parse_group_seeds as parse_seeds
 
     with pytest.raises(InputError, match="5-2 is a reversed range; write 2-5"):
         parse_seeds(seeds)
@@ -82,7 +87,7 @@ def test_print_config_of_a_billion_steps_returns_at_once():
     result = run(*GEN, "--steps", "1000000000", "--cull-every", "1", "--print-config")
     seconds = time.perf_counter() - started
     assert result.exit_code == 0, result.output
-    shown = json.loads(result.output)
+    (shown,) = json.loads(result.output)  # one plant: a list of one
     assert shown["cull_steps"] == {"first": 501, "last": 999_999_999, "every": 1,
                                    "count": 999_999_499}  # fmt: skip
     assert shown["densify_steps"] == {"first": 400, "last": 800, "every": 100, "count": 5}
@@ -96,13 +101,13 @@ def test_print_config_of_a_billion_steps_returns_at_once():
 )  # fmt: skip
 def test_schedule_steps_match_the_rules_step_by_step(steps, start, until, every, offset, after):
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.resolved import resolved_settings, steps_of
+    from plantdreamer.pipeline.settings.resolved import resolved_settings, steps_of
 
     cfg = GenerateConfig.of(
         species="bean", guidance="none", steps=steps, densify_start=start, densify_until=until,
         densify_every=every, cull_every=every, cull_offset=offset, cull_after=after,
     )  # fmt: skip
-    shown = resolved_settings(cfg)
+    (shown,) = resolved_settings([cfg])
     for key, due in (
         ("densify_steps", cfg.density.densify.due),
         ("cull_steps", cfg.density.cull.due),

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from plantdreamer.data import PlantViews, object_keys
+from plantdreamer.data import DETECTION_KEYS, TARGET_KEYS, PlantViews, object_keys
 from plantdreamer.errors import InputError
 
 torchvision = pytest.importorskip("torchvision")
@@ -98,6 +98,95 @@ def test_v2_transforms_keep_every_per_object_key_with_its_box(bean):
     with pytest.raises(InputError, match=r"labels_getter=plantdreamer\.data\.object_keys"):
         for i in range(len(default)):
             default[i]
+
+
+def detection_reference_train(hflip_prob=0.5, mean=(123.0, 117.0, 104.0)):
+    """torchvision's detection references' training transforms (references/detection/
+    presets.py, ``DetectionPresetTrain(data_augmentation="ssd", backend="tv_tensor",
+    use_v2=True)``) as they are, but for the fill: the images here are float in [0, 1]
+    already, so the mean is divided by 255. Its ``RandomIoUCrop`` drops boxes, and the
+    default ``SanitizeBoundingBoxes()`` at its end filters boxes, masks and ``labels``."""
+    from collections import defaultdict
+
+    from torchvision import tv_tensors
+    from torchvision.transforms import v2 as T
+
+    fill = defaultdict(lambda: tuple(m / 255 for m in mean), {tv_tensors.Mask: 0})
+    return T.Compose(
+        [
+            T.ToImage(),
+            T.RandomPhotometricDistort(),
+            T.RandomZoomOut(fill=fill),
+            T.RandomIoUCrop(),
+            T.RandomHorizontalFlip(p=hflip_prob),
+            T.ToDtype(torch.float, scale=True),
+            T.ConvertBoundingBoxFormat(tv_tensors.BoundingBoxFormat.XYXY),
+            T.SanitizeBoundingBoxes(),
+            T.ToPureTensor(),
+        ]
+    )
+
+
+def test_torchvisions_detection_reference_transforms_run_on_the_standard_keys(bean):
+    """The keys the references ask for (``target_keys``, as ``wrap_dataset_for_transforms_v2``
+    takes them) and their transforms with the default ``SanitizeBoundingBoxes()``: every item
+    comes through, each kept mask with its box and label; with every key the same transforms
+    are refused, naming both fixes."""
+    objects = [len(t["boxes"]) for _, t in PlantViews(bean)]
+    data = PlantViews(bean, transforms=detection_reference_train(), target_keys=DETECTION_KEYS)
+    torch.manual_seed(0)
+    dropped = 0
+    for _ in range(2):  # RandomIoUCrop drops boxes in most items
+        for i in range(len(data)):
+            image, target = data[i]
+            assert list(target) == ["boxes", "labels", "masks", "image_id"]
+            k = len(target["boxes"])
+            assert target["labels"].shape == (k,) and target["masks"].shape == (k, *image.shape[1:])
+            assert target["image_id"] == i + 1
+            h, w = image.shape[1:]
+            boxes = target["boxes"]
+            assert ((boxes[:, :2] >= 0) & (boxes[:, 2:] <= torch.tensor([w, h]))).all()
+            seen = target["masks"].flatten(1).bool().any(1)
+            if seen.any():  # each mask's pixels lie in its box
+                tight = torchvision.ops.masks_to_boxes(target["masks"][seen])
+                inner = boxes[seen]
+                assert (tight[:, :2] >= inner[:, :2] - 1e-4).all()
+                assert (tight[:, 2:] + 1 <= inner[:, 2:] + 1e-4).all()
+            dropped += objects[i] - k
+    assert dropped > 0  # the crops dropped objects, and the default sanitiser followed
+    every_key = PlantViews(bean, transforms=detection_reference_train())
+    torch.manual_seed(0)
+    with pytest.raises(InputError, match=r"target_keys=plantdreamer\.data\.DETECTION_KEYS"):
+        for _ in range(2):
+            for i in range(len(every_key)):
+                every_key[i]
+
+
+def test_target_keys_choose_the_keys_as_torchvision_takes_them(bean):
+    from torchvision.transforms import v2
+
+    _, target = PlantViews(bean, target_keys="all")[0]
+    assert tuple(target) == TARGET_KEYS
+    assert tuple(PlantViews(bean)[0][1]) == TARGET_KEYS  # None: every key
+    chosen = PlantViews(bean, target_keys={"image_id", "semantic"}, transforms=v2.CenterCrop(48))
+    _, target = chosen[0]
+    assert list(target) == ["semantic", "image_id"] and target["semantic"].shape == (48, 48)
+    assert isinstance(target["semantic"], PixelMap)
+    with pytest.raises(InputError, match=r"target_keys has no 'mask', 'scores': the keys are"):
+        PlantViews(bean, target_keys=["boxes", "mask", "scores"])
+    with pytest.raises(InputError, match=r"target_keys=\['boxes'\]"):
+        PlantViews(bean, target_keys="boxes")
+    with pytest.raises(InputError, match="need boxes"):
+        PlantViews(bean, target_keys=["labels", "masks"])
+    # The block of docs/datasets.md, on this plant.
+    code = readme_block("target_keys=DETECTION_KEYS")
+    assert code.count('PlantViews("ds/", split="train", ') == 1
+    scope: dict = {}
+    exec(code.replace('PlantViews("ds/", split="train", ', f"PlantViews({str(bean)!r}, "), scope)
+    torch.manual_seed(0)
+    for _, target in scope["data"]:
+        assert list(target) == ["boxes", "labels", "masks", "image_id"]
+        assert len(target["labels"]) == len(target["boxes"]) == len(target["masks"])
 
 
 def test_the_targets_are_those_of_the_label_files_options(bean, tmp_path):
@@ -197,7 +286,7 @@ def test_the_readme_mask_rcnn_recipe_trains_with_a_falling_loss(two_views, monke
     from torchvision.models.detection import MaskRCNN
     from torchvision.models.detection.backbone_utils import resnet_fpn_backbone
 
-    code = readme_block("PlantViews(")
+    code = readme_block("maskrcnn_resnet50_fpn(")
     assert code.count('PlantViews("ds/", split="train")') == 1 and code.count("epochs = 20") == 1
     code = code.replace('PlantViews("ds/", split="train")', f"PlantViews({str(two_views)!r})")
     code = code.replace("epochs = 20", "epochs = 6")

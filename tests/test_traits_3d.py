@@ -176,7 +176,7 @@ def test_a_generated_scans_traits_come_from_its_labelled_points(tmp_path):
 
     from plantdreamer.io import write_ply
     from plantdreamer.lsystem import generate_plant, sample_points
-    from plantdreamer.pipeline import GenerateConfig, generate
+    from plantdreamer.pipeline import GenerateConfig, generate_plants
 
     cloud = sample_points(generate_plant("bean", 4), 3000, seed=1)
     cloud.positions = (cloud.positions.astype(np.float64) * 1000 + [200.0, -50.0, 30.0]).astype(
@@ -186,7 +186,7 @@ def test_a_generated_scans_traits_come_from_its_labelled_points(tmp_path):
     cfg = GenerateConfig.of(pointcloud=str(tmp_path / "scan.ply"), guidance="none", steps=0,
                             points=0, sor_std=100.0, resolution=32, eval_views=1,
                             turntable="none")  # fmt: skip
-    generate(cfg, tmp_path / "o", show_progress=False)
+    generate_plants([cfg], tmp_path / "o", show_progress=False)
     traits = json.loads((tmp_path / "o" / "traits.json").read_text())
     assert traits["source"] == "labelled points" and "scan's own frame" in traits["frame"]
     p = cloud.positions.astype(np.float64)

@@ -14,9 +14,9 @@ import torch
 from plantdreamer.cameras import orbit, stack
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.lsystem import grow
-from plantdreamer.pipeline.ground_truth import GroundTruthRenderer, Splats
-from plantdreamer.pipeline.label_channels import LabelSet
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
+from plantdreamer.pipeline.truth.ground_truth import GroundTruthRenderer, Splats
+from plantdreamer.pipeline.truth.label_channels import LabelSet
 from plantdreamer.rasterizer import rasterization
 from plantdreamer.traits import map_figures
 from plantdreamer.traits.plant import plant_traits
@@ -82,7 +82,7 @@ def test_leaves_sharing_a_render_are_each_alone_as_in_a_render_of_their_own():
     """Leaves whose tiles never meet share one render: each leaf's figures are those of a
     full-frame render of its Gaussians alone (a bean's 30-odd leaves, 2 views)."""
     from plantdreamer.pipeline import GenerateConfig
-    from plantdreamer.pipeline.source import initial_gaussians, load_source
+    from plantdreamer.pipeline.model.source import initial_gaussians, load_source
     from plantdreamer.traits.occlusion import LeafOcclusion, SplatArrays
 
     cfg = GenerateConfig.of(species="bean", seed=1, points=4000)
@@ -185,7 +185,7 @@ def test_written_views_are_plantcvs_size_analysis(bean):
 def test_traits_json_holds_the_mesh_gaussians_and_views(bean):
     traits = json.loads((bean / "traits.json").read_text())
     run = json.loads((bean / "run.json").read_text())
-    expected = plant_traits(grow("bean", run["seed"]))
+    expected = plant_traits(grow("bean", run["config"]["seed"]))
     assert traits["source"] == "mesh and skeleton"
     for key in ("leaf_count", "leaf_area", "height", "canopy_width", "stem_count"):
         assert traits["plant"][key] == expected["plant"][key]

@@ -12,7 +12,7 @@ import numpy as np
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply
 from plantdreamer.lsystem import generate_plant, sample_points
-from plantdreamer.pipeline.init import init_gaussians
+from plantdreamer.pipeline.model.init import init_gaussians
 
 INRIA_ORDER = ["f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
 INRIA_ORDER += ["scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]

@@ -12,11 +12,14 @@ thread_policy.settle()
 from plantdreamer import _core  # noqa: E402
 from plantdreamer.errors import (  # noqa: E402
     CheckpointError,
+    DatasetStopped,
     InputError,
     ModelNotFoundError,
     PlantDreamerError,
+    PlantsFailed,
     PlyError,
     PlyWarning,
+    RunInterrupted,
 )
 
 __version__: str = _core.__version__
@@ -24,16 +27,21 @@ __version__: str = _core.__version__
 __all__ = [
     "CheckpointError",
     "DatasetResult",
+    "DatasetStopped",
     "GenerateConfig",
     "GeneratedPlant",
     "InputError",
     "ModelNotFoundError",
     "PlantDreamerError",
+    "PlantsFailed",
     "PlyError",
     "PlyWarning",
+    "RunInterrupted",
+    "SceneResult",
     "__version__",
     "generate",
     "make_dataset",
+    "make_scene",
     "rasterization",
 ]
 
@@ -42,10 +50,12 @@ __all__ = [
 # API (plantdreamer.api) and the torch-backed rasterizer.
 _LAZY = {
     "DatasetResult": "plantdreamer.api",
-    "GenerateConfig": "plantdreamer.pipeline.config",
+    "GenerateConfig": "plantdreamer.pipeline.settings.config",
     "GeneratedPlant": "plantdreamer.api",
     "generate": "plantdreamer.api",
     "make_dataset": "plantdreamer.api",
+    "make_scene": "plantdreamer.scenes",
+    "SceneResult": "plantdreamer.scenes",
     "rasterization": "plantdreamer.rasterizer",
 }
 

@@ -11,6 +11,7 @@ __all__ = [
     "PlyError",
     "RasterState",
     "__version__",
+    "check_ply_vertex",
     "downsample_to_count",
     "eval_sh",
     "info",
@@ -43,6 +44,7 @@ def large_gaussian_mask(
 def read_ply_vertex(
     path: str, groups: list[list[str]] = ..., strict: bool = False
 ) -> tuple[int, list[tuple[list[str], npt.NDArray[Any]]], str, list[str], list[str]]: ...
+def check_ply_vertex(path: str) -> None: ...
 def write_ply_vertex(
     path: str,
     fields: list[tuple[list[str], npt.NDArray[Any]]],

@@ -6,28 +6,31 @@ disk (fsync), the temporary file is renamed over the target (``os.replace``) and
 entry is flushed too. If anything fails (a full disk, a file-size limit, Ctrl-C) the
 temporary file is removed and the previous file is left as it was.
 
-The temporary name keeps the target's suffix (``.plant.ply.k3j9.tmp.ply``), so writers that
-pick a format from the suffix (imageio, Pillow, matplotlib, trimesh) work unchanged. A
-process killed inside a write (SIGKILL, a power cut) cannot remove its temporary: names of
-that form (``TEMPORARY``) are removed by the next run that claims the folder
-(``output_folder``). Several outputs replaced together are built in a ``staging_folder``
-and moved in by ``output_folder.replace_entries``.
+The temporary name keeps the target's suffix (``.plant.ply.<16 hex>.tmp.ply``), so writers
+that pick a format from the suffix (imageio, Pillow, matplotlib, trimesh) work unchanged,
+and carries a check the program verifies (``temporaries``): a process killed inside a
+write (SIGKILL, a power cut) cannot remove its temporary, and the next run that claims the
+folder removes it (``output_folder``), never a user's file of a similar name. A target
+whose name is as long as the file system allows still gets a temporary (its name is
+shortened). Several outputs replaced together are built in a ``staging_folder`` and moved
+in together (``exports.dataset_files``).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import re
-import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from plantdreamer.temporaries import STAGING, name_max, temporary_name
+
 __all__ = [
     "atomic_path",
     "atomic_write",
+    "fsync_folder",
     "staging_folder",
     "write_bytes",
     "write_image",
@@ -36,10 +39,6 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike[str]
-# A temporary of ``atomic_path`` (``.NAME.<8 random>.tmp.SUFFIX``), a ``staging_folder``
-# (``.staging.<8 random>.tmp``) or a hard link on its way (``.NAME.link``,
-# ``exports.yolo.link_image``): what a killed write leaves.
-TEMPORARY = re.compile(r"\..+\.(?:[a-z0-9_]{8}\.tmp(?:\.[^.]+)?|link)")
 
 
 @contextmanager
@@ -49,27 +48,41 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
     The folder must exist (a missing folder is a FileNotFoundError, as with ``open``).
     """
     target = Path(path)
-    fd, name = tempfile.mkstemp(
-        prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=target.parent
-    )
-    os.close(fd)
-    tmp = Path(name)
+    tmp = _new_temporary(target)
     try:
         yield tmp
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; outputs are shared
+        os.chmod(tmp, 0o666 & ~_umask())  # created 0600 (private until complete); shared
         os.replace(tmp, target)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(target.parent)
+    fsync_folder(target.parent)
+
+
+def _new_temporary(target: Path) -> Path:
+    """An empty file of a new temporary name beside ``target``, made exclusively."""
+    limit = name_max(target.parent)
+    while True:
+        tmp = target.with_name(temporary_name(target.name, limit=limit))
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            return tmp
+        except FileExistsError:  # the same random token: draw another
+            continue
 
 
 def staging_folder(folder: PathLike) -> Path:
     """A new, empty folder inside ``folder`` (same file system: its entries move in by
     rename), named as a temporary."""
-    return Path(tempfile.mkdtemp(prefix=".staging.", suffix=".tmp", dir=folder))
+    while True:
+        stage = Path(folder) / temporary_name(STAGING)
+        try:
+            stage.mkdir(mode=0o700)
+            return stage
+        except FileExistsError:
+            continue
 
 
 def atomic_write(path: PathLike, write: Callable[[Path], object]) -> None:
@@ -112,7 +125,7 @@ def _umask() -> int:
     return mask
 
 
-def _fsync_dir(folder: Path) -> None:
+def fsync_folder(folder: Path) -> None:
     """Flushes the rename itself; some file systems cannot open a folder, which is fine."""
     try:
         fd = os.open(folder, os.O_RDONLY)

@@ -46,6 +46,20 @@ class Camera:
         if not (np.isfinite(self.viewmat).all() and np.isfinite(self.K).all()):
             raise InputError("camera matrices contain NaN or Inf")
 
+    def check_renderable(self, what: str = "camera") -> None:
+        """InputError unless the rasterizer takes this camera as it is given to it (float32):
+        finite matrices and positive focal lengths. A focal length of 1e-300 is 0, and
+        1e308 is infinite, in float32: refused here, before a command writes anything."""
+        view32 = self.viewmat.astype(np.float32)
+        k32 = self.K.astype(np.float32)
+        if not (np.isfinite(view32).all() and np.isfinite(k32).all()):
+            raise InputError(f"{what}: its pose or intrinsics overflow float32 (as rendered)")
+        if not (k32[0, 0] > 0 and k32[1, 1] > 0):
+            raise InputError(
+                f"{what}: focal lengths fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g} are not "
+                "positive in float32 (as rendered)"
+            )
+
     @property
     def c2w(self) -> np.ndarray:
         """Camera-to-world in OpenCV axes."""

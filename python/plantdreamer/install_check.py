@@ -1,6 +1,8 @@
 """What ``plantdreamer info --check`` looks for: the diffusion weights (a local folder, or the
-Hugging Face cache; nothing is downloaded), species LoRAs, and the optional extras of the
-installed package's metadata. Each check gives (found, one line saying what and where)."""
+Hugging Face cache; nothing is downloaded; each weight file's header read, so a file cut
+short is "damaged", not "present"), species LoRAs (their headers too), and the optional
+extras of the installed package's metadata. Each check gives (found, one line saying what
+and where)."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ def model_row(ident: str, kind: str) -> tuple[bool, str]:
         missing_base_parts,
         missing_controlnet_parts,
     )
+    from plantdreamer.guidance.weight_files import damaged_model_files
 
     missing_parts = missing_base_parts if kind == "base" else missing_controlnet_parts
     folder = Path(ident)
@@ -34,6 +37,9 @@ def model_row(ident: str, kind: str) -> tuple[bool, str]:
     missing = missing_parts(folder)
     if missing:
         return False, f"incomplete: {where} lacks {', '.join(missing)}"
+    damaged = damaged_model_files(folder, kind)  # each weight file's header read
+    if damaged:
+        return False, f"damaged: {where}: {'; '.join(damaged)}"
     return True, f"present: {where}"
 
 
@@ -46,11 +52,16 @@ def lora_row(path: str | None) -> tuple[bool, str]:
         )
     from plantdreamer.errors import PlantDreamerError
     from plantdreamer.guidance.lora_weights import find_lora_file
+    from plantdreamer.guidance.weight_files import check_lora_weights
 
     try:
         found = find_lora_file(path)
     except PlantDreamerError as exc:
         return False, f"missing: {exc}"
+    try:
+        check_lora_weights(found)  # its header read: it will load
+    except PlantDreamerError as exc:
+        return False, f"damaged: {exc}"
     return True, f"present: {found}"
 
 

@@ -89,8 +89,9 @@ def _read_fields(
 
 
 def check_ply_file(path: PathLike, what: str = "PLY") -> None:
-    """A quick look before a command deletes or loads anything: ``path`` is a readable file
-    that opens with a PLY header (the full read comes later and checks the rest)."""
+    """A look before a command deletes or loads anything: ``path`` is a readable PLY file
+    whose vertex element will load (its header's claims against the file's length, or the
+    rows read where their size is not fixed: ``_core.check_ply_vertex``)."""
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
@@ -102,6 +103,10 @@ def check_ply_file(path: PathLike, what: str = "PLY") -> None:
         raise InputError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
     if not (head.startswith((b"ply\n", b"ply\r\n")) and b"end_header" in head):
         raise PlyError(f"{what} {path} is not a PLY file (no PLY header)")
+    try:
+        _core.check_ply_vertex(os.fspath(path))
+    except PlyError as exc:
+        raise PlyError(f"{what} {exc}") from None
 
 
 def read_ply_columns(path: PathLike, *, strict: bool = False) -> dict[str, np.ndarray]:

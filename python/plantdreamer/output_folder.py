@@ -18,27 +18,32 @@ Every command that writes follows one ownership rule:
   it does not write, a link where it writes a folder, or a folder where it writes a file
   is refused with the list, and nothing is deleted. Links are never followed: a link the
   command owns is removed itself, its target left alone;
-- the temporaries of atomic writes that a killed run left (``atomic.TEMPORARY``) are
-  removed when the next run claims the folder.
+- the temporaries that a killed run left of the files it writes (``temporaries``: names
+  the program verifies, never a user's ``.backup.tmp``) are removed when the next run
+  claims the folder; a refused claim deletes nothing, temporaries included;
+- the name of every file it writes is checked before anything is deleted (``output_file``:
+  no longer than the file system takes, no NUL), so a replacement cannot fail on its name
+  after the old output is gone.
 
+The locks are ``output_locks``: one run per folder, none inside a folder another run holds.
 Creating the lock file is also the writability check (a fixed probe name that is created
 and deleted would race between two runs). The lock file is removed when the claim ends.
 """
 
 from __future__ import annotations
 
-import fcntl
-import glob
 import os
 import re
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path, PurePath
+from pathlib import Path
 
-from plantdreamer.atomic import TEMPORARY
 from plantdreamer.errors import InputError
+from plantdreamer.output_locks import LOCK_NAME, locked
+from plantdreamer.output_names import check_name, file_lock_name, new_file, output_file
+from plantdreamer.output_survey import Owned, OwnedSpec, check_owned_name, survey
+from plantdreamer.temporaries import is_temporary_of, name_max
 
 __all__ = [
     "LOCK_NAME",
@@ -52,62 +57,16 @@ __all__ = [
     "output_file",
     "remove_owned",
     "remove_temporaries",
-    "replace_entries",
     "survey",
     "tree",
 ]
 
 PathLike = str | os.PathLike[str]
-LOCK_NAME = ".plantdreamer.lock"
-# An entry a command writes in its folder, as a relative POSIX path: a literal file name,
-# a literal folder name ending in "/" (its contents: the entries under it), or a pattern a
-# file's whole relative path matches.
-Owned = str | re.Pattern[str]
-# A value that becomes one part of a path (a species, a plant name): never a path itself.
-PATH_PART = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._ -]{0,99}")
-
-
-@contextmanager
-def locked(lock_path: Path, what: str, holder: str = "plantdreamer run") -> Iterator[None]:
-    """Holds an exclusive lock on ``lock_path`` (created if missing) for the block; a second
-    claim fails with "``what`` is in use by another ``holder``"."""
-    folder = lock_path.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise PermissionError(f"output folder {folder} is not writable: {exc}") from exc
-    while True:
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
-        except OSError as exc:
-            raise PermissionError(f"output folder {folder} is not writable: {exc}") from exc
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise InputError(
-                f"{what} is in use by another {holder} (lock {lock_path}); "
-                "wait for it to finish or write elsewhere"
-            ) from None
-        # The holder before us may have removed the file after we opened it: retry on the
-        # file now at the path, so two runs never hold locks on two different files.
-        try:
-            same = os.stat(lock_path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    try:
-        yield
-    finally:
-        Path(lock_path).unlink(missing_ok=True)
-        os.close(fd)
 
 
 def tree(name: str, *contents: Owned) -> tuple[Owned, ...]:
     """A folder ``name`` the command makes, and what it writes in it (relative to it)."""
-    _check_name(name)
+    check_owned_name(name)
     out: list[Owned] = [name.rstrip("/") + "/"]
     for entry in contents:
         if isinstance(entry, str):
@@ -115,101 +74,6 @@ def tree(name: str, *contents: Owned) -> tuple[Owned, ...]:
         else:
             out.append(re.compile(f"{re.escape(name.rstrip('/'))}/(?:{entry.pattern})"))
     return tuple(out)
-
-
-def check_name(value: str, what: str) -> str:
-    """``value`` (a species, a plant name) as one plain part of a path; InputError else."""
-    if not isinstance(value, str) or not PATH_PART.fullmatch(value) or value.strip() != value:
-        raise InputError(
-            f"{what} {value!r} becomes part of a path: use letters, digits, '-', '_', '.' "
-            "or spaces (not first), never a path"
-        )
-    return value
-
-
-@dataclass
-class Survey:
-    """What a command owns in a folder as it is now: its files (in ``owned`` order: the
-    file that marks a finished run first), its folders (deepest first) and anything in its
-    way (foreign files in its folders, links or folders where it writes)."""
-
-    files: list[Path] = field(default_factory=list)
-    folders: list[Path] = field(default_factory=list)
-    foreign: list[str] = field(default_factory=list)
-
-    def refuse(self, root: Path) -> None:
-        if self.foreign:
-            shown = ", ".join(self.foreign[:5]) + (
-                f" and {len(self.foreign) - 5} more" if len(self.foreign) > 5 else ""
-            )
-            raise InputError(
-                f"{root} holds, where this command writes, what it does not write: {shown}; "
-                "nothing was deleted: move them away, or choose another output folder"
-            )
-
-
-class _Owned:
-    """A command's ``Owned`` entries, checked, with its folders apart."""
-
-    def __init__(self, owned: Iterable[Owned]) -> None:
-        self.entries = list(owned)
-        for entry in self.entries:
-            if isinstance(entry, str):
-                _check_name(entry)
-        self.folders = {
-            e.rstrip("/") for e in self.entries if isinstance(e, str) and e.endswith("/")
-        }
-
-    def file_rank(self, rel: str) -> int | None:
-        for i, entry in enumerate(self.entries):
-            if entry == rel if isinstance(entry, str) else entry.fullmatch(rel):
-                return i
-        return None
-
-    def holds(self, rel: str) -> bool:
-        """Whether the relative path is one of the outputs or lies in an output folder."""
-        if self.file_rank(rel) is not None:
-            return True
-        return any(rel == d or rel.startswith(d + "/") for d in self.folders)
-
-
-def survey(folder: Path, owned: Iterable[Owned]) -> Survey:
-    """What the command owns in ``folder`` now (see ``Survey``); reads only, follows no link.
-    The temporaries of killed atomic writes, at the top and in its folders, are its own."""
-    spec = _Owned(owned)
-    found = Survey()
-    ranked: list[tuple[int, Path]] = []
-
-    def walk(rel_dir: str) -> None:
-        inside = bool(rel_dir)
-        with os.scandir(folder / rel_dir if inside else folder) as entries:
-            listing = sorted(entries, key=lambda e: e.name)
-        for entry in listing:
-            rel = f"{rel_dir}/{entry.name}" if inside else entry.name
-            is_link = entry.is_symlink()
-            is_dir = entry.is_dir(follow_symlinks=False)
-            if not inside and entry.name == LOCK_NAME:
-                continue
-            if TEMPORARY.fullmatch(entry.name) and not is_link:
-                ranked.append((-1, folder / rel))  # a killed write's temporary: first
-            elif rel in spec.folders:
-                if is_dir:
-                    walk(rel)
-                    found.folders.append(folder / rel)
-                else:
-                    found.foreign.append(f"{rel} ({'a link' if is_link else 'a file'})")
-            elif (rank := spec.file_rank(rel)) is not None:
-                if is_dir:
-                    found.foreign.append(f"{rel}/ (a folder)")
-                else:
-                    ranked.append((rank, folder / rel))
-            elif inside:
-                found.foreign.append(rel + ("/" if is_dir else ""))
-
-    if folder.is_dir():  # the folder itself as given (a link the user chose); none inside
-        walk("")
-    found.files = [path for _, path in sorted(ranked, key=lambda r: r[0])]
-    return found
 
 
 def remove_owned(folder: Path, owned: Iterable[Owned]) -> None:
@@ -231,7 +95,7 @@ def remove_owned(folder: Path, owned: Iterable[Owned]) -> None:
 
 def check_inputs_outside(folder: Path, owned: Iterable[Owned], inputs: Iterable[PathLike]) -> None:
     """Refuses inputs that lie among the outputs the command writes in ``folder``."""
-    spec = _Owned(owned)
+    spec = OwnedSpec(owned)
     root = folder.resolve()
     for given in inputs:
         path = Path(given).resolve()
@@ -261,23 +125,29 @@ def claim_folder(
     """
     path = Path(folder)
     owned = list(owned)
-    spec = _Owned(owned)  # checks the literal names before anything else
+    spec = OwnedSpec(owned)  # checks the literal names before anything else
     check_inputs_outside(path, owned, inputs)
     if path.exists() and not path.is_dir():
         raise PermissionError(f"output folder {path} is not writable: it is a file")
-    with locked(path / LOCK_NAME, f"output folder {path}"):
+    with _removed_if_refused(path), locked(path / LOCK_NAME, f"output folder {path}"):
         if overwrite:
             remove_owned(path, spec.entries)
         else:
-            remove_temporaries(path, spec.entries)
-            if not allow_existing:
-                entries = sorted(p.name for p in path.iterdir() if p.name != LOCK_NAME)
+            if not allow_existing:  # refused before any temporary goes
+                limit = name_max(path)
+                entries = sorted(
+                    p.name
+                    for p in path.iterdir()
+                    if p.name != LOCK_NAME
+                    and (p.is_symlink() or not spec.owns_temporary("", p.name, limit))
+                )
                 if entries:
                     shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
                     raise InputError(
-                        f"output folder {path} is not empty ({shown}); pass --overwrite to "
-                        "replace its outputs, or choose another folder"
+                        f"output folder {path} is not empty ({shown}); pass --overwrite "
+                        "to replace its outputs, or choose another folder"
                     )
+            remove_temporaries(path, spec.entries)
         yield path
 
 
@@ -297,7 +167,8 @@ def claim_files(
                 "name another output file"
             )
     first = files[0]
-    with locked(first.with_name(f".{first.name}.lock"), str(first)):
+    lock = first.with_name(file_lock_name(first))
+    with _removed_if_refused(first.parent), locked(lock, str(first)):
         existing = [p for p in files if p.exists() or p.is_symlink()]
         folders = [p for p in existing if p.is_dir() and not p.is_symlink()]
         if folders:
@@ -313,65 +184,48 @@ def claim_files(
             p.unlink(missing_ok=True)  # a link goes itself; its target stays
         for p in files:  # a killed write's temporaries of these files
             if p.parent.is_dir():
-                for stale in p.parent.glob(f".{glob.escape(p.name)}.*.tmp*"):
-                    if TEMPORARY.fullmatch(stale.name) and stale.is_file():
+                limit = name_max(p.parent)
+                for stale in p.parent.iterdir():
+                    if is_temporary_of(stale.name, p.name, limit) and stale.is_file():
                         stale.unlink(missing_ok=True)
         yield files
 
 
-def new_file(path: PathLike, what: str, *, overwrite: bool = False) -> Path:
-    """A single output file the command replaces atomically (the previous one stays whole
-    until the new one is complete): refused when it names a folder, and when it exists
-    unless ``overwrite``."""
-    out = output_file(path, what)
-    if (out.exists() or out.is_symlink()) and not overwrite:
-        raise InputError(f"{out} exists; pass --overwrite to replace it, or choose another {what}")
-    return out
-
-
-def replace_entries(folder: Path, stage: Path, names: Iterable[str]) -> None:
-    """Moves each of ``names`` from the staging folder ``stage`` (made in ``folder`` by
-    ``atomic.staging_folder``) over the same name in ``folder``: every new entry complete
-    before any old one goes, so a failure while staging leaves the previous ones whole."""
-    retired = stage / ".retired"
-    retired.mkdir()
-    for name in names:
-        new, old = stage / name, folder / name
-        if old.exists() or old.is_symlink():
-            os.rename(old, retired / name)
-        if new.exists():
-            os.rename(new, old)
-    shutil.rmtree(stage)
-
-
-def output_file(path: PathLike, what: str = "output") -> Path:
-    """``path`` as a file to write: refused when it names a folder (``.``, ``dir/``, an
-    existing folder), so no companion name is made from it and nothing in it is touched."""
-    out = Path(path)
-    if out.name in ("", ".", "..") or str(path).endswith(os.sep) or out.is_dir():
-        raise InputError(f"{what} {path} is a folder; name the file to write")
-    return out
-
-
 def remove_temporaries(folder: Path, owned: Iterable[Owned]) -> None:
-    """The temporaries a killed atomic write left at the top of ``folder`` or in its
-    command's folders (whatever else is there)."""
+    """The temporaries a killed write left of the command's files, at the top of ``folder``
+    or in its command's folders (``Survey``: verified names of its own files only)."""
     if not folder.is_dir():
         return
-    spec = _Owned(owned)
-    places = [folder, *(folder / d for d in sorted(spec.folders))]
-    for place in places:
+    spec = OwnedSpec(owned)
+    limit = name_max(folder)
+    for rel_dir in ["", *sorted(spec.folders)]:
+        place = folder / rel_dir if rel_dir else folder
         if place.is_symlink() or not place.is_dir():
             continue
         for entry in place.iterdir():
-            if TEMPORARY.fullmatch(entry.name) and not entry.is_symlink():
-                if entry.is_dir():
-                    shutil.rmtree(entry)
-                else:
-                    entry.unlink(missing_ok=True)
+            if entry.is_symlink() or not spec.owns_temporary(rel_dir, entry.name, limit):
+                continue
+            if entry.is_dir():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink(missing_ok=True)
 
 
-def _check_name(name: str) -> None:
-    parts = PurePath(name).parts
-    if not parts or PurePath(name).is_absolute() or ".." in parts:
-        raise InputError(f"{name!r} is not a name inside the output folder")
+@contextmanager
+def _removed_if_refused(folder: Path) -> Iterator[None]:
+    """The folders up to ``folder`` that the block makes are removed again when it fails
+    (a refused command leaves no empty folder of its own), if still empty."""
+    made = []
+    place = Path(os.path.abspath(folder))
+    while not place.exists() and place != place.parent:
+        made.append(place)
+        place = place.parent
+    try:
+        yield
+    except BaseException:
+        for empty in made:
+            try:
+                empty.rmdir()
+            except OSError:  # not empty (or gone): left as it is
+                break
+        raise

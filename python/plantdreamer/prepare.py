@@ -31,7 +31,7 @@ from plantdreamer.pointcloud import (
     remove_statistical_outliers,
 )
 
-# The steps' defaults; generate's input section (pipeline/source.py) and the `prepare`
+# The steps' defaults; generate's input section (pipeline/model/source.py) and the `prepare`
 # command take theirs from here.
 TARGET_POINTS = 100_000
 SOR_NEIGHBORS = 20

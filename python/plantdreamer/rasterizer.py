@@ -173,12 +173,17 @@ def rasterization(
     """Renders N Gaussians into C cameras (gsplat 1.5 ``rasterization``, CPU).
 
     Args:
-        means: [N, 3] centres (world). quats: [N, 4] (w, x, y, z), any norm.
-        scales: [N, 3] standard deviations (activated). opacities: [N] in [0, 1].
+        means: [N, 3] centres (world).
+        quats: [N, 4] (w, x, y, z), any norm.
+        scales: [N, 3] standard deviations (activated).
+        opacities: [N] in [0, 1].
         colors: [N, D] colours, or [N, K, 3] SH coefficients when ``sh_degree`` is given
             (0..3, K >= (sh_degree + 1)^2; colour = max(SH(dir) + 0.5, 0)).
-        viewmats: [C, 4, 4] world-to-camera (OpenCV axes). Ks: [C, 3, 3] intrinsics.
-        width, height: image size in pixels.
+        viewmats: [C, 4, 4] world-to-camera (OpenCV axes).
+        Ks: [C, 3, 3] intrinsics.
+        width: image width in pixels.
+        height: image height in pixels.
+        sh_degree: the SH degree of ``colors`` (None: plain colours).
         backgrounds: [C, D] colour behind the Gaussians (colour channels only).
         render_mode: "RGB", "D" (sum of T alpha z), "ED" (D / alpha), "RGB+D", "RGB+ED";
             the depth channel comes last.
@@ -290,7 +295,9 @@ class RasterBatch:
         rendered: list[dict[str, Any]] = []
         for k, native in zip(ok, natives, strict=True):
             if isinstance(native, BaseException):
-                error = native if isinstance(native, PlantDreamerError) else InputError(str(native))
+                # MemoryError stays one (a buffer the data sized could not be allocated).
+                kept = isinstance(native, (PlantDreamerError, MemoryError))
+                error = native if kept else InputError(str(native))
                 self.outcomes[k] = error
                 continue
             means2d = prepared[k].means2d(native)
@@ -323,7 +330,8 @@ class RasterBatch:
     def results(
         self,
     ) -> list[tuple[torch.Tensor, torch.Tensor, dict[str, Any]] | PlantDreamerError]:
-        """Each scene's (render, alpha, meta), or its error naming it (``scene K: ...``)."""
+        """Each scene's (render, alpha, meta), or its error naming it (``scene K: ...``; one
+        that ran out of memory as an InputError saying so: a plant of a group fails alone)."""
         named: list[Any] = []
         for k, result in enumerate(self.outcomes):
             if result is None:

@@ -1,7 +1,9 @@
 //! The single point where core errors become Python exceptions.
 
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyFileNotFoundError, PyOSError, PyPermissionError};
+use pyo3::exceptions::{
+    PyException, PyFileNotFoundError, PyMemoryError, PyOSError, PyPermissionError,
+};
 use pyo3::prelude::*;
 use splat_core::CoreError;
 
@@ -41,8 +43,12 @@ pub fn to_pyerr(err: CoreError) -> PyErr {
         CoreError::Io { source, .. } => match source.kind() {
             std::io::ErrorKind::NotFound => PyFileNotFoundError::new_err(message),
             std::io::ErrorKind::PermissionDenied => PyPermissionError::new_err(message),
+            // A file too large for the memory left (std::fs::read reserves fallibly).
+            std::io::ErrorKind::OutOfMemory => PyMemoryError::new_err(message),
             _ => PyOSError::new_err(message),
         },
+        // Never an abort: the buffers sized by the data are reserved fallibly (memory.rs).
+        CoreError::OutOfMemory { .. } => PyMemoryError::new_err(message),
         CoreError::Internal(_) => PlantDreamerError::new_err(message),
     }
 }

@@ -69,6 +69,14 @@ fn read_ply_vertex<'py>(
     Ok((table.count, fields, format, table.comments, table.warnings))
 }
 
+/// Checks that the vertex element of the PLY file at `path` will load, from its header and
+/// the file's length where they settle it (binary rows of fixed size), else by reading it;
+/// raises what the read would raise (PlyError for a file cut short).
+#[pyfunction]
+fn check_ply_vertex(py: Python<'_>, path: PathBuf) -> PyResult<()> {
+    run_native(py, || ply::check_vertex_data(&path))
+}
+
 /// A C-contiguous array of one of the eight PLY scalar types, borrowed for the write.
 enum Held<'py> {
     I8(PyReadonlyArrayDyn<'py, i8>),
@@ -169,6 +177,7 @@ fn write_ply_vertex(
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_ply_vertex, m)?)?;
+    m.add_function(wrap_pyfunction!(check_ply_vertex, m)?)?;
     m.add_function(wrap_pyfunction!(write_ply_vertex, m)?)?;
     Ok(())
 }

@@ -156,7 +156,7 @@ fn main() {
         );
     }
     if std::env::var_os("EVALS").is_some() {
-        let e = raster::count_evaluations(&state);
+        let e = raster::count_evaluations(&state).expect("the counting replay fits in memory");
         println!(
             "forward evaluations {} blended {}",
             e.forward_evaluated, e.forward_blended

@@ -8,7 +8,8 @@
 //! removed and the previous file at the destination is left as it was.
 //!
 //! The temporary file is named `.<name>.<pid>-<n>.tmp` (hidden, unique per process and
-//! call) and created exclusively. A destination that exists keeps its permission bits; a
+//! call) and created exclusively; `<name>` is shortened when the whole would pass the
+//! 255 bytes a file name may have, so a destination of any valid name has a temporary. A destination that exists keeps its permission bits; a
 //! destination that is a symbolic link has the file it points to replaced, not the link.
 
 use std::fs::{self, File, OpenOptions};
@@ -48,10 +49,26 @@ fn temporary_path(target: &Path) -> io::Result<PathBuf> {
         io::Error::new(io::ErrorKind::InvalidInput, "the path does not name a file")
     })?;
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let tail = format!(".{}-{n}.tmp", std::process::id());
     let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".{}-{n}.tmp", std::process::id()));
+    tmp_name.push(shortened(name, NAME_MAX - 1 - tail.len()));
+    tmp_name.push(tail);
     Ok(target.with_file_name(tmp_name))
+}
+
+/// Bytes in one file name on the file systems plantdreamer writes to.
+const NAME_MAX: usize = 255;
+
+/// `name` cut to at most `room` bytes (on a character boundary where it is UTF-8).
+fn shortened(name: &std::ffi::OsStr, room: usize) -> std::ffi::OsString {
+    let Some(text) = name.to_str() else {
+        return name.to_os_string(); // not UTF-8: left as it is
+    };
+    let mut end = text.len().min(room);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    text[..end.max(1).min(text.len())].into()
 }
 
 fn write_then_rename(target: &Path, tmp: &Path, bytes: &[u8]) -> io::Result<()> {
@@ -108,6 +125,17 @@ mod tests {
         write_atomic(&path, b"new contents").unwrap();
         assert_eq!(fs::read(&path).unwrap(), b"new contents");
         assert_eq!(entries(&dir), vec!["a.ply".to_string()]);
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_name_as_long_as_allowed_still_gets_a_temporary() {
+        let dir = scratch("long");
+        let path = dir.join(format!("{}.ply", "p".repeat(251)));
+        write_atomic(&path, b"old").unwrap();
+        write_atomic(&path, b"new").unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"new");
+        assert_eq!(entries(&dir).len(), 1);
         fs::remove_dir_all(dir).unwrap();
     }
 

@@ -23,6 +23,11 @@ pub enum CoreError {
         source: std::io::Error,
     },
 
+    /// A buffer sized by the data could not be allocated (a memory limit, too little
+    /// memory): reported instead of aborting the process (`memory.rs`).
+    #[error("out of memory: {} could not be allocated", human_bytes(*.bytes))]
+    OutOfMemory { bytes: u128 },
+
     /// A broken internal invariant. Never expected; reported instead of panicking.
     #[error("internal error: {0}")]
     Internal(String),
@@ -37,6 +42,13 @@ impl CoreError {
         Self::Ply {
             path: path.into(),
             message: message.into(),
+        }
+    }
+
+    /// `len` values of `T` could not be allocated.
+    pub fn out_of_memory<T>(len: usize) -> Self {
+        Self::OutOfMemory {
+            bytes: len as u128 * std::mem::size_of::<T>() as u128,
         }
     }
 

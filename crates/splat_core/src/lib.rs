@@ -7,6 +7,7 @@
 pub mod atomic_file;
 pub mod culling;
 pub mod error;
+pub mod memory;
 pub mod ply;
 pub mod pointcloud;
 pub mod raster;

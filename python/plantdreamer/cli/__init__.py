@@ -17,25 +17,28 @@ import click
 from plantdreamer import __version__
 from plantdreamer.errors import PlantDreamerError
 
-# Where a user of the wheel finds the documentation and reports a bug: pyproject.toml's
-# [project.urls] (a test keeps them the same). The sdist also carries docs/.
-DOCS_URL = "https://github.com/plantdreamer/plantdreamer/tree/main/docs"
-ISSUES_URL = "https://github.com/plantdreamer/plantdreamer/issues"
+# Where a user finds the documentation and reports a bug. The project's home address is
+# not known to the package: the docs are in the source tree and the sdist (docs/), and
+# tests/test_urls.py fails on an address outside its reviewed list.
+DOCS_WHERE = "docs/ in the plantdreamer source and its sdist; COMMAND --help for each command"
+REPORT_WHERE = "the repository you got plantdreamer from"
 
-# name -> "module:attribute". Only commands that work are listed here.
+# name -> "module:attribute", in the order of the work (`--help` lists them so): check the
+# install, look at plants and scans, train a LoRA, make plants, look at them and render
+# them again, make datasets and their label files, then evaluate and ablate.
 COMMANDS: dict[str, str] = {
-    "ablate": "plantdreamer.cli.ablate:ablate",
-    "eval": "plantdreamer.cli.eval:eval_command",
-    "dataset": "plantdreamer.cli.dataset:dataset",
-    "gallery": "plantdreamer.cli.gallery:gallery",
-    "generate": "plantdreamer.cli.generate:generate",
     "info": "plantdreamer.cli.info:info",
-    "labels": "plantdreamer.cli.labels:labels",
-    "lora": "plantdreamer.cli.lora:lora",
     "lsystem": "plantdreamer.cli.lsystem:lsystem",
     "prepare": "plantdreamer.cli.prepare:prepare",
-    "render": "plantdreamer.cli.render:render",
+    "lora": "plantdreamer.cli.lora:lora",
+    "generate": "plantdreamer.cli.generate:generate",
     "view": "plantdreamer.cli.view:view",
+    "render": "plantdreamer.cli.render:render",
+    "dataset": "plantdreamer.cli.dataset:dataset",
+    "labels": "plantdreamer.cli.labels:labels",
+    "gallery": "plantdreamer.cli.gallery:gallery",
+    "eval": "plantdreamer.cli.eval:eval_command",
+    "ablate": "plantdreamer.cli.ablate:ablate",
 }
 
 
@@ -43,7 +46,19 @@ class _LazyGroup(click.Group):
     """Loads subcommands on demand and turns expected failures into one clear line."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(COMMANDS)
+        return list(COMMANDS)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """Each command with the whole first sentence of its help, wrapped (click's own
+        listing cuts it to the terminal's width, mid-sentence)."""
+        rows = []
+        for name in self.list_commands(ctx):
+            command = self.get_command(ctx, name)
+            if command is not None and not command.hidden:
+                rows.append((name, command.get_short_help_str(limit=1 << 20)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         target = COMMANDS.get(cmd_name)
@@ -61,7 +76,8 @@ class _LazyGroup(click.Group):
                 # Expected failures (bad input, missing files or models): one line, exit 1.
                 _fail(ctx, str(exc))
             except MemoryError as exc:
-                _fail(ctx, f"out of memory{f' ({exc})' if str(exc) else ''}; use smaller sizes")
+                detail = str(exc).removeprefix("out of memory: ")  # the native core's own
+                _fail(ctx, f"out of memory{f' ({detail})' if detail else ''}; use smaller sizes")
             except KeyboardInterrupt:
                 click.secho("interrupted", err=True, fg="yellow")
                 ctx.exit(130)
@@ -73,9 +89,9 @@ class _LazyGroup(click.Group):
                     raise
                 _fail(
                     ctx,
-                    f"internal error ({type(exc).__name__}: {exc}); please report it at "
-                    f"{ISSUES_URL} with the traceback that PLANTDREAMER_TRACEBACK=1 shows "
-                    f"(documentation: {DOCS_URL})",
+                    f"internal error ({type(exc).__name__}: {exc}); please report it to "
+                    f"{REPORT_WHERE}, with the traceback that PLANTDREAMER_TRACEBACK=1 "
+                    f"shows (documentation: {DOCS_WHERE})",
                 )
         return None
 
@@ -92,7 +108,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 @click.group(
     cls=_LazyGroup,
     context_settings={"help_option_names": ["-h", "--help"]},
-    epilog=f"Documentation: {DOCS_URL}",
+    epilog=f"Documentation: {DOCS_WHERE}.",
 )
 @click.version_option(__version__, "-V", "--version", prog_name="plantdreamer")
 def main() -> None:

@@ -12,8 +12,8 @@ from plantdreamer.cli.options import (
     config_options,
     hidden_old_name,
 )
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.init import COLOR_INITS
+from plantdreamer.pipeline.model.init import COLOR_INITS
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 # The generation settings an ablation varies only through the command line.
 SETTINGS = (
@@ -52,8 +52,8 @@ def ablate(pointcloud, dataset, color_init, out_dir, overwrite, quiet, **options
     from plantdreamer.errors import InputError
     from plantdreamer.eval import scan_dataset
     from plantdreamer.output_folder import claim_folder, tree
-    from plantdreamer.pipeline.run_outputs import RUN_OUTPUTS
-    from plantdreamer.pipeline.runtime import check_inputs, check_models
+    from plantdreamer.pipeline.settings.runtime import check_inputs, check_models
+    from plantdreamer.pipeline.state.run_outputs import RUN_OUTPUTS
 
     given = {"color_init": ",".join(color_init) or None, "old_colors": options.pop("old_colors")}
     apply_old_names(given, {"--colors": "color-init"})
@@ -79,7 +79,7 @@ def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
     from plantdreamer.eval import evaluate
     from plantdreamer.eval.report import write_ablation_table, write_json
     from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     background = base.train.background
     results: dict[str, float] = {}
@@ -88,7 +88,7 @@ def _ablate(base, pointcloud, frames, settings, out, quiet) -> None:
         cfg = GenerateConfig.from_settings(
             {**base.settings(), "pointcloud": pointcloud, "color-init": color, "eval-views": 0}
         )
-        run = generate(cfg, out / color, show_progress=not quiet)
+        run = generate_plants([cfg], out / color, show_progress=not quiet)[0]
         scored = evaluate(read_splat_ply(run.ply_path), frames, (background,) * 3, keep_views=0)
         write_json(scored, out / color / "eval.json", setting=color)
         value = scored.mean["masked_psnr"]

@@ -6,11 +6,14 @@ from pathlib import Path
 
 import click
 
+from plantdreamer.cli.dataset_help import DATASET_EXAMPLES
 from plantdreamer.cli.label_options import label_options
 from plantdreamer.cli.options import config_options, options_to_settings
-from plantdreamer.dataset.engine import DEFAULT_CPUS, DEFAULT_GPUS
+from plantdreamer.dataset.demand import DEFAULT_CPUS, DEFAULT_GPUS
 from plantdreamer.dataset.packing import PackingConfig
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.dataset.request import DEFAULT_MAX_RETRIES, OPTION_LIMITS
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.scenes.config import SceneConfig
 
 _PER_PLANT = "[default: {:g} with sds, {:g} with none]"
 # Generate settings with an option of their own here (any other: --set NAME=VALUE).
@@ -38,7 +41,7 @@ def _toml_value(text: str) -> object:
         return text
 
 
-@click.command()
+@click.command(epilog=DATASET_EXAMPLES)
 @click.argument("spec_file", required=False, type=click.Path(dir_okay=False, exists=True))
 @click.option(
     "--out",
@@ -78,8 +81,24 @@ def _toml_value(text: str) -> object:
     metavar="NAME=VALUE",
     help="Any generate setting for every plant, by its option name: --set points=5000.",
 )
-@click.option("--address", help="Join a Ray cluster: auto or HOST:PORT [default: local Ray].")
-@click.option("--local-cpus", type=click.IntRange(1), help="CPUs of the local Ray [all].")
+@click.option(
+    "--scenes",
+    "scene_seeds",
+    metavar="SEEDS",
+    help="Also scenes of the finished plants (trays: scene-plants of one split together), "
+    "one per seed (0-9: ten), into OUT/scenes/; their views take the views' settings.",
+)
+@config_options(SceneConfig, with_defaults=False, note=" With --scenes [default: 4, grid].")
+@click.option(
+    "--address",
+    help="Run on Ray: a cluster's HOST:PORT, auto (the cluster this machine belongs to) or "
+    "local (a private Ray started here) [default: worker processes on this machine, no Ray].",
+)
+@click.option(
+    "--local-cpus",
+    type=click.IntRange(int(OPTION_LIMITS["local_cpus"][1])),
+    help="CPUs of this machine the plants use (the local workers' or a local Ray's) [all].",
+)
 @click.option(
     "--cpus-per-plant",
     type=float,
@@ -100,8 +119,8 @@ def _toml_value(text: str) -> object:
 @config_options(PackingConfig, with_defaults=False, note=" [spec's, else 1]")
 @click.option(
     "--max-retries",
-    type=click.IntRange(0),
-    default=3,
+    type=click.IntRange(int(OPTION_LIMITS["max_retries"][1])),
+    default=DEFAULT_MAX_RETRIES,
     show_default=True,
     help="Re-runs of a plant whose worker died.",
 )
@@ -138,9 +157,11 @@ def dataset(
     dry_run: bool,
     split_ratios: str,
     split_seed: int,
+    split_mode: str,
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
+    scene_seeds: str | None,
     **quick_settings: object,
 ) -> None:
     """Generate a dataset of plants into OUT/plants/<id>/ with OUT/manifest.jsonl.
@@ -152,60 +173,61 @@ def dataset(
     At the end, the finished plants are split by plant into train/val/test and written as
     COCO (OUT/coco/) and YOLO (OUT/yolo/) files, with OUT/gallery.png to look them over.
     """
-    from pathlib import Path
+    from plantdreamer.cli.label_options import describe
+    from plantdreamer.dataset import run_dataset
+    from plantdreamer.dataset.request import dataset_request
+    from plantdreamer.dataset.runner import planned_classes
+    from plantdreamer.errors import DatasetStopped
+    from plantdreamer.exports.dataset import check_exports_owned, check_planned_splits
 
-    from plantdreamer.cli.label_options import describe, make_label_options
-    from plantdreamer.dataset import RunOptions, expand, run_dataset
-    from plantdreamer.dataset.engine import custom_resources, import_ray
-    from plantdreamer.dataset.packing import packing_from
-    from plantdreamer.dataset.runner import DatasetStopped, planned_classes
-    from plantdreamer.dataset.spec import with_settings
-    from plantdreamer.errors import InputError
-    from plantdreamer.exports.dataset import check_planned_splits
-
-    if not dry_run:
-        import_ray()  # fail first, with what to install, when Ray is missing
-    spec = spec_of_options(spec_file, species, pointcloud, seeds, count, seed_start)
-    packing = packing_from(spec, options_to_settings(PackingConfig, quick_settings))
-    quick = options_to_settings(GenerateConfig, dict(quick_settings))
-    overrides = {k: v for k, v in quick.items() if v is not None}
+    packing = options_to_settings(PackingConfig, quick_settings)
+    scene_settings = options_to_settings(SceneConfig, quick_settings)
+    overrides = {
+        k: v
+        for k, v in options_to_settings(GenerateConfig, quick_settings).items()
+        if v is not None
+    }
     overrides.update({k: _toml_value(v) for k, v in _key_values(settings, "--set").items()})
-    if "species" in overrides:  # a group's own species wins over settings: never silently
-        named = {str(g.get("species")) for g in spec.get("group", []) if isinstance(g, dict)}
-        named -= {"None", str(overrides["species"])}
-        if named:
-            raise InputError(
-                f"--set species={overrides['species']} disagrees with the species the groups "
-                f"name ({', '.join(sorted(named))}, from --species or the spec); give it once"
-            )
-    spec = with_settings(spec, overrides)
-    plants = expand(spec)  # every plant's config is checked here, before Ray starts
-    from plantdreamer.dataset.plan import check_models
-
-    check_models(plants)  # the LoRA and models found, before any plan or model load
-    labels = make_label_options(
-        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
-    )
-    if dry_run:  # the label options' refusals, as the run would give them
-        planned = planned_classes(plants)
-        check_planned_splits(Path(out_dir), [p.id for p in plants], labels, planned)
-        _print_plan(plants, out_dir, packing.plants_per_gpu)
-        return
-    custom = custom_resources(_key_values(resources, "--resource"))
-    options = RunOptions(
+    request = dataset_request(
+        spec=spec_file,
+        species=species,
+        pointcloud=pointcloud,
+        seeds=seeds,
+        count=count,
+        seed_start=seed_start,
+        settings=overrides,
+        plants_per_gpu=packing["plants-per-gpu"],
+        scenes=scene_seeds,
+        scene_settings=scene_settings,
         address=address,
         local_cpus=local_cpus,
         cpus_per_plant=cpus_per_plant,
         gpus_per_plant=gpus_per_plant,
-        resources=custom,
+        resources=_key_values(resources, "--resource"),
         max_retries=max_retries,
-        plants_per_gpu=packing.plants_per_gpu,
-        show_progress=not quiet,
+        split=split_ratios,
+        split_seed=split_seed,
+        split_mode=split_mode,
+        stuff=stuff,
+        allow_empty_split=allow_empty_split,
+        min_instance_area=min_instance_area,
         redo_changed=redo_changed,
-        labels=labels,
+        show_progress=not quiet,
     )
+    plants, options = request.plants, request.options
+    if dry_run:  # the label options' and the folder's refusals, as the run would give them
+        planned = planned_classes(plants)
+        check_exports_owned(Path(out_dir))
+        species_of = {p.id: p.species_name for p in plants}
+        check_planned_splits(Path(out_dir), species_of, options.labels, planned)
+        _print_plan(plants, out_dir, options.plants_per_gpu)
+        if options.scenes:
+            click.echo(
+                f"then {len(options.scenes)} scenes of the finished plants into {out_dir}/scenes/"
+            )
+        return
     try:
-        report, stopped = run_dataset(spec, plants, out_dir, options), False
+        report, stopped = run_dataset(request.spec, plants, out_dir, options), False
     except DatasetStopped as stop:  # Ctrl-C or SIGTERM: the summary line still comes
         report, stopped = stop.report, True
     if stopped or report.interrupted:
@@ -232,43 +254,6 @@ def dataset(
     )
     if report.labels is not None:
         click.echo(describe(report.labels, out_dir))
-
-
-def spec_of_options(
-    spec_file: str | None,
-    species: tuple[str, ...],
-    pointcloud: str | None,
-    seeds: str | None,
-    count: int | None,
-    seed_start: int | None,
-) -> dict:
-    """The spec file, or the one that --species / --pointcloud and --seeds describe."""
-    from plantdreamer.cli.options import one_value
-    from plantdreamer.dataset import load_spec
-    from plantdreamer.errors import InputError
-    from plantdreamer.seeds import parse_seeds, seed_range, seeds_text
-
-    named = [n.strip() for text in species for n in text.split(",") if n.strip()]  # a,b: earlier
-    if spec_file is not None:
-        given = [name for name, value in (("--species", named), ("--pointcloud", pointcloud),
-                 ("--seeds", seeds), ("--count", count), ("--seed-start", seed_start)) if value]  # fmt: skip
-        if given:
-            raise InputError(f"give a spec file or {', '.join(given)}, not both")
-        return load_spec(spec_file)
-    chosen = parse_seeds(seeds) if seeds is not None else None
-    if count is not None or seed_start is not None or chosen is None:
-        counted = seed_range(count or 1, seed_start or 0)
-        if chosen is not None:
-            one_value("--count / --seed-start", seeds_text(counted), "--seeds", seeds_text(chosen))
-        chosen = counted
-    if pointcloud is not None:
-        if len(named) > 1:
-            raise InputError("--pointcloud names its plant with one --species, not several")
-        group = {"pointcloud": str(Path(pointcloud).resolve()), "seeds": chosen}
-        return {"group": [{**group, "species": name} for name in named] or [group]}
-    if not named:
-        raise InputError("give a spec file, --species or --pointcloud")
-    return {"group": [{"species": name, "seeds": chosen} for name in named]}
 
 
 def _print_plan(plants, out_dir: str, plants_per_gpu: int) -> None:

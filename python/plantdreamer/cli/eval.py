@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from plantdreamer.cli.options import config_options, options_to_settings
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 
 @click.command(name="eval")

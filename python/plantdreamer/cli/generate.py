@@ -3,7 +3,7 @@
 The run's options are the settings of ``GenerateConfig``, each under its one name (defaults,
 choices and help come from the sections' dataclasses); this module only adds the output folder, ``--resume``, ``--overwrite``,
 ``--quiet``, ``--view``, ``--seeds`` and ``--print-config`` (not settings of the run). ``--preset`` picks the base values
-(``pipeline/presets.py``); only the options given on the command line override them.
+(``pipeline/settings/presets.py``); only the options given on the command line override them.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from plantdreamer.cli.options import (
     options_to_settings,
     typed_options,
 )
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.viewer import DEFAULT_PORT, HOST
 
 # Options of the command that are no settings of the run: listed under the run's heading.
@@ -39,7 +39,7 @@ RUN_OPTIONS = (
 )
 # What the end-of-run line lists, when the run wrote it.
 FINISHED_FILES = ("renders", "labels", "turntable.gif", "turntable.mp4", "coco.json",
-                  "progress.png", "loss.png", "run.json")  # fmt: skip
+                  "progress.png", "loss.png", "tensorboard", "run.json")  # fmt: skip
 # \b keeps click from rewrapping the lines that follow it.
 EXAMPLES = """Examples:
 
@@ -122,8 +122,9 @@ def build_command() -> click.Command:
     ) -> None:
         """Generate a 3DGS plant; writes plant.ply, renders/, turntable.gif, run.json, log.csv,
         and ground truth per view: labels/, instances/, depth/, transforms.json. At each
-        checkpoint progress.png (the Gaussians so far) and loss.png show how it goes."""
-        from plantdreamer.pipeline import RunInterrupted
+        checkpoint (or every --progress-every steps) progress.png (the Gaussians so far) and
+        loss.png show how it goes; --tensorboard writes TensorBoard events too."""
+        from plantdreamer.errors import RunInterrupted
 
         started = time.perf_counter()
         given = typed_options(ctx)
@@ -150,10 +151,9 @@ def build_command() -> click.Command:
             else:
                 cfgs = _configs(options, seeds)
                 if print_config:
-                    from plantdreamer.pipeline.resolved import resolved_settings
+                    from plantdreamer.pipeline.settings.resolved import resolved_settings
 
-                    shown = [resolved_settings(cfg) for cfg in cfgs]
-                    click.echo(json.dumps(shown if seeds is not None else shown[0], indent=2))
+                    click.echo(json.dumps(resolved_settings(cfgs), indent=2))
                     return
                 results = _run(cfgs, Path(out_dir), quiet, group=seeds is not None,
                                overwrite=overwrite)  # fmt: skip
@@ -179,7 +179,7 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
     """The end of a run: what each plant wrote, the time it took and the next command."""
     lines = []
     for r in results:
-        folder = Path(r.out_dir)
+        folder = Path(r.folder)
         made = [name for name in FINISHED_FILES if (folder / name).exists()]
         lines.append(f"wrote {r.ply_path} ({r.gaussians:,} Gaussians) and {', '.join(made)} "
                      f"in {folder}")  # fmt: skip
@@ -193,21 +193,14 @@ def finished_lines(results: list, seconds: float, viewing: bool) -> list[str]:
 
 
 def _configs(options: dict[str, Any], seeds: str | None) -> list[GenerateConfig]:
-    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise)."""
-    from plantdreamer.pipeline import resolve_config
-    from plantdreamer.pipeline.group import parse_seeds
+    """The run's config, or with ``--seeds`` one per seed (the same settings otherwise),
+    each checked before torch is imported (``pipeline.settings.requested``, as the API's)."""
+    from plantdreamer.pipeline.settings.requested import requested_configs
 
     preset = options.pop("preset")
     typed = options_to_settings(GenerateConfig, given_on_command_line(options))
     defaults = options_to_settings(GenerateConfig, options)
-    if seeds is None:
-        return [resolve_config(preset, typed, base=defaults)]
-    if "seed" in typed:
-        raise click.UsageError("give --seed or --seeds, not both")
-    return [
-        resolve_config(preset, {**typed, "seed": seed}, base=defaults)
-        for seed in parse_seeds(seeds)
-    ]
+    return requested_configs(preset, typed, seeds, base=defaults)
 
 
 def _run(
@@ -220,14 +213,23 @@ def _run(
     changes: dict[str, Any] | None = None,
     overwrite: bool = False,
 ) -> list:
-    """Trains the plants (one, or a group under ``out``), or resumes ``out``; each finished
-    plant's result. A failed plant of a group makes the command fail once the others are
-    written (they are listed first)."""
-    from plantdreamer.pipeline.plants import PlantsFailed, generate_plants
+    """Trains the plants (one in ``out``, or a group with a folder each under it), or
+    resumes ``out``; each plant's result. A failed plant of a group makes the command fail
+    once the others are written (they are listed first)."""
+    from plantdreamer.errors import PlantsFailed
+    from plantdreamer.pipeline import FolderPerPlant, PlantAlone, generate_plants
+    from plantdreamer.pipeline.runs.layout import found_layout
+    from plantdreamer.pipeline.runs.record import GROUP_FILE
+    from plantdreamer.pipeline.runs.results import finished_or_raise
 
+    layout = found_layout(out) if resume else FolderPerPlant() if group else PlantAlone()
+    grouped = isinstance(layout, FolderPerPlant)
     try:
-        return generate_plants(cfgs, out, group=group, resume=resume, changes=changes,
-                               overwrite=overwrite, show_progress=not quiet)  # fmt: skip
+        results = generate_plants(
+            cfgs, out, layout=layout, failures="record" if grouped else "raise",
+            resume=resume, changes=changes, overwrite=overwrite, show_progress=not quiet,
+        )  # fmt: skip
+        return finished_or_raise(results, out / GROUP_FILE)
     except PlantsFailed as failed:
         for result in failed.done:
             click.echo(f"wrote {result.ply_path} ({result.gaussians} Gaussians)")

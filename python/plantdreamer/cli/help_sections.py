@@ -45,7 +45,9 @@ class SectionedCommand(click.Command):
         self.sections = dict(sections or {})
         self.other = other
 
-    def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def option_groups(self, ctx: click.Context) -> dict[str, list[tuple[str, str]]]:
+        """Heading -> the help records (option, text) listed under it, in ``--help``'s
+        order (the documentation's CLI reference lists them the same way)."""
         grouped: dict[str, list[tuple[str, str]]] = {}
         help_option = self.get_help_option(ctx)
         for param in self.get_params(ctx):
@@ -56,6 +58,9 @@ class SectionedCommand(click.Command):
             name = "help" if param is help_option else param.name or ""
             heading = self.sections.get(name, self.other)
             grouped.setdefault(heading, []).append(record)
-        for heading, records in grouped.items():
+        return grouped
+
+    def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        for heading, records in self.option_groups(ctx).items():
             with formatter.section(heading):
                 formatter.write_dl(records)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import click
 
 from plantdreamer.cli.options import config_options
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 
 @click.command()

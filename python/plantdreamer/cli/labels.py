@@ -16,6 +16,7 @@ def labels(
     folder: str,
     split_ratios: str,
     split_seed: int,
+    split_mode: str,
     stuff: str,
     allow_empty_split: bool,
     min_instance_area: int,
@@ -28,11 +29,13 @@ def labels(
     from plantdreamer.exports import write_dataset_exports, write_plant_exports
     from plantdreamer.exports.plant import LABEL_FILES
     from plantdreamer.output_folder import LOCK_NAME, locked, survey
+    from plantdreamer.source_date import source_date_epoch
 
     options = make_label_options(
-        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff
+        split_ratios, split_seed, min_instance_area, allow_empty_split, stuff, split_mode
     )
     root = Path(folder)
+    source_date_epoch()  # the card's date: a malformed one refused before anything
     if (root / "run.json").is_file() and not (root / "transforms.json").is_file():
         raise InputError(f"{root} is a plant made with --eval-views 0: it has no views to label")
     # The lock of generate and dataset: never a folder a run is writing.

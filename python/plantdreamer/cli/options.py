@@ -32,6 +32,8 @@ def _click_type(s: settings.Setting) -> Any:
         return typing.get_args(s.type)
     args = [a for a in typing.get_args(s.type) if a is not type(None)]
     base = args[0] if args else s.type  # X | None -> X
+    if typing.get_origin(base) is tuple:  # a range left to the run when not given
+        return typing.get_args(base)
     if base not in (int, float, str, bool):
         raise TypeError(f"setting {s.name}: no command-line type for {s.type!r}")
     return base

@@ -14,7 +14,7 @@ from plantdreamer.cli.options import (
     old_names,
     options_to_settings,
 )
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 # generate's input-section settings that prepare applies, under their names and defaults.
 PREPARE_SETTINGS = (

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 from pathlib import Path, PurePath
 from typing import Any
 
 import click
 
+from plantdreamer.cli import render_transforms
 from plantdreamer.cli.options import (
     apply_old_names,
     config_options,
@@ -17,14 +17,14 @@ from plantdreamer.cli.options import (
     options_to_settings,
     typed_options,
 )
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.rerender import ORBIT
-from plantdreamer.pipeline.train_config import AUTO_RESOLUTION
+from plantdreamer.pipeline.rerender import ORBIT, VIEWS
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.train_config import AUTO_RESOLUTION
 from plantdreamer.turntable import TURNTABLE_FRAMES
 
 # The orbit, render size, background and turntable are generate's settings, under generate's
 # names and defaults (a size left open is generate's on the CPU, where render renders).
-ORBIT_SETTINGS = (*ORBIT, "turntable")
+ORBIT_SETTINGS = (*ORBIT, "turntable", *VIEWS)
 # The names render gave them before (hidden, still accepted).
 OLD_NAMES = {
     "--views": "eval-views", "--distance": "eval-distance", "--elevation": "eval-elevation-deg",
@@ -43,7 +43,7 @@ def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tu
     at a transforms.json's cameras, the ``files`` named from its frames; else the orbit's
     views and turntable."""
     if ground_truth:
-        from plantdreamer.pipeline.run_outputs import FINAL_OUTPUTS
+        from plantdreamer.pipeline.state.run_outputs import FINAL_OUTPUTS
 
         kept = tuple(e for e in FINAL_OUTPUTS if e not in ("run.json", "plant.ply", *TURNTABLES))
         return kept if transforms else (*TURNTABLES, *kept)
@@ -53,9 +53,9 @@ def render_outputs(ground_truth: bool, transforms: bool, files: list[str]) -> tu
     return ORBIT_OUTPUTS
 
 
-# The files a --transforms render wrote (named by its frames, so no pattern finds them):
-# --overwrite deletes them too, so a render with fewer frames leaves none of the earlier.
-VIEWS_RECORD = "rendered_views.json"
+# The files a --transforms render wrote (named by its frames, so no pattern finds them),
+# with their digests: --overwrite deletes those it can prove it wrote (render_transforms).
+VIEWS_RECORD = render_transforms.VIEWS_RECORD
 
 
 @click.command()
@@ -148,6 +148,15 @@ def render(
     # No distance: the orbit is framed on the model (framing.framed_distance), as generate's.
     if not ((distance is None or (math.isfinite(distance) and distance > 0)) and 0 < fovy < 180):
         raise InputError("--eval-distance must be positive and --eval-fovy-deg in (0, 180) degrees")
+    from plantdreamer.views import ViewsConfig
+
+    looks = ViewsConfig.from_settings(orbit)  # the rig, background and jitter, as generate's
+    if transforms is not None:  # its own cameras, on the grey
+        looks_typed = [f"--{n}" for n in VIEWS if n != "seed" and n.replace("-", "_") in given]
+        if looks_typed:
+            raise InputError(f"--transforms renders at its own cameras: not with {looks_typed[0]}")
+        looks = ViewsConfig()
+    looks.validate()
     if ground_truth and up != "z":
         # transforms.json poses are written in the PLY's own frame, which --up would turn.
         raise InputError("--labels writes poses in the PLY's own frame; use it with --up z")
@@ -164,34 +173,49 @@ def render(
         inputs.append(_transforms_file(Path(transforms)))
         if not ground_truth:
             views_at = scan_transforms_json(transforms, images_required=False)
-            files = view_files(views_at, transforms)
+            files = render_transforms.view_files(views_at, transforms)
             inputs += [Path(p) for v in views_at for p in (v.image_path, v.mask_path) if p]
-    earlier = _recorded_views(out) if overwrite else []
+    # The cameras, checked before anything is written: a refused command writes nothing.
+    scene = transform = plan = None
+    if views_at:
+        cameras = [v.camera for v in views_at]
+    else:
+        scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
+        from plantdreamer.views import ViewPlan, plan_views
+
+        if transforms is not None:
+            from plantdreamer.pipeline.rerender import scene_cameras
+
+            cameras = scene_cameras(transforms, transform)
+            plan = ViewPlan(cameras, [{} for _ in cameras], background)
+        else:
+
+            def orbit_views():
+                from plantdreamer.cameras import orbit_ring
+                from plantdreamer.framing import framed_distance
+
+                framed = distance  # else generate's framing (of a plant without views too)
+                if framed is None:
+                    framed = framed_distance(scene, views, elevation, fovy, resolution, resolution)
+                ring = orbit_ring(views, framed, elevation, fovy, resolution, resolution)
+                return ring, framed
+
+            seed = int(orbit["seed"])
+            plan = plan_views(looks, scene, seed, views, fovy, resolution, background, orbit_views)
+            cameras = plan.cameras
+    for i, camera in enumerate(cameras):
+        camera.check_renderable(f"camera {i}")
+    earlier = render_transforms.proven_views(out) if overwrite else []
     # the record last: a stopped --overwrite leaves it, naming what is still to delete
     named = [*files, *earlier] if transforms is not None else files  # and their folders
     owned = [*render_outputs(ground_truth, transforms is not None, named), *earlier, VIEWS_RECORD]
     with claim_folder(out, overwrite=overwrite, owned=owned, inputs=inputs):
         if views_at:
-            _render_dataset_views(gaussians, views_at, files, out, background)
+            render_transforms.render_dataset_views(gaussians, views_at, files, out, background)
             return
-        scene, transform = _scene(gaussians, frame, transforms is not None, up, target)
-        if transforms is not None:
-            from plantdreamer.pipeline.rerender import scene_cameras
-
-            cameras = scene_cameras(transforms, transform)
-        else:
-            from plantdreamer.cameras import orbit_ring
-            from plantdreamer.framing import framed_distance
-
-            if distance is None:  # generate's framing (a plant generated without views too)
-                distance = framed_distance(scene, views, elevation, fovy, resolution, resolution)
-            cameras = orbit_ring(views, distance, elevation, fovy, resolution, resolution)
-        frames = _render_views(scene, transform, cameras, out, background, ground_truth, path)
-        if transforms is None:
-            from plantdreamer.pipeline import outputs
-
-            outputs.write_turntables(out, frames, TURNTABLE_FRAMES, turntable)
-    click.echo(f"wrote {len(frames)} views of {len(gaussians)} Gaussians to {out}")
+        turntables = "none" if transforms is not None else turntable
+        written = _render_views(scene, transform, plan, out, ground_truth, path, turntables)
+    click.echo(f"wrote {written} views of {len(gaussians)} Gaussians to {out}")
 
 
 def parse_center(value: str) -> tuple[float, float, float]:
@@ -220,88 +244,43 @@ def _scene(gaussians, frame, own_frame: bool, up: str, center):
     return to_scene_frame(gaussians, up=up, center=center)
 
 
-def _render_views(scene, transform, cameras, out, background, ground_truth, ply):
-    """Renders ``cameras`` into ``out`` (with ``ground_truth``, in generate's dataset layout,
-    with the label files); returns the frames."""
+def _render_views(scene, transform, plan, out, ground_truth, ply, turntable):
+    """Renders the views of ``plan`` into ``out`` (with ``ground_truth``, in generate's
+    dataset layout, with the label files), each view written as it is made
+    (``outputs.StreamedViews``: the turntable's frames are all it keeps); returns the
+    number of views."""
     import torch
 
     from plantdreamer.pipeline import outputs
-    from plantdreamer.pipeline.model import GaussianModel
+    from plantdreamer.pipeline.model.gaussian_model import GaussianModel
     from plantdreamer.pipeline.progress import Counter
 
     model = GaussianModel(scene)
+    cameras = plan.cameras
+    folder = out / "renders" if ground_truth else out
+    frames_shown = TURNTABLE_FRAMES if plan.turns else 0  # no turntable of a rig
+    views = outputs.StreamedViews(folder, len(cameras), frames_shown, turntable, plan.png)
     with torch.no_grad(), Counter("render: views", len(cameras)) as counter:
 
         def render_view(camera):
-            image, _, meta = model.render([camera], background)
+            image, alpha, meta = model.render([camera], plan.render_background)
             counter.advance()
-            return outputs.to_uint8(image[0].numpy()), meta
+            picture = plan.finish(plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy())
+            return outputs.to_uint8(picture), meta
 
         if not ground_truth:
-            frames = [render_view(camera)[0] for camera in cameras]
-            outputs.write_renders(out, frames)
-            return frames
+            for i, camera in enumerate(cameras):
+                views.add(i, render_view(camera)[0])
+        else:
+            from plantdreamer.exports.points import read_class_names
+            from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
+
+            names = read_class_names(ply)
+            writer = ground_truth_writer(out, model, transform, class_names=names)
+            render_views(model, writer, cameras, render_view, views.add, plan.records)
+    views.write_turntables(out)
+    if ground_truth:
         from plantdreamer.exports.plant import write_plant_exports
-        from plantdreamer.exports.points import read_class_names
-        from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
 
-        writer = ground_truth_writer(out, model, transform, class_names=read_class_names(ply))
-        frames = render_views(model, writer, cameras, render_view)
-        outputs.write_renders(out / "renders", frames)
-    write_plant_exports(out)
-    return frames
-
-
-def view_files(views, transforms: str) -> list[str]:
-    """Where each camera of a transforms.json is written in --out: its image's file name as
-    a PNG, or, when two frames share a name (``cam0/0001.png``, ``cam1/0001.png``), its
-    path relative to the transforms.json; refused when even those collide."""
-    from plantdreamer.errors import InputError
-    from plantdreamer.eval.datasets import _transforms_file
-
-    flat = [f"{view.name}.png" for view in views]
-    if len(set(flat)) == len(flat):
-        return flat
-    root = _transforms_file(Path(transforms)).parent
-    files: dict[str, int] = {}
-    for i, view in enumerate(views):
-        relative = PurePath(os.path.relpath(view.image_path, root))
-        name = relative.with_name(f"{view.name}.png").as_posix()
-        if ".." in relative.parts or name in files:
-            j = files.get(name, flat.index(flat[i]))
-            raise InputError(
-                f"{transforms}: frames {j} and {i} would both be written as {name}; give "
-                "the frames distinct file names"
-            )
-        files[name] = i
-    return list(files)
-
-
-def _recorded_views(out: Path) -> list[str]:
-    """The files an earlier --transforms render recorded in ``out`` (none when unreadable)."""
-    import json
-
-    try:
-        files = json.loads((out / VIEWS_RECORD).read_text(encoding="utf-8"))["files"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
-    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
-
-
-def _render_dataset_views(gaussians, views, files: list[str], out: Path, background) -> None:
-    import numpy as np
-    import torch
-
-    from plantdreamer.atomic import write_image, write_json
-    from plantdreamer.pipeline.model import GaussianModel
-
-    model = GaussianModel(gaussians)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / VIEWS_RECORD, {"files": files})  # before them: one stopped is owned too
-    for view, name in zip(views, files, strict=True):
-        with torch.no_grad():
-            rgb = model.render([view.camera], background)[0][0].numpy()
-        image = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        (out / name).parent.mkdir(parents=True, exist_ok=True)
-        write_image(out / name, image)
-    click.echo(f"wrote {len(views)} views of {len(model)} Gaussians to {out}")
+        write_plant_exports(out)
+    return views.written

@@ -3,6 +3,12 @@ plant or dataset folder in the dtypes torchvision's detection models take."""
 
 from __future__ import annotations
 
-from plantdreamer.data.views import PlantViews, collate, object_keys
+from plantdreamer.data.views import (
+    DETECTION_KEYS,
+    TARGET_KEYS,
+    PlantViews,
+    collate,
+    object_keys,
+)
 
-__all__ = ["PlantViews", "collate", "object_keys"]
+__all__ = ["DETECTION_KEYS", "TARGET_KEYS", "PlantViews", "collate", "object_keys"]

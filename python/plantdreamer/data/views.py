@@ -30,23 +30,30 @@ The area limit and stuff classes are those the folder's label files record (``co
 ``coco/<split>.json``: what ``labels --min-instance-area --stuff`` made), so the targets are
 the objects, category ids and ``num_classes`` of the COCO and YOLO files; ``min_area`` or
 ``stuff`` given otherwise is refused (remake the label files instead). A folder without
-label files takes them as given (defaults: ``labels``' defaults).
+label files takes them as given (defaults: ``labels``' defaults). A dataset folder whose
+label files a stopped export left a mix of two (``export.incomplete``) is refused.
 
 ``semantic`` and ``ignore`` are ``data.pixel_map.PixelMap`` tensors: the geometric v2
 transforms move them as they move a mask, and ``SanitizeBoundingBoxes`` leaves them whole.
 
-A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops only what its
-``labels_getter`` names: pass ``labels_getter=object_keys`` and ``labels``, ``area``,
-``iscrowd`` and ``instance_ids`` follow the boxes. ``area`` is taken again from the masks
-after the transforms (a resize or crop changes it), and an item whose per-object keys no
-longer line up with its boxes is refused in one line. The 16-bit instance PNGs never reach
-the user: torch has few uint16 kernels.
+``target_keys`` picks the keys, as torchvision's ``wrap_dataset_for_transforms_v2`` takes
+them: ``None`` or ``"all"`` (every key above), or the names wanted, such as the detection
+references' ``DETECTION_KEYS`` (``boxes``, ``labels``, ``image_id``, ``masks``).
+
+A v2 transform that drops boxes (``SanitizeBoundingBoxes``) drops the boxes, the masks and
+what its ``labels_getter`` names (by default ``labels``): on ``DETECTION_KEYS`` the default
+transform is all it takes; with every key, pass ``labels_getter=object_keys`` and
+``labels``, ``area``, ``iscrowd``, ``instance_ids`` and ``visible_fraction`` follow the boxes.
+``area`` and the plant's pixel figures are taken again from the masks and ``semantic`` after
+the transforms (a resize or crop changes them), and an item whose per-object keys no longer
+line up with its boxes is refused in one line naming both fixes. The 16-bit instance PNGs
+never reach the user: torch has few uint16 kernels.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -55,9 +62,10 @@ import torch
 
 from plantdreamer.errors import InputError
 from plantdreamer.exports.dataset import SPLITS_FILE, dataset_views, labelled_plants
+from plantdreamer.exports.dataset_files import check_incomplete
 from plantdreamer.exports.figures import read_view_traits
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, read_png, read_transforms
-from plantdreamer.exports.listing import PLANTS_DIR, finished_plants
+from plantdreamer.exports.listing import PLANTS_DIR, finished_plants, finished_scenes
 from plantdreamer.exports.plant import COCO_FILE, PLANT, plant_classes, plant_views
 from plantdreamer.exports.splits import SPLITS
 from plantdreamer.traits import read_traits, recorded_views
@@ -65,20 +73,29 @@ from plantdreamer.traits.counts import plant_row
 from plantdreamer.traits.points import plant_class_ids
 
 OBJECT_KEYS = ("labels", "area", "iscrowd", "instance_ids", "visible_fraction")  # per box
+# Every key of a target, in the order an item holds them: the labels, then the traits.
+TARGET_KEYS = (
+    "boxes", "labels", "masks", "semantic", "ignore", "instance_ids", "area", "iscrowd",
+    "visible_fraction", "image_id", "leaf_count", "plant_area_px", "plant_height_px",
+    "plant_width_px", "metres_per_pixel", "traits",
+)  # fmt: skip
+# The keys torchvision's detection references ask of a dataset (Mask R-CNN's: with masks).
+DETECTION_KEYS = ("boxes", "labels", "image_id", "masks")
 
 
 def object_keys(inputs: Any) -> tuple[torch.Tensor, ...]:
     """``SanitizeBoundingBoxes``' ``labels_getter`` for these targets: the per-object
     tensors it must filter with the boxes."""
     target = inputs[1] if isinstance(inputs, tuple | list) else inputs
-    return tuple(target[key] for key in OBJECT_KEYS)
+    return tuple(target[key] for key in OBJECT_KEYS if key in target)
 
 
 class PlantViews(torch.utils.data.Dataset):
     """The labelled views under ``root``: a plant folder (with ``transforms.json``) or a
     dataset folder (``plants/<id>/``), optionally one ``split`` of its ``splits.json``;
     ``min_area`` and ``stuff`` (class names that are no objects): those of the label files,
-    which these may only repeat."""
+    which these may only repeat; ``target_keys``: the keys of each target (the module's
+    docstring)."""
 
     def __init__(
         self,
@@ -87,8 +104,10 @@ class PlantViews(torch.utils.data.Dataset):
         min_area: int | None = None,
         transforms: Callable[[Any, dict[str, Any]], tuple[Any, dict[str, Any]]] | None = None,
         stuff: tuple[str, ...] | None = None,
+        target_keys: str | Iterable[str] | None = None,
     ) -> None:
         self.root, self.transforms = Path(root), transforms
+        self.target_keys = _target_keys(target_keys)
         self.min_area, stuff = _label_options(self.root, split, min_area, stuff)
         # (image id, folder, frame, class lookup table) per view
         self.views: list[tuple[int, Path, dict, np.ndarray]] = []
@@ -150,6 +169,7 @@ class PlantViews(torch.utils.data.Dataset):
         }
         if target["metres_per_pixel"] is None:
             target["metres_per_pixel"] = float("nan")
+        target = {key: target[key] for key in self.target_keys}
         image, target = _as_tv_tensors(image, target, (h, w))
         if self.transforms is not None:
             image, target = self.transforms(image, target)
@@ -168,23 +188,55 @@ def collate(batch: list[tuple[Any, dict[str, Any]]]) -> tuple[tuple, tuple]:
     return images, targets
 
 
+def _target_keys(given: str | Iterable[str] | None) -> tuple[str, ...]:
+    """The keys of each target: every one (None, ``"all"``) or those given, in the order
+    of ``TARGET_KEYS``; an unknown name is refused, naming the known ones."""
+    if given is None or given == "all":
+        return TARGET_KEYS
+    if isinstance(given, str):
+        raise InputError(
+            f"target_keys must be 'all' or a list of key names, got {given!r} "
+            f"(one key: target_keys=[{given!r}])"
+        )
+    names = set(given)
+    unknown = sorted(n for n in names if n not in TARGET_KEYS)
+    if unknown:
+        raise InputError(
+            f"target_keys has no {', '.join(map(repr, unknown))}: the keys are "
+            f"{', '.join(TARGET_KEYS)}, or 'all'"
+        )
+    if "boxes" not in names and names & set(OBJECT_KEYS):
+        raise InputError(
+            f"target_keys {', '.join(k for k in TARGET_KEYS if k in names)} need boxes: "
+            "their entries are one per box"
+        )
+    return tuple(k for k in TARGET_KEYS if k in names)
+
+
 def _follow_boxes(target: dict[str, Any], source: str, plant_values: np.ndarray) -> None:
     """``area`` again from the masks and the plant's pixel figures from ``semantic``;
     every per-object key as long as the boxes."""
-    if "masks" in target:
+    if "masks" in target and "area" in target:
         target["area"] = torch.as_tensor(target["masks"]).flatten(1).sum(1).to(torch.float32)
     if "semantic" in target:
         plant = torch.isin(torch.as_tensor(target["semantic"]), torch.from_numpy(plant_values))
         rows, cols = torch.nonzero(plant.any(1)), torch.nonzero(plant.any(0))
-        target["plant_area_px"] = int(plant.sum())
-        target["plant_height_px"] = int(rows[-1] - rows[0] + 1) if len(rows) else 0
-        target["plant_width_px"] = int(cols[-1] - cols[0] + 1) if len(cols) else 0
+        for key, value in (
+            ("plant_area_px", int(plant.sum())),
+            ("plant_height_px", int(rows[-1] - rows[0] + 1) if len(rows) else 0),
+            ("plant_width_px", int(cols[-1] - cols[0] + 1) if len(cols) else 0),
+        ):
+            if key in target:
+                target[key] = value
+    if "boxes" not in target:
+        return
     k = len(target["boxes"])
     wrong = [key for key in OBJECT_KEYS if key in target and len(target[key]) != k]
     if wrong:
         raise InputError(
             f"{source}: after the transforms {', '.join(wrong)} no longer have one entry per "
-            f"box ({k}); give SanitizeBoundingBoxes labels_getter=plantdreamer.data.object_keys"
+            f"box ({k}); give SanitizeBoundingBoxes labels_getter=plantdreamer.data.object_keys, "
+            "or PlantViews target_keys=plantdreamer.data.DETECTION_KEYS"
         )
 
 
@@ -223,7 +275,9 @@ def _recorded_options(path: Path) -> tuple[int, tuple[str, ...]]:
 def _dataset_plants(root: Path):
     if not (root / PLANTS_DIR).is_dir():
         raise InputError(f"{root} is neither a plant folder nor a dataset folder")
-    plants = [p for p in finished_plants(root) if (p.folder / "transforms.json").is_file()]
+    check_incomplete(root)  # a stopped swap's mix of two exports
+    entries = finished_plants(root) + finished_scenes(root)  # scenes' views after the plants'
+    plants = [p for p in entries if (p.folder / "transforms.json").is_file()]
     for p in plants:
         read_transforms(p.folder)  # a damaged one is refused, not left out
     return plants
@@ -236,7 +290,8 @@ def _split_plants(root: Path, split: str | None) -> set[str] | None:
         raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
     if not (root / SPLITS_FILE).is_file():
         raise InputError(f"{root} has no {SPLITS_FILE}: run `plantdreamer labels` first")
-    return set(json.loads((root / SPLITS_FILE).read_text())[split])
+    recorded = json.loads((root / SPLITS_FILE).read_text())
+    return set(recorded[split]) | set(recorded.get("scenes", {}).get(split, []))
 
 
 def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int, int]):
@@ -245,10 +300,15 @@ def _as_tv_tensors(image: torch.Tensor, target: dict[str, Any], size: tuple[int,
         from torchvision import tv_tensors
     except ImportError:
         return image, target
-    target["boxes"] = tv_tensors.BoundingBoxes(target["boxes"], format="XYXY", canvas_size=size)
-    target["masks"] = tv_tensors.Mask(target["masks"])
     from plantdreamer.data.pixel_map import PixelMap
 
-    target["semantic"] = PixelMap(target["semantic"])
-    target["ignore"] = PixelMap(target["ignore"])
+    wrappers: dict[str, Callable[[Any], Any]] = {
+        "boxes": lambda t: tv_tensors.BoundingBoxes(t, format="XYXY", canvas_size=size),
+        "masks": tv_tensors.Mask,
+        "semantic": PixelMap,
+        "ignore": PixelMap,
+    }
+    for key, wrap in wrappers.items():
+        if key in target:
+            target[key] = wrap(target[key])
     return tv_tensors.Image(image), target

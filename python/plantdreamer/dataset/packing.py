@@ -1,7 +1,7 @@
 """Packing a dataset's plants into groups trained together on one GPU (``plants-per-gpu``).
 
 A group is up to B plants that share every setting but their seed and point cloud
-(``pipeline.group_record.PER_PLANT``): one trainer, one batched guidance call per step. Plants are
+(``pipeline.settings.config.PER_PLANT``): one trainer, one batched guidance call per step. Plants are
 taken in spec order; each joins the first open group of its settings, and a group closes
 when it holds B. The packing depends only on the spec (all its plants, finished or not),
 so a rerun finds every plant in the group it started in: an interrupted group resumes as
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from plantdreamer import settings
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.group_record import MAX_GROUP_PLANTS, PER_PLANT
+from plantdreamer.pipeline.settings.group_settings import MAX_GROUP_PLANTS
 from plantdreamer.settings import by_name, canonical, setting
 
 if TYPE_CHECKING:
@@ -74,5 +74,4 @@ def pack(plants: list[Plant], plants_per_gpu: int) -> list[list[Plant]]:
 
 
 def _shared_settings(plant: Plant) -> str:
-    values = plant.config.settings()
-    return json.dumps({k: v for k, v in values.items() if k not in PER_PLANT}, sort_keys=True)
+    return json.dumps(plant.config.shared_settings(), sort_keys=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.dataset.engine import Demand
+from plantdreamer.dataset.demand import Demand
 from plantdreamer.dataset.manifest import Manifest
 from plantdreamer.dataset.packing import pack
 from plantdreamer.dataset.plant import Plant
@@ -21,11 +21,8 @@ from plantdreamer.dataset.tasks import HELD_MARKER, LOG_NAME
 from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.exports.listing import PLANTS_DIR
 from plantdreamer.output_folder import remove_owned, survey
-from plantdreamer.pipeline.run_outputs import CHECKPOINT_FILES, RUN_OUTPUTS
+from plantdreamer.pipeline.state.run_outputs import COMPLETE_FILES, RUN_OUTPUTS, is_finished
 
-# A plant's files that make it complete (with a `done` record of the same config).
-COMPLETE_FILES = ("plant.ply", "run.json")
-GROUPS_DIR = "groups"  # DIR/groups/<first plant>/group.json while a packed group trains
 ACTIONS = ("make", "resume", "skip", "redo")  # what a run does with a plant
 # What a dataset writes in a plant folder (output_folder.Owned): a run's outputs, the log of
 # its worker, the test hook's marker. Clearing a plant deletes these only.
@@ -85,20 +82,13 @@ def clear_plant_folder(folder: Path) -> None:
         pass
 
 
-def finished_files(folder: Path) -> bool:
-    """A plant folder whose run finished: its complete files there, no checkpoint left."""
-    return all((folder / name).is_file() for name in COMPLETE_FILES) and not any(
-        (folder / name).exists() for name in CHECKPOINT_FILES
-    )
-
-
 def same_settings(folder: Path, plant: Plant) -> bool:
     """Whether a finished plant's run.json records ``plant``'s settings (those the run
     decided itself, left open in the plan, aside). A point cloud's contents are not in
     run.json: such a plant is never taken as the same without its record."""
     import json
 
-    from plantdreamer.pipeline.config import GenerateConfig
+    from plantdreamer.pipeline.settings.config import GenerateConfig
 
     if plant.config.source.pointcloud is not None:
         return False
@@ -119,7 +109,7 @@ def decide(
     found by its own files: kept when its run.json has the plant's settings, else a redo."""
     record = manifest.get(plant.id)
     folder = plant_dir(out_dir, plant)
-    if record is None and finished_files(folder):
+    if record is None and is_finished(folder):
         return ("skip", False) if same_settings(folder, plant) else ("redo", True)
     same_config = record is not None and record.get("config_hash") == plant.config_hash
     done = same_config and record is not None and record["status"] == "done"
@@ -139,7 +129,9 @@ def decide(
     if not same_config and record is not None and record.get("status") == "done":
         return "redo", clear
     if not stale and folder.is_dir():
-        from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME  # torch: only when needed
+        from plantdreamer.pipeline.state.checkpoint import (
+            CHECKPOINT_NAME,  # torch: only when needed
+        )
 
         if (folder / CHECKPOINT_NAME).is_file():
             return "resume", False
@@ -148,16 +140,18 @@ def decide(
 
 def check_models(plants: list[Plant]) -> None:
     """Every plant's LoRA, base model and ControlNet found (not loaded), before a plan is
-    made or a folder cleared; each distinct set of models once."""
-    from plantdreamer.pipeline.runtime import check_models as check
-
+    made or a folder cleared; each distinct set of models once (torch is imported only
+    when there is one to look at)."""
     seen = set()
     for plant in plants:
         sds = plant.config.sds
         key = (sds.guidance, sds.lora, sds.base_model, sds.controlnet)
-        if key not in seen:
-            seen.add(key)
-            check(plant.config)
+        if key in seen or (sds.guidance == "none" and sds.lora is None):
+            continue
+        seen.add(key)
+        from plantdreamer.pipeline.settings.runtime import check_models as check
+
+        check(plant.config)
 
 
 def describe_plan(
@@ -221,8 +215,6 @@ def work_units(
                 for p in members
             ],
             "threads": demand.threads,
-            # group.json of a group in training; named by the packed group's first plant
-            "group_dir": str(out_dir / GROUPS_DIR / group[0].id),
         }
         units.append(Unit(members, demand, request))
     return units

@@ -8,7 +8,15 @@ import hashlib
 import json
 from dataclasses import dataclass
 
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer import settings
+from plantdreamer.exports.listing import species_name
+from plantdreamer.pipeline.outputs import WATCHING
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.views import ViewsConfig
+
+# Settings added since the manifests' hashes began: the full-grown stage and the leaves'
+# occlusion at their defaults hash as before them.
+LATER_SETTINGS = ("growth", "growth-since", "leaf-occlusion")
 
 
 @dataclass(frozen=True)
@@ -25,6 +33,11 @@ class Plant:
         return self.config.source.species
 
     @property
+    def species_name(self) -> str:
+        """Its species as the dataset's splits and card count it (``exports.listing``)."""
+        return species_name(self.config.source.species, self.config.source.pointcloud)
+
+    @property
     def source(self) -> str:
         return self.config.source.pointcloud or "lsystem"
 
@@ -33,8 +46,24 @@ def config_hash(cfg: GenerateConfig, source_digest: str | None = None) -> str:
     """A stable hash of every setting (sorted JSON) and of the input file's contents
     (``source_digest``), to tell whether a plant is up to date. It hashes the config's
     sections (the saved form of 689da5e), so the manifests of datasets made before records
-    used setting names still match their plants."""
-    text = json.dumps(dataclasses.asdict(cfg), sort_keys=True, separators=(",", ":"))
+    used setting names still match their plants, and leaves out the settings that only
+    watch a run (``outputs.WATCHING``: progress pictures, TensorBoard), the exported
+    views' section at its defaults (the orbit on grey) and the ``LATER_SETTINGS`` at
+    theirs, so the manifests of datasets made before them match too (their plants lack
+    only traits.json: the dataset's export names them)."""
+    data = dataclasses.asdict(cfg)
+    for s in settings.walk(GenerateConfig):
+        *sections, name = s.path
+        held = data
+        for section in sections:
+            held = held[section]
+        # Watching a run changes none of its plant; a later setting at its default makes
+        # the plant of before it.
+        if s.name in WATCHING or (s.name in LATER_SETTINGS and held[name] == s.default):
+            del held[name]
+    if cfg.outputs.views == ViewsConfig():  # the views of before they were settings: as then
+        del data["outputs"]["views"]
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"))
     if source_digest is not None:
         text += f"|source:{source_digest}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -1,11 +1,13 @@
-"""Runs a dataset: plan (``plan.py``: skip, resume, redo), hand plants to Ray workers,
-record results.
+"""Runs a dataset: plan (``plan.py``: skip, resume, redo), hand plants to workers (the
+local pool, or Ray with an address: ``workers.py``), record results.
 
 Every plant is one `generate` run into ``DIR/plants/<id>/``; with ``plants_per_gpu`` B > 1,
 plants that share their settings train B at a time in one trainer (``packing.py``), each
 still in its own folder with its own record, and a plant that fails, fails alone. The
-units go to long-lived worker actors that keep the models loaded (``scheduler.py``,
-``worker.py``).
+units go to long-lived workers that keep the models loaded (``scheduler.py``,
+``worker.py``). Every refusal that needs no running Ray (settings, models, resources,
+the token) comes before any worker or Ray starts, and a run with nothing left to train
+starts none: it only remakes the exports.
 
 Nothing outside ``DIR`` is written or deleted: plant ids are checked folder names
 (``dataset.spec``), and a plant folder must resolve to a direct child of ``DIR/plants``.
@@ -21,14 +23,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from plantdreamer.dataset import engine
+from plantdreamer.dataset.demand import Demand, plant_demand
 from plantdreamer.dataset.display import DatasetProgress, print_summary
 from plantdreamer.dataset.lock import dataset_lock
 from plantdreamer.dataset.manifest import Manifest, totals, write_summary
-from plantdreamer.dataset.plan import GROUPS_DIR, base_record, check_models, plan, work_units
+from plantdreamer.dataset.plan import base_record, check_models, plan, work_units
 from plantdreamer.dataset.plant import Plant
+from plantdreamer.dataset.scenes import ScenePlan, make_dataset_scenes
 from plantdreamer.dataset.scheduler import Dispatcher, Unit
-from plantdreamer.dataset.tasks import HOLD_ENV, StatusBoard, first_line
+from plantdreamer.dataset.tasks import HOLD_ENV
+from plantdreamer.dataset.workers import Workers, check_before_start, open_workers
+from plantdreamer.errors import DatasetStopped
 from plantdreamer.exports.dataset import (
     DATASET_EXPORTS,
     DatasetLabels,
@@ -38,6 +43,7 @@ from plantdreamer.exports.dataset import (
     write_dataset_exports,
 )
 from plantdreamer.output_folder import remove_temporaries
+from plantdreamer.output_locks import HELD_ENV, held_tokens
 from plantdreamer.stop_signals import stop_signals_handled
 from plantdreamer.versions import package_versions
 
@@ -48,8 +54,8 @@ STOPPED = "stopped by Ctrl-C or SIGTERM"
 
 @dataclass
 class RunOptions:
-    address: str | None = None  # None: a local Ray instance
-    local_cpus: int | None = None  # CPUs of the local instance (None: all)
+    address: str | None = None  # None: the local pool; "local": a local Ray; else a cluster
+    local_cpus: int | None = None  # CPUs of this machine for the plants (None: all)
     cpus_per_plant: float | None = None
     gpus_per_plant: float | None = None
     resources: dict[str, float] = field(default_factory=dict)  # custom, per plant
@@ -58,6 +64,7 @@ class RunOptions:
     show_progress: bool = True
     labels: LabelOptions = field(default_factory=LabelOptions)  # splits, COCO, YOLO, gallery
     redo_changed: bool = False  # delete and remake finished plants of other settings
+    scenes: list[ScenePlan] = field(default_factory=list)  # made once the plants are done
 
 
 @dataclass
@@ -74,14 +81,6 @@ class DatasetReport:
     @property
     def ok(self) -> bool:
         return self.failed == 0 and self.interrupted == 0
-
-
-class DatasetStopped(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM stopped the run; ``report`` says what it left (for the summary)."""
-
-    def __init__(self, report: DatasetReport) -> None:
-        super().__init__()
-        self.report = report
 
 
 def run_dataset(
@@ -105,7 +104,7 @@ class _DatasetRun:
         self.manifest = Manifest(out_dir)
         self.by_id = {p.id: p for p in plants}
         self.t0 = time.time()
-        self.ray_nodes: int | None = None
+        self.nodes: int | None = None
 
     def run(self) -> DatasetReport:
         # Everything checked before _plan clears any folder: the export folders are the
@@ -114,7 +113,7 @@ class _DatasetRun:
         remove_temporaries(self.out_dir, DATASET_EXPORTS)  # a killed run's temporaries
         check_models(self.plants)
         demands = {
-            p.id: engine.plant_demand(
+            p.id: plant_demand(
                 p.config,
                 self.options.cpus_per_plant,
                 self.options.gpus_per_plant,
@@ -123,10 +122,11 @@ class _DatasetRun:
             )
             for p in self.plants
         }
+        check_before_start(self.options.address, self.options.local_cpus, set(demands.values()))
         # A split the plants would leave empty: refused before any plant runs.
         check_planned_splits(
             self.out_dir,
-            [p.id for p in self.plants],
+            {p.id: p.species_name for p in self.plants},
             self.options.labels,
             planned_classes(self.plants),
         )
@@ -143,7 +143,7 @@ class _DatasetRun:
         stopped = False
         try:
             if todo:
-                results = self._run_on_ray(todo, demands)
+                results = self._run_units(todo, demands)
             state = "finished"
         except KeyboardInterrupt:
             stopped = True  # recorded below, then raised again with the report
@@ -175,7 +175,9 @@ class _DatasetRun:
         if stopped:  # no label files: a stop is quick, and the next run writes them
             raise DatasetStopped(report)
         if counts["done"] or skipped:
+            notes = make_dataset_scenes(self.out_dir, self.options.scenes, self.options.labels)
             report.labels = write_dataset_exports(self.out_dir, self.options.labels)
+            report.labels.warnings.extend(notes)
         return report
 
     def _status(self, plant_id: str) -> str | None:
@@ -184,43 +186,36 @@ class _DatasetRun:
 
     # -- scheduling --------------------------------------------------------------------
 
-    def _run_on_ray(
-        self, todo: list[Plant], demands: dict[str, engine.Demand]
+    def _run_units(
+        self, todo: list[Plant], demands: dict[str, Demand]
     ) -> dict[str, dict[str, Any]]:
-        ray = engine.import_ray()
-        started_ray = engine.connect(self.options.address, self.options.local_cpus)
-        try:
-            units = work_units(
-                self.plants, todo, demands, self.out_dir, self.options.plants_per_gpu
-            )
-            engine.check_feasible({u.demand for u in units})
-            self.ray_nodes = len([n for n in ray.nodes() if n.get("Alive")])
-            board = ray.remote(num_cpus=0)(StatusBoard).remote()
+        options = self.options
+        with open_workers(options.address, options.local_cpus) as workers:
+            units = work_units(self.plants, todo, demands, self.out_dir, options.plants_per_gpu)
+            workers.check_feasible({u.demand for u in units})
+            self.nodes = workers.nodes
             extra_env = {HOLD_ENV: os.environ[HOLD_ENV]} if HOLD_ENV in os.environ else {}
-            workers = Dispatcher(ray, units, board, self.options.max_retries, extra_env)
-            return self._follow(ray, workers, board, [p.id for p in todo])
-        finally:
-            if started_ray:
-                ray.shutdown()
-            groups = self.out_dir / GROUPS_DIR
-            if groups.is_dir() and not any(groups.iterdir()):
-                groups.rmdir()
+            extra_env[HELD_ENV] = ",".join(held_tokens())  # workers write inside our lock
+            dispatcher = Dispatcher(workers, units, options.max_retries, extra_env)
+            return self._follow(workers, dispatcher, [p.id for p in todo])
 
-    def _follow(self, ray, workers: Dispatcher, board, ids: list[str]) -> dict[str, dict[str, Any]]:
+    def _follow(
+        self, workers: Workers, dispatcher: Dispatcher, ids: list[str]
+    ) -> dict[str, dict[str, Any]]:
         results: dict[str, dict[str, Any]] = {}
         progress = DatasetProgress(len(ids), self.options.show_progress)
         try:
-            while workers.busy():
-                finished = workers.wait(timeout=0.5)
-                self._record_starts(ray.get(board.drain.remote()), set(results))
-                for unit, ref in finished:
-                    for plant, result in self._record_unit(ray, unit, ref).items():
+            while dispatcher.busy():
+                finished = dispatcher.wait(timeout=0.5)
+                self._record_starts(workers.starts(), set(results))
+                for unit, call in finished:
+                    for plant, result in self._record_unit(workers, unit, call).items():
                         results[plant] = result
                         progress.finished(plant, result)
                 progress.update(self.manifest.counts(ids))
         except KeyboardInterrupt:
             progress.close()
-            self._stop(ray, workers, board, results)
+            self._stop(workers, dispatcher, results)
             raise
         finally:
             progress.close()
@@ -237,11 +232,10 @@ class _DatasetRun:
                 {**base_record(plant, self.options.plants_per_gpu), **event, "status": "running"},
             )
 
-    def _record_unit(self, ray, unit: Unit, ref) -> dict[str, dict[str, Any]]:
-        try:
-            results = ray.get(ref)
-        except ray.exceptions.RayError as exc:  # the worker died more often than retried
-            results = {p.id: {"status": "failed", "error": first_line(exc)} for p in unit.plants}
+    def _record_unit(self, workers: Workers, unit: Unit, call: Any) -> dict[str, dict[str, Any]]:
+        results = workers.result(call)
+        if isinstance(results, str):  # the worker died more often than retried
+            results = {p.id: {"status": "failed", "error": results} for p in unit.plants}
         for plant in unit.plants:
             record = self.manifest.get(plant.id)
             if record is None or record.get("status") != "running":  # a late start report
@@ -250,18 +244,18 @@ class _DatasetRun:
             self.manifest.replace(plant.id, {k: v for k, v in record.items() if k != "id"})
         return {p.id: results[p.id] for p in unit.plants}
 
-    def _stop(self, ray, workers: Dispatcher, board, results) -> None:
+    def _stop(self, workers: Workers, dispatcher: Dispatcher, results) -> None:
         """Ctrl-C or SIGTERM: ask the running units to checkpoint and stop (the workers
-        poll the board), start no other, then record what happened."""
-        board.stop.remote()
-        workers.drop_queued()
+        poll for it), start no other, then record what happened."""
+        workers.stop()
+        dispatcher.drop_queued()
         deadline = time.time() + STOP_GRACE_S
         try:
-            while workers.busy() and time.time() < deadline:
-                finished = workers.wait(timeout=0.5)
-                self._record_starts(ray.get(board.drain.remote()), set(results))
-                for unit, ref in finished:
-                    results.update(self._record_unit(ray, unit, ref))
+            while dispatcher.busy() and time.time() < deadline:
+                finished = dispatcher.wait(timeout=0.5)
+                self._record_starts(workers.starts(), set(results))
+                for unit, call in finished:
+                    results.update(self._record_unit(workers, unit, call))
         except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
             pass
 
@@ -282,7 +276,11 @@ class _DatasetRun:
                 "totals": totals(records),
                 "started": self.t0,
                 "seconds": round(time.time() - self.t0, 3),
-                "ray": {"address": self.options.address or "local", "nodes": self.ray_nodes},
+                "workers": {
+                    "on": "local pool" if self.options.address is None else "ray",
+                    "address": self.options.address,
+                    "nodes": self.nodes,
+                },
                 "versions": package_versions(("plantdreamer", "ray", "torch", "numpy")),
             },
         )

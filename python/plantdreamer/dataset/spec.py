@@ -51,8 +51,8 @@ from plantdreamer.dataset.growth import growth_series
 from plantdreamer.dataset.plant import Plant, config_hash
 from plantdreamer.digests import file_digest
 from plantdreamer.errors import InputError
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.presets import resolve_config
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.settings.presets import resolve_config
 from plantdreamer.seeds import parse_seeds, seed_range, seeds_text
 from plantdreamer.settings import by_name, canonical
 
@@ -89,11 +89,11 @@ def with_settings(spec: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
 
 def expand(spec: dict[str, Any]) -> list[Plant]:
     """The plants of a spec, in spec order; ids are unique or this fails."""
-    unknown = set(spec) - {"defaults", "group", "base_dir", *packing.spec_keys()}
+    unknown = set(spec) - {"defaults", "group", "scene", "base_dir", *packing.spec_keys()}
     if unknown:
         raise InputError(
-            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults] and [[group]]"
-            f", and {', '.join(sorted(by_name(packing.PackingConfig)))} at the top)"
+            f"spec: unknown sections {', '.join(sorted(unknown))} (use [defaults], [[group]] "
+            f"and [[scene]], and {', '.join(sorted(by_name(packing.PackingConfig)))} at the top)"
         )
     defaults = _settings(spec.get("defaults", {}), "[defaults]")
     groups = spec.get("group", [])
@@ -206,13 +206,11 @@ def _group_name(name: Any, where: str) -> str:
 
 
 def _check_species(cfg: GenerateConfig) -> None:
-    """An L-System species must exist (a point cloud's species only names it in prompts)."""
-    species = cfg.source.species
-    if cfg.source.pointcloud is None:
-        from plantdreamer.lsystem import list_species
+    """An L-System species must exist (a point cloud's species only names it in prompts);
+    a mistyped one is named with the closest known."""
+    from plantdreamer.pipeline.settings.requested import check_species
 
-        if species not in list_species():
-            raise InputError(f"unknown species {species!r}; known: {', '.join(list_species())}")
+    check_species(cfg)
 
 
 def _seeds(table: dict[str, Any], where: str) -> list[int]:

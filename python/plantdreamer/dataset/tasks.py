@@ -1,24 +1,24 @@
-"""What a dataset worker runs: a unit of plants (one, or a packed group) as one
-`generate_group`, each plant in its own dataset folder with its own record, and the board
-workers report to.
+"""What a dataset worker runs: a unit of plants (one, or a packed group) as one run of the
+pipeline's entry (``generate_plants`` with the unit's folders: ``GivenFolders``), each plant
+in its own dataset folder with its own record in the manifest, and the board workers
+report to.
 
-These are plain functions and classes; the runner wraps them with ``ray.remote`` so this
-module imports without Ray. A plant's own errors never raise: they come back as a
-``failed`` record with one line.
+These are plain functions and classes, run by a process of the local pool or a Ray actor
+(``ray_workers.py`` wraps them), so this module imports without Ray. A plant's own errors
+never raise: they come back as a ``failed`` record with one line.
 """
 
 from __future__ import annotations
 
 import io
 import os
-import shutil
 import socket
 import time
 import traceback
 from collections.abc import Callable
 from contextlib import ExitStack, redirect_stderr, redirect_stdout
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 LOG_NAME = "generate.log"
 HELD_MARKER = ".held"  # a plant the test hook held once (its retry runs through)
@@ -26,9 +26,19 @@ HELD_MARKER = ".held"  # a plant the test hook held once (its retry runs through
 # wait to be killed, so tests can SIGKILL a worker at a known point of its run.
 HOLD_ENV = "PLANTDREAMER_DATASET_HOLD"
 
-# Builds the guidance of a resolved config (a worker's model cache, or `build_guidance`).
+# Builds the guidance of plants' shared settings (a worker's model cache, or
+# `build_guidance`).
 GuidanceFor = Callable[[Any], Any]
 StepHook = Callable[[int], None]
+
+
+class Board(Protocol):
+    """The driver as a worker sees it: where a unit reports that a plant started, and asks
+    whether the driver wants the run to stop."""
+
+    def started(self, plant_id: str, info: dict[str, Any]) -> None: ...
+
+    def stopping(self) -> bool: ...
 
 
 class StatusBoard:
@@ -62,36 +72,32 @@ class StatusBoard:
 
 
 def worker_info() -> dict[str, Any]:
-    try:
-        import ray
+    import sys
 
-        node = ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
-    except ImportError:
-        node = None
+    ray = sys.modules.get("ray")  # a Ray actor's node; none in the local pool (no import)
+    node = ray.get_runtime_context().get_node_id() if ray and ray.is_initialized() else None
     return {"pid": os.getpid(), "node": node, "host": socket.gethostname(), "started": time.time()}
 
 
 def run_unit(
-    request: dict[str, Any], board: Any, guidance_for: GuidanceFor, on_step: StepHook | None
+    request: dict[str, Any], board: Board, guidance_for: GuidanceFor, on_step: StepHook | None
 ) -> dict[str, dict[str, Any]]:
-    """Trains a unit's plants together (``pipeline.group``; one plant is a group of one),
-    each in its own dataset folder; returns each plant's record. A plant with a checkpoint
-    resumes from it (plants stopped at different steps resume apart, each where it
-    stopped); a plant's own failure fails it alone."""
-    from plantdreamer.pipeline import GenerateConfig, RunInterrupted
-    from plantdreamer.pipeline.group import generate_group
+    """Trains a unit's plants together (one plant is a unit of one), each in its own
+    dataset folder; returns each plant's record. A plant with a checkpoint resumes from it
+    (plants stopped at different steps resume apart, each where it stopped); a plant's own
+    failure fails it alone."""
+    from plantdreamer.pipeline import GenerateConfig, GivenFolders, RunInterrupted, generate_plants
 
     plants = request["plants"]
     threads = int(request["threads"])  # the rasterizer's; torch's are the plants' setting
     info = worker_info()
     for plant in plants:
-        board.started.remote(plant["id"], info)
+        board.started(plant["id"], info)
     ids = [p["id"] for p in plants]
     dirs = [Path(p["plant_dir"]) for p in plants]
     hidden = folder_not_visible(dirs[0], info)
     if hidden is not None:
         return {i: failed_record(info, hidden) for i in ids}
-    group_dir = Path(request["group_dir"])
     t0 = time.perf_counter()
     with ExitStack() as stack:
         for folder in dirs:
@@ -104,45 +110,33 @@ def run_unit(
         hold = next((h for i, d in zip(ids, dirs, strict=True)
                      if (h := hold_hook(i, d, tee)) is not None), None)  # fmt: skip
         try:
-            result = generate_group(
+            results = generate_plants(
                 [GenerateConfig.from_dict(p["config"]) for p in plants],
-                group_dir,
-                guidance_for=guidance_for,
+                dirs[0].parent,
+                layout=GivenFolders(tuple(dirs)),
+                failures="record",
                 resume=True,
-                overwrite=True,
+                guidance_for=guidance_for,
                 show_progress=True,
                 on_step=chain_hooks([on_step, hold]),
-                plant_dirs=dirs,
             )
-        except RunInterrupted as stop:
-            failed = _failed_in(group_dir)  # before the stop: these stay failed
+        except RunInterrupted as stop:  # the plants failed before the stop stay failed
+            failed = {r.name: r.error for r in stop.results if r.status == "failed"}
             stopped = {**info, "status": "interrupted", "error": f"interrupted at step {stop.step}"}
             return {i: failed_record(info, failed[i]) if i in failed else stopped for i in ids}
-        except Exception as exc:  # the group could not start (models, settings): each plant fails
+        except Exception as exc:  # the unit could not start (models, settings): each plant fails
             traceback.print_exc()
             return {i: failed_record(info, f"{type(exc).__name__}: {exc}") for i in ids}
-        print(f"done: {len(result.done)} of {len(ids)} plants in {time.perf_counter() - t0:.1f} s")
-    shutil.rmtree(group_dir, ignore_errors=True)
+        done = sum(r.done for r in results)
+        print(f"done: {done} of {len(ids)} plants in {time.perf_counter() - t0:.1f} s")
     records = {}
-    for plant_id, folder in zip(ids, dirs, strict=True):
-        if plant_id in result.done:
-            resumed = result.resumed_from.get(plant_id)
-            record = done_record(info, t0, resumed, folder, result.done[plant_id])
-            records[plant_id] = {**record, "trained_with": result.trained_with[plant_id]}
+    for plant_id, result in zip(ids, results, strict=True):
+        if result.done:
+            record = done_record(info, t0, result.resumed_from, result)
+            records[plant_id] = {**record, "trained_with": list(result.trained_with)}
         else:
-            records[plant_id] = failed_record(info, result.failed.get(plant_id, "unknown error"))
+            records[plant_id] = failed_record(info, result.error or "unknown error")
     return records
-
-
-def _failed_in(group_dir: Path) -> dict[str, str]:
-    """The plants the group's record (written on every exit) says failed, with their error."""
-    from plantdreamer.errors import InputError
-    from plantdreamer.pipeline.group_record import failed_plants
-
-    try:
-        return failed_plants(group_dir)
-    except InputError:  # no record or a damaged one: nothing to keep failed
-        return {}
 
 
 class _Tee(io.TextIOBase):
@@ -175,7 +169,7 @@ def folder_not_visible(plant_dir: Path, info: dict[str, Any]) -> str | None:
     )
 
 
-def done_record(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, Any]:
+def done_record(info, t0, resumed_from, result) -> dict[str, Any]:
     from plantdreamer import _core
 
     return {
@@ -186,7 +180,7 @@ def done_record(info, t0, resumed_from, plant_dir: Path, result) -> dict[str, An
         "seconds": round(time.perf_counter() - t0, 3),
         "resumed_from_step": resumed_from,
         "raster_threads": int(_core.info()["threads"]),
-        "gaussians": _gaussian_counts(plant_dir, result.gaussians),
+        "gaussians": _gaussian_counts(result.folder, result.gaussians),
         "timings_s": {k: round(v, 3) for k, v in result.timings.items()},
     }
 

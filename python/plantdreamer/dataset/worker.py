@@ -1,5 +1,6 @@
-"""The long-lived worker of a dataset run: one Ray actor per plant slot (with SDS, per GPU),
-which keeps its diffusion models loaded from one plant (or packed group) to the next.
+"""The long-lived worker of a dataset run: one per plant slot (with SDS, per GPU), a process
+of the local pool (``local_worker.py``) or a Ray actor (``ray_workers.py``), which keeps
+its diffusion models loaded from one plant (or packed group) to the next.
 
 A ``PlantWorker`` holds its CPUs and GPU for the whole run and trains the units the driver
 hands it, one at a time. ``ModelCache`` keeps the networks of the last guidance it built
@@ -10,10 +11,11 @@ guidance of its own (its seed's noise generator, its timestep schedule, its prom
 plant's bytes do not depend on what the worker ran before. One set of networks is kept:
 a unit naming other models replaces it.
 
-Ray cannot interrupt an actor's running call, so a unit asks the status board whether the
-driver wants to stop (from its step hook, at most every ``STOP_POLL_S``) and, if so,
-interrupts its own main thread as Ctrl-C would: the trainer writes its checkpoints at the
-next step boundary and stops.
+The driver cannot interrupt a worker's running call, so a unit asks its ``Board`` (the
+driver's side of the run, seen from the worker: ``tasks.Board``) whether the driver wants to
+stop (from its step hook, at most every ``STOP_POLL_S``) and, if so, interrupts its own
+main thread as Ctrl-C would: the trainer writes its checkpoints at the next step boundary
+and stops.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import _thread
 import time
 from typing import Any
 
-from plantdreamer.dataset.tasks import run_unit
+from plantdreamer.dataset.tasks import Board, run_unit
 
 STOP_POLL_S = 0.5
 
@@ -35,25 +37,24 @@ class ModelCache:
         self.parts: Any = None
         self.loads = 0
 
-    def guidance_for(self, cfg: Any) -> Any:
-        """The guidance of a resolved config (``runtime.resolve_runtime``)."""
-        from plantdreamer.pipeline.runtime import build_guidance
+    def guidance_for(self, group: Any) -> Any:
+        """The guidance of plants' shared settings (``GroupSettings``, resolved)."""
+        from plantdreamer.pipeline.settings.runtime import build_guidance
 
-        if cfg.sds.guidance == "none":
-            return build_guidance(cfg)
-        key = model_key(cfg)
+        if group.sds.guidance == "none":
+            return build_guidance(group)
+        key = model_key(group.sds)
         if key == self.key:
-            return build_guidance(cfg, components=self.parts)
+            return build_guidance(group, components=self.parts)
         self.key = self.parts = None  # the old networks go before the new ones load
-        guidance = build_guidance(cfg)
+        guidance = build_guidance(group)
         self.key, self.parts = key, guidance.parts  # type: ignore[attr-defined]
         self.loads += 1
         return guidance
 
 
-def model_key(cfg: Any) -> tuple[Any, ...]:
+def model_key(sds: Any) -> tuple[Any, ...]:
     """What the loaded networks depend on: which weights, their precision and device."""
-    sds = cfg.sds
     return (sds.base_model, sds.controlnet, sds.lora, sds.network_dtype, sds.vae_dtype,
             sds.device)  # fmt: skip
 
@@ -61,7 +62,7 @@ def model_key(cfg: Any) -> tuple[Any, ...]:
 class StopCheck:
     """A step hook that turns the driver's stop request into Ctrl-C in this process."""
 
-    def __init__(self, board: Any) -> None:
+    def __init__(self, board: Board) -> None:
         self.board = board
         self.next_poll = 0.0
 
@@ -70,19 +71,17 @@ class StopCheck:
         if now < self.next_poll:
             return
         self.next_poll = now + STOP_POLL_S
-        import ray
-
-        if ray.get(self.board.stopping.remote()):
+        if self.board.stopping():
             _thread.interrupt_main()  # the trainer's Ctrl-C handler: checkpoint, then stop
 
 
 class PlantWorker:
-    """Trains units (one plant, or a packed group) one after another (a Ray actor)."""
+    """Trains units (one plant, or a packed group) one after another."""
 
     def __init__(self) -> None:
         self.cache = ModelCache()
 
-    def run(self, unit: dict[str, Any], board: Any) -> dict[str, dict[str, Any]]:
+    def run(self, unit: dict[str, Any], board: Board) -> dict[str, dict[str, Any]]:
         """Each plant's record, by plant id."""
         return run_unit(unit, board, self.cache.guidance_for, StopCheck(board))
 

@@ -1,12 +1,16 @@
-"""A dataset's card: what a folder of plants is, in ``DIR/README.md`` for people and in the
-``card`` block of ``DIR/dataset.json`` for programs, written with the label files.
+"""A dataset's card: what a folder of plants is, in ``DIR/README.md`` for people (with the
+YAML block the Hugging Face Hub reads: ``card_metadata.py``) and in the ``card`` block of
+``DIR/dataset.json`` for programs, written with the label files.
 
 The card names the classes (ids, preview colours, what 0 and the ignore regions mean), the
-plants per species and split, the plantdreamer version, the presets and the models each
-plant was made with (hub id or folder, and a hash: the hub snapshot's commit, or SHA-256 of
-a local file), the licences and how to cite. Its date is the day the newest plant finished
-(its ``run.json``), or ``SOURCE_DATE_EPOCH`` when set, so the same folder gives the same
-bytes. The COCO files take their ``info`` and ``licenses`` from it (``coco_info``).
+plants per species and split, the plantdreamer version, the presets, the models the guided
+plants were made with as each plant recorded them (``card_models.py``: a hub id or a
+folder's name, the SHA-256 of the files read), their licences, the limitations of the data
+and how to cite. Every user-given string (species, class and model names) is escaped where
+it is written (``text_escape.py``; the YAML by its writer). Its date is the day the newest
+plant finished (its ``run.json``), or ``SOURCE_DATE_EPOCH`` when set, so the same folder
+gives the same bytes. The COCO files take their ``info`` and ``licenses`` from it
+(``coco_info``). The card gives no address of its own (the project's is not known).
 
 What the weights' licence means for generated data is summarised here once; it is a
 summary, not legal advice.
@@ -15,60 +19,45 @@ summary, not legal advice.
 from __future__ import annotations
 
 import datetime
-import hashlib
-import importlib.metadata
 import json
-import os
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 from plantdreamer import atomic
-from plantdreamer.digests import file_digest
+from plantdreamer.exports.card_metadata import card_metadata, without_metadata
+from plantdreamer.exports.card_models import (
+    SD_LICENCE,
+    card_models,
+    recorded_setting,
+    uses_stable_diffusion,
+)
+from plantdreamer.exports.card_text import (
+    CITATION,
+    GUIDED_TERMS,
+    RENDER_TERMS,
+    SD_OUTPUT_TERMS,
+    limitations,
+    model_lines,
+    plant_views,
+)
+from plantdreamer.exports.distributions import distributions, distributions_markdown
 from plantdreamer.exports.listing import PlantEntry
+from plantdreamer.source_date import source_date_epoch
+from plantdreamer.text_escape import markdown_text as md
 
 README_FILE = "README.md"
-TITLE = "# A plantdreamer dataset"  # the card's first line: a README.md it may replace
+TITLE = "# A plantdreamer dataset"  # first after the YAML block: a README.md it may replace
 SUMMARY_FILE = "dataset.json"  # the dataset's record (dataset/manifest.py writes the rest)
 CARD_KEY = "card"
 CODE_LICENCE = "Apache-2.0"
 PAPER_URL = "https://arxiv.org/abs/2505.15528"
-SD_LICENCE = {
-    "name": "CreativeML Open RAIL++-M",
-    "url": "https://huggingface.co/stabilityai/stable-diffusion-2-1-base/blob/main/LICENSE.md",
-}
-SD_OUTPUT_TERMS = (
-    "The images of plants trained with diffusion guidance are outputs of Stable Diffusion "
-    "2.1 (with a depth ControlNet and any species LoRA). Its weights are licensed under the "
-    "CreativeML Open RAIL++-M licence, which claims no rights in the outputs you generate but "
-    "makes you accountable for them and their use: no use of them may break the use-based "
-    "restrictions of the licence's Attachment A, and whoever shares the weights (or a model "
-    "derived from them) passes those restrictions on. The ControlNet and LoRA weights carry "
-    "their own licences (see their model cards). A summary, not legal advice."
-)
-RENDER_TERMS = (
-    "Plants made without diffusion guidance are renders of the procedural plants or point "
-    "clouds alone: no model weights went into them."
-)
-CITATION = """@inproceedings{hartley2025plantdreamer,
-  title     = {PlantDreamer: Achieving Realistic 3D Plant Models with Diffusion-Guided Gaussian Splatting},
-  author    = {Hartley, Zane K. J. and Stuart, Lewis A. G. and French, Andrew P. and Pound, Michael P.},
-  booktitle = {Proceedings of the IEEE/CVF International Conference on Computer Vision (ICCV)},
-  year      = {2025},
-  eprint    = {2505.15528},
-  archivePrefix = {arXiv}
-}"""
-# The label previews' colours (pipeline/dataset_export.py draws a plant's k-th class value in
+# The label previews' colours (pipeline/truth/dataset_export.py draws a plant's k-th class value in
 # the k-th colour); the card gives each class the colour of its rank among the classes.
 PREVIEW_COLOURS = (
     (31, 119, 180), (44, 160, 44), (140, 86, 75), (214, 39, 40), (148, 103, 189),
     (255, 127, 14), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
 )  # fmt: skip
-# The models a plant's record names, by setting: (role, setting, file a hub snapshot holds).
-_MODELS = (
-    ("base model", "base-model", "model_index.json"),
-    ("depth ControlNet", "controlnet", "config.json"),
-)
 
 
 def dataset_card(
@@ -79,15 +68,22 @@ def dataset_card(
     species: dict[str, dict[str, int]],
     min_area: int,
     images: dict[str, int],
+    scenes: list[PlantEntry] | None = None,
+    split_rule: str = "",
 ) -> dict[str, Any]:
-    """The card of a dataset's finished ``plants`` (``classes``: category id ->
-    name; ``species``: split -> species -> plants; ``images``: split -> labelled views)."""
-    configs = {p.id: _config(p.folder / "run.json") for p in plants}
-    guided = sorted(i for i, c in configs.items() if _setting(c, "guidance", "sds") != "none")
+    """The card of a dataset's finished ``plants`` and ``scenes`` (``classes``: category
+    id -> name; ``species``: split -> species -> plants; ``images``: split -> labelled
+    views; ``split_rule``: how the splits were made, a sentence)."""
+    records = {p.id: _record(p.folder / "run.json") for p in plants}
+    configs = {i: _config_of(r) for i, r in records.items()}
+    guided = sorted(
+        i for i, c in configs.items() if recorded_setting(c, "guidance", "sds") != "none"
+    )
+    models = card_models([records[i] for i in guided])
+    sd = uses_stable_diffusion(models)
     return {
         "date": made_on([p.folder / "run.json" for p in plants]),
         "plantdreamer": _version(),
-        "url": project_url(),
         "classes": [
             {
                 "id": i,
@@ -107,18 +103,26 @@ def dataset_card(
             s: {"plants": len(ids), "images": images.get(s, 0), "species": species.get(s, {})}
             for s, ids in splits.items()
         },
+        "split_rule": split_rule,
         "presets": sorted(
-            {str(_setting(c, "preset", None) or "plantdreamer") for c in configs.values()}
+            {str(recorded_setting(c, "preset", None) or "plantdreamer") for c in configs.values()}
         ),
         "guided_plants": len(guided),
-        "models": _models([configs[i] for i in guided]),
+        "models": models,
+        "views": plant_views(list(configs.values())),
         "licences": {
             "code": CODE_LICENCE,
-            "weights": SD_LICENCE if guided else None,
-            "images": " ".join(([SD_OUTPUT_TERMS] if guided else []) + [RENDER_TERMS]),
+            # The images' licence as the Hub names it: SD 2.1's outputs carry its terms.
+            "data": SD_LICENCE["hub"] if sd else "unknown",
+            "images": " ".join(
+                ([GUIDED_TERMS] if guided else [])
+                + ([SD_OUTPUT_TERMS] if sd else [])
+                + [RENDER_TERMS]
+            ),
         },
         "citation": CITATION,
         "paper": PAPER_URL,
+        "distributions": distributions(configs, scenes or []),  # the views, the scenes
     }
 
 
@@ -130,30 +134,37 @@ def coco_info(card: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]
         "year": int(card["date"][:4]),
         "date_created": card["date"],
         "contributor": "plantdreamer",
-        "url": card["url"] or card["paper"],
+        "url": "",  # the dataset's own address is its publisher's to give
     }
-    licenses = [
-        {"id": 1, "name": f"{SD_LICENCE['name']} (Stable Diffusion 2.1 outputs)",
-         "url": SD_LICENCE["url"]},
-        {"id": 2, "name": "renders without diffusion weights", "url": card["url"] or ""},
-    ]  # fmt: skip
+    sd = card["licences"]["data"] == SD_LICENCE["hub"]
+    guided = {"id": 1, "name": "outputs of the diffusion models the card lists", "url": ""}
+    if sd:
+        guided = {"id": 1, "name": f"{SD_LICENCE['name']} (Stable Diffusion 2.1 outputs)",
+                  "url": SD_LICENCE["url"]}  # fmt: skip
+    licenses = [guided, {"id": 2, "name": "renders without diffusion weights", "url": ""}]
     return info, licenses, {"sds": 1, "none": 2}
 
 
 def plant_guidance(folder: Path) -> str:
     """``sds`` or ``none``: how a finished plant was trained (its run.json)."""
-    return "none" if _setting(_config(folder / "run.json"), "guidance", "sds") == "none" else "sds"
+    return (
+        "none"
+        if recorded_setting(_config(folder / "run.json"), "guidance", "sds") == "none"
+        else "sds"
+    )
 
 
-def write_card(dataset_dir: Path, card: dict[str, Any]) -> str | None:
-    """``README.md`` and the ``card`` block of ``dataset.json`` (the rest of it kept). A
-    README.md the card did not write is left as it is: the warning says so."""
+def write_card(dataset_dir: Path, card: dict[str, Any], into: Path | None = None) -> str | None:
+    """``README.md`` and the ``card`` block of ``dataset.json`` (the rest of it kept), into
+    ``into`` (a staging folder; default: the dataset folder). A README.md the card did not
+    write is left as it is (none is written): the warning says so."""
     dataset_dir = Path(dataset_dir)
+    target = Path(into) if into is not None else dataset_dir
     readme, warning = dataset_dir / README_FILE, None
-    if readme.is_file() and not readme.read_text(errors="replace").startswith(TITLE):
+    if readme.is_file() and not is_card(readme.read_text(errors="replace")):
         warning = f"{readme} is not a dataset card: left as it is (the card is in {SUMMARY_FILE})"
     else:
-        atomic.write_text(readme, card_markdown(card))
+        atomic.write_text(target / README_FILE, card_markdown(card))
     path = dataset_dir / SUMMARY_FILE
     try:
         summary = json.loads(path.read_text()) if path.is_file() else {}
@@ -162,12 +173,18 @@ def write_card(dataset_dir: Path, card: dict[str, Any]) -> str | None:
     if not isinstance(summary, dict):
         summary = {}
     summary[CARD_KEY] = card
-    atomic.write_text(path, json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    atomic.write_text(target / SUMMARY_FILE, json.dumps(summary, indent=2, sort_keys=True) + "\n")
     return warning
 
 
+def is_card(text: str) -> bool:
+    """Whether a README.md is a card this module wrote (its title after the YAML block)."""
+    return without_metadata(text).startswith(TITLE)
+
+
 def card_markdown(card: dict[str, Any]) -> str:
-    """The card as the folder's README.md."""
+    """The card as the folder's README.md: the Hub's YAML block, then the card for people
+    (every user-given name escaped: ``md``)."""
     lines = [
         TITLE,
         "",
@@ -193,7 +210,7 @@ def card_markdown(card: dict[str, Any]) -> str:
     for c in card["classes"]:
         colour = "#{:02x}{:02x}{:02x}".format(*c["colour"])
         kind = "yes" if c["object"] else "no (stuff: class maps only)"
-        lines.append(f"| {c['id']} | {c['name']} | {colour} | {kind} |")
+        lines.append(f"| {c['id']} | {md(c['name'])} | {colour} | {kind} |")
     lines += [
         "",
         "Class id 0 is background: pixels that show no labelled part of the plant. Ignore "
@@ -206,52 +223,47 @@ def card_markdown(card: dict[str, Any]) -> str:
         "|---|---:|---:|---|",
     ]
     for split, row in card["splits"].items():
-        species = ", ".join(f"{n} {name}" for name, n in row["species"].items()) or "-"
+        species = ", ".join(f"{n} {md(name)}" for name, n in row["species"].items()) or "-"
         lines.append(f"| {split} | {row['plants']} | {row['images']} | {species} |")
-    total = ", ".join(f"{n} {name}" for name, n in card["species"].items())
-    lines += ["", f"All: {total}. Presets: {', '.join(card['presets'])}.", "", "## Models", ""]
-    if card["models"]:
-        for m in card["models"]:
-            lines.append(f"- {m['role']}: `{m['id']}` ({m['hash'] or 'hash unknown here'})")
-    else:
-        lines.append("- none: every plant was made without diffusion guidance")
+    total = ", ".join(f"{n} {md(name)}" for name, n in card["species"].items())
+    presets = ", ".join(md(p) for p in card["presets"])
+    lines += ["", f"All: {total}. Presets: {presets}."]
+    if card.get("split_rule"):
+        lines += ["", card["split_rule"]]
+    lines += ["", *distributions_markdown(card), "## Models", ""]
+    lines += model_lines(card["models"])
     lines += [
         "",
         f"{card['guided_plants']} of {sum(card['species'].values())} plants were trained with "
         "diffusion guidance.",
         "",
+        "## Limitations",
+        "",
+        *limitations(card),
+        "",
         "## Licences",
         "",
         f"- plantdreamer, the code that made this dataset: {card['licences']['code']}",
     ]
-    if card["licences"]["weights"]:
-        w = card["licences"]["weights"]
-        lines.append(f"- Stable Diffusion 2.1 weights: [{w['name']}]({w['url']})")
+    for m in card["models"]:
+        licence = m["licence"]
+        named = f"[{licence['name']}]({licence['url']})" if licence else "as its own card states"
+        lines.append(f"- {m['role']} {md(m['name'])}: {named}")
     lines += ["", card["licences"]["images"], "", "## Citation", "", "```bibtex",
               card["citation"], "```", ""]  # fmt: skip
-    return "\n".join(lines)
+    return card_metadata(card) + "\n".join(lines)
 
 
 def made_on(records: list[Path]) -> str:
     """The card's date (YYYY-MM-DD, UTC): ``SOURCE_DATE_EPOCH`` when set, else the day
     the newest of ``records`` was written, else today."""
-    epoch = os.environ.get("SOURCE_DATE_EPOCH")
-    if epoch is not None and epoch.strip().isdigit():
+    epoch = source_date_epoch()  # InputError for a malformed value, checked up front too
+    if epoch is not None:
         stamp = float(epoch)
     else:
         times = [p.stat().st_mtime for p in records if p.is_file()]
         stamp = max(times) if times else datetime.datetime.now(datetime.timezone.utc).timestamp()
     return datetime.datetime.fromtimestamp(stamp, datetime.timezone.utc).strftime("%Y-%m-%d")
-
-
-def project_url() -> str | None:
-    """The project's home page from the installed package's metadata (None without one)."""
-    try:
-        meta = importlib.metadata.metadata("plantdreamer")
-    except importlib.metadata.PackageNotFoundError:
-        return None
-    urls = [u.split(",", 1)[-1].strip() for u in meta.get_all("Project-URL") or []]
-    return meta["Home-page"] or (urls[0] if urls else None)
 
 
 def _version() -> str:
@@ -260,67 +272,19 @@ def _version() -> str:
     return __version__
 
 
-def _config(run_json: Path) -> dict[str, Any]:
+def _record(run_json: Path) -> dict[str, Any]:
+    """A plant's run.json ({} when it cannot be read)."""
     try:
-        config = json.loads(run_json.read_text()).get("config", {})
-    except (OSError, ValueError, AttributeError):
+        record = json.loads(run_json.read_text())
+    except (OSError, ValueError):
         return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _config_of(record: dict[str, Any]) -> dict[str, Any]:
+    config = record.get("config", {})
     return config if isinstance(config, dict) else {}
 
 
-def _setting(config: dict[str, Any], name: str, section: str | None) -> Any:
-    """A setting of a recorded config, by name, or under its section in records of the
-    sectioned versions."""
-    if name in config:
-        return config[name]
-    inner = config.get(section) if section else None
-    return inner.get(name.replace("-", "_")) if isinstance(inner, dict) else None
-
-
-def _models(configs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each model the guided plants name, once, with its hash."""
-    seen: dict[tuple[str, str], dict[str, Any]] = {}
-    for config in configs:
-        for role, name, marker in _MODELS:
-            ident = _setting(config, name, "sds")
-            if ident and (role, ident) not in seen:
-                seen[(role, ident)] = {
-                    "role": role,
-                    "id": ident,
-                    "hash": _model_hash(ident, marker),
-                }
-        lora = _setting(config, "lora", "sds")
-        if lora and ("species LoRA", lora) not in seen:
-            seen[("species LoRA", lora)] = {"role": "species LoRA", "id": lora,
-                                            "hash": _lora_hash(lora)}  # fmt: skip
-    return list(seen.values())
-
-
-def _model_hash(ident: str, marker: str) -> str | None:
-    """A local folder's SHA-256 over its weight files, or a hub snapshot's commit."""
-    folder = Path(ident)
-    if folder.is_dir():
-        digest = hashlib.sha256()
-        for path in sorted(folder.rglob("*")):
-            if path.suffix in (".safetensors", ".bin") and path.is_file():
-                digest.update(path.relative_to(folder).as_posix().encode() + b"\0")
-                digest.update(file_digest(path).encode())
-        return "sha256:" + digest.hexdigest()
-    try:
-        from huggingface_hub import try_to_load_from_cache
-
-        found = try_to_load_from_cache(ident, marker)
-    except Exception:  # not a hub id, or no cache here: the hash is unknown
-        return None
-    if isinstance(found, str):
-        return "commit:" + Path(found).parent.name
-    return None
-
-
-def _lora_hash(lora: str) -> str | None:
-    from plantdreamer.guidance.lora_weights import LORA_WEIGHT_NAME
-
-    path = Path(lora)
-    if path.is_dir():
-        path = path / LORA_WEIGHT_NAME
-    return "sha256:" + file_digest(path) if path.is_file() else None
+def _config(run_json: Path) -> dict[str, Any]:
+    return _config_of(_record(run_json))

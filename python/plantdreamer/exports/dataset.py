@@ -1,7 +1,7 @@
 """The label files of a whole dataset folder (``DIR/plants/<id>/``), split by plant:
 
-- ``splits.json``: the seed, the ratios, the plant ids of each split and the number of
-  plants of each species in it (``exports.splits``);
+- ``splits.json``: the seed, the ratios, the mode, the plant ids of each split and the
+  number of plants of each species in it (``exports.splits``, ``exports.exact_splits``);
 - ``coco/{train,val,test}.json``: COCO files whose ``file_name`` is relative to ``DIR``
   (``plants/<id>/renders/view_000.png``); image and annotation ids are unique across the
   three files, so they merge as they are, and the image ids are the torch Dataset's
@@ -17,11 +17,15 @@
 
 These are the files the exports own in ``DIR`` (``DATASET_EXPORTS``; ``output_folder``):
 they are built in a staging folder beside them and moved in only when all are complete, so
-a failed export (an unreadable view) leaves the previous one whole; a ``yolo/`` or
-``coco/`` that holds anything else, or is a link, is refused before anything is written.
-The caller holds the folder's lock (``dataset``, ``labels``).
+a failed export (an unreadable view) leaves the previous one whole, and a process killed
+while they move in leaves ``export.incomplete``, which ``PlantViews`` refuses
+(``dataset_files``); a ``yolo/`` or ``coco/`` that holds anything else, or is a link, and
+any of these files in a folder that holds no dataset's record, are refused before
+anything is written. The caller holds the folder's lock (``dataset``, ``labels``).
 
-The plants are those ``exports.listing`` finds finished. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
+The plants are those ``exports.listing`` finds finished; its finished scenes
+(``DIR/scenes/<id>/``) join the split they were made for (``splits.json``'s ``scenes``),
+their views numbered after every plant's. Categories are keyed by class name across plants (``exports.classes``). Nothing is written inside a plant
 folder that lies outside ``DIR`` (a link to another dataset's plant): its views are read,
 its own label files left as they are.
 """
@@ -33,7 +37,7 @@ import json
 import re
 import shutil
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,25 +45,42 @@ from typing import Any
 from plantdreamer import atomic
 from plantdreamer.errors import InputError
 from plantdreamer.exports import yolo
-from plantdreamer.exports.card import coco_info, dataset_card, plant_guidance, write_card
+from plantdreamer.exports.card import (
+    README_FILE,
+    SUMMARY_FILE,
+    coco_info,
+    dataset_card,
+    plant_guidance,
+    write_card,
+)
 from plantdreamer.exports.classes import DatasetClasses, check_stuff, dataset_classes
 from plantdreamer.exports.coco import CocoBuilder
+from plantdreamer.exports.dataset_files import INCOMPLETE, check_top_files, swap_in
+from plantdreamer.exports.exact_splits import make_splits, split_rule
 from plantdreamer.exports.figures import plant_records, read_view_traits
 from plantdreamer.exports.gallery import GALLERY_FILE, write_gallery
 from plantdreamer.exports.instances import MIN_INSTANCE_AREA, PlantClasses, labelled_frames
-from plantdreamer.exports.listing import PLANTS_DIR, PlantEntry, finished_plants
+from plantdreamer.exports.listing import (
+    PLANTS_DIR,
+    PlantEntry,
+    finished_plants,
+    finished_scenes,
+    scene_record,
+)
 from plantdreamer.exports.plant import COCO_FILE, LabelReport, write_plant_exports
 from plantdreamer.exports.splits import (
+    DEFAULT_MODE,
     DEFAULT_RATIOS,
     DEFAULT_SEED,
+    SPLIT_MODES,
     SPLITS,
     check_splits,
     species_counts,
     species_gaps,
-    split_plants,
 )
-from plantdreamer.output_folder import remove_temporaries, replace_entries, survey, tree
-from plantdreamer.traits import read_traits
+from plantdreamer.output_folder import remove_temporaries, survey, tree
+from plantdreamer.source_date import source_date_epoch
+from plantdreamer.traits import TRAITS_FILE, read_traits
 from plantdreamer.traits.counts import (
     COUNTS_DIR,
     LEAF_COLUMNS,
@@ -78,6 +99,7 @@ _VIEW = r"[^/]+__view_\d{3,}"  # <plant id>__<view>: a plant's view, flattened
 DATASET_EXPORTS = (
     SPLITS_FILE,
     GALLERY_FILE,
+    INCOMPLETE,
     *tree("coco", re.compile(rf"{_SPLIT}\.json")),
     *tree(COUNTS_DIR, re.compile(rf"{_SPLIT}\.csv")),
     *tree(TRAITS_DIR, re.compile(rf"{_SPLIT}(?:_leaves)?\.csv")),
@@ -88,8 +110,10 @@ DATASET_EXPORTS = (
         *tree("labels", *(f"{s}/" for s in SPLITS), re.compile(rf"{_SPLIT}/{_VIEW}\.txt")),
     ),
 )
-# Replaced together.
-EXPORT_ENTRIES = (SPLITS_FILE, "coco", COUNTS_DIR, TRAITS_DIR, "yolo", GALLERY_FILE)
+EXPORT_ENTRIES = (SPLITS_FILE, "coco", COUNTS_DIR, TRAITS_DIR, "yolo", GALLERY_FILE)  # together
+CARD_ENTRIES = (README_FILE, SUMMARY_FILE)  # with them, when the card writes them
+# Every top-level entry the exports write: a user's, unless the folder holds a dataset.
+TOP_ENTRIES = (*EXPORT_ENTRIES, SUMMARY_FILE, INCOMPLETE)
 
 
 @dataclass(frozen=True)
@@ -101,6 +125,13 @@ class LabelOptions:
     min_area: int = MIN_INSTANCE_AREA
     allow_empty_split: bool = False
     stuff: tuple[str, ...] = ()  # class names that are no objects (``exports.classes``)
+    mode: str = DEFAULT_MODE  # each plant draws its split, or exact counts (``SPLIT_MODES``)
+
+    def __post_init__(self) -> None:
+        if self.mode not in SPLIT_MODES:
+            raise InputError(
+                f"split mode must be one of {', '.join(SPLIT_MODES)}, got {self.mode!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -111,6 +142,7 @@ class DatasetLabels:
     min_area: int = MIN_INSTANCE_AREA
     species: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> species -> n
     warnings: list[str] = field(default_factory=list)
+    scenes: dict[str, list[str]] = field(default_factory=dict)  # split -> scene ids
 
 
 @dataclass(frozen=True)
@@ -147,15 +179,18 @@ def dataset_views(plants: list[PlantEntry]) -> list[DatasetView]:
 
 def check_planned_splits(
     dataset_dir: Path,
-    plant_ids: list[str],
+    plants: Mapping[str, str],
     options: LabelOptions,
     classes: Iterable[str] | None = None,
 ) -> None:
-    """Refuses, before any plant runs, splits that the plants to come (with those already
-    finished in the folder) would leave empty, and ``--stuff`` that names no class or every
-    class of ``classes`` (the plants' class names; None: not known before they run)."""
-    done = [p.id for p in finished_plants(dataset_dir)]
-    splits = split_plants([*plant_ids, *done], options.ratios, options.seed)
+    """Refuses, before any plant runs, splits that the plants to come (``plants``: id ->
+    species, ``Plant.species_name``), with those already finished in the folder, would leave
+    empty, ``--stuff`` that names no class or every class of ``classes`` (the plants' class
+    names; None: not known before they run), and a malformed ``SOURCE_DATE_EPOCH`` (the
+    card's date)."""
+    source_date_epoch()  # the card's date: a malformed one refused before any plant runs
+    species_of = {p.id: p.species for p in finished_plants(dataset_dir)} | dict(plants)
+    splits = make_splits(species_of, options.ratios, options.seed, options.mode)
     check_splits(splits, options.ratios, options.allow_empty_split)
     if classes is not None:
         check_stuff(options.stuff, classes)
@@ -163,8 +198,10 @@ def check_planned_splits(
 
 def check_exports_owned(dataset_dir: Path) -> None:
     """Refuses a dataset folder whose export folders hold what the exports do not write
-    (or are links): checked before a run starts and again before an export."""
+    (or are links), or that holds any file the exports write without a dataset's record
+    (``dataset_files``): checked before a run starts and again before an export."""
     survey(Path(dataset_dir), DATASET_EXPORTS).refuse(Path(dataset_dir))
+    check_top_files(Path(dataset_dir), TOP_ENTRIES)
 
 
 def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None) -> DatasetLabels:
@@ -177,9 +214,9 @@ def write_dataset_exports(dataset_dir: Path, options: LabelOptions | None = None
     stage = atomic.staging_folder(dataset_dir)
     try:
         labels, card = _write_exports(dataset_dir, stage, options or LabelOptions())
-        replace_entries(dataset_dir, stage, EXPORT_ENTRIES)
-        # The card (README.md, dataset.json's card) once the exports it describes are in.
-        labels.warnings.extend(w for w in [write_card(dataset_dir, card)] if w)
+        # The card (README.md, dataset.json's card) with the exports it describes.
+        labels.warnings.extend(w for w in [write_card(dataset_dir, card, into=stage)] if w)
+        swap_in(dataset_dir, stage, EXPORT_ENTRIES, CARD_ENTRIES)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return labels
@@ -193,10 +230,13 @@ def _write_exports(
     plants = finished_plants(dataset_dir)
     if not plants:
         raise InputError(f"{dataset_dir} has no finished plant under {PLANTS_DIR}/")
-    labelled, classes = labelled_plants(plants)
+    scenes = finished_scenes(dataset_dir)
+    labelled, classes = labelled_plants(plants + scenes)
     stuff_ids, things = classes.stuff_ids(options.stuff), classes.things(options.stuff)
-    splits = split_plants([p.id for p in plants], ratios, seed)
+    species_of = {p.id: p.species for p in plants}
+    splits = make_splits(species_of, ratios, seed, options.mode)
     warnings = check_splits(splits, ratios, options.allow_empty_split)
+    scene_splits = _scene_splits(scenes, splits)
     for p in labelled:
         if _plant_options(p.folder) == (min_area, list(options.stuff)):
             continue
@@ -207,7 +247,6 @@ def _write_exports(
             )
             continue
         write_plant_exports(p.folder, min_area, options.stuff)
-    species_of = {p.id: p.species for p in plants}
     species = species_counts(splits, species_of)
     warnings += species_gaps(splits, species_of, ratios)
     atomic.write_json(
@@ -215,16 +254,21 @@ def _write_exports(
         {
             "seed": seed,
             "ratios": dict(zip(SPLITS, ratios, strict=True)),
+            "mode": options.mode,
             **splits,
             "species": species,
+            **({"scenes": scene_splits} if scenes else {}),
         },
     )
     split_of = {plant_id: split for split in SPLITS for plant_id in splits[split]}
+    split_of |= {scene_id: split for split in SPLITS for scene_id in scene_splits[split]}
     views = dataset_views(labelled)
     images = Counter(split_of[v.plant.id] for v in views)
-    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images)
+    card = dataset_card(plants, classes.names, options.stuff, splits, species, min_area, images,
+                        scenes, split_rule=split_rule(ratios, seed, options.mode))  # fmt: skip
     coco_fields, licenses, licence_of = coco_info(card)
     guidance = {p.id: plant_guidance(p.folder) for p in labelled}
+    guidance |= {s.id: str(scene_record(s).get("guidance", "sds")) for s in scenes}
     index = yolo.class_index(things)
     yolo_dir = stage / "yolo"
     total = LabelReport()
@@ -241,7 +285,7 @@ def _write_exports(
                                     classes.names, stuff_ids, recorded[plant.id])  # fmt: skip
             objects = seen.objects
             image = Path(view.frame["file_path"])
-            relative = f"{PLANTS_DIR}/{plant.id}/{image.as_posix()}"
+            relative = f"{plant.folder.parent.name}/{plant.id}/{image.as_posix()}"
             coco.add(view.image_id, relative, objects, seen.per_object, plant_id=plant.id,
                      license=licence_of[guidance[plant.id]], **seen.fields)  # fmt: skip
             counts.append({"file_name": relative, "plant_id": plant.id, **seen.fields})
@@ -263,9 +307,32 @@ def _write_exports(
             f"class ids of {', '.join(classes.remapped)} renumbered by class name "
             f"({', '.join(f'{i} {n}' for i, n in classes.names.items())})"
         )
+    without = [p.id for p in plants if not (p.folder / TRAITS_FILE).is_file()]
+    if without:  # made before traits.json was written: their rows are missing
+        warnings.append(
+            f"{len(without)} plant(s) have no {TRAITS_FILE} ({', '.join(without[:5])}"
+            f"{', ...' if len(without) > 5 else ''}): made before traits were written, they "
+            f"are missing from {TRAITS_DIR}/; remake them (generate --overwrite) for theirs"
+        )
     write_gallery(dataset_dir, stage / GALLERY_FILE)
     gallery = dataset_dir / GALLERY_FILE  # where it is once moved in
-    return DatasetLabels(splits, total, gallery, min_area, species, warnings), card
+    labels = DatasetLabels(splits, total, gallery, min_area, species, warnings, scene_splits)
+    return labels, card
+
+
+def _scene_splits(scenes: list[PlantEntry], splits: dict[str, list[str]]) -> dict[str, list[str]]:
+    """The scene ids of each split: the split each scene was made for (``scene.json``; all
+    its plants are of it). A scene whose record names no split, or whose id is a plant's,
+    is refused."""
+    plant_ids = {i for ids in splits.values() for i in ids}
+    cut: dict[str, list[str]] = {split: [] for split in SPLITS}
+    for scene in scenes:
+        split = scene_record(scene).get("split")
+        if split not in cut or scene.id in plant_ids:
+            why = "names no split" if split not in cut else "has a plant's id"
+            raise InputError(f"scene {scene.folder} {why}: remake it (plantdreamer dataset)")
+        cut[split].append(scene.id)
+    return cut
 
 
 def _write_traits(folder: Path, split: str, plants: list[PlantEntry]) -> None:

@@ -26,7 +26,7 @@ from plantdreamer.exports.instances import read_transforms
 from plantdreamer.exports.listing import PLANTS_DIR, plant_species
 
 GALLERY_FILE = "gallery.png"
-GROUP_FILE = "group.json"  # a `generate --seeds` group folder (pipeline.group writes it)
+GROUP_FILE = "group.json"  # a `generate --seeds` group folder (pipeline/runs/ writes it)
 PANEL_INCHES = 1.8  # one image, at 100 dpi
 DPI = 100
 TITLE_INCHES = 0.25

@@ -209,17 +209,6 @@ def view_objects(
     )
 
 
-def read_view_objects(
-    plant_dir: Path, frame: dict, min_area: int = MIN_INSTANCE_AREA, lut: np.ndarray | None = None
-) -> ViewObjects:
-    """``view_objects`` of one frame of a plant folder's transforms.json (``lut``: the
-    plant's class values -> the dataset's, ``exports.classes``)."""
-    semantic, instance = read_label_maps(plant_dir, frame)
-    if lut is not None:
-        semantic = lut[semantic]
-    return view_objects(semantic, instance, min_area)
-
-
 def _boxes(masks: np.ndarray) -> np.ndarray:
     boxes = np.zeros((len(masks), 4), dtype=np.float32)
     for k, mask in enumerate(masks):

@@ -8,12 +8,15 @@ every machine and Python version, whatever order plants were listed or finished 
 plant keeps its split when the dataset grows: a plant evaluated in one version of a dataset
 is not trained on in the next.
 
-Each plant draws its own u, so every species is split in the ratios on average; a quota per
-species would move plants between splits as plants are added, which is what the draw
-avoids. Small datasets can draw no plant for a split by chance (5 plants at 0.8/0.1/0.1:
-59% of seeds give val none): ``check_splits`` makes that an error naming the counts, or a
-warning with ``allow_empty``; ``species_counts`` gives the per-split count of each species,
-and ``species_gaps`` warns of a species missing from a split where it would be expected.
+Each plant draws its own u, so the ratios are expected shares: every species is split in
+them on average, and a small dataset's counts can differ from them (two beans and two kale
+at 0.5/0.25/0.25 and seed 0 draw both kale for train). A quota per species would move
+plants between splits as plants are added, which the draw avoids; ``exact_splits.py`` is
+that quota, for those who want the counts (``--split-mode exact``). Small datasets can draw
+no plant for a split by chance (5 plants at 0.8/0.1/0.1: 59% of seeds give val none):
+``check_splits`` makes that an error naming the counts, or a warning with ``allow_empty``;
+``species_counts`` gives the per-split count of each species, and ``species_gaps`` warns of
+a species missing from a split where it would be expected.
 """
 
 from __future__ import annotations
@@ -27,6 +30,10 @@ from plantdreamer.errors import InputError
 SPLITS = ("train", "val", "test")
 DEFAULT_RATIOS = (0.8, 0.1, 0.1)
 DEFAULT_SEED = 0
+# How plants are split: each draws its split (the ratios are expected shares), or exact
+# counts per species (``exact_splits.py``).
+SPLIT_MODES = ("draw", "exact")
+DEFAULT_MODE = "draw"
 
 
 def parse_ratios(text: str) -> tuple[float, float, float]:
@@ -98,7 +105,8 @@ def check_splits(
     if allow_empty:
         return [line]
     raise InputError(
-        f"{line}: add plants, change --split or --split-seed, or pass --allow-empty-split"
+        f"{line}: add plants, change --split, --split-seed or --split-mode, or pass "
+        "--allow-empty-split"
     )
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from plantdreamer import atomic
 from plantdreamer.exports.instances import ViewObjects
+from plantdreamer.temporaries import name_max, temporary_name
 
 # Just under 0.5: marching squares then joins two pixels that touch only at a corner (the
 # saddle's mean, 0.5, is above the level), while every edge still crosses at the pixel edge.
@@ -143,13 +144,17 @@ def link_image(source: Path, target: Path) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
     if target.exists() and os.path.samefile(source, target):
         return
-    temporary = target.with_name(f".{target.name}.link")
-    temporary.unlink(missing_ok=True)
-    try:
-        os.link(source, temporary)
-    except OSError:
-        atomic.atomic_write(target, lambda tmp: shutil.copyfile(source, tmp))
-        return
+    limit = name_max(target.parent)
+    while True:
+        temporary = target.with_name(temporary_name(target.name, "link", limit))
+        try:
+            os.link(source, temporary)
+            break
+        except FileExistsError:  # the same random token: draw another
+            continue
+        except OSError:
+            atomic.atomic_write(target, lambda tmp: shutil.copyfile(source, tmp))
+            return
     os.replace(temporary, target)
     temporary.unlink(missing_ok=True)
 

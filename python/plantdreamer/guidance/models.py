@@ -285,11 +285,15 @@ def check_model_present(identifier: str, kind: str) -> None:
         if kind == "base"
         else ("depth ControlNet", "--controlnet")
     )
+    from plantdreamer.guidance.weight_files import damaged_model_files
+
     folder = Path(identifier)
     if folder.is_dir():
         missing = missing_base_parts(folder) if kind == "base" else missing_controlnet_parts(folder)
         if missing:
             raise model_not_found(identifier, what, option, True, "missing " + ", ".join(missing))
+        if damaged := damaged_model_files(folder, kind):
+            raise model_not_found(identifier, what, option, True, "; ".join(damaged))
         return
     if folder.exists():
         raise model_not_found(identifier, what, option, True, "it is a file, not a folder")
@@ -300,8 +304,13 @@ def check_model_present(identifier: str, kind: str) -> None:
     if hub_offline():
         from huggingface_hub import try_to_load_from_cache
 
-        if not isinstance(try_to_load_from_cache(identifier, MODEL_MARKERS[kind]), str):
+        marker = MODEL_MARKERS[kind]
+        found = try_to_load_from_cache(identifier, marker)
+        if not isinstance(found, str):
             raise model_not_found(identifier, what, option, True)
+        snapshot = Path(found).parents[len(Path(marker).parts) - 1]
+        if damaged := damaged_model_files(snapshot, kind):
+            raise model_not_found(identifier, what, option, True, "; ".join(damaged))
 
 
 def load_base_model(

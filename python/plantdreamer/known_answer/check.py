@@ -91,8 +91,8 @@ def run_generate(
     """One ``generate`` run; (plant.ply, seconds, Gaussians). ``models=None``: no guidance.
     ``group`` > 1: the plant is trained first in a group (``generate --seeds``) with
     ``group - 1`` companions guided by the same models; only the plant is returned."""
-    from plantdreamer.pipeline import generate
-    from plantdreamer.pipeline.group import generate_group, plant_name
+    from plantdreamer.pipeline import FolderPerPlant, generate_plants
+    from plantdreamer.pipeline.runs.record import plant_name
 
     if models is None:
         settings = {"guidance": "none", **settings}
@@ -102,17 +102,16 @@ def run_generate(
     cfg = views.generate_config(spec, steps=steps, schedule=schedule, **settings)
     t0 = time.perf_counter()
     if group <= 1 or models is None:
-        result = generate(cfg, out, overwrite=True, show_progress=False)
+        result = generate_plants([cfg], out, overwrite=True, show_progress=False)[0]
         return Path(result.ply_path), time.perf_counter() - t0, int(result.gaussians)
     cfgs = [cfg] + [
         views.generate_config(spec, steps=steps, schedule=schedule, seed=s, **settings)
         for s in companion_seeds(spec, group)
     ]
-    done = generate_group(cfgs, out, overwrite=True, show_progress=False)
+    results = generate_plants(cfgs, out, layout=FolderPerPlant(), overwrite=True,
+                              show_progress=False)  # fmt: skip
     seconds = time.perf_counter() - t0
-    if done.failed:
-        raise RuntimeError(f"group run failed: {done.failed}")
-    plant = done.done[plant_name(cfg)]
+    plant = next(r for r in results if r.name == plant_name(cfg))
     return Path(plant.ply_path), seconds, int(plant.gaussians)
 
 

@@ -68,8 +68,8 @@ def score(out: Path, seconds: float) -> dict[str, Any]:
     from plantdreamer.io import read_splat_ply
     from plantdreamer.known_answer import views
     from plantdreamer.known_answer.check import Truth
-    from plantdreamer.pipeline import generate
-    from plantdreamer.pipeline.config import GenerateConfig, from_record
+    from plantdreamer.pipeline import generate_plants
+    from plantdreamer.pipeline.settings.config import GenerateConfig, from_record
 
     run_json = out / "run.json"
     if not run_json.is_file():
@@ -82,7 +82,7 @@ def score(out: Path, seconds: float) -> dict[str, Any]:
         start_cfg = GenerateConfig.from_settings({**cfg.settings(), "steps": 0,
                                                   "guidance": "none", "eval_views": 0,
                                                   "turntable": "none"})  # fmt: skip
-        start_run = generate(start_cfg, Path(tmp) / "start", show_progress=False)
+        start_run = generate_plants([start_cfg], Path(tmp) / "start", show_progress=False)[0]
         start_ply = Path(start_run.ply_path)
         figures = {
             "psnr_start": truth.score(start_ply),

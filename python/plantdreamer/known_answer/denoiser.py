@@ -41,14 +41,16 @@ def make_guidance(
     """The real guidance on the model folder ``models``, as a ``steps``-long run of the
     known-answer plant builds it (``generate``'s own ``build_guidance``), on ``device``."""
     from plantdreamer.known_answer.build import model_dirs
-    from plantdreamer.pipeline.runtime import build_guidance
+    from plantdreamer.pipeline.settings.group_settings import GroupSettings
+    from plantdreamer.pipeline.settings.runtime import build_guidance, resolve_plants
 
     base, control = model_dirs(models)
     cfg = views.generate_config(
         spec, base_model=str(base), controlnet=str(control), steps=steps, schedule=schedule,
         device=device,
     )  # fmt: skip
-    return build_guidance(cfg)
+    resolve_plants([cfg])
+    return build_guidance(GroupSettings.of([cfg]))
 
 
 def unseen_views(spec: KnownAnswerSpec, truth: Gaussians) -> views.ViewSet:

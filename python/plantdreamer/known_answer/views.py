@@ -20,7 +20,7 @@ from plantdreamer.errors import InputError
 from plantdreamer.eval.frames import Frame
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.known_answer.spec import KnownAnswerSpec
-from plantdreamer.pipeline.config import GenerateConfig
+from plantdreamer.pipeline.settings.config import GenerateConfig
 
 # Offsets of the camera streams: training views, held-out views (generate uses ``seed``).
 TRAIN_STREAM = 1_000_000
@@ -52,10 +52,10 @@ def true_gaussians(spec: KnownAnswerSpec, work_dir: Path) -> Gaussians:
     plant, in the L-System's own units, 7.7 times smaller for bean seed 0: the models
     learned a plant covering about 1.4% of a view that generate shows at 20-50%.)"""
     from plantdreamer.io import read_splat_ply
-    from plantdreamer.pipeline import generate
+    from plantdreamer.pipeline import generate_plants
 
     cfg = generate_config(spec, guidance="none", steps=0, color_init="original")
-    result = generate(cfg, work_dir / "target", overwrite=True, show_progress=False)
+    result = generate_plants([cfg], work_dir / "target", overwrite=True, show_progress=False)[0]
     return in_generate_frame(read_splat_ply(result.ply_path), Path(result.ply_path))
 
 
@@ -71,8 +71,8 @@ def in_generate_frame(gaussians: Gaussians, ply: Path) -> Gaussians:
 
 
 def sample_cameras(spec: KnownAnswerSpec, n: int, stream: int) -> list[Camera]:
-    from plantdreamer.pipeline.sampler import CameraSampler
-    from plantdreamer.pipeline.train_config import CameraRanges
+    from plantdreamer.pipeline.model.sampler import CameraSampler
+    from plantdreamer.pipeline.settings.train_config import CameraRanges
 
     sampler = CameraSampler(CameraRanges(), spec.resolution, spec.seed + stream)
     return [sampler.sample() for _ in range(n)]

@@ -151,7 +151,9 @@ def caption_for(path: Path, species: str, template: str) -> str:
 
 
 def check_caption_template(template: str) -> None:
-    """A template is text with ``{species}``, its only field (``{{`` and ``}}`` are braces)."""
+    """A template is text with ``{species}``, its only field (``{{`` and ``}}`` are braces),
+    that formats a species name: a format spec or conversion a name cannot take
+    (``{species:d}``, ``{species!z}``) is refused here, not when the captions are made."""
     try:
         fields = {f for _, f, _, _ in string.Formatter().parse(template) if f is not None}
     except ValueError as exc:
@@ -162,6 +164,13 @@ def check_caption_template(template: str) -> None:
             f"caption template must contain '{{species}}' and no other field, got {template!r}"
             + (f" (with {', '.join('{' + f + '}' for f in other)})" if other else "")
         )
+    try:
+        template.format(species="bean")
+    except (ValueError, KeyError, IndexError, AttributeError, TypeError) as exc:
+        raise InputError(
+            f"caption template {template!r} cannot format a species name ({exc}); write "
+            "'{species}' with no format spec or conversion"
+        ) from None
 
 
 def load_examples(

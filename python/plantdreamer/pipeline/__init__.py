@@ -1,6 +1,6 @@
 """The generation pipeline: point cloud -> initial Gaussians -> guided optimisation -> outputs.
 
-Names load on first use, so ``plantdreamer.pipeline.config`` (read by the CLI at start-up)
+Names load on first use, so ``plantdreamer.pipeline.settings.config`` (read by the CLI at start-up)
 does not import torch.
 """
 
@@ -10,31 +10,39 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from plantdreamer.pipeline.config import GenerateConfig
-    from plantdreamer.pipeline.plants import generate_plants
-    from plantdreamer.pipeline.presets import PRESETS, resolve_config
-    from plantdreamer.pipeline.run import RunInterrupted, RunResult, generate
+    from plantdreamer.errors import PlantsFailed, RunInterrupted
+    from plantdreamer.pipeline.runs.entry import generate_plants
+    from plantdreamer.pipeline.runs.layout import FolderPerPlant, GivenFolders, PlantAlone
+    from plantdreamer.pipeline.runs.results import PlantResult
+    from plantdreamer.pipeline.settings.config import GenerateConfig
+    from plantdreamer.pipeline.settings.presets import PRESETS, resolve_config
     from plantdreamer.pipeline.step.options import StepOptions
 
 __all__ = [
     "PRESETS",
+    "FolderPerPlant",
     "GenerateConfig",
+    "GivenFolders",
+    "PlantAlone",
+    "PlantResult",
+    "PlantsFailed",
     "RunInterrupted",
-    "RunResult",
     "StepOptions",
-    "generate",
     "generate_plants",
     "resolve_config",
 ]
 
 _MODULES = {
-    "GenerateConfig": "plantdreamer.pipeline.config",
-    "PRESETS": "plantdreamer.pipeline.presets",
-    "resolve_config": "plantdreamer.pipeline.presets",
-    "RunInterrupted": "plantdreamer.pipeline.run",
-    "RunResult": "plantdreamer.pipeline.run",
-    "generate": "plantdreamer.pipeline.run",
-    "generate_plants": "plantdreamer.pipeline.plants",
+    "GenerateConfig": "plantdreamer.pipeline.settings.config",
+    "PRESETS": "plantdreamer.pipeline.settings.presets",
+    "resolve_config": "plantdreamer.pipeline.settings.presets",
+    "generate_plants": "plantdreamer.pipeline.runs.entry",
+    "FolderPerPlant": "plantdreamer.pipeline.runs.layout",
+    "GivenFolders": "plantdreamer.pipeline.runs.layout",
+    "PlantAlone": "plantdreamer.pipeline.runs.layout",
+    "PlantResult": "plantdreamer.pipeline.runs.results",
+    "PlantsFailed": "plantdreamer.errors",
+    "RunInterrupted": "plantdreamer.errors",
     "StepOptions": "plantdreamer.pipeline.step.options",
 }
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,18 +19,20 @@ from plantdreamer.errors import InputError
 from plantdreamer.exports import write_plant_exports
 from plantdreamer.exports.points import class_comments
 from plantdreamer.gaussians import Gaussians
+from plantdreamer.guidance.model_files import run_models
 from plantdreamer.pipeline import outputs
-from plantdreamer.pipeline.checkpoint import CHECKPOINT_NAME
-from plantdreamer.pipeline.config import GenerateConfig
-from plantdreamer.pipeline.dataset_export import ground_truth_writer, render_views
-from plantdreamer.pipeline.ground_truth import Splats
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 from plantdreamer.pipeline.progress import Counter
 from plantdreamer.pipeline.rerender import exported_scene
-from plantdreamer.pipeline.run_state import RunState
+from plantdreamer.pipeline.settings.config import GenerateConfig
+from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
+from plantdreamer.pipeline.state.run_state import RunState
+from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
+from plantdreamer.pipeline.truth.ground_truth import Splats
 from plantdreamer.traits import TRAITS_FILE, write_traits
 from plantdreamer.traits.record import run_traits, view_recorder
 from plantdreamer.versions import package_versions
+from plantdreamer.views import ViewPlan, plan_views
 
 # Per-step phases reported in run.json's per_step_s, each with one meaning: the native
 # render of the plants, the depth maps taken, the guidance's launch (networks queued, or
@@ -57,10 +60,14 @@ def export_run(
     out: Path,
     device: str,
     show_progress: bool = False,
+    stop_point: Callable[[], None] | None = None,
 ) -> RunResult:
     """Writes every output of a finished run into ``out`` (``show_progress``: a count of
     the views rendered, then a line before the label files); a model that training left
-    without Gaussians is refused before anything is written."""
+    without Gaussians is refused before anything is written. ``stop_point`` raises when a
+    stop was asked for (``Trainer.stop_point``): called before each view and before the
+    label files, so a stop during the export ends it within one view (the final
+    checkpoint is written: a resume redoes the export)."""
     final = state.model.to_gaussians()
     if len(final) == 0:
         emptied = next((e for e in state.events if e.get("gaussians") == 0), None)
@@ -90,43 +97,70 @@ def export_run(
     with timer("renders"), torch.no_grad():
         # Each view's render, then its ground truth (which reuses the render's footprints),
         # on the orbit framed on what plant.ply holds unless the distance is given.
-        cameras, eval_distance = outputs.eval_orbit(oc, scene, cfg.train.render_size)
+        plan = export_plan(cfg, scene)  # the orbit, or the rig; backgrounds, jitter
+        cameras, eval_distance = plan.cameras, plan.orbit_distance
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
         labels = None if view_model.labels is None else view_model.labels.numpy()
         splats = Splats.of(view_model)
-        views = view_recorder(
+        recorder = view_recorder(
             (splats.means, splats.quats, splats.scales, splats.opacities),
             labels, class_names, state.transform.scale, oc.leaf_occlusion,
         )  # fmt: skip
 
+        turntable_frames = oc.turntable_frames if plan.turns else 0  # no turntable of a rig
+        views = outputs.StreamedViews(
+            out / "renders", len(cameras), turntable_frames, oc.turntable, plan.png
+        )  # each view written as it is made
         with Counter("export: views", len(cameras), show_progress) as counter:
 
             def render(camera):
-                image, _, meta = view_model.render([camera], cfg.train.background)
+                if stop_point is not None:  # a stop asked for: within one view
+                    stop_point()
+                image, alpha, meta = view_model.render([camera], plan.render_background)
                 counter.advance()
-                return outputs.to_uint8(image[0].numpy()), meta
+                picture = plan.finish(
+                    plan.index(camera), image[0].numpy(), alpha[0, ..., 0].numpy()
+                )
+                return outputs.to_uint8(picture), meta
 
-            frames = render_views(view_model, writer, cameras, render, views.add)
-        outputs.write_renders(out / "renders", frames)
-        outputs.write_turntables(out, frames, oc.turntable_frames, oc.turntable)
+            try:
+                render_views(view_model, writer, cameras, render, views.add, plan.records,
+                             observe=recorder.add)  # fmt: skip
+            except BaseException:
+                recorder.close()  # a stop or an error: the occlusion thread's views dropped
+                raise
+        views.write_turntables(out)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
+    if stop_point is not None:
+        stop_point()
     with timer("traits"):  # the L-System grown again, or the scan's points (traits/)
         src, invert, start = cfg.source, state.transform.invert, state.initial
         species = src.structure() if src.pointcloud is None else None
         record = run_traits(species, cfg.seed, src.growth, src.growth_since,
                             (invert(start.means.astype(np.float64)), start.labels),
                             (invert(final.means.astype(np.float64)), final.labels),
-                            class_names, views)  # fmt: skip
+                            class_names, recorder)  # fmt: skip
         write_traits(out / TRAITS_FILE, record)
     if show_progress:
         print("export: label files (COCO, YOLO-seg, points.ply)", file=sys.stderr, flush=True)
     with timer("label files"):
         write_plant_exports(out)
     summary = _summary(cfg, state, final, device, export_offset)
-    summary["eval_distance"] = eval_distance  # the orbit's distance (framed, or given)
+    # What the export decided: the orbit's distance (framed on plant.ply, or given).
+    summary["outputs"] = {"eval_distance": eval_distance}
     outputs.write_json(out / "run.json", summary)
     (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # finished: nothing left to resume
     return RunResult(out, ply_path, cfg.train.steps, len(final), dict(timer.totals))
+
+
+def export_plan(cfg: GenerateConfig, scene: Gaussians) -> ViewPlan:
+    """The exported views of ``scene`` (the scene frame): ``views.plan_views`` with the
+    run's orbit, seed, render size and grey."""
+    oc, size = cfg.outputs, cfg.train.render_size
+    return plan_views(
+        oc.views, scene, cfg.seed, oc.eval_views, oc.eval_fovy_deg, size, cfg.train.background,
+        orbit=lambda: outputs.eval_orbit(oc, scene, size),
+    )  # fmt: skip
 
 
 def _class_names(cfg: GenerateConfig) -> dict[int, str] | None:
@@ -151,8 +185,8 @@ def _summary(
     }
     return {
         "config": cfg.to_dict(),
-        "seed": cfg.seed,
         "versions": package_versions(),
+        "models": run_models(cfg.sds),  # each model file read, with its SHA-256
         "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),
         "device": device,

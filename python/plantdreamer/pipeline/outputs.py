@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import csv
 import functools
+import importlib.util
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -15,20 +16,26 @@ import numpy as np
 from plantdreamer import atomic, turntable
 from plantdreamer.atomic import atomic_write
 from plantdreamer.cameras import orbit_ring
-from plantdreamer.errors import InputError
+from plantdreamer.errors import InputError, PlantDreamerError
 from plantdreamer.gaussians import Gaussians
 from plantdreamer.pointcloud import NormalizeTransform
-from plantdreamer.settings import setting
+from plantdreamer.settings import option_prefix, setting
 from plantdreamer.turntable import TURNTABLE_FORMATS, TURNTABLE_FRAMES
+from plantdreamer.views.config import ViewsConfig
 
 # float32 positions must resolve the plant at least this finely (relative to its size);
 # georeferenced scans (UTM: 1e6 m from the origin) do not, and are exported with an offset.
 EXPORT_PRECISION = 1e-5
 
 
-# Every camera and view of the orbit is held until the export ends: one view per 0.1
-# degree is more than any use of the orbit needs.
+# The orbit's cameras are held until the export ends (its views are written as they are
+# made): one view per 0.1 degree is more than any use of the orbit needs.
 MAX_EVAL_VIEWS = 3600
+# The longest cadence of progress pictures taken: beyond any run's steps (whose last step
+# has its pictures whatever the cadence).
+MAX_PROGRESS_EVERY = 2**31 - 1
+# Settings that only watch a run: they change none of its plant's outputs.
+WATCHING = ("progress-every", "tensorboard")
 
 
 @dataclass
@@ -64,6 +71,20 @@ class OutputsConfig:
         "shows (traits.json, COCO's visible_fraction; docs/traits.md: about 8% of a "
         "--guidance none run's CPU time).",
     )
+    progress_every: int | None = setting(
+        None,
+        "Steps between the progress pictures (progress/step_N.png, progress.png, loss.png), "
+        "and at the last step.",
+        range=(1, MAX_PROGRESS_EVERY),
+        default_text="at each checkpoint",
+    )
+    tensorboard: bool = setting(
+        False,
+        "Write TensorBoard events in each plant's tensorboard/ folder: log.csv's figures at "
+        "every step and the progress pictures (the tensorboard extra).",
+    )
+    # The exported views' rig, background and jitter (the orbit on grey by default).
+    views: ViewsConfig = field(default_factory=ViewsConfig, metadata=option_prefix(""))
 
     def validate(self) -> None:
         """The evaluation orbit is a camera and the turntable a count, checked before a run
@@ -76,11 +97,24 @@ class OutputsConfig:
             raise InputError(
                 f"eval-elevation-deg must be in [-90, 90] degrees, got {self.eval_elevation_deg}"
             )
+        if self.tensorboard:  # found before anything trains, not after
+            check_tensorboard()
         if self.turntable_frames < 0:
             raise InputError(
                 f"turntable-frames must be >= 0, got {self.turntable_frames} "
                 "(--turntable none makes no turntable)"
             )
+        self.views.validate()
+
+
+def check_tensorboard() -> None:
+    """PlantDreamerError saying what to install when ``tensorboard`` is on and TensorBoard is
+    not there (looked for, not imported)."""
+    if importlib.util.find_spec("tensorboard") is None:
+        raise PlantDreamerError(
+            "the tensorboard setting needs the tensorboard package, which is not installed: "
+            "pip install 'plantdreamer[tensorboard]' (or: pip install tensorboard)"
+        )
 
 
 def export_offset(transform: NormalizeTransform, scene_size: float) -> np.ndarray | None:
@@ -140,10 +174,11 @@ def to_uint8(image) -> np.ndarray:
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def write_renders(out_dir: Path, frames: list[np.ndarray]) -> None:
+def write_renders(out_dir: Path, frames: list[np.ndarray], **png: Any) -> None:
+    """``view_NNN.png`` per frame (``png``: Pillow's PNG options, as ``compress_level``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for i, frame in enumerate(frames):
-        atomic.write_image(out_dir / f"view_{i:03d}.png", frame)
+        atomic.write_image(out_dir / f"view_{i:03d}.png", frame, **png)
 
 
 def write_turntables(
@@ -151,12 +186,60 @@ def write_turntables(
 ) -> list[Path]:
     """``turntable.gif`` and/or ``turntable.mp4`` (``fmt``: one of TURNTABLE_FORMATS) of
     ``count`` frames evenly picked from the orbit renders; returns the files written."""
+    picks = turntable_picks(len(frames), count)
+    return write_turntable_frames(out_dir, [frames[i] for i in picks], fmt)
+
+
+def turntable_picks(views: int, count: int) -> list[int]:
+    """The views of an orbit of ``views`` that a turntable of ``count`` frames shows (evenly
+    spaced, from the first)."""
+    if views <= 0 or count <= 0:
+        return []
+    return [int(i) for i in np.linspace(0, views, num=min(count, views), endpoint=False)]
+
+
+class StreamedViews:
+    """The views written as they are made (``view_NNN.png`` in ``out_dir``; ``png``:
+    Pillow's PNG options, as ``compress_level``), with only the frames its turntable shows
+    kept: the memory a render holds is the turntable's frames (``turntable_frames`` at
+    most), whatever the number of views."""
+
+    def __init__(
+        self,
+        out_dir: Path,
+        views: int,
+        turntable_frames: int,
+        fmt: str,
+        png: dict[str, Any] | None = None,
+    ) -> None:
+        if fmt not in TURNTABLE_FORMATS:
+            raise InputError(
+                f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}"
+            )
+        self.out_dir, self.fmt, self.png = out_dir, fmt, dict(png or {})
+        count = turntable_frames if fmt != "none" else 0
+        self.picks = set(turntable_picks(views, count))
+        self.kept: list[np.ndarray] = []
+        self.written = 0
+        out_dir.mkdir(parents=True, exist_ok=True)
+
+    def add(self, index: int, frame: np.ndarray) -> None:
+        atomic.write_image(self.out_dir / f"view_{index:03d}.png", frame, **self.png)
+        self.written += 1
+        if index in self.picks:
+            self.kept.append(frame)
+
+    def write_turntables(self, folder: Path) -> list[Path]:
+        """The turntable of the kept frames, into ``folder``."""
+        return write_turntable_frames(folder, self.kept, self.fmt)
+
+
+def write_turntable_frames(out_dir: Path, chosen: list[np.ndarray], fmt: str) -> list[Path]:
+    """``turntable.gif`` and/or ``turntable.mp4`` of the frames ``chosen``."""
     if fmt not in TURNTABLE_FORMATS:
         raise InputError(f"turntable must be one of {', '.join(TURNTABLE_FORMATS)}, got {fmt!r}")
-    if not frames or count <= 0:
+    if not chosen:
         return []
-    picks = np.linspace(0, len(frames), num=min(count, len(frames)), endpoint=False).astype(int)
-    chosen = [frames[i] for i in picks]
     writers = {"gif": turntable.write_gif, "mp4": turntable.write_mp4}
     paths = []
     for suffix in turntable.suffixes(fmt):

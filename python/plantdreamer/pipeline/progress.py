@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -133,15 +133,22 @@ class Counter:
 
 
 class PhaseTimer:
-    """Seconds spent per phase of a run (``with timer("raster.forward"): ...``), summed."""
+    """Seconds spent per phase of a run (``with timer("raster.forward"): ...``), summed;
+    ``observers`` (a trainer's ``TrainerObserver``s) hear each phase start and end."""
 
     def __init__(self, totals: dict[str, float] | None = None) -> None:
         self.totals: dict[str, float] = defaultdict(float, totals or {})
+        self.observers: Sequence[Any] = ()
 
     @contextmanager
     def __call__(self, name: str) -> Iterator[None]:
+        for observer in self.observers:
+            observer.phase_start(name)
         t0 = time.perf_counter()
         try:
             yield
         finally:
-            self.totals[name] += time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
+            self.totals[name] += seconds
+            for observer in self.observers:
+                observer.phase_end(name, seconds)

@@ -1,54 +1,90 @@
-"""Pictures of a run in progress, written with each checkpoint so a long run can be looked
-at before it ends:
+"""Pictures of a run in progress (``ProgressPictures``, a trainer's observer), so a long run
+can be looked at before it ends:
 
-- ``progress/step_NNNNNN.png``: the Gaussians at that checkpoint, one small view from the
+- ``progress/step_NNNNNN.png``: the Gaussians after that many steps, one small view from the
   evaluation orbit's first camera (elevation, field of view and azimuth), at the distance
   that frames the model as it is then;
 - ``progress.png``: those pictures side by side, the latest on the right (at most
   ``STRIP_FRAMES``, evenly picked), each under its step;
-- ``loss.png``: the loss of every trained step so far (``log.csv``) and its running mean,
-  drawn by matplotlib; none for a run without guidance (it has no loss).
+- ``loss.png``: the log so far (``log_plot.py``: the loss and its running mean, the drawn
+  timestep, the gradient norm); none for a run without guidance (it has no loss).
 
-Each file is rewritten atomically and depends only on the model and the log at that step, so
-a resumed run leaves the same bytes as one never stopped (a picture past the resumed step is
-left out of the strip, then made again; a stop's own checkpoint makes none).
+They are made at each checkpoint of the schedule (every ``checkpoint-every`` steps) and at
+the last step, or with ``progress-every`` N every N steps and at the last, at the end of
+the step that completes them. Each file is rewritten atomically and depends only on the
+model and the log at that step, so a resumed run leaves the same bytes as one never stopped
+(a picture past the resumed step is left out of the strip, then made again; a stop's own
+checkpoint makes none). A step's pictures come before its checkpoint: a run killed between
+the two resumes from the checkpoint before and makes them again, so no picture a resume
+needs is ever missing. Each picture is also handed to the ``listeners`` (a TensorBoard
+writer) with its plant and step.
 """
 
 from __future__ import annotations
 
-import math
 import re
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from plantdreamer import atomic
+from plantdreamer.pipeline.log_plot import LOSS_PLOT, write_loss_plot
+from plantdreamer.pipeline.observer import TrainerObserver
+
+__all__ = ["FRAME_NAME", "LOSS_PLOT", "PROGRESS_DIR", "PROGRESS_STRIP", "ProgressPictures"]
 
 PROGRESS_DIR = "progress"
 PROGRESS_STRIP = "progress.png"
-LOSS_PLOT = "loss.png"
 PICTURE_PX = 128  # side of each picture: small enough to cost little at every checkpoint
 STRIP_FRAMES = 12
 _CAPTION_PX = 14
 FRAME_NAME = re.compile(r"step_(\d{6,})\.png")
 
 
-def write_progress(plant: Any, step: int) -> None:
-    """The pictures of a ``PlantRun`` whose checkpoint at ``step`` was just written: at the
-    checkpoints of the schedule (every ``checkpoint-every`` steps, and the last), not at a
-    stop's, so a stopped and resumed run shows the same pictures."""
-    train = plant.cfg.train
-    if step % train.checkpoint_every and step != train.steps:
-        return
+# A picture's listener: called with the plant (a ``PlantRun``), the steps done and the picture.
+PictureListener = Callable[[Any, int, np.ndarray], None]
+
+
+class ProgressPictures(TrainerObserver):
+    """Each plant's pictures at the checkpoints of the schedule (``every`` None), or every
+    ``every`` steps; each made is handed to the ``listeners``."""
+
+    def __init__(self, every: int | None = None, listeners: Sequence[PictureListener] = ()) -> None:
+        self.every, self.listeners = every, list(listeners)
+
+    def step_end(self, step: int, plants: Sequence[Any], loss: float | None) -> None:
+        if self.every is None:
+            return
+        for plant in plants:
+            done = step + 1
+            if plant.error is None and (done % self.every == 0 or done == plant.cfg.train.steps):
+                self._write(plant, done)
+
+    def checkpoint(self, step: int, plants: Sequence[Any]) -> None:
+        if self.every is not None:
+            return
+        for plant in plants:  # the schedule's checkpoints and the last, not a stop's
+            train = plant.cfg.train
+            if step % train.checkpoint_every == 0 or step == train.steps:
+                self._write(plant, step)
+
+    def _write(self, plant: Any, step: int) -> None:
+        frame = write_progress(plant, step)
+        for listener in self.listeners:
+            listener(plant, step, frame)
+
+
+def write_progress(plant: Any, step: int) -> np.ndarray:
+    """The pictures of a ``PlantRun`` after ``step`` steps; returns the step's picture."""
     out = Path(plant.out_dir)
     frame = _picture(plant.state.model, plant.cfg)
     (out / PROGRESS_DIR).mkdir(exist_ok=True)
     atomic.write_image(out / PROGRESS_DIR / f"step_{step:06d}.png", frame)
     atomic.write_image(out / PROGRESS_STRIP, _strip(out / PROGRESS_DIR, step))
-    losses = [(row["step"], row["loss"]) for row in plant.state.log_rows if row.get("step") < step]
-    if any(loss is not None for _, loss in losses):
-        write_loss_plot(out / LOSS_PLOT, losses)
+    write_loss_plot(out / LOSS_PLOT, [row for row in plant.state.log_rows if row["step"] < step])
+    return frame
 
 
 def _picture(model: Any, cfg: Any) -> np.ndarray:
@@ -91,34 +127,3 @@ def _strip(folder: Path, step: int) -> Any:
             strip.paste(picture.convert("RGB"), (k * PICTURE_PX, 0))
         draw.text((k * PICTURE_PX + 4, PICTURE_PX + 1), f"step {at}", fill="black")
     return strip
-
-
-def write_loss_plot(path: Path, losses: list[tuple[int, float | None]]) -> None:
-    """``loss.png``: the loss of each step and its running mean (over a 50th of the steps)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
-
-    steps = np.array([s for s, v in losses if v is not None], np.float64)
-    values = np.array([v for _, v in losses if v is not None], np.float64)
-    window = max(1, len(values) // 50)
-    mean = np.convolve(values, np.ones(window) / window, mode="valid")
-    figure = Figure(figsize=(5, 3), dpi=100)
-    axes = figure.add_subplot()
-    axes.plot(steps, values, lw=0.6, alpha=0.4, color="tab:green", label="loss")
-    if window > 1:
-        axes.plot(steps[window - 1 :], mean, lw=1.5, color="tab:green",
-                  label=f"mean of {window} steps")  # fmt: skip
-    if len(values) and np.all(values > 0) and values.max() / values.min() > 100:
-        axes.set_yscale("log")
-    axes.set_xlabel("step")
-    axes.set_ylabel("loss")
-    axes.set_xlim(0, max(1.0, math.ceil(steps.max() + 1) if len(steps) else 1.0))
-    if window > 1:
-        axes.legend(loc="upper right", frameon=False)
-    figure.subplots_adjust(left=0.16, bottom=0.16, right=0.97, top=0.95)  # tight_layout: 2x
-    # No "Software" entry: the same losses give the same bytes whatever matplotlib wrote it.
-    atomic.atomic_write(
-        path, lambda tmp: figure.savefig(tmp, format="png", metadata={"Software": None})
-    )

@@ -21,8 +21,10 @@ import numpy as np
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import InputError
 from plantdreamer.gaussians import Gaussians
-from plantdreamer.pipeline.config import from_record
+from plantdreamer.pipeline.settings.config import from_record
 from plantdreamer.pointcloud import NormalizeTransform
+from plantdreamer.settings import walk
+from plantdreamer.views import ViewsConfig
 
 RUN_FILE = "run.json"
 IDENTITY = NormalizeTransform(center=(0.0, 0.0, 0.0), scale=1.0)
@@ -31,6 +33,8 @@ ORBIT = (
     "eval-views", "eval-distance", "eval-elevation-deg", "eval-fovy-deg", "resolution",
     "background",
 )  # fmt: skip
+# The views' rig, background and jitter, and the seed they are drawn from.
+VIEWS = (*(s.name for s in walk(ViewsConfig)), "seed")
 
 
 @dataclass(frozen=True)
@@ -39,7 +43,7 @@ class GenerateFrame:
 
     transform: NormalizeTransform
     offset: np.ndarray | None  # plant.ply holds positions minus this
-    orbit: dict[str, Any]  # the settings ORBIT names, by name
+    orbit: dict[str, Any]  # the settings ORBIT and VIEWS name, by name
 
     @classmethod
     def beside(cls, ply: Path) -> GenerateFrame | None:
@@ -51,7 +55,7 @@ class GenerateFrame:
             run = json.loads(path.read_text())
             cfg = from_record(run["config"])
             transform = NormalizeTransform.from_dict(run["transform"])
-            orbit = {name: cfg.get(name) for name in ORBIT}
+            orbit = {name: cfg.get(name) for name in (*ORBIT, *VIEWS)}
             orbit["eval-distance"] = _orbit_distance(orbit["eval-distance"], run)
             if orbit["resolution"] is None:
                 raise ValueError("no resolution recorded")
@@ -67,11 +71,12 @@ class GenerateFrame:
 
 def _orbit_distance(given: float | None, run: dict[str, Any]) -> float | None:
     """The distance generate's orbit was rendered at: given in its config, else the one it
-    framed and recorded (``eval_distance``); None for a run without views (``render``
-    frames the plant by generate's rule then)."""
+    framed and recorded (``outputs.eval_distance``; top-level ``eval_distance`` in run.json
+    files written before); None for a run without views (``render`` frames the plant by
+    generate's rule then)."""
     if given is not None:
         return float(given)
-    framed = run.get("eval_distance")
+    framed = run.get("outputs", {}).get("eval_distance", run.get("eval_distance"))
     return None if framed is None else float(framed)
 
 

@@ -74,6 +74,12 @@ class ViewRecorder:
             self._pool.shutdown()
         return self._records
 
+    def close(self) -> None:
+        """Drops the views still waiting (a stopped export): their thread ends with them."""
+        self._pending.clear()
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+
     @staticmethod
     def _settle(record: dict[str, Any], job: Future) -> None:
         leaves = job.result()

@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::{CoreError, CoreResult};
 
 /// A header longer than this without `end_header` is not a PLY header.
-const MAX_HEADER_BYTES: usize = 1 << 20;
+pub(super) const MAX_HEADER_BYTES: usize = 1 << 20;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {

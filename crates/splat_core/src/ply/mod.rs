@@ -11,14 +11,17 @@
 //! only to find where they end, so a truncated file or a lying header is still detected
 //! (an error before the vertex element, a warning after it unless the read is strict).
 //! `claims.rs` checks the header's counts against the file's length before any
-//! allocation; `read_ascii.rs` decodes ascii data. Files are written atomically.
+//! allocation (`check.rs`: the same check alone, before a command deletes anything);
+//! `read_ascii.rs` decodes ascii data. Files are written atomically.
 
+mod check;
 mod claims;
 mod header;
 mod read;
 mod read_ascii;
 mod write;
 
+pub use check::check_vertex_data;
 pub use header::{parse_header, Element, Format, Header, Property, ScalarType};
 pub use read::{
     read_vertex_columns, read_vertex_columns_from_bytes, read_vertex_fields,

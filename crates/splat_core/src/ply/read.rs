@@ -20,6 +20,7 @@ use super::claims::check_claimed_sizes;
 use super::header::{parse_header, Element, Format, Property, ScalarType};
 use super::read_ascii::read_ascii;
 use super::Column;
+use crate::memory::try_vec;
 use crate::{CoreError, CoreResult};
 
 /// The `vertex` element of a PLY file: its scalar properties in header order.
@@ -106,6 +107,10 @@ pub fn read_vertex_fields_from_bytes(
         .ok_or_else(|| err("the file has no 'vertex' element".into()))?;
     let data = &bytes[header.data_start..];
     check_claimed_sizes(&header.elements[..=vertex], header.format, data.len()).map_err(err)?;
+    let failed = |failure| match failure {
+        Failure::Data(problem) => err(problem),
+        Failure::Memory(memory) => memory,
+    };
     let plan = plan(&header.elements[vertex], groups);
     let mut lenience = Lenience {
         strict,
@@ -120,7 +125,7 @@ pub fn read_vertex_fields_from_bytes(
             read_binary(data, &header.elements, vertex, true, &plan, &mut lenience)
         }
     }
-    .map_err(err)?;
+    .map_err(failed)?;
     let fields = match columns {
         Decoded::Fields(fields) => fields,
         Decoded::Columns(cols) => assemble(cols, &plan),
@@ -272,17 +277,31 @@ pub(super) fn scalar_names(element: &Element) -> impl Iterator<Item = (&str, Sca
     })
 }
 
-pub(super) fn empty_column(ty: ScalarType, capacity: usize) -> Column {
-    match ty {
-        ScalarType::I8 => Column::I8(Vec::with_capacity(capacity)),
-        ScalarType::U8 => Column::U8(Vec::with_capacity(capacity)),
-        ScalarType::I16 => Column::I16(Vec::with_capacity(capacity)),
-        ScalarType::U16 => Column::U16(Vec::with_capacity(capacity)),
-        ScalarType::I32 => Column::I32(Vec::with_capacity(capacity)),
-        ScalarType::U32 => Column::U32(Vec::with_capacity(capacity)),
-        ScalarType::F32 => Column::F32(Vec::with_capacity(capacity)),
-        ScalarType::F64 => Column::F64(Vec::with_capacity(capacity)),
+/// A decode that failed: its data (a PlyError naming the file) or the memory for its
+/// columns (`CoreError::OutOfMemory`, never an abort: `memory.rs`).
+pub(super) enum Failure {
+    Data(String),
+    Memory(CoreError),
+}
+
+impl From<String> for Failure {
+    fn from(problem: String) -> Self {
+        Failure::Data(problem)
     }
+}
+
+/// An empty column with room for `capacity` values, reserved fallibly.
+pub(super) fn empty_column(ty: ScalarType, capacity: usize) -> Result<Column, Failure> {
+    Ok(match ty {
+        ScalarType::I8 => Column::I8(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::U8 => Column::U8(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::I16 => Column::I16(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::U16 => Column::U16(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::I32 => Column::I32(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::U32 => Column::U32(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::F32 => Column::F32(try_vec(capacity).map_err(Failure::Memory)?),
+        ScalarType::F64 => Column::F64(try_vec(capacity).map_err(Failure::Memory)?),
+    })
 }
 
 // ---------------------------------------------------------------------------------------
@@ -307,11 +326,17 @@ macro_rules! decode {
 }
 
 /// Gathers one field (its members' byte offsets) from fixed-stride rows, row-major.
-fn gather(rows: &[u8], stride: usize, offsets: &[usize], ty: ScalarType, be: bool) -> Column {
+fn gather(
+    rows: &[u8],
+    stride: usize,
+    offsets: &[usize],
+    ty: ScalarType,
+    be: bool,
+) -> Result<Column, Failure> {
     macro_rules! go {
         ($variant:ident, $t:ty) => {{
             const S: usize = std::mem::size_of::<$t>();
-            let mut out = Vec::with_capacity(rows.len() / stride * offsets.len());
+            let mut out = try_vec(rows.len() / stride * offsets.len()).map_err(Failure::Memory)?;
             match offsets {
                 [o] => out.extend(
                     rows.chunks_exact(stride)
@@ -335,7 +360,7 @@ fn gather(rows: &[u8], stride: usize, offsets: &[usize], ty: ScalarType, be: boo
             Column::$variant(out)
         }};
     }
-    match ty {
+    Ok(match ty {
         ScalarType::I8 => go!(I8, i8),
         ScalarType::U8 => go!(U8, u8),
         ScalarType::I16 => go!(I16, i16),
@@ -344,7 +369,7 @@ fn gather(rows: &[u8], stride: usize, offsets: &[usize], ty: ScalarType, be: boo
         ScalarType::U32 => go!(U32, u32),
         ScalarType::F32 => go!(F32, f32),
         ScalarType::F64 => go!(F64, f64),
-    }
+    })
 }
 
 fn push_binary(column: &mut Column, bytes: &[u8], be: bool) {
@@ -434,7 +459,7 @@ fn read_binary(
     be: bool,
     plan: &[Planned],
     lenience: &mut Lenience,
-) -> Result<Decoded, String> {
+) -> Result<Decoded, Failure> {
     let mut pos = 0usize;
     let mut out = Decoded::Columns(Vec::new());
     for (i, element) in elements.iter().enumerate() {
@@ -455,7 +480,7 @@ fn read_binary(
                 lenience.past_vertex(problem)?;
                 return Ok(out);
             }
-            Err(problem) => return Err(problem),
+            Err(problem) => return Err(problem.into()),
         }
     }
     let trailing = &data[pos..];
@@ -488,7 +513,7 @@ fn read_binary_vertex(
     element: &Element,
     be: bool,
     plan: &[Planned],
-) -> Result<(Decoded, usize), String> {
+) -> Result<(Decoded, usize), Failure> {
     if let Some(stride) = element.fixed_row_size() {
         let len = fixed_len(rest, element, stride)?;
         let rows = &rest[..len];
@@ -497,23 +522,23 @@ fn read_binary_vertex(
             .map(|p| {
                 let offsets: Vec<usize> = p.members.iter().map(|m| m.2).collect();
                 let values = if stride == 0 {
-                    empty_column(p.ty, 0)
+                    empty_column(p.ty, 0)?
                 } else {
-                    gather(rows, stride, &offsets, p.ty, be)
+                    gather(rows, stride, &offsets, p.ty, be)?
                 };
-                Field {
+                Ok(Field {
                     names: p.members.iter().map(|m| m.0.clone()).collect(),
                     values,
-                }
+                })
             })
-            .collect();
+            .collect::<Result<Vec<_>, Failure>>()?;
         return Ok((Decoded::Fields(fields), len));
     }
     // The header's count was checked against the data length (claims.rs): the columns'
     // capacity is bounded by the file.
     let mut cols: Vec<Column> = scalar_names(element)
         .map(|(_, ty)| empty_column(ty, element.count))
-        .collect();
+        .collect::<Result<_, _>>()?;
     let len = walk_binary_rows(rest, element, be, Some(&mut cols))?;
     Ok((Decoded::Columns(cols), len))
 }

@@ -1,7 +1,7 @@
 //! Decoding ascii PLY data: one row per non-empty line, values separated by whitespace.
 
 use super::header::{Element, Property};
-use super::read::{empty_column, scalar_names, Decoded, Lenience};
+use super::read::{empty_column, scalar_names, Decoded, Failure, Lenience};
 use super::Column;
 
 fn parse_int(token: &str) -> Option<i64> {
@@ -54,7 +54,7 @@ pub(super) fn read_ascii(
     elements: &[Element],
     vertex: usize,
     lenience: &mut Lenience,
-) -> Result<Decoded, String> {
+) -> Result<Decoded, Failure> {
     let (text, not_text) = text_lines(data);
     let not_text_error = |at: usize| format!("ascii data is not text (byte {at})");
     let mut lines = text
@@ -68,7 +68,7 @@ pub(super) fn read_ascii(
         let mut cols: Vec<Column> = if i == vertex {
             scalar_names(element)
                 .map(|(_, ty)| empty_column(ty, element.count))
-                .collect()
+                .collect::<Result<_, _>>()?
         } else {
             Vec::new()
         };
@@ -76,7 +76,7 @@ pub(super) fn read_ascii(
         if let Err(problem) = read_rows(&mut lines, element, keep) {
             let problem = not_text.map_or(problem, not_text_error);
             if i <= vertex {
-                return Err(problem);
+                return Err(problem.into());
             }
             lenience.past_vertex(problem)?;
             return Ok(out);

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 
 use super::ColumnRef;
 use crate::atomic_file::write_atomic;
+use crate::memory::try_grow;
 use crate::{CoreError, CoreResult};
 
 const CHUNK_ROWS: usize = 16 * 1024;
@@ -155,21 +156,32 @@ pub fn write_vertex_fields_to_vec(
     out += "end_header\n";
     let mut bytes = out.into_bytes();
     if binary {
-        bytes.extend_from_slice(&binary_rows(fields, n));
+        let stride = row_bytes(fields);
+        let size = n.checked_mul(stride).ok_or(CoreError::OutOfMemory {
+            bytes: n as u128 * stride as u128,
+        })?;
+        let header = bytes.len();
+        try_grow(&mut bytes, size)?; // the rows are written in place: one buffer
+        bytes.resize(header + size, 0);
+        binary_rows(fields, stride, &mut bytes[header..]);
     } else {
         bytes.extend_from_slice(ascii_rows(fields, n).as_bytes());
     }
     Ok(bytes)
 }
 
-fn binary_rows(fields: &[FieldRef<'_>], n: usize) -> Vec<u8> {
-    let stride: usize = fields
+/// Bytes of one binary row.
+fn row_bytes(fields: &[FieldRef<'_>]) -> usize {
+    fields
         .iter()
         .map(|f| f.names.len() * f.values.scalar_type().size())
-        .sum();
-    let mut buf = vec![0u8; n * stride];
+        .sum()
+}
+
+/// The binary rows into `buf` (`stride` bytes each).
+fn binary_rows(fields: &[FieldRef<'_>], stride: usize, buf: &mut [u8]) {
     if stride == 0 {
-        return buf;
+        return;
     }
     buf.par_chunks_mut(stride * CHUNK_ROWS)
         .enumerate()
@@ -205,7 +217,6 @@ fn binary_rows(fields: &[FieldRef<'_>], n: usize) -> Vec<u8> {
                 };
             }
         });
-    buf
 }
 
 fn ascii_rows(fields: &[FieldRef<'_>], n: usize) -> String {

@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use super::nearest::map_knn_distances;
 use super::{check_points, Coord, KdTree};
 use crate::error::human_bytes;
+use crate::memory::try_filled;
 use crate::{CoreError, CoreResult};
 
 /// n x k at most for one call (2^31): the neighbour pairs it finds, and so its work and,
@@ -40,6 +41,8 @@ pub(super) fn check_k(n: usize, k: usize, what: &str) -> CoreResult<()> {
 pub fn knn<T: Coord>(points: &[T], k: usize) -> CoreResult<(Vec<i64>, Vec<f32>)> {
     let n = check_points(points)?;
     check_k(n, k, "k")?;
+    let mut indices = try_filled(n * k, 0i64)?;
+    let mut distances = try_filled(n * k, 0f32)?;
     let tree = KdTree::build(points);
     let rows = tree.map_knn(k, |_, nb| {
         let ids: Vec<i64> = nb.indices().iter().map(|&i| i64::from(i)).collect();
@@ -51,8 +54,6 @@ pub fn knn<T: Coord>(points: &[T], k: usize) -> CoreResult<(Vec<i64>, Vec<f32>)>
         (ids, d)
     });
     let inv = tree.positions();
-    let mut indices = vec![0i64; n * k];
-    let mut distances = vec![0f32; n * k];
     indices
         .par_chunks_mut(k)
         .zip(distances.par_chunks_mut(k))

@@ -9,6 +9,9 @@
 
 use rayon::prelude::*;
 
+use crate::memory::try_filled;
+use crate::CoreResult;
+
 /// Pixels per parallel task.
 const CHUNK: usize = 16 * 1024;
 
@@ -33,10 +36,14 @@ pub(super) fn blend(render: &mut [f32], alpha: &[f32], bg: &[f32]) {
 /// (None: the alpha itself got none) plus the blend's own, minus the channel sum of
 /// `v_render * bg` in torch's order ((0 + v0 b0) + v1 b1) + v2 b2 (the leading + 0, which
 /// turns a -0 into +0 as torch's sum of several channels does, only for more than one).
-pub(super) fn alpha_gradient(v_render: &[f32], v_alpha: Option<&[f32]>, bg: &[f32]) -> Vec<f32> {
+pub(super) fn alpha_gradient(
+    v_render: &[f32],
+    v_alpha: Option<&[f32]>,
+    bg: &[f32],
+) -> CoreResult<Vec<f32>> {
     let ch = bg.len();
     let pixels = v_render.len() / ch;
-    let mut out = vec![0.0f32; pixels];
+    let mut out = try_filled(pixels, 0.0f32)?;
     out.par_chunks_mut(CHUNK)
         .zip(v_render.par_chunks(CHUNK * ch))
         .enumerate()
@@ -56,7 +63,7 @@ pub(super) fn alpha_gradient(v_render: &[f32], v_alpha: Option<&[f32]>, bg: &[f3
                 };
             }
         });
-    out
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -83,14 +90,14 @@ mod tests {
     fn the_alpha_gradient_sums_the_channels_in_torchs_order() {
         let bg = [0.5, 0.25, 2.0];
         let v = [1.0, 2.0, 3.0, 0.0, -0.0, 0.0];
-        let g = alpha_gradient(&v, None, &bg);
+        let g = alpha_gradient(&v, None, &bg).unwrap();
         assert_eq!(g[0], -(((1.0f32 * 0.5 + 0.0) + 2.0 * 0.25) + 3.0 * 2.0));
         // An all-zero pixel: -((0 + 0) ...) = -0 for three channels, as torch's sum gives.
         assert_eq!(g[1].to_bits(), (-0.0f32).to_bits());
-        let with = alpha_gradient(&v, Some(&[1.0, 0.5]), &bg);
+        let with = alpha_gradient(&v, Some(&[1.0, 0.5]), &bg).unwrap();
         assert_eq!(with, vec![1.0 + g[0], 0.5 + g[1]]);
         // One channel: no + 0, so v = -0 gives -(-0 * b) = +0 and v = +0 gives -0.
-        let one = alpha_gradient(&[-0.0, 0.0], None, &[0.5]);
+        let one = alpha_gradient(&[-0.0, 0.0], None, &[0.5]).unwrap();
         assert_eq!(
             one.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
             vec![0, (-0.0f32).to_bits()]
@@ -103,7 +110,7 @@ mod tests {
         let v: Vec<f32> = (0..pixels * 3).map(|i| (i % 11) as f32).collect();
         let va: Vec<f32> = (0..pixels).map(|i| (i % 5) as f32).collect();
         let bg = [0.5, 1.5, -1.0];
-        let g = alpha_gradient(&v, Some(&va), &bg);
+        let g = alpha_gradient(&v, Some(&va), &bg).unwrap();
         for p in [0, CHUNK - 1, CHUNK, 2 * CHUNK + 6] {
             let px = &v[3 * p..3 * p + 3];
             let own = -(((px[0] * bg[0] + 0.0) + px[1] * bg[1]) + px[2] * bg[2]);

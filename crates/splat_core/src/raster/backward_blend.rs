@@ -21,6 +21,9 @@ use std::sync::atomic::AtomicU32;
 
 use rayon::prelude::*;
 
+use crate::memory::try_vec;
+use crate::CoreResult;
+
 use super::backward_index::SplatIntersections;
 use super::forward_pass::CameraState;
 use super::lanes::{exp_neg, lane_sum, sigma_at, LANES};
@@ -113,11 +116,13 @@ thread_local! {
 
 /// A zeroed intersection-gradient array for `intersection_gradients` (`len` values),
 /// filled in parallel.
-pub fn zeroed_gradients(len: usize) -> Vec<AtomicU32> {
+pub fn zeroed_gradients(len: usize) -> CoreResult<Vec<AtomicU32>> {
+    let mut out = try_vec(len)?;
     (0..len)
         .into_par_iter()
         .map(|_| AtomicU32::new(0))
-        .collect()
+        .collect_into_vec(&mut out);
+    Ok(out)
 }
 
 /// One tile's intersection gradients into `out` (rows +0 on entry: the AVX2 kernel puts no

@@ -6,6 +6,9 @@
 //! count. Summing from the tile-major rows instead was bound by cache misses: a splat's
 //! rows lie in different tiles' lists, far apart.
 
+use crate::memory::{try_filled, try_vec};
+use crate::CoreResult;
+
 /// Splat-major rows of the intersections of one camera.
 pub(super) struct SplatIntersections {
     /// Splat i's intersections are rows `start[i]..start[i + 1]`.
@@ -17,8 +20,8 @@ pub(super) struct SplatIntersections {
 impl SplatIntersections {
     /// `gids[j]` is the splat of intersection j; every gid is below `n`. Rows are u32 like
     /// the gids (4G intersections would take > 100 GiB of gradients).
-    pub fn new(gids: &[u32], n: usize) -> Self {
-        let mut start = vec![0u32; n + 1];
+    pub fn new(gids: &[u32], n: usize) -> CoreResult<Self> {
+        let mut start = try_filled(n + 1, 0u32)?;
         for &g in gids {
             start[g as usize + 1] += 1;
         }
@@ -26,15 +29,13 @@ impl SplatIntersections {
             start[i + 1] += start[i];
         }
         let mut next = start[..n].to_vec();
-        let row = gids
-            .iter()
-            .map(|&g| {
-                let at = &mut next[g as usize];
-                *at += 1;
-                *at - 1
-            })
-            .collect();
-        Self { start, row }
+        let mut row = try_vec(gids.len())?;
+        row.extend(gids.iter().map(|&g| {
+            let at = &mut next[g as usize];
+            *at += 1;
+            *at - 1
+        }));
+        Ok(Self { start, row })
     }
 
     /// The rows of splats `i0..i1`.
@@ -63,7 +64,7 @@ mod tests {
             .map(|_| rng.u31() % n as u32)
             .filter(|&g| g != 7)
             .collect();
-        let idx = SplatIntersections::new(&gids, n);
+        let idx = SplatIntersections::new(&gids, n).unwrap();
         let rows = idx.row_of(0..gids.len());
         // Row r holds intersection j: listing splat i's rows gives its intersections in
         // increasing order.
@@ -79,6 +80,9 @@ mod tests {
         }
         assert!(idx.rows(7, 8).is_empty());
         assert_eq!(idx.rows(0, n), 0..gids.len());
-        assert!(SplatIntersections::new(&[], 3).rows(0, 3).is_empty());
+        assert!(SplatIntersections::new(&[], 3)
+            .unwrap()
+            .rows(0, 3)
+            .is_empty());
     }
 }

@@ -71,16 +71,16 @@ pub fn backward(
 
     let cw = scene.color_width();
     let output = |wanted: bool, w: usize| filled(if wanted { n * w } else { 0 }, 0.0f32);
-    let mut means = output(want.means, 3);
-    let mut quats = output(want.quats, 4);
-    let mut scales = output(want.scales, 3);
-    let mut opacities = output(want.opacities, 1);
-    let mut colors = output(want.colors, cw);
-    let mut means2d = filled(c * n * 2, 0.0f32);
+    let mut means = output(want.means, 3)?;
+    let mut quats = output(want.quats, 4)?;
+    let mut scales = output(want.scales, 3)?;
+    let mut opacities = output(want.opacities, 1)?;
+    let mut colors = output(want.colors, cw)?;
+    let mut means2d = filled(c * n * 2, 0.0f32)?;
     let stride = ISECT_FIXED + ch;
 
     let no_alpha_gradient = match (v_alpha, &state.background) {
-        (None, None) => filled(pixels, 0.0f32),
+        (None, None) => filled(pixels, 0.0f32)?,
         _ => Vec::new(),
     };
     for (ci, (cam, cs)) in state.cameras.iter().zip(&state.per_camera).enumerate() {
@@ -89,7 +89,7 @@ pub fn backward(
         let blended;
         let v_alpha_ci = match (&state.background, v_alpha_ci) {
             (Some(bg), va) => {
-                blended = background::alpha_gradient(v_render_ci, va, &bg[ci * ch..(ci + 1) * ch]);
+                blended = background::alpha_gradient(v_render_ci, va, &bg[ci * ch..(ci + 1) * ch])?;
                 &blended[..]
             }
             (None, Some(va)) => va,
@@ -100,6 +100,7 @@ pub fn backward(
             || SplatIntersections::new(&cs.bins.isect_gid, n),
             || zeroed_gradients(cs.bins.n_intersections() * stride),
         );
+        let (index, isect) = (index?, isect?);
         intersection_gradients(
             ch,
             cs,

@@ -11,6 +11,7 @@ use super::forward_blend::blend;
 use super::forward_pass::ForwardState;
 use super::lanes::LANES;
 use super::tile_walk::{EvalCount, ISECT_FIXED};
+use crate::CoreResult;
 
 /// Work of the blending kernels, summed over cameras.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -27,7 +28,7 @@ pub struct Evaluations {
 
 /// Counts the blending work of the forward call that produced `state` and of its backward
 /// (which visits the same pairs whatever the image gradients are).
-pub fn count_evaluations(state: &ForwardState) -> Evaluations {
+pub fn count_evaluations(state: &ForwardState) -> CoreResult<Evaluations> {
     let ch = state.channels();
     let pixels = state.width as usize * state.height as usize;
     let (mut fw, mut bw) = (EvalCount::default(), EvalCount::default());
@@ -47,11 +48,11 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
             true,
             &mut render,
             &mut alpha,
-        );
+        )?;
         fw.add(f);
         let (v_render, v_alpha) = (vec![0.0; pixels * ch], vec![0.0; pixels]);
-        let rows = SplatIntersections::new(&cs.bins.isect_gid, state.scene.n);
-        let grads = zeroed_gradients(cs.bins.n_intersections() * (ISECT_FIXED + ch));
+        let rows = SplatIntersections::new(&cs.bins.isect_gid, state.scene.n)?;
+        let grads = zeroed_gradients(cs.bins.n_intersections() * (ISECT_FIXED + ch))?;
         let b = intersection_gradients(
             ch,
             cs,
@@ -66,10 +67,10 @@ pub fn count_evaluations(state: &ForwardState) -> Evaluations {
         );
         bw.add(b);
     }
-    Evaluations {
+    Ok(Evaluations {
         forward_evaluated: fw.groups * LANES as u64,
         forward_blended: fw.blended,
         backward_evaluated: bw.groups * LANES as u64,
         backward_blended: bw.blended,
-    }
+    })
 }

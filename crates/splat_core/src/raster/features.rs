@@ -8,13 +8,19 @@ use super::camera::Camera;
 use super::project::Splat;
 use super::scene::{ColorMode, Scene};
 use super::sh;
+use crate::CoreResult;
 
 /// Features [N, ch]; zero rows for culled splats (never read).
-pub fn compute(scene: &Scene, cam: &Camera, splats: &[Splat], with_depth: bool) -> Vec<f32> {
+pub fn compute(
+    scene: &Scene,
+    cam: &Camera,
+    splats: &[Splat],
+    with_depth: bool,
+) -> CoreResult<Vec<f32>> {
     let cc = scene.color_channels();
     let ch = cc + with_depth as usize;
     let centre = cam.centre();
-    let mut out = filled(scene.n * ch, 0.0f32);
+    let mut out = filled(scene.n * ch, 0.0f32)?;
     out.par_chunks_mut(ch)
         .zip(splats.par_iter())
         .enumerate()
@@ -42,5 +48,5 @@ pub fn compute(scene: &Scene, cam: &Camera, splats: &[Splat], with_depth: bool) 
                 f[cc] = s.depth;
             }
         });
-    out
+    Ok(out)
 }

@@ -23,6 +23,7 @@ use super::project::Splat;
 use super::tile_binning::TileBins;
 use super::tile_geometry::{pixel_boxes, BlendRecord, TileList, TileRect};
 use super::tile_walk::{for_each_splat, kept_scratch, EvalCount, TileInput, TileScratch};
+use crate::CoreResult;
 
 /// Blend results of one camera that the backward pass needs.
 #[derive(Debug, Clone, Default)]
@@ -53,12 +54,12 @@ pub fn blend(
     count: bool,
     render: &mut [f32],
     alpha: &mut [f32],
-) -> (Blended, EvalCount) {
+) -> CoreResult<(Blended, EvalCount)> {
     let ts = bins.tile_size as usize;
     let tp = ts * ts;
     let mut out = Blended {
-        t_final: filled(bins.n_tiles() * tp, 1.0),
-        last: filled(bins.n_tiles() * tp, 0),
+        t_final: filled(bins.n_tiles() * tp, 1.0)?,
+        last: filled(bins.n_tiles() * tp, 0)?,
     };
     // Each tile's rows of the image, so that tiles write the row-major image directly.
     let mut render_rows = tile_rows(render, ch, bins, width, height);
@@ -109,7 +110,7 @@ pub fn blend(
             })
         });
     let evals = totals.into_inner().unwrap_or_else(|e| e.into_inner());
-    (out, evals)
+    Ok((out, evals))
 }
 
 thread_local! {

@@ -114,21 +114,21 @@ pub fn forward(
     let (n, c) = (scene.n, cameras.len());
     let pixels = width as usize * height as usize;
     let mut out = ForwardOutput {
-        render: filled(c * pixels * ch, 0.0),
-        alpha: filled(c * pixels, 0.0),
-        radii: filled(c * n * 2, 0),
-        means2d: filled(c * n * 2, 0.0),
-        depths: filled(c * n, 0.0),
+        render: filled(c * pixels * ch, 0.0)?,
+        alpha: filled(c * pixels, 0.0)?,
+        radii: filled(c * n * 2, 0)?,
+        means2d: filled(c * n * 2, 0.0)?,
+        depths: filled(c * n, 0.0)?,
         ..Default::default()
     };
     let mut per_camera = Vec::with_capacity(c);
     for (ci, cam) in cameras.iter().enumerate() {
         let t0 = Instant::now();
-        let splats = project_avx2::project_all(&scene, cam, &opts);
+        let splats = project_avx2::project_all(&scene, cam, &opts)?;
         let t1 = Instant::now();
         // The depth sort (itself parallel) runs beside the colour features, the blend's
         // per-splat records and the per-Gaussian outputs.
-        let (order, (feats, records)) = rayon::join(
+        let (order, features) = rayon::join(
             || depth_sort::depth_order(&splats),
             || {
                 out.radii[2 * ci * n..2 * (ci + 1) * n]
@@ -142,11 +142,12 @@ pub fn forward(
                         m.copy_from_slice(&s.xy);
                         *d = s.depth;
                     });
-                let feats = features::compute(&scene, cam, &splats, opts.with_depth);
+                let feats = features::compute(&scene, cam, &splats, opts.with_depth)?;
                 let records = blend_records(&splats, &feats, ch);
-                (feats, records)
+                Ok::<_, CoreError>((feats, records))
             },
         );
+        let (feats, records) = features?;
         let t2 = Instant::now();
         let bins = tile_binning::bin(
             &splats,
@@ -170,7 +171,7 @@ pub fn forward(
             false,
             &mut out.render[ci * pixels * ch..(ci + 1) * pixels * ch],
             &mut out.alpha[ci * pixels..(ci + 1) * pixels],
-        );
+        )?;
         let t4 = Instant::now();
         out.profile.project += (t1 - t0).as_secs_f64();
         out.profile.sort += (t2 - t1).as_secs_f64();

@@ -10,9 +10,10 @@ use super::options::RasterOptions;
 use super::project::Splat;
 use super::project_batch::{self, Block};
 use super::scene::Scene;
+use crate::CoreResult;
 
 /// Projects every Gaussian of the scene for one camera; see `project_batch::project_all`.
-pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> Vec<Splat> {
+pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> CoreResult<Vec<Splat>> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked above).

@@ -18,6 +18,8 @@ use super::camera::Camera;
 use super::options::{RasterOptions, ALPHA_MIN};
 use super::project::{ceil_nonneg, extent_for_contour, Splat, QUAT_NORM2_MIN};
 use super::scene::Scene;
+use crate::memory::try_filled;
+use crate::CoreResult;
 
 /// A 3-vector of lanes.
 type V3 = [Lanes; 3];
@@ -25,7 +27,7 @@ type V3 = [Lanes; 3];
 /// Projects every Gaussian of the scene for one camera (`Splat::default()` = culled). A
 /// Gaussian whose colour holds NaN or Inf is culled too: it would poison every pixel
 /// behind it.
-pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> Vec<Splat> {
+pub fn project_all(scene: &Scene, cam: &Camera, opts: &RasterOptions) -> CoreResult<Vec<Splat>> {
     project_all_by(scene, cam, opts, |block| block.run())
 }
 
@@ -36,8 +38,8 @@ pub(super) fn project_all_by(
     cam: &Camera,
     opts: &RasterOptions,
     run: impl Fn(Block) + Sync,
-) -> Vec<Splat> {
-    let mut splats = vec![Splat::default(); scene.n];
+) -> CoreResult<Vec<Splat>> {
+    let mut splats = try_filled(scene.n, Splat::default())?;
     let cl = CameraLanes::new(cam);
     // Blocks of many lane groups: one rayon task per block, not per eight Gaussians.
     splats
@@ -53,7 +55,7 @@ pub(super) fn project_all_by(
                 out,
             })
         });
-    splats
+    Ok(splats)
 }
 
 /// A block of consecutive Gaussians to project.
@@ -391,8 +393,8 @@ mod tests {
                 ..Default::default()
             };
             let sc = scene(4001, 5);
-            let plain = project_all(&sc, &cam, &opts);
-            let wide = super::super::project_avx2::project_all(&sc, &cam, &opts);
+            let plain = project_all(&sc, &cam, &opts).unwrap();
+            let wide = super::super::project_avx2::project_all(&sc, &cam, &opts).unwrap();
             assert!(plain.iter().filter(|s| s.visible()).count() > 1000);
             for (i, (a, b)) in plain.iter().zip(&wide).enumerate() {
                 assert_eq!(bits(a), bits(b), "Gaussian {i}");
@@ -414,7 +416,7 @@ mod tests {
                 footprint,
                 ..Default::default()
             };
-            let got = project_all(&sc, &cam, &opts);
+            let got = project_all(&sc, &cam, &opts).unwrap();
             let mut visible = 0;
             for (i, g) in got.iter().enumerate() {
                 let color_ok = sc.color_row(i).iter().all(|v| v.is_finite());

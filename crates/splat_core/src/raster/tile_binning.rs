@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 use super::buffers::filled;
 use super::project::Splat;
+use crate::memory::try_filled;
 use crate::{CoreError, CoreResult};
 
 /// Tile lists of one camera.
@@ -316,12 +317,12 @@ pub fn bin(
     }
     // Tile t's list is the concatenation of the chunks' lists for t, in chunk (= depth)
     // order; every tile gathers its own slice, in parallel.
-    let mut tile_offsets = vec![0u32; n_tiles + 1];
+    let mut tile_offsets = try_filled(n_tiles + 1, 0u32)?;
     for t in 0..n_tiles {
         let n: u32 = chunks.iter().map(|c| c.len(t)).sum();
         tile_offsets[t + 1] = tile_offsets[t] + n;
     }
-    let mut isect_gid = filled(total, 0u32);
+    let mut isect_gid = filled(total, 0u32)?;
     let mut slices: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);
     let mut rest = isect_gid.as_mut_slice();
     for t in 0..n_tiles {

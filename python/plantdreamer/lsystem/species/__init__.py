@@ -7,7 +7,15 @@ from plantdreamer.errors import InputError
 from plantdreamer.lsystem.species import bean, kale, mint, released
 from plantdreamer.lsystem.species.base import Species
 
-__all__ = ["Species", "get_species", "list_species", "plant_name", "register", "structure_for"]
+__all__ = [
+    "Species",
+    "get_species",
+    "list_species",
+    "plant_name",
+    "register",
+    "structure_for",
+    "unknown_species",
+]
 
 # Ours, then the authors' released structures (bean-released, mint-released, kale-released).
 _BUILTIN = (bean.SPECIES, kale.SPECIES, mint.SPECIES, *released.SPECIES)
@@ -30,9 +38,18 @@ def get_species(name: str) -> Species:
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):
-        raise InputError(
-            f"unknown species {name!r}; known species: {', '.join(list_species())}"
-        ) from None
+        raise unknown_species(name) from None
+
+
+def unknown_species(name: object) -> InputError:
+    """The error for a species that is not registered: the closest name ("did you mean")
+    when there is one, and every known name."""
+    import difflib
+
+    known = list_species()
+    close = difflib.get_close_matches(str(name), known, n=1) if isinstance(name, str) else []
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return InputError(f"unknown species {name!r}{hint}; known: {', '.join(known)}")
 
 
 def structure_for(name: str, structures: str = "plantdreamer") -> str:

@@ -49,9 +49,11 @@ from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
 from plantdreamer.guidance.conditioned import ConditionedGuidance
 from plantdreamer.guidance.in_flight import InFlight, launch_guidance
-from plantdreamer.pipeline.model import RenderInputs, render_many
+from plantdreamer.pipeline.model.render import RenderInputs, render_many
+from plantdreamer.pipeline.observer import TrainerObserver, notify
+from plantdreamer.pipeline.settings.group_settings import GroupSettings
 from plantdreamer.pipeline.step.options import StepOptions
-from plantdreamer.pipeline.step.plant import GroupSettings, PlantRun
+from plantdreamer.pipeline.step.plant import PlantRun
 from plantdreamer.pipeline.step.update import update_plant
 
 
@@ -79,9 +81,10 @@ class StepSchedule:
         isolate_failures: bool,
         options: StepOptions,
         pool: Executor,
+        observers: Sequence[TrainerObserver] = (),
     ) -> None:
         self.plants, self.settings, self.guidance = plants, settings, guidance
-        self.isolate, self.options = isolate_failures, options
+        self.isolate, self.options, self.observers = isolate_failures, options, observers
         self.stop_requested = False  # set by the trainer's signal handler
         cut = (len(plants) + 1) // 2 if settings.overlap else len(plants)
         self.halves = [list(range(cut)), list(range(cut, len(plants)))]
@@ -139,12 +142,14 @@ class StepSchedule:
         a profiler's timeline (benches/bench_throughput.py --trace). Its wall time is
         shared evenly among those plants: the calls run their scenes together, so each
         plant's figures are its share and a group's plants sum to the group's time."""
+        notify(self.observers, "phase_start", name)
         t0 = perf_counter()
         with record_function(name):
             yield
-        share = (perf_counter() - t0) / len(plants)
+        seconds = perf_counter() - t0
         for i in plants:
-            self.plants[i].state.timer.totals[name] += share
+            self.plants[i].state.timer.totals[name] += seconds / len(plants)
+        notify(self.observers, "phase_end", name, seconds)
 
     def _timer(self, plants: Sequence[int]) -> Callable[[str], AbstractContextManager[None]]:
         """``_timed`` for the phases of ``plants``, as the guidance's calls take a timer."""

@@ -10,7 +10,7 @@ import torch
 
 from plantdreamer.cameras import Camera
 from plantdreamer.errors import PlantDreamerError
-from plantdreamer.pipeline.model import GaussianModel
+from plantdreamer.pipeline.model.gaussian_model import GaussianModel
 from plantdreamer.pipeline.outputs import samples_cell
 from plantdreamer.pipeline.step.plant import PlantRun
 
