@@ -13,6 +13,7 @@ from click.testing import CliRunner
 
 from labelled_plant import make_plant
 from plantdreamer.cli import main
+from plantdreamer.errors import InputError
 from plantdreamer.exports.splits import SPLITS, parse_ratios, split_plants
 
 pytest.importorskip("pycocotools")
@@ -228,6 +229,19 @@ def test_each_splits_counts_are_its_coco_images_and_the_torch_targets(dataset):
     assert counted[1].keys() == counted[16].keys()
     assert all(counted[1][k] >= n for k, n in counted[16].items())
     assert sum(counted[1].values()) > sum(counted[16].values())
+
+
+def test_target_keys_pick_the_traits_as_they_pick_the_labels(dataset):
+    pytest.importorskip("torchvision")
+    from plantdreamer.data import PlantViews
+
+    keys = ["traits", "visible_fraction", "boxes", "leaf_count"]
+    _, target = PlantViews(dataset, target_keys=keys)[0]
+    assert list(target) == ["boxes", "visible_fraction", "leaf_count", "traits"]
+    assert len(target["visible_fraction"]) == len(target["boxes"]) > 0
+    assert target["traits"]["leaf_count"] > 0
+    with pytest.raises(InputError, match="need boxes"):
+        PlantViews(dataset, target_keys=["visible_fraction"])
 
 
 def test_plants_without_traits_are_named_not_left_out_silently(dataset, tmp_path):
