@@ -12,20 +12,15 @@ import pickle
 import numpy as np
 import pytest
 import torch
-from click.testing import CliRunner
 from PIL import Image
 
-from plantdreamer.cli import main
+from cli_run import run
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
 from plantdreamer.pipeline.model.init import init_gaussians
 
 GEN = ["generate", "--species", "bean", "--guidance", "none", "--steps", "0", "--points", "500",
        "--resolution", "32", "--eval-views", "1"]  # fmt: skip
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def assert_one_error(result, message):

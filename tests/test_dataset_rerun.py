@@ -5,6 +5,7 @@ refused, and a stopped run still prints its summary line. No worker or Ray start
 import pytest
 from click.testing import CliRunner
 
+from cli_run import one_error
 from plantdreamer.cli import main
 from plantdreamer.dataset import RunOptions, expand, plan, run_dataset, runner
 from plantdreamer.dataset.manifest import Manifest
@@ -18,13 +19,6 @@ FAST = ["--guidance", "none", "--eval-views", "0", "--quiet", "--allow-empty-spl
 
 def invoke(*args):
     return CliRunner().invoke(main, ["dataset", *map(str, args)])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "Traceback" not in result.output and "internal error" not in result.output
-    assert message in errors[0], result.output
 
 
 def finished(out, plants):

@@ -12,6 +12,7 @@ import shutil
 import pytest
 from click.testing import CliRunner
 
+from cli_run import one_error
 from labelled_plant import make_plant
 from plantdreamer.cli import main
 from plantdreamer.errors import InputError
@@ -32,12 +33,6 @@ def plants(tmp_path_factory):
 
 def cli(*args):
     return CliRunner().invoke(main, [*map(str, args)])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and message in errors[0], result.output
 
 
 def copy(plants, tmp_path):

@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
+from cli_run import one_error
 from plantdreamer.cli import main
 from plantdreamer.exports.gallery import MAX_PLANTS, evenly
 
@@ -18,12 +19,6 @@ TINY = ["--guidance", "none", "--steps", "0", "--points", "300", "--resolution",
 
 def cli(*args):
     return CliRunner().invoke(main, [*map(str, args)])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and message in errors[0], result.output
 
 
 def fake_plant(folder, seed, side=64):

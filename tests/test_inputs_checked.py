@@ -8,26 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from safetensors.numpy import save_file
 
-from plantdreamer.cli import main
+from cli_run import one_error, run
 from plantdreamer.cloud import PointCloud
 from plantdreamer.errors import PlyError
 from plantdreamer.io import check_ply_file, write_ply
 
 TINY = ["--guidance", "none", "--points", "300", "--steps", "0", "--eval-views", "1",
         "--resolution", "16", "--turntable", "none", "--quiet"]  # fmt: skip
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and message in errors[0], result.output
 
 
 def snapshot(folder):

@@ -11,24 +11,13 @@ import shutil
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from PIL import Image
 
-from plantdreamer.cli import main
+from cli_run import one_error, run
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply, write_splat_ply
 from plantdreamer.pipeline.model.init import init_gaussians
 from plantdreamer.temporaries import temporary_name
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and message in errors[0], result.output
 
 
 @pytest.fixture(scope="module")

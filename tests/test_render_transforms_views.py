@@ -7,15 +7,10 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from plantdreamer.cli import main
+from cli_run import run
 from plantdreamer.io import write_splat_ply
 from plantdreamer.pipeline.model.init import init_gaussians
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 @pytest.fixture(scope="module")

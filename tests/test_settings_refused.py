@@ -6,23 +6,11 @@ import json
 import time
 
 import pytest
-from click.testing import CliRunner
 
-from plantdreamer.cli import main
+from cli_run import one_error, run
 
 GEN = ["generate", "--species", "bean", "--guidance", "none", "--steps", "0", "--points", "300",
        "--resolution", "16", "--eval-views", "1", "--turntable", "none", "--quiet"]  # fmt: skip
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and "Traceback" not in result.output
-    assert message in errors[0], result.output
 
 
 # (options, the --set form for dataset, a part of the message)

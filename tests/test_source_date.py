@@ -7,18 +7,13 @@ from __future__ import annotations
 import pytest
 from click.testing import CliRunner
 
+from cli_run import one_error
 from plantdreamer.cli import main
 from plantdreamer.errors import InputError
 from plantdreamer.exports.card import made_on
 from plantdreamer.source_date import source_date_epoch
 
 MALFORMED = ["1700000000000", "2024-01-01", "-5", "1.7e9", "17e8"]
-
-
-def one_error(result, message):
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert "internal error" not in result.output and message in errors[0], result.output
 
 
 @pytest.mark.parametrize("value", MALFORMED)

@@ -12,9 +12,8 @@ import os
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from plantdreamer.cli import main
+from cli_run import run
 from plantdreamer.cloud import PointCloud
 from plantdreamer.io import write_ply
 from plantdreamer.output_folder import claim_files, claim_folder
@@ -23,10 +22,6 @@ from plantdreamer.temporaries import is_temporary, is_temporary_of, temporary_na
 
 TINY = ["--guidance", "none", "--points", "300", "--steps", "0", "--eval-views", "1",
         "--resolution", "16", "--turntable", "none", "--quiet"]  # fmt: skip
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def users_lookalikes(folder):
