@@ -189,7 +189,7 @@ def test_rerun_skips_complete_plants(six_plants, monkeypatch):
 def test_scenes_of_the_finished_plants_join_a_rerun_without_training(six_plants, tmp_path):
     """`dataset --scenes` over complete plants: nothing trains (Ray is not started), the
     scenes are made from one split's plants each and join the split's label files."""
-    out, args, _ = six_plants
+    out, args, _, _ = six_plants
     copy = shutil.copytree(out, tmp_path / "ds")
     scenes = ["--scenes", "0-3", "--scene-plants", "2", "--scene-layout", "random"]
     result = CliRunner().invoke(main, [*args, *SMALL_FLAGS, *scenes, "--out", str(copy)])
