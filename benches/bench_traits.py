@@ -25,6 +25,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from host import host_line
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -173,6 +175,7 @@ def main() -> int:
         "together; the background thread's CPU shows only in the variants' totals). On a",
         f"shared 2-core machine (1-minute load average {load}) the variants' totals are",
         "noisier than the shares.\n",
+        f"Host: {host_line()}.\n",
         "| variant | wall | CPU |",
         "|---|---|---|",
     ]
