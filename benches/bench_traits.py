@@ -3,12 +3,13 @@ the Gaussians' figures, each view's leaf occlusion), the views' figures in the l
 and counts.csv.
 
 An L-System bean (seed 0, 100,000 points, as ``generate --guidance none`` makes it), 60
-evaluation views at the CPU's default 512 px. Two variants, run alternately in this one
-process after a warm-up run of each, ``--repeats`` times each: ``generate`` as it is, and ``generate`` with the trait
-hooks replaced by no-ops (no occlusion renders, no traits.json, no figures in COCO, no
-counts.csv: the label files as before traits). Their whole wall times, min and median, and
-the traits' own time inside the first (every trait function timed where it runs), against
-the rest of the run.
+evaluation views at the CPU's default 512 px. Two variants, run in pairs in this one
+process after a warm-up run of each, ``--repeats`` pairs, the order within a pair turned
+each time (a drift of the machine's speed falls on both): ``generate`` as it is, and
+``generate`` with the trait hooks replaced by no-ops (no occlusion, no traits.json, no
+figures in COCO, no counts.csv: the label files as before traits). Their whole wall and CPU
+times, min and median, each pair's difference, and the traits' own time inside the first
+(every trait function timed where the run calls it), against the rest of the run.
 
     python benches/bench_traits.py [--repeats 3] [--views 60] [--points 100000]
 """
@@ -97,11 +98,9 @@ def hooks(clock: Clock | None):
     from plantdreamer.traits.views import ViewRecorder
 
     figure = "label files' figures"
-    views = ViewRecorder.views.fget
     return [
         (export, "view_recorder", clock.wrap("occlusion set-up", export.view_recorder)),
-        (ViewRecorder, "add", clock.wrap("occlusion (the run waits)", ViewRecorder.add)),
-        (ViewRecorder, "views", property(clock.wrap("occlusion (the run waits)", views))),
+        (ViewRecorder, "add", clock.wrap("occlusion", ViewRecorder.add)),
         (export, "run_traits", clock.wrap("traits.json (mesh, Gaussians)", export.run_traits)),
         (export, "write_traits", clock.wrap("traits.json (mesh, Gaussians)", export.write_traits)),
         (plant, "plant_records", clock.wrap(figure, plant.plant_records)),
@@ -140,9 +139,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for warm_up in (Clock(), None):  # imports, first calls: not counted
             run_once(cfg, Path(tmp) / "warm", warm_up)
-        for _ in range(args.repeats):
+        for k in range(args.repeats):
             clocks.append(Clock())
-            for name, clock in (("with traits", clocks[-1]), ("without", None)):
+            variants = [("with traits", clocks[-1]), ("without", None)]
+            for name, clock in variants if k % 2 == 0 else variants[::-1]:
                 wall, cpu = run_once(cfg, Path(tmp) / name.replace(" ", "_"), clock)
                 walls[name].append(wall)
                 cpus[name].append(cpu)
@@ -164,17 +164,15 @@ def main() -> int:
         f"Command: `{command}`. `generate --guidance none` of an L-System bean (seed 0,",
         f"{args.points:,} points), {args.views} evaluation views at 512 px, CPU, "
         f"{torch.get_num_threads()} torch threads;",
-        f"{args.repeats} runs of each variant, alternating in one process after a warm-up run",
-        "of each; seconds, min / median. *with traits* is `generate` as it is; *without* has",
-        "the trait hooks as no-ops (no occlusion renders, traits.json, figures in COCO or",
-        "counts.csv). *traits on the run's path* is the time the run spends in the trait",
-        "functions, timed where it calls them (each view's leaf occlusion is measured on a",
-        "thread of its own while the run writes the view and renders the next: only what the",
-        "run waits for is on its path), and *share* that time against the rest of the same",
+        f"{args.repeats} pairs of runs in one process after a warm-up run of each, the order",
+        "within a pair turned each time; seconds, min / median. *with traits* is `generate` as",
+        "it is; *without* has the trait hooks as no-ops (no occlusion, traits.json, figures in",
+        "COCO or counts.csv). *traits on the run's path* is the time the run spends in the",
+        "trait functions, timed where it calls them (each view's leaf occlusion among them,",
+        "measured as the view is added), and *share* that time against the rest of the same",
         "run (the limit: 5%), in wall-clock and in the process's CPU time (its threads",
-        "together; the background thread's CPU shows only in the variants' totals). On a",
-        f"shared 2-core machine (1-minute load average {load}) the variants' totals are",
-        "noisier than the shares.\n",
+        "together). On a shared 2-core machine (1-minute load average",
+        f"{load}) the variants' totals are noisier than the shares.\n",
         f"Host: {host_line()}.\n",
         "| variant | wall | CPU |",
         "|---|---|---|",

@@ -23,6 +23,7 @@ INT_ARGS: dict[str, list[tuple[str, int]]] = {
     "check_ply_vertex": [],
     "downsample_to_count": [("target", 1), ("threads", 1)],
     "eval_sh": [("degree", 0)],
+    "group_coverage": [("camera", 0), ("tile_size", 0), ("threads", 1)],
     "info": [],
     "knn": [("k", 1), ("threads", 1)],
     "knn_mean_distance": [("k", 1), ("threads", 1)],
@@ -75,6 +76,18 @@ def _call(name: str, tmp_path, **override):
         }
     elif name == "rasterize_forward_many":
         args = {"scenes": [_scene()], "tile_size": 16, "threads": None}
+    elif name == "group_coverage":
+        (out,) = _core.rasterize_forward_many([_scene()])
+        args = {
+            "state": out["state"],
+            "groups": np.zeros(8, np.int32),
+            "labels": np.zeros((16, 16), np.int32),
+            "group_labels": np.zeros(1, np.int32),
+            "alpha_threshold": 0.5,
+            "camera": 0,
+            "tile_size": 16,
+            "threads": None,
+        }
     else:
         args = {
             "downsample_to_count": {"points": _PTS, "target": 20, "threads": None},

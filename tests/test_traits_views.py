@@ -57,8 +57,7 @@ def test_a_leaf_half_hidden_by_another_is_half_visible():
     gt = GroundTruthRenderer(model, label_set)(camera, meta)
     ids = np.r_[label_set.instances, -1][gt.instance]
     splats = Splats.of(model)
-    recorder = view_recorder((splats.means, splats.quats, splats.scales, splats.opacities),
-                             g.labels, NAMES, 1.0)  # fmt: skip
+    recorder = view_recorder(g.means, g.labels, NAMES, 1.0)
     recorder.add("view_000", camera, ids, meta)
     (record,) = recorder.views
     (alone_7, visible_7), (alone_9, visible_9) = record["leaves"]["7"], record["leaves"]["9"]
@@ -83,21 +82,20 @@ def test_leaves_sharing_a_render_are_each_alone_as_in_a_render_of_their_own():
     full-frame render of its Gaussians alone (a bean's 30-odd leaves, 2 views)."""
     from plantdreamer.pipeline import GenerateConfig
     from plantdreamer.pipeline.model.source import initial_gaussians, load_source
-    from plantdreamer.traits.occlusion import LeafOcclusion, SplatArrays
+    from plantdreamer.traits.occlusion import LeafOcclusion
 
     cfg = GenerateConfig.of(species="bean", seed=1, points=4000)
     source = load_source(cfg.source, cfg.seed, surface=True)
     g = initial_gaussians(cfg.init, source, cfg.seed)
     model, label_set = GaussianModel(g), LabelSet.of(g.labels)
     splats = Splats.of(model)
-    occlusion = LeafOcclusion(SplatArrays(splats.means, splats.quats, splats.scales,
-                                          splats.opacities, g.labels[:, 1], g.labels[:, 0] == 1))  # fmt: skip
+    occlusion = LeafOcclusion(g.labels[:, 1], g.labels[:, 0] == 1)
     for azimuth in (0.0, 130.0):
         camera = orbit(4.0, 15.0, azimuth, 70.0, 192, 160)
         _, _, meta = model.render([camera], 0.0)
         gt = GroundTruthRenderer(model, label_set)(camera, meta)
         ids = np.r_[label_set.instances, -1][gt.instance]
-        record = occlusion.view(camera, ids, meta)
+        record = occlusion.view(ids, meta["state"])
         assert len(record) > 20 and set(record) == set(np.unique(ids[ids >= 0]).tolist())
         viewmats, ks = stack([camera])
         for leaf, (alone, visible) in record.items():
@@ -111,6 +109,39 @@ def test_leaves_sharing_a_render_are_each_alone_as_in_a_render_of_their_own():
             assert [alone, visible] == [silhouette.sum(), (silhouette & (ids == leaf)).sum()]
         # Some leaves are partly hidden, and none shows more of itself than it has.
         assert any(v < a for a, v in record.values())
+
+
+def test_group_coverage_names_its_bad_arrays():
+    from plantdreamer import _core
+    from plantdreamer.errors import InputError
+
+    camera = orbit(4.0, 0.0, 0.0, 40.0, 24, 16)
+    viewmats, ks = stack([camera])
+    n = 5
+    scene = {"means": np.zeros((n, 3), np.float32), "quats": np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+             "scales": np.full((n, 3), 0.1, np.float32), "opacities": np.full(n, 0.9, np.float32),
+             "colors": np.ones((n, 1), np.float32), "viewmats": viewmats, "Ks": ks, "width": 24,
+             "height": 16}  # fmt: skip
+    (out,) = _core.rasterize_forward_many([scene])
+    ok = {"groups": np.zeros(n, np.int32), "labels": np.zeros((16, 24), np.int32),
+          "group_labels": np.zeros(1, np.int32)}  # fmt: skip
+    alone, visible = _core.group_coverage(out["state"], **ok, alpha_threshold=0.5)
+    assert alone[0] == (out["alpha"] >= 0.5).sum() > 0 and visible[0] == alone[0]
+    bad = [({"groups": np.zeros(n, np.int64)}, "groups must be a numpy array of int32"),
+           ({"groups": np.zeros(n - 1, np.int32)}, "groups has 4 entries for 5 Gaussians"),
+           ({"groups": np.full(n, -2, np.int32)}, "group -2 is neither -1"),
+           ({"groups": np.ones(n, np.int32)}, "group 1 is neither -1"),
+           ({"labels": np.zeros((24, 16), np.int32)}, r"labels must have shape \[16, 24\]"),
+           ({"labels": np.zeros((16, 24), np.int64)}, "labels must be a numpy array of int32")]  # fmt: skip
+    for change, message in bad:
+        with pytest.raises(InputError, match=message):
+            _core.group_coverage(out["state"], **{**ok, **change}, alpha_threshold=0.5)
+    with pytest.raises(InputError, match="alpha threshold"):
+        _core.group_coverage(out["state"], **ok, alpha_threshold=1.5)
+    with pytest.raises(InputError, match="camera 1 of a pass of 1"):
+        _core.group_coverage(out["state"], **ok, alpha_threshold=0.5, camera=1)
+    with pytest.raises(TypeError):
+        _core.group_coverage(scene, **ok, alpha_threshold=0.5)  # not a pass's state
 
 
 def test_map_figures_count_leaves_by_area_and_measure_the_plant():

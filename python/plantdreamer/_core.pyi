@@ -14,6 +14,7 @@ __all__ = [
     "check_ply_vertex",
     "downsample_to_count",
     "eval_sh",
+    "group_coverage",
     "info",
     "knn",
     "knn_mean_distance",
@@ -39,6 +40,21 @@ def info() -> dict[str, Any]: ...
 def large_gaussian_mask(
     log_scales: npt.NDArray[np.float32], c: float = 3.0
 ) -> tuple[npt.NDArray[np.bool_], dict[str, float]]: ...
+
+# Each group's silhouette alone in one camera of a forward pass (crates/pyplant/src/
+# coverage.rs): state from a rasterize_forward_many result; returns (alone, visible)
+# pixel counts per group.
+def group_coverage(
+    state: RasterState,
+    groups: npt.NDArray[np.int32],
+    labels: npt.NDArray[np.int32],
+    group_labels: npt.NDArray[np.int32],
+    *,
+    alpha_threshold: float,
+    camera: int | None = None,
+    tile_size: int | None = None,
+    threads: int | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]: ...
 
 # --- point clouds and PLY (crates/pyplant/src/{ply,pointcloud}.rs) ---
 def read_ply_vertex(

@@ -199,7 +199,8 @@ def rasterization(
         grad when any input does: after ``backward`` its ``.grad`` is dL/d(means2d)),
         "depths" [C, N] camera-space z, "n_visible" [C] int64 (Gaussians kept after
         culling), "n_intersections" [C] int64 (tile-Gaussian pairs), "width", "height",
-        "tile_size", "n_cameras", "render_mode", "profile" (native seconds per stage).
+        "tile_size", "n_cameras", "render_mode", "profile" (native seconds per stage),
+        "state" (the native pass, opaque: ``_core.group_coverage`` reuses its projection).
     """
     kwargs = dict(
         means=means, quats=quats, scales=scales, opacities=opacities, colors=colors,
@@ -434,6 +435,9 @@ class _Call:
             "n_cameras": self.n_cameras,
             "render_mode": self.render_mode,
             "profile": dict(native["profile"]),
+            # The native pass itself (its projection and depth order, which a view's leaf
+            # occlusion reuses: ``_core.group_coverage``); kept alive by whoever holds it.
+            "state": native["state"],
         }
         return render.to(device), alpha.to(device), meta
 

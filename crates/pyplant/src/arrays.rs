@@ -47,9 +47,20 @@ pub(crate) fn f32_view<'py>(
     obj: &Bound<'py, PyAny>,
     ndim: usize,
 ) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    typed_view(name, obj, ndim, "float32")
+}
+
+/// A C-contiguous numpy array of `T` (`dtype`, named in the error) with the given number
+/// of dimensions, borrowed (no copy).
+pub(crate) fn typed_view<'py, T: numpy::Element>(
+    name: &str,
+    obj: &Bound<'py, PyAny>,
+    ndim: usize,
+    dtype: &str,
+) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
     let arr = obj
-        .cast::<PyArrayDyn<f32>>()
-        .map_err(|_| InputError::new_err(format!("{name} must be a float32 numpy array")))?;
+        .cast::<PyArrayDyn<T>>()
+        .map_err(|_| InputError::new_err(format!("{name} must be a numpy array of {dtype}")))?;
     if arr.ndim() != ndim {
         return Err(InputError::new_err(format!(
             "{name} must have {ndim} dimensions, got shape {:?}",
@@ -63,8 +74,11 @@ pub(crate) fn f32_view<'py>(
     Ok(arr.readonly())
 }
 
-/// The flat data of an array from `f32_view`.
-pub(crate) fn flat<'a>(name: &str, view: &'a PyReadonlyArrayDyn<'_, f32>) -> PyResult<&'a [f32]> {
+/// The flat data of an array from `f32_view` or `typed_view`.
+pub(crate) fn flat<'a, T: numpy::Element>(
+    name: &str,
+    view: &'a PyReadonlyArrayDyn<'_, T>,
+) -> PyResult<&'a [T]> {
     view.as_slice()
         .map_err(|_| InputError::new_err(format!("{name} must be C-contiguous")))
 }

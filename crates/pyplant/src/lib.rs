@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 mod arrays;
+mod coverage;
 mod culling;
 mod errors;
 mod ints;
@@ -50,6 +51,7 @@ fn core_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     pointcloud::register(m)?;
     m.add_function(wrap_pyfunction!(info, m)?)?;
     culling::register(m)?;
+    coverage::register(m)?;
     raster::register(m)?;
     sh::register(m)?;
     Ok(())

@@ -274,6 +274,7 @@ def _write_exports(
     total = LabelReport()
     annotation_ids = itertools.count(1)  # unique across the splits' files
     recorded = {p.id: plant_records(p.folder) for p in labelled}
+    without: list[str] = []  # plants with no traits.json
     for split in SPLITS:
         coco = CocoBuilder(things, annotation_ids, licenses=licenses)
         report, counts = LabelReport(), []
@@ -299,7 +300,8 @@ def _write_exports(
         info = {**coco_fields, **report.info(f"{split} split", min_area, options.stuff)}
         coco.write(stage / "coco" / f"{split}.json", info)
         write_counts(stage / COUNTS_DIR / f"{split}.csv", ("file_name", "plant_id"), counts)
-        _write_traits(stage / TRAITS_DIR, split, [p for p in plants if split_of[p.id] == split])
+        in_split = [p for p in plants if split_of[p.id] == split]
+        without += _write_traits(stage / TRAITS_DIR, split, in_split)
         total += report
     yolo.write_data_yaml(yolo_dir / "data.yaml", {s: f"images/{s}" for s in SPLITS}, things)
     if classes.remapped:
@@ -307,7 +309,6 @@ def _write_exports(
             f"class ids of {', '.join(classes.remapped)} renumbered by class name "
             f"({', '.join(f'{i} {n}' for i, n in classes.names.items())})"
         )
-    without = [p.id for p in plants if not (p.folder / TRAITS_FILE).is_file()]
     if without:  # made before traits.json was written: their rows are missing
         warnings.append(
             f"{len(without)} plant(s) have no {TRAITS_FILE} ({', '.join(without[:5])}"
@@ -335,18 +336,21 @@ def _scene_splits(scenes: list[PlantEntry], splits: dict[str, list[str]]) -> dic
     return cut
 
 
-def _write_traits(folder: Path, split: str, plants: list[PlantEntry]) -> None:
+def _write_traits(folder: Path, split: str, plants: list[PlantEntry]) -> list[str]:
     """``traits/<split>.csv``, one row per plant of the split with a traits.json, and
-    ``traits/<split>_leaves.csv``, one row per leaf of theirs."""
-    rows, leaves = [], []
+    ``traits/<split>_leaves.csv``, one row per leaf of theirs; returns the ids of the
+    plants without one."""
+    rows, leaves, without = [], [], []
     for p in plants:
         record = read_traits(p.folder)
         if record is None:
+            without.append(p.id)
             continue
         rows.append({"plant_id": p.id, **plant_row(record)})
         leaves += [{"plant_id": p.id, **leaf} for leaf in leaf_rows(record)]
     write_table(folder / f"{split}.csv", ("plant_id", *PLANT_COLUMNS), rows)
     write_table(folder / f"{split}_leaves.csv", ("plant_id", *LEAF_COLUMNS), leaves)
+    return without
 
 
 def _inside(folder: Path, dataset_dir: Path) -> bool:

@@ -28,7 +28,6 @@ from plantdreamer.pipeline.settings.config import GenerateConfig
 from plantdreamer.pipeline.state.checkpoint import CHECKPOINT_NAME
 from plantdreamer.pipeline.state.run_state import RunState
 from plantdreamer.pipeline.truth.dataset_export import ground_truth_writer, render_views
-from plantdreamer.pipeline.truth.ground_truth import Splats
 from plantdreamer.traits import TRAITS_FILE, write_traits
 from plantdreamer.traits.record import run_traits, view_recorder
 from plantdreamer.versions import package_versions
@@ -101,9 +100,8 @@ def export_run(
         cameras, eval_distance = plan.cameras, plan.orbit_distance
         writer = ground_truth_writer(out, view_model, state.transform, oc.labels, class_names)
         labels = None if view_model.labels is None else view_model.labels.numpy()
-        splats = Splats.of(view_model)
         recorder = view_recorder(
-            (splats.means, splats.quats, splats.scales, splats.opacities),
+            view_model.params["means"].detach().numpy(),
             labels, class_names, state.transform.scale, oc.leaf_occlusion,
         )  # fmt: skip
 
@@ -123,12 +121,8 @@ def export_run(
                 )
                 return outputs.to_uint8(picture), meta
 
-            try:
-                render_views(view_model, writer, cameras, render, views.add, plan.records,
-                             observe=recorder.add)  # fmt: skip
-            except BaseException:
-                recorder.close()  # a stop or an error: the occlusion thread's views dropped
-                raise
+            render_views(view_model, writer, cameras, render, views.add, plan.records,
+                         observe=recorder.add)  # fmt: skip
         views.write_turntables(out)
     outputs.write_log_csv(out / "log.csv", state.log_rows)
     if stop_point is not None:

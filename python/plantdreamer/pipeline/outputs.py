@@ -67,9 +67,9 @@ class OutputsConfig:
     )
     leaf_occlusion: bool = setting(
         True,
-        "Render each view's visible leaves alone to measure how much of each the view "
-        "shows (traits.json, COCO's visible_fraction; docs/traits.md: about 8% of a "
-        "--guidance none run's CPU time).",
+        "Count each visible leaf's silhouette alone on each view's render pass, to "
+        "measure how much of it the view shows (traits.json, COCO's visible_fraction; "
+        "docs/traits.md: about 3% of a --guidance none run's CPU time).",
     )
     progress_every: int | None = setting(
         None,

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from plantdreamer.traits.files import FORMAT
-from plantdreamer.traits.occlusion import LeafOcclusion, SplatArrays
+from plantdreamer.traits.occlusion import LeafOcclusion
 from plantdreamer.traits.points import (
     gaussian_traits,
     leaf_class_ids,
@@ -103,26 +103,25 @@ def run_traits(
 
 
 def view_recorder(
-    splats: tuple[Any, Any, Any, Any],
+    means: np.ndarray,
     labels: np.ndarray | None,
     names: Mapping[int, str] | None,
     scale: float,
     occlusion: bool = True,
 ) -> ViewRecorder:
-    """A recorder of the views of activated Gaussians (means, quats, scales, opacities;
-    the scene frame, ``scale`` scene units per input unit) with their ``labels``;
-    ``occlusion``: measure each visible leaf's (``traits.occlusion``)."""
-    means = splats[0]
+    """A recorder of the views of Gaussians (``means`` [N, 3] in the scene frame, ``scale``
+    scene units per input unit; the renders the views' ``meta`` come from) with their
+    ``labels``; ``occlusion``: measure each visible leaf's (``traits.occlusion``)."""
     centre = None
     if len(means):
         keep = np.ones(len(means), dtype=bool)
         if labels is not None:
             keep = np.isin(labels[:, 0], plant_class_ids(np.unique(labels[:, 0]), names))
         if keep.any():
-            centre = means.detach().numpy()[keep].astype(np.float64).mean(axis=0)
+            centre = np.asarray(means)[keep].astype(np.float64).mean(axis=0)
     leaves = None
     if labels is not None and occlusion:
         leaf_ids = leaf_class_ids(np.unique(labels[:, 0]), names)
         leaf = np.ones(len(labels), bool) if leaf_ids is None else np.isin(labels[:, 0], leaf_ids)
-        leaves = LeafOcclusion(SplatArrays(*splats, labels[:, 1], leaf))
+        leaves = LeafOcclusion(labels[:, 1], leaf)
     return ViewRecorder(leaves, centre, scale)

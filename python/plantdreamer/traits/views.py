@@ -10,7 +10,6 @@ them with its own ``--min-instance-area``; the rendered ones are kept in traits.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -37,53 +36,27 @@ class ViewObjectsLike(Protocol):
 
 class ViewRecorder:
     """Collects each view's rendered figures while generate renders its views. A view's
-    leaf occlusion is measured on a thread of its own (the rasterizer releases the GIL)
-    while the run goes on to write the view's maps and render the next; at most
-    ``PENDING`` views wait, and ``views`` waits for them all."""
-
-    PENDING = 2
+    leaf occlusion is measured as the view is added, on the rasterizer's own pool: beside
+    the run, on a thread of its own, it cost the 2-core machine more than it hid
+    (BENCHMARKS.md, "Trait files")."""
 
     def __init__(self, occlusion: LeafOcclusion | None, centre: np.ndarray | None, scale: float):
         """``centre``: the plant's centre in the scene frame (None: no plant Gaussians);
         ``scale``: scene units per input unit."""
         self.occlusion, self.centre, self.scale = occlusion, centre, scale
-        self._records: list[dict[str, Any]] = []
-        self._pending: list[tuple[dict[str, Any], Future]] = []
-        self._pool = ThreadPoolExecutor(1, "leaf-occlusion") if occlusion is not None else None
+        self.views: list[dict[str, Any]] = []
 
     def add(self, name: str, camera: Camera, instance_map: np.ndarray | None, meta: dict) -> None:
-        """One view: ``instance_map``, its instance ids per pixel (-1: none)."""
+        """One view: ``instance_map``, its instance ids per pixel (-1: none); ``meta``, its
+        render's (the native pass, whose projection the occlusion reuses)."""
         record: dict[str, Any] = {
             "file_path": f"renders/{name}.png",
             "metres_per_pixel": metres_per_pixel(camera, self.centre, self.scale),
         }
-        self._records.append(record)
-        if self._pool is not None and self.occlusion is not None and instance_map is not None:
-            job = self._pool.submit(self.occlusion.view, camera, instance_map, meta)
-            self._pending.append((record, job))
-            while len(self._pending) > self.PENDING:
-                self._settle(*self._pending.pop(0))
-
-    @property
-    def views(self) -> list[dict[str, Any]]:
-        """Every view's record, once its occlusion is measured (an error there is raised
-        here)."""
-        while self._pending:
-            self._settle(*self._pending.pop(0))
-        if self._pool is not None:
-            self._pool.shutdown()
-        return self._records
-
-    def close(self) -> None:
-        """Drops the views still waiting (a stopped export): their thread ends with them."""
-        self._pending.clear()
-        if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
-
-    @staticmethod
-    def _settle(record: dict[str, Any], job: Future) -> None:
-        leaves = job.result()
-        record["leaves"] = {str(i): v for i, v in sorted(leaves.items())}
+        if self.occlusion is not None and instance_map is not None:
+            leaves = self.occlusion.view(instance_map, meta["state"])
+            record["leaves"] = {str(i): v for i, v in sorted(leaves.items())}
+        self.views.append(record)
 
 
 def metres_per_pixel(camera: Camera, centre: np.ndarray | None, scale: float) -> float | None:

@@ -90,17 +90,7 @@ pub fn blend(
                     None => list.gather(gids, splats, features, ch),
                 }
                 let rect = TileRect::new(t, bins, width, height);
-                pixel_boxes(&list.splats, &rect, &mut list.boxes);
-                let tile = TileInput {
-                    splats: &list.splats,
-                    boxes: &list.boxes,
-                    features: &list.features,
-                    rect,
-                    t_min,
-                    simd,
-                };
-                scratch.reset(&rect);
-                blend_tile(&tile, ch, scratch, count);
+                blend_list(list, rect, ch, (t_min, simd), scratch, count);
                 scratch.write_state(&rect, t_final, last);
                 scratch.write_image(ch, rrows, arows);
                 if count {
@@ -145,6 +135,29 @@ fn tile_rows<'a>(
         }
     }
     rows
+}
+
+/// Blends the gathered tile list `list` of the tile `rect` into `scratch` (reset first),
+/// with the stop rule `t_min` and the SIMD kernel where `simd` allows it.
+pub(super) fn blend_list(
+    list: &mut TileList,
+    rect: TileRect,
+    ch: usize,
+    (t_min, simd): (f32, bool),
+    scratch: &mut TileScratch,
+    count: bool,
+) {
+    pixel_boxes(&list.splats, &rect, &mut list.boxes);
+    let tile = TileInput {
+        splats: &list.splats,
+        boxes: &list.boxes,
+        features: &list.features,
+        rect,
+        t_min,
+        simd,
+    };
+    scratch.reset(&rect);
+    blend_tile(&tile, ch, scratch, count);
 }
 
 fn blend_tile(tile: &TileInput, ch: usize, scratch: &mut TileScratch, count: bool) {

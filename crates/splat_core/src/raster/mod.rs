@@ -17,6 +17,7 @@
 //! ```text
 //! eval_count                           blending work of a forward state (benchmarks)
 //! many_scenes                          many scenes' passes in one call (a group's plants)
+//! coverage                             each group's silhouette alone (a leaf's occlusion)
 //! forward_pass, backward_pass          whole passes over every camera
 //! backward_chain                       per-splat sums -> 3D parameter gradients
 //! forward_blend, backward_blend        per-camera blend drivers + scalar kernels
@@ -50,6 +51,7 @@ mod batch_lanes;
 mod blend_avx2;
 mod buffers;
 pub mod camera;
+mod coverage;
 mod depth_sort;
 mod eval_count;
 pub mod features;
@@ -75,6 +77,7 @@ mod tile_walk;
 
 pub use backward_pass::{backward, GradRequest, Gradients};
 pub use camera::Camera;
+pub use coverage::{group_coverage, Coverage, LabelMap};
 pub use eval_count::{count_evaluations, Evaluations};
 pub use forward_blend::{blend_kernel, Blended};
 pub use forward_pass::{
